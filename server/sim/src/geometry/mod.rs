@@ -1,0 +1,16 @@
+//! Surface geometry: the triangle mesh, import from files, validation, and the procedural
+//! organs used by the built-in scenes.
+
+pub mod import;
+mod mesh;
+pub mod organs;
+pub mod parry_adapter;
+pub mod predicates;
+pub mod topology;
+pub mod validate;
+
+pub use import::{ImportLimits, LengthUnit, MeshFormat, MeshImportError, import_mesh};
+pub use mesh::{TriMesh, angle_deg};
+pub use validate::{
+    MeshStats, MeshValidationError, MeshWarning, ValidatedMesh, ValidationOptions, validate,
+};

@@ -1,0 +1,99 @@
+//! The one place where parry3d's glam/f32 types meet our nalgebra/f64 ones.
+//!
+//! parry3d 0.31 uses glam (f32) for its math. Everything else in scalpel-sim uses nalgebra
+//! in f64, so conversions live here only. Boxes are widened by a relative margin when
+//! rounded to f32 so that candidate queries stay conservative.
+
+use parry3d::bounding_volume::Aabb as ParryAabb;
+use parry3d::math::Vector as GlamVec;
+use parry3d::partitioning::{Bvh, BvhBuildStrategy};
+
+use crate::geometry::TriMesh;
+use crate::math::Vec3;
+
+/// Rounds an f64 box outward to an f32 parry box.
+fn conservative_box(min: &Vec3, max: &Vec3) -> ParryAabb {
+    let widen = |v: f64| (v.abs() * 1e-6 + 1e-12) as f32;
+    let lo = GlamVec::new(
+        min.x as f32 - widen(min.x),
+        min.y as f32 - widen(min.y),
+        min.z as f32 - widen(min.z),
+    );
+    let hi = GlamVec::new(
+        max.x as f32 + widen(max.x),
+        max.y as f32 + widen(max.y),
+        max.z as f32 + widen(max.z),
+    );
+    ParryAabb::new(lo, hi)
+}
+
+/// Bounding-volume hierarchy over a mesh's triangles, for box queries.
+pub struct TriangleBvh {
+    bvh: Bvh,
+}
+
+impl TriangleBvh {
+    /// Builds the hierarchy over all triangles of `mesh`.
+    pub fn build(mesh: &TriMesh) -> Self {
+        let leaves: Vec<ParryAabb> = (0..mesh.triangles.len())
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t);
+                let lo = a.inf(&b).inf(&c);
+                let hi = a.sup(&b).sup(&c);
+                conservative_box(&lo, &hi)
+            })
+            .collect();
+        Self {
+            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
+        }
+    }
+
+    /// Calls `f` with the index of every triangle whose box overlaps `[min, max]`
+    /// (conservatively: a few extra candidates are possible, none are missed).
+    pub fn for_each_overlapping(&self, min: &Vec3, max: &Vec3, mut f: impl FnMut(usize)) {
+        let query = conservative_box(min, max);
+        for leaf in self.bvh.intersect_aabb(&query) {
+            f(leaf as usize);
+        }
+    }
+}
+
+/// Convex hull of points (used to triangulate a sphere point set). Returns triangles that
+/// index into `points`; `None` when the hull does not use every point exactly once.
+pub fn convex_hull_of(points: &[Vec3]) -> Option<Vec<[u32; 3]>> {
+    let glam: Vec<GlamVec> = points
+        .iter()
+        .map(|p| GlamVec::new(p.x as f32, p.y as f32, p.z as f32))
+        .collect();
+    let (hull_pts, hull_tris) = parry3d::transformation::try_convex_hull(&glam).ok()?;
+    if hull_pts.len() != points.len() {
+        return None;
+    }
+    // The hull renumbers its vertices but copies their coordinates bit for bit, so the bit
+    // patterns map each hull vertex back to its input point.
+    let key = |p: &GlamVec| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    let index: std::collections::HashMap<[u32; 3], u32> = glam
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (key(p), i as u32))
+        .collect();
+    if index.len() != points.len() {
+        return None;
+    }
+    let map: Vec<u32> = hull_pts
+        .iter()
+        .map(|hp| index.get(&key(hp)).copied())
+        .collect::<Option<_>>()?;
+    let mut seen = vec![false; points.len()];
+    for &m in &map {
+        if std::mem::replace(&mut seen[m as usize], true) {
+            return None;
+        }
+    }
+    Some(
+        hull_tris
+            .iter()
+            .map(|t| [map[t[0] as usize], map[t[1] as usize], map[t[2] as usize]])
+            .collect(),
+    )
+}

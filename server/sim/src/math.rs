@@ -1,0 +1,77 @@
+//! Small math vocabulary shared by every module: f64 vectors (SI units) and axis-aligned boxes.
+
+use nalgebra::{Matrix3, Vector3};
+use serde::Serialize;
+
+/// A 3-vector in double precision. Positions are in metres unless a name says otherwise.
+pub type Vec3 = Vector3<f64>;
+/// A 3×3 matrix in double precision.
+pub type Mat3 = Matrix3<f64>;
+
+/// Axis-aligned bounding box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Aabb {
+    /// Minimum corner.
+    pub min: [f64; 3],
+    /// Maximum corner.
+    pub max: [f64; 3],
+}
+
+impl Aabb {
+    /// The empty box: `grow` with any point gives that point.
+    pub const EMPTY: Aabb = Aabb {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    /// Smallest box around `points`; [`Aabb::EMPTY`] for no points.
+    pub fn around<'a>(points: impl IntoIterator<Item = &'a Vec3>) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for p in points {
+            b.grow(p);
+        }
+        b
+    }
+
+    /// Extends the box to contain `p`.
+    pub fn grow(&mut self, p: &Vec3) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
+        }
+    }
+
+    /// Edge lengths.
+    pub fn size(&self) -> Vec3 {
+        Vec3::new(
+            self.max[0] - self.min[0],
+            self.max[1] - self.min[1],
+            self.max[2] - self.min[2],
+        )
+    }
+
+    /// Minimum corner as a vector.
+    pub fn min_v(&self) -> Vec3 {
+        Vec3::from(self.min)
+    }
+
+    /// Maximum corner as a vector.
+    pub fn max_v(&self) -> Vec3 {
+        Vec3::from(self.max)
+    }
+
+    /// Centre point.
+    pub fn center(&self) -> Vec3 {
+        (self.min_v() + self.max_v()) * 0.5
+    }
+
+    /// Length of the diagonal.
+    pub fn diagonal(&self) -> f64 {
+        self.size().norm()
+    }
+
+    /// True when no point has been added.
+    pub fn is_empty(&self) -> bool {
+        (0..3).any(|a| self.min[a] > self.max[a])
+    }
+}
