@@ -52,7 +52,7 @@ pub fn mesh_organ(shape: &OrganShape, vertices: usize, iterations: usize) -> Tri
     // Edge length of an equilateral triangulation of the same area with the target count.
     let target_triangles = (2 * vertices - 4) as f64;
     let length = (4.0 * mesh.area() / (3f64.sqrt() * target_triangles)).sqrt();
-    let mut remesher = Remesher { shape, h, length };
+    let remesher = Remesher { shape, h };
     for _ in 0..8 {
         remesher.split_long_edges(&mut mesh, 4.0 / 3.0 * length, usize::MAX);
         remesher.collapse_short_edges(&mut mesh, 0.8 * length, usize::MAX, 4.0 / 3.0 * length);
@@ -93,11 +93,10 @@ pub fn mesh_organ(shape: &OrganShape, vertices: usize, iterations: usize) -> Tri
     mesh
 }
 
-/// Edge splits and collapses on an implicit surface, toward a target edge length.
+/// Edge splits and collapses on an implicit surface.
 struct Remesher<'a> {
     shape: &'a OrganShape,
     h: f64,
-    length: f64,
 }
 
 impl Remesher<'_> {

@@ -1,0 +1,162 @@
+//! Surface vertices embedded in the meshless field (physics.md §5.3): each vertex follows
+//! `x_v = Σ_k ŵ_vk (p_k + F_k (X_v − X_k))` over the interior points k within the support
+//! radius of its rest position, with normalised kernel weights. A point only counts if the
+//! rest segment from the vertex to it does not pass through the surface, so a vertex never
+//! couples to tissue across a fold or a gap.
+
+use serde::Serialize;
+
+use super::neighbours::{Kernel, RestGrid};
+use crate::geometry::TriMesh;
+use crate::geometry::parry_adapter::TriangleBvh;
+use crate::geometry::predicates::segment_crosses_triangle;
+use crate::math::Vec3;
+
+/// Embedding weights of every surface vertex, in compressed rows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceEmbedding {
+    /// `points[start[v]..start[v + 1]]` are the interior points vertex v follows.
+    pub start: Vec<u32>,
+    /// Interior point indices.
+    pub points: Vec<u32>,
+    /// Normalised weights, summing to 1 per vertex.
+    pub weights: Vec<f64>,
+    /// Vertices whose support had to be widened to find a visible point.
+    pub widened: usize,
+}
+
+/// How well the surface is tied to the interior.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct EmbeddingStats {
+    /// Fewest points any vertex follows.
+    pub min_points: usize,
+    /// Mean points per vertex.
+    pub mean_points: f64,
+    /// Vertices that needed a widened support.
+    pub widened: usize,
+}
+
+impl SurfaceEmbedding {
+    /// Embeds every vertex of `surface` in the points at `positions`.
+    pub fn build(surface: &TriMesh, positions: &[Vec3], grid: &RestGrid, kernel: &Kernel) -> Self {
+        let bvh = TriangleBvh::build(surface);
+        let mut incident: Vec<Vec<u32>> = vec![Vec::new(); surface.positions.len()];
+        for (t, tri) in surface.triangles.iter().enumerate() {
+            for &v in tri {
+                incident[v as usize].push(t as u32);
+            }
+        }
+        let mut start = vec![0u32];
+        let mut points = Vec::new();
+        let mut weights = Vec::new();
+        let mut widened = 0;
+        let mut found: Vec<(u32, f64)> = Vec::new();
+        for (v, x) in surface.positions.iter().enumerate() {
+            let mut radius = kernel.support_m;
+            for attempt in 0..4 {
+                found.clear();
+                let wider = Kernel { support_m: radius };
+                grid.for_each_within(positions, x, radius, |k, d2| {
+                    let w = wider.weight_sq(d2);
+                    if w > 0.0 && visible(surface, &bvh, &incident[v], x, &positions[k as usize]) {
+                        found.push((k, w));
+                    }
+                });
+                if !found.is_empty() {
+                    if attempt > 0 {
+                        widened += 1;
+                    }
+                    break;
+                }
+                radius *= 1.5;
+            }
+            if found.is_empty() {
+                // No visible point within 3.4 h: follow the nearest point rigidly.
+                let nearest = positions
+                    .iter()
+                    .enumerate()
+                    .min_by(|a, b| {
+                        (a.1 - x)
+                            .norm_squared()
+                            .total_cmp(&(b.1 - x).norm_squared())
+                    })
+                    .map(|(k, _)| k as u32);
+                if let Some(k) = nearest {
+                    found.push((k, 1.0));
+                }
+                widened += 1;
+            }
+            found.sort_unstable_by_key(|(k, _)| *k);
+            let total: f64 = found.iter().map(|(_, w)| w).sum();
+            for &(k, w) in &found {
+                points.push(k);
+                weights.push(w / total);
+            }
+            start.push(points.len() as u32);
+        }
+        Self {
+            start,
+            points,
+            weights,
+            widened,
+        }
+    }
+
+    /// The points and weights vertex `v` follows.
+    pub fn of(&self, v: usize) -> (&[u32], &[f64]) {
+        let r = self.start[v] as usize..self.start[v + 1] as usize;
+        (&self.points[r.clone()], &self.weights[r])
+    }
+
+    /// Summary for reports.
+    pub fn stats(&self) -> EmbeddingStats {
+        let n = self.start.len() - 1;
+        let counts = (0..n).map(|v| (self.start[v + 1] - self.start[v]) as usize);
+        EmbeddingStats {
+            min_points: counts.clone().min().unwrap_or(0),
+            mean_points: if n == 0 {
+                0.0
+            } else {
+                self.points.len() as f64 / n as f64
+            },
+            widened: self.widened,
+        }
+    }
+
+    /// Positions of the vertices when the points are at `current` and have deformation
+    /// gradients given by `gradient(k)`. At rest (current = rest, F = I) this returns the
+    /// rest positions exactly up to rounding.
+    pub fn vertex_position(
+        &self,
+        v: usize,
+        rest_vertex: &Vec3,
+        rest: &[Vec3],
+        current: &[Vec3],
+        gradient: impl Fn(usize) -> crate::math::Mat3,
+    ) -> Vec3 {
+        let (pts, ws) = self.of(v);
+        pts.iter()
+            .zip(ws)
+            .map(|(&k, &w)| {
+                let k = k as usize;
+                (current[k] + gradient(k) * (rest_vertex - rest[k])) * w
+            })
+            .sum()
+    }
+}
+
+/// Whether the rest segment from a surface vertex to a point stays clear of the surface.
+fn visible(surface: &TriMesh, bvh: &TriangleBvh, own: &[u32], x: &Vec3, p: &Vec3) -> bool {
+    let lo = x.inf(p);
+    let hi = x.sup(p);
+    let mut clear = true;
+    bvh.for_each_overlapping(&lo, &hi, |t| {
+        if clear
+            && !own.contains(&(t as u32))
+            && segment_crosses_triangle(x, p, &surface.corners(t))
+        {
+            clear = false;
+        }
+    });
+    clear
+}

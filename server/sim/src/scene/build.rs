@@ -1,0 +1,108 @@
+//! From a scene description to a built model: load or generate the surface, place it,
+//! validate it, sample the interior.
+
+use thiserror::Error;
+
+use super::{MeshSource, SceneSpec};
+use crate::geometry::{
+    MeshFormat, MeshImportError, MeshStats, MeshValidationError, MeshWarning, ValidationOptions,
+    import_mesh, validate,
+};
+use crate::model::{CoupledModel, ModelBuildError};
+use crate::progress::{BuildObserver, BuildStage};
+
+/// A scene ready to simulate.
+#[derive(Debug, Clone)]
+pub struct BuiltScene {
+    /// What was asked for.
+    pub spec: SceneSpec,
+    /// Repairs and observations made on the surface.
+    pub mesh_warnings: Vec<MeshWarning>,
+    /// Measures of the validated surface.
+    pub mesh_stats: MeshStats,
+    /// The coupled model.
+    pub model: CoupledModel,
+}
+
+/// Why a scene could not be built.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum SceneBuildError {
+    /// The mesh file could not be read.
+    #[error(transparent)]
+    Import(#[from] MeshImportError),
+    /// The surface was rejected.
+    #[error(transparent)]
+    Validate(#[from] MeshValidationError),
+    /// The interior could not be sampled.
+    #[error("scene '{scene}': {error}")]
+    Model {
+        /// Scene name.
+        scene: String,
+        /// The model error.
+        error: ModelBuildError,
+    },
+    /// The scene names a mesh file, but no bytes were given for it.
+    #[error("scene '{scene}': its mesh is the file {path}; read the file and pass its bytes")]
+    MissingMeshBytes {
+        /// Scene name.
+        scene: String,
+        /// The file.
+        path: String,
+    },
+}
+
+/// Builds `spec`. For a file mesh, `mesh_bytes` holds the file's content (the sim does no
+/// I/O); for a built-in shape it is ignored.
+pub fn build_scene(
+    spec: &SceneSpec,
+    mesh_bytes: Option<&[u8]>,
+    observer: &mut dyn BuildObserver,
+) -> Result<BuiltScene, SceneBuildError> {
+    observer.stage(BuildStage::LoadMesh);
+    let (mut mesh, source) = match &spec.mesh.source {
+        MeshSource::Builtin(shape) => (shape.generate(), format!("builtin:{}", shape.name())),
+        MeshSource::File(path) => {
+            let name = path.display().to_string();
+            let bytes = mesh_bytes.ok_or_else(|| SceneBuildError::MissingMeshBytes {
+                scene: spec.name.clone(),
+                path: name.clone(),
+            })?;
+            let format = MeshFormat::from_file_name(&name)?;
+            let mesh = import_mesh(bytes, format, &name, spec.mesh.units, &spec.mesh.limits)?;
+            (mesh, name)
+        }
+    };
+    let transform = spec.mesh.transform;
+    if !transform.is_identity() {
+        mesh.map_positions(|p| transform.apply(&p));
+        if transform.mirrors() {
+            // A mirror turns the winding inside out; undo that so validation sees no inversion.
+            mesh.flip_all();
+        }
+    }
+
+    observer.stage(BuildStage::Validate);
+    let options = ValidationOptions {
+        max_triangles: spec.mesh.limits.max_triangles,
+        check_self_intersections: spec.mesh.check_self_intersections,
+    };
+    let validated = validate(mesh, &source, &options)?;
+
+    let model = CoupledModel::build(
+        validated.mesh,
+        &spec.sampling,
+        spec.material.density_kg_m3,
+        observer,
+    )
+    .map_err(|error| SceneBuildError::Model {
+        scene: spec.name.clone(),
+        error,
+    })?;
+    Ok(BuiltScene {
+        spec: spec.clone(),
+        mesh_warnings: validated.warnings,
+        mesh_stats: validated.stats,
+        model,
+    })
+}

@@ -1,0 +1,525 @@
+//! Scene files (TOML). Every key is optional except a mesh source; unknown keys are
+//! rejected, and every value is range-checked with a message that names the key. A file may
+//! start from a built-in scene with `extends = "liver"` and change only what it lists.
+//! The keys are documented in docs/SCENES.md.
+
+use std::path::Path;
+
+use serde::Deserialize;
+use thiserror::Error;
+
+use super::{BuiltinMesh, MeshSource, SceneSpec, builtin, for_mesh_file};
+use crate::geometry::LengthUnit;
+use crate::model::{MAX_POINTS, SpacingRule};
+
+/// Why a scene file was rejected.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum SceneError {
+    /// Not valid TOML, a key of the wrong type, or an unknown key.
+    #[error("{file}: {message}")]
+    Parse {
+        /// Scene file.
+        file: String,
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A value is out of range or inconsistent with another.
+    #[error("{file}: {key}: {message}")]
+    Invalid {
+        /// Scene file.
+        file: String,
+        /// Dotted key, e.g. `material.poisson_ratio`.
+        key: String,
+        /// What is wrong and what is allowed.
+        message: String,
+    },
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    name: Option<String>,
+    description: Option<String>,
+    extends: Option<String>,
+    mesh: Option<RawMesh>,
+    material: Option<RawMaterial>,
+    sampling: Option<RawSampling>,
+    features: Option<RawFeatures>,
+    tool: Option<RawTool>,
+    force: Option<RawForce>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMesh {
+    builtin: Option<String>,
+    file: Option<String>,
+    units: Option<LengthUnit>,
+    scale: Option<Scale>,
+    rotate_deg: Option<[f64; 3]>,
+    translate_mm: Option<[f64; 3]>,
+    max_triangles: Option<usize>,
+    max_file_mb: Option<f64>,
+    check_self_intersections: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum Scale {
+    Uniform(f64),
+    PerAxis([f64; 3]),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMaterial {
+    youngs_modulus_kpa: Option<f64>,
+    poisson_ratio: Option<f64>,
+    density_kg_m3: Option<f64>,
+    damping_per_s: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSampling {
+    spacing_mm: Option<f64>,
+    target_points: Option<usize>,
+    support_ratio: Option<f64>,
+    min_cell_fraction: Option<f64>,
+    neighbour_headroom: Option<usize>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFeatures {
+    cutting: Option<bool>,
+    haptics: Option<bool>,
+    virtual_points: Option<bool>,
+    ripple: Option<bool>,
+    volume_term: Option<bool>,
+    stiff_mode: Option<bool>,
+    frames: Option<bool>,
+    observers: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTool {
+    blade_length_mm: Option<f64>,
+    blade_width_mm: Option<f64>,
+    blade_thickness_mm: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawForce {
+    rupture_force_n: Option<f64>,
+    rupture_displacement_mm: Option<f64>,
+    toughness_n_per_mm: Option<f64>,
+    friction_n: Option<f64>,
+    ripple_amplitude: Option<f64>,
+    ripple_wavelength_mm: Option<f64>,
+    ripple_decay_s: Option<f64>,
+    max_force_n: Option<f64>,
+}
+
+/// Checks values against ranges and names the key on failure.
+struct Checker<'a> {
+    file: &'a str,
+}
+
+impl Checker<'_> {
+    fn fail(&self, key: &str, message: impl Into<String>) -> SceneError {
+        SceneError::Invalid {
+            file: self.file.to_string(),
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// `value` must be finite and in `[lo, hi]` (or `(lo, hi]` when `open_lo`).
+    fn range(
+        &self,
+        key: &str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+        open_lo: bool,
+        unit: &str,
+    ) -> Result<f64, SceneError> {
+        let ok = value.is_finite() && value <= hi && if open_lo { value > lo } else { value >= lo };
+        if ok {
+            Ok(value)
+        } else {
+            let bracket = if open_lo { "(" } else { "[" };
+            Err(self.fail(
+                key,
+                format!("{value} {unit} is out of range; allowed {bracket}{lo}, {hi}] {unit}"),
+            ))
+        }
+    }
+}
+
+impl SceneSpec {
+    /// Reads a scene from TOML `text`. `path` is the scene file: it names the file in messages
+    /// and relative mesh paths are resolved against its folder.
+    pub fn from_toml(text: &str, path: &Path) -> Result<SceneSpec, SceneError> {
+        let file = path.display().to_string();
+        let raw: RawScene = toml::from_str(text).map_err(|e| SceneError::Parse {
+            file: file.clone(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        let check = Checker { file: &file };
+
+        let mut spec = match &raw.extends {
+            Some(name) => builtin(name).ok_or_else(|| {
+                check.fail(
+                    "extends",
+                    format!(
+                        "'{name}' is not a built-in scene; choose one of {}",
+                        super::BUILTIN_SCENES.join(", ")
+                    ),
+                )
+            })?,
+            None => for_mesh_file(Default::default(), LengthUnit::M),
+        };
+        spec.name = raw.name.clone().unwrap_or_else(|| {
+            path.file_stem()
+                .and_then(|s| s.to_str())
+                .unwrap_or("scene")
+                .to_string()
+        });
+        if let Some(d) = raw.description {
+            spec.description = d;
+        } else if raw.extends.is_none() {
+            spec.description = format!("scene file {file}");
+        }
+
+        apply_mesh(
+            &mut spec,
+            raw.mesh.as_ref(),
+            raw.extends.is_some(),
+            path,
+            &check,
+        )?;
+        if let Some(m) = &raw.material {
+            let mat = &mut spec.material;
+            if let Some(e) = m.youngs_modulus_kpa {
+                mat.youngs_modulus_pa =
+                    check.range("material.youngs_modulus_kpa", e, 0.0, 1.0e6, true, "kPa")? * 1e3;
+            }
+            if let Some(nu) = m.poisson_ratio {
+                if nu >= 0.5 && nu.is_finite() {
+                    return Err(check.fail(
+                        "material.poisson_ratio",
+                        format!(
+                            "{nu} makes the material incompressible (λ = ∞); use at most 0.499"
+                        ),
+                    ));
+                }
+                mat.poisson_ratio =
+                    check.range("material.poisson_ratio", nu, 0.0, 0.499, false, "")?;
+            }
+            if let Some(rho) = m.density_kg_m3 {
+                mat.density_kg_m3 =
+                    check.range("material.density_kg_m3", rho, 100.0, 5000.0, false, "kg/m³")?;
+            }
+            if let Some(g) = m.damping_per_s {
+                mat.damping_per_s =
+                    check.range("material.damping_per_s", g, 0.0, 1000.0, false, "1/s")?;
+            }
+        }
+        if let Some(s) = &raw.sampling {
+            let p = &mut spec.sampling;
+            match (s.spacing_mm, s.target_points) {
+                (Some(_), Some(_)) => {
+                    return Err(
+                        check.fail("sampling", "give spacing_mm or target_points, not both")
+                    );
+                }
+                (Some(mm), None) => {
+                    p.spacing = SpacingRule::Spacing(
+                        check.range("sampling.spacing_mm", mm, 0.0, 1000.0, true, "mm")? * 1e-3,
+                    );
+                }
+                (None, Some(n)) => {
+                    if !(8..=MAX_POINTS).contains(&n) {
+                        return Err(check.fail(
+                            "sampling.target_points",
+                            format!("{n} is out of range; allowed 8 to {MAX_POINTS}"),
+                        ));
+                    }
+                    p.spacing = SpacingRule::TargetPoints(n);
+                }
+                (None, None) => {}
+            }
+            if let Some(r) = s.support_ratio {
+                p.support_ratio = check.range("sampling.support_ratio", r, 1.2, 4.0, false, "")?;
+            }
+            if let Some(f) = s.min_cell_fraction {
+                p.min_cell_fraction =
+                    check.range("sampling.min_cell_fraction", f, 0.0, 1.0, true, "")?;
+            }
+            if let Some(h) = s.neighbour_headroom {
+                if h > 256 {
+                    return Err(check.fail(
+                        "sampling.neighbour_headroom",
+                        format!("{h} is out of range; allowed 0 to 256"),
+                    ));
+                }
+                p.neighbour_headroom = h;
+            }
+        }
+        if let Some(f) = &raw.features {
+            let out = &mut spec.features;
+            let set = |slot: &mut bool, v: Option<bool>| {
+                if let Some(v) = v {
+                    *slot = v;
+                }
+            };
+            set(&mut out.cutting, f.cutting);
+            set(&mut out.haptics, f.haptics);
+            set(&mut out.virtual_points, f.virtual_points);
+            set(&mut out.ripple, f.ripple);
+            set(&mut out.volume_term, f.volume_term);
+            set(&mut out.stiff_mode, f.stiff_mode);
+            set(&mut out.frames, f.frames);
+            set(&mut out.observers, f.observers);
+        }
+        for (on, name) in [
+            (spec.features.virtual_points, "virtual_points"),
+            (spec.features.ripple, "ripple"),
+        ] {
+            if on && !spec.features.cutting {
+                return Err(check.fail(
+                    &format!("features.{name}"),
+                    "only makes sense with features.cutting = true",
+                ));
+            }
+        }
+        if let Some(t) = &raw.tool {
+            let tool = &mut spec.tool;
+            if let Some(v) = t.blade_length_mm {
+                tool.blade_length_m =
+                    check.range("tool.blade_length_mm", v, 0.0, 200.0, true, "mm")? * 1e-3;
+            }
+            if let Some(v) = t.blade_width_mm {
+                tool.blade_width_m =
+                    check.range("tool.blade_width_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
+            }
+            if let Some(v) = t.blade_thickness_mm {
+                tool.blade_thickness_m =
+                    check.range("tool.blade_thickness_mm", v, 0.0, 10.0, true, "mm")? * 1e-3;
+            }
+        }
+        if let Some(f) = &raw.force {
+            let force = &mut spec.force;
+            if let Some(v) = f.rupture_force_n {
+                force.rupture_force_n =
+                    check.range("force.rupture_force_n", v, 0.0, 100.0, true, "N")?;
+            }
+            if let Some(v) = f.rupture_displacement_mm {
+                force.rupture_displacement_m =
+                    check.range("force.rupture_displacement_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
+            }
+            if let Some(v) = f.toughness_n_per_mm {
+                force.toughness_n_per_m =
+                    check.range("force.toughness_n_per_mm", v, 0.0, 10.0, false, "N/mm")? * 1e3;
+            }
+            if let Some(v) = f.friction_n {
+                force.friction_n = check.range("force.friction_n", v, 0.0, 50.0, false, "N")?;
+            }
+            if let Some(v) = f.ripple_amplitude {
+                force.ripple_amplitude =
+                    check.range("force.ripple_amplitude", v, 0.0, 0.9, false, "")?;
+            }
+            if let Some(v) = f.ripple_wavelength_mm {
+                force.ripple_wavelength_m =
+                    check.range("force.ripple_wavelength_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
+            }
+            if let Some(v) = f.ripple_decay_s {
+                force.ripple_decay_s =
+                    check.range("force.ripple_decay_s", v, 0.0, 600.0, true, "s")?;
+            }
+            if let Some(v) = f.max_force_n {
+                force.max_force_n = check.range("force.max_force_n", v, 0.0, 100.0, true, "N")?;
+            }
+        }
+        Ok(spec)
+    }
+}
+
+fn apply_mesh(
+    spec: &mut SceneSpec,
+    raw: Option<&RawMesh>,
+    extends: bool,
+    path: &Path,
+    check: &Checker<'_>,
+) -> Result<(), SceneError> {
+    let Some(m) = raw else {
+        if extends {
+            return Ok(());
+        }
+        return Err(check.fail(
+            "mesh",
+            "no mesh: add a [mesh] table with `builtin = \"liver\"` or `file = \"organ.obj\"`, or `extends = \"liver\"`",
+        ));
+    };
+    match (&m.builtin, &m.file) {
+        (Some(_), Some(_)) => return Err(check.fail("mesh", "give `builtin` or `file`, not both")),
+        (Some(name), None) => {
+            let shape = BuiltinMesh::from_name(name).ok_or_else(|| {
+                let known: Vec<&str> = BuiltinMesh::ALL.iter().map(|b| b.name()).collect();
+                check.fail(
+                    "mesh.builtin",
+                    format!("unknown shape '{name}'; choose one of {}", known.join(", ")),
+                )
+            })?;
+            spec.mesh.source = MeshSource::Builtin(shape);
+        }
+        (None, Some(file)) => {
+            let base = path.parent().unwrap_or(Path::new(""));
+            spec.mesh.source = MeshSource::File(base.join(file));
+        }
+        (None, None) if !extends => {
+            return Err(check.fail(
+                "mesh",
+                "give `builtin = \"<shape>\"` or `file = \"<path>\"`",
+            ));
+        }
+        (None, None) => {}
+    }
+    if let Some(u) = m.units {
+        spec.mesh.units = u;
+    }
+    let t = &mut spec.mesh.transform;
+    if let Some(scale) = &m.scale {
+        let s = match *scale {
+            Scale::Uniform(s) => [s; 3],
+            Scale::PerAxis(s) => s,
+        };
+        for (a, v) in s.iter().enumerate() {
+            if !v.is_finite() || *v == 0.0 || v.abs() > 1e6 {
+                return Err(check.fail(
+                    "mesh.scale",
+                    format!("component {a} is {v}; scale factors must be finite, non-zero and at most 1e6"),
+                ));
+            }
+        }
+        t.scale = s;
+    }
+    if let Some(r) = m.rotate_deg {
+        for (a, v) in r.iter().enumerate() {
+            check.range(
+                &format!("mesh.rotate_deg[{a}]"),
+                *v,
+                -360.0,
+                360.0,
+                false,
+                "°",
+            )?;
+        }
+        t.rotate_deg = r;
+    }
+    if let Some(tr) = m.translate_mm {
+        for (a, v) in tr.iter().enumerate() {
+            check.range(
+                &format!("mesh.translate_mm[{a}]"),
+                *v,
+                -1e5,
+                1e5,
+                false,
+                "mm",
+            )?;
+        }
+        t.translate_m = tr.map(|v| v * 1e-3);
+    }
+    if let Some(n) = m.max_triangles {
+        if !(4..=50_000_000).contains(&n) {
+            return Err(check.fail(
+                "mesh.max_triangles",
+                format!("{n} is out of range; allowed 4 to 50000000"),
+            ));
+        }
+        spec.mesh.limits.max_triangles = n;
+    }
+    if let Some(mb) = m.max_file_mb {
+        spec.mesh.limits.max_file_bytes =
+            (check.range("mesh.max_file_mb", mb, 0.0, 4096.0, true, "MB")? * 1048576.0) as u64;
+    }
+    if let Some(c) = m.check_self_intersections {
+        spec.mesh.check_self_intersections = c;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<SceneSpec, SceneError> {
+        SceneSpec::from_toml(text, Path::new("scenes/test.toml"))
+    }
+
+    #[test]
+    fn extends_keeps_the_builtin_and_overrides_keys() {
+        let s = parse("extends = \"liver\"\n[material]\nyoungs_modulus_kpa = 8\n").unwrap();
+        assert_eq!(s.material.youngs_modulus_pa, 8000.0);
+        assert_eq!(s.sampling.spacing, SpacingRule::TargetPoints(1526));
+        assert_eq!(s.mesh.source, MeshSource::Builtin(BuiltinMesh::Liver));
+        assert_eq!(s.name, "test");
+    }
+
+    #[test]
+    fn file_paths_are_relative_to_the_scene() {
+        let s =
+            parse("[mesh]\nfile = \"organ.stl\"\nunits = \"mm\"\n[sampling]\nspacing_mm = 2.5\n")
+                .unwrap();
+        assert_eq!(s.mesh.source, MeshSource::File("scenes/organ.stl".into()));
+        assert_eq!(s.mesh.units, LengthUnit::Mm);
+        assert_eq!(s.sampling.spacing, SpacingRule::Spacing(0.0025));
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_with_their_line() {
+        let e = parse("extends = \"liver\"\n[material]\nyoung = 3\n").unwrap_err();
+        let msg = e.to_string();
+        assert!(matches!(e, SceneError::Parse { .. }));
+        assert!(msg.contains("young") && msg.contains("line 3"), "{msg}");
+    }
+
+    #[test]
+    fn out_of_range_values_name_their_key() {
+        for (text, key) in [
+            (
+                "extends = \"liver\"\n[material]\npoisson_ratio = 0.5\n",
+                "material.poisson_ratio",
+            ),
+            (
+                "extends = \"liver\"\n[material]\nyoungs_modulus_kpa = -1\n",
+                "material.youngs_modulus_kpa",
+            ),
+            (
+                "extends = \"liver\"\n[sampling]\nspacing_mm = 2\ntarget_points = 100\n",
+                "sampling",
+            ),
+            (
+                "extends = \"block\"\n[features]\nripple = true\n",
+                "features.ripple",
+            ),
+            ("[mesh]\nbuiltin = \"kidney\"\n", "mesh.builtin"),
+            ("name = \"x\"\n", "mesh"),
+            ("extends = \"spleen\"\n", "extends"),
+            (
+                "extends = \"liver\"\n[mesh]\nscale = [1, 0, 1]\n",
+                "mesh.scale",
+            ),
+        ] {
+            match parse(text) {
+                Err(SceneError::Invalid { key: k, .. }) => assert_eq!(k, key, "{text}"),
+                other => panic!("{text}: expected an Invalid error on {key}, got {other:?}"),
+            }
+        }
+    }
+}
