@@ -435,13 +435,12 @@ fn merge_duplicate_vertices(mesh: &mut TriMesh) -> usize {
         'search: for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
-                    if let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) {
-                        if let Some(&k) =
+                    if let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz])
+                        && let Some(&k) =
                             list.iter().find(|&&k| (kept[k as usize] - p).norm() <= tol)
-                        {
-                            found = Some(k);
-                            break 'search;
-                        }
+                    {
+                        found = Some(k);
+                        break 'search;
                     }
                 }
             }
@@ -609,10 +608,7 @@ fn check_vertex_manifold(mesh: &TriMesh, source: &str) -> Result<(), MeshValidat
         };
         let mut steps = 0;
         let mut at = start;
-        loop {
-            let Some(&(_, next)) = fan.iter().find(|(a, _)| *a == at) else {
-                break;
-            };
+        while let Some(&(_, next)) = fan.iter().find(|(a, _)| *a == at) {
             steps += 1;
             at = next;
             if at == start || steps > fan.len() {

@@ -128,9 +128,9 @@ pub fn clipped_cell_fractions(mesh: &TriMesh, lattice: &Lattice) -> Vec<f64> {
 /// `∫ (x − x0) n_x dA` over the triangle clipped to the unit cell at `min`.
 fn clipped_flux(t: &[Vec3; 3], min: [f64; 3]) -> f64 {
     let mut poly = Polygon::from_triangle(t);
-    for axis in 0..3 {
-        poly.clip(axis, min[axis], true);
-        poly.clip(axis, min[axis] + 1.0, false);
+    for (axis, &lo) in min.iter().enumerate() {
+        poly.clip(axis, lo, true);
+        poly.clip(axis, lo + 1.0, false);
         if poly.len < 3 {
             return 0.0;
         }
@@ -270,12 +270,10 @@ fn clip_segment(
             }
         }
     }
-    (t0 < t1).then(|| {
-        (
-            (a.0 + t0 * d.0, a.1 + t0 * d.1),
-            (a.0 + t1 * d.0, a.1 + t1 * d.1),
-        )
-    })
+    (t0 < t1).then_some((
+        (a.0 + t0 * d.0, a.1 + t0 * d.1),
+        (a.0 + t1 * d.0, a.1 + t1 * d.1),
+    ))
 }
 
 /// Records where the triangle crosses each vertical line x = i + 1, y = j + 1, with the
@@ -371,7 +369,7 @@ mod tests {
         let lattice = lattice_over(&mesh, 0.01);
         assert_eq!(lattice.dims, [5, 3, 3]);
         let f = clipped_cell_fractions(&mesh, &lattice);
-        for c in 0..lattice.len() {
+        for (c, &fraction) in f.iter().enumerate() {
             let [i, j, k] = lattice.coords(c);
             let on_face = |v: usize, n: usize| v == 0 || v == n - 1;
             let faces = [on_face(i, 5), on_face(j, 3), on_face(k, 3)]
@@ -380,10 +378,10 @@ mod tests {
                 .count();
             let expected = 0.5f64.powi(faces as i32);
             assert!(
-                (f[c] - expected).abs() < 1e-7,
+                (fraction - expected).abs() < 1e-7,
                 "cell {:?}: {} vs {}",
                 [i, j, k],
-                f[c],
+                fraction,
                 expected
             );
         }

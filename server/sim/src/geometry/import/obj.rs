@@ -42,7 +42,6 @@ pub(super) fn read(bytes: &[u8], ctx: &ImportContext<'_>) -> Result<TriMesh, Mes
         single_index: false,
         ignore_points: true,
         ignore_lines: true,
-        ..Default::default()
     };
     let (models, _materials) = tobj::load_obj_buf(&mut Cursor::new(bytes), &options, |_| {
         Err(tobj::LoadError::OpenFileFailed)

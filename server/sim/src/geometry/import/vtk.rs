@@ -440,33 +440,33 @@ impl SectionReader<'_, '_> {
         let size = self.count(line)?;
         self.ctx.check_face_count(n)?;
         let save = (self.c.pos, self.c.line);
-        if let Some((t, l)) = self.c.token() {
-            if t.eq_ignore_ascii_case("OFFSETS") {
-                let dtype = self.dtype(l)?;
-                let offsets = self.numbers(n, dtype, l)?;
-                let (kw, l2) = self
-                    .c
-                    .token()
-                    .ok_or_else(|| self.ctx.parse(Some(l), "missing CONNECTIVITY"))?;
-                if !kw.eq_ignore_ascii_case("CONNECTIVITY") {
+        if let Some((t, l)) = self.c.token()
+            && t.eq_ignore_ascii_case("OFFSETS")
+        {
+            let dtype = self.dtype(l)?;
+            let offsets = self.numbers(n, dtype, l)?;
+            let (kw, l2) = self
+                .c
+                .token()
+                .ok_or_else(|| self.ctx.parse(Some(l), "missing CONNECTIVITY"))?;
+            if !kw.eq_ignore_ascii_case("CONNECTIVITY") {
+                return Err(self
+                    .ctx
+                    .parse(Some(l2), format!("expected CONNECTIVITY, found '{kw}'")));
+            }
+            let dtype = self.dtype(l2)?;
+            let conn = self.numbers(size, dtype, l2)?;
+            let mut out = Vec::with_capacity(offsets.len().saturating_sub(1));
+            for w in offsets.windows(2) {
+                let (a, b) = (w[0] as usize, w[1] as usize);
+                if a > b || b > conn.len() {
                     return Err(self
                         .ctx
-                        .parse(Some(l2), format!("expected CONNECTIVITY, found '{kw}'")));
+                        .parse(Some(l), "OFFSETS are not increasing within CONNECTIVITY"));
                 }
-                let dtype = self.dtype(l2)?;
-                let conn = self.numbers(size, dtype, l2)?;
-                let mut out = Vec::with_capacity(offsets.len().saturating_sub(1));
-                for w in offsets.windows(2) {
-                    let (a, b) = (w[0] as usize, w[1] as usize);
-                    if a > b || b > conn.len() {
-                        return Err(self
-                            .ctx
-                            .parse(Some(l), "OFFSETS are not increasing within CONNECTIVITY"));
-                    }
-                    out.push(conn[a..b].iter().map(|&v| index(v)).collect());
-                }
-                return Ok(out);
+                out.push(conn[a..b].iter().map(|&v| index(v)).collect());
             }
+            return Ok(out);
         }
         (self.c.pos, self.c.line) = save;
         let flat = self.numbers(size, DataType::Int32, line)?;

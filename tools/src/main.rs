@@ -1,0 +1,164 @@
+//! `scalpel`: the command line of the scalpel surgical cutting simulator.
+//!
+//! Scenes (list, inspect, export), the demo, and benchmarks. Every report has a `--json`
+//! form for scripts; errors go to stderr with a non-zero exit status.
+
+mod bench;
+mod export;
+mod load;
+mod progress;
+mod report;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use scalpel_sim::geometry::LengthUnit;
+
+#[derive(Parser)]
+#[command(
+    name = "scalpel",
+    version,
+    about = "Real-time haptic soft-tissue cutting: scenes, reports and benchmarks"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Build the default scene (the liver of the paper's Table 1) and print its report.
+    Demo {
+        /// Built-in scene to use instead of the liver.
+        #[arg(long, default_value = "liver")]
+        scene: String,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Built-in scenes, scene files and meshes.
+    #[command(subcommand)]
+    Scene(SceneCommand),
+    /// Whole-system benchmarks.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand)]
+enum SceneCommand {
+    /// List the built-in scenes.
+    List {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Build a scene and report its surface, interior points and build time.
+    Inspect {
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Build a scene and write its surface and interior points (VTK, PLY or OBJ, by extension).
+    Export {
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Output file: .vtk (legacy, opens in ParaView), .ply or .obj.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Build every built-in scene several times and report build times.
+    Scenes {
+        /// Builds per scene.
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// What to build: a built-in scene name, a scene file (.toml) or a mesh file.
+#[derive(Args, Clone)]
+struct TargetArgs {
+    /// Built-in scene name, scene file (.toml) or mesh file (.obj, .stl, .ply, .vtk).
+    target: String,
+    /// Units of a mesh file's coordinates (for a bare mesh file).
+    #[arg(long, value_enum, default_value = "m")]
+    units: UnitArg,
+    /// Lattice spacing in mm (overrides the scene's sampling).
+    #[arg(long, conflicts_with = "target_points")]
+    spacing_mm: Option<f64>,
+    /// Target number of interior points (overrides the scene's sampling).
+    #[arg(long)]
+    target_points: Option<usize>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum UnitArg {
+    M,
+    Cm,
+    Mm,
+}
+
+impl From<UnitArg> for LengthUnit {
+    fn from(u: UnitArg) -> Self {
+        match u {
+            UnitArg::M => LengthUnit::M,
+            UnitArg::Cm => LengthUnit::Cm,
+            UnitArg::Mm => LengthUnit::Mm,
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Demo { scene, json } => run_inspect(
+            &TargetArgs {
+                target: scene,
+                units: UnitArg::M,
+                spacing_mm: None,
+                target_points: None,
+            },
+            json,
+        ),
+        Command::Scene(SceneCommand::List { json }) => report::print_scene_list(json),
+        Command::Scene(SceneCommand::Inspect { target, json }) => run_inspect(&target, json),
+        Command::Scene(SceneCommand::Export { target, out }) => run_export(&target, &out),
+        Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run_inspect(target: &TargetArgs, json: bool) -> anyhow::Result<()> {
+    let spec = load::resolve(target)?;
+    let timed = load::build_with_progress(&spec)?;
+    report::print_scene(&timed, json)
+}
+
+fn run_export(target: &TargetArgs, out: &std::path::Path) -> anyhow::Result<()> {
+    let spec = load::resolve(target)?;
+    let timed = load::build_with_progress(&spec)?;
+    export::write(&timed.scene, out)?;
+    eprintln!(
+        "wrote {} ({} surface vertices, {} triangles, {} interior points)",
+        out.display(),
+        timed.scene.model.surface.positions.len(),
+        timed.scene.model.surface.triangles.len(),
+        timed.scene.model.points.len()
+    );
+    Ok(())
+}

@@ -1,0 +1,243 @@
+//! The `scalpel` binary as a user runs it: reports, exports, and clear failures.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use scalpel_sim::geometry::{LengthUnit, MeshFormat, ValidationOptions, import_mesh, validate};
+
+fn scalpel(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_scalpel"))
+        .args(args)
+        .output()
+        .expect("the scalpel binary runs")
+}
+
+fn ok_json(args: &[&str]) -> serde_json::Value {
+    let out = scalpel(args);
+    assert!(
+        out.status.success(),
+        "{args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("valid JSON on stdout")
+}
+
+/// Runs a command that must fail; returns its stderr.
+fn fails(args: &[&str]) -> String {
+    let out = scalpel(args);
+    assert!(!out.status.success(), "{args:?} should fail");
+    assert!(out.stdout.is_empty(), "nothing on stdout when failing");
+    String::from_utf8(out.stderr).expect("utf-8 stderr")
+}
+
+#[test]
+fn demo_prints_the_liver_report() {
+    let out = scalpel(&["demo"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.starts_with("scene liver"), "{text}");
+    assert!(text.contains("508 triangles"), "{text}");
+}
+
+#[test]
+fn scene_list_names_every_builtin() {
+    let list = ok_json(&["scene", "list", "--json"]);
+    let names: Vec<&str> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["liver", "shoulder", "cerebroma", "block", "beam"]);
+}
+
+#[test]
+fn inspect_json_has_the_documented_keys() {
+    let r = ok_json(&["scene", "inspect", "liver", "--json"]);
+    for key in [
+        "name",
+        "triangles",
+        "vertices",
+        "points",
+        "spacing_mm",
+        "bbox_mm",
+        "volume_ml",
+        "mass_g",
+        "min_angle_deg",
+        "build_ms",
+    ] {
+        assert!(r.get(key).is_some(), "missing {key} in {r}");
+    }
+    assert_eq!(r["name"], "liver");
+    assert_eq!(r["triangles"], 508);
+    let points = r["points"].as_u64().unwrap();
+    assert!(points.abs_diff(1526) <= 45, "{points}");
+    assert!(r["build_ms"].as_f64().unwrap() > 0.0);
+    let bbox: Vec<f64> = r["bbox_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!((bbox[0] - 250.0).abs() < 1e-6 && (bbox[2] - 50.0).abs() < 1e-6);
+    // Mass = ρ × volume for liver tissue.
+    let mass = r["mass_g"].as_f64().unwrap();
+    let volume = r["volume_ml"].as_f64().unwrap();
+    assert!((mass / (1.06 * volume) - 1.0).abs() < 1e-9);
+}
+
+#[test]
+fn inspect_reads_scene_files_and_mesh_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("stiff_block.toml");
+    std::fs::write(
+        &scene,
+        "extends = \"block\"\n[material]\nyoungs_modulus_kpa = 1000\npoisson_ratio = 0.499\n[sampling]\nspacing_mm = 5\n",
+    )
+    .unwrap();
+    let r = ok_json(&["scene", "inspect", scene.to_str().unwrap(), "--json"]);
+    assert_eq!(r["name"], "stiff_block");
+    assert_eq!(r["points"], 7 * 7 * 7);
+    assert!((r["spacing_mm"].as_f64().unwrap() - 5.0).abs() < 1e-12);
+    assert_eq!(r["material"]["youngs_modulus_kpa"], 1000.0);
+
+    // A mesh file in millimetres, sampled with a given point count.
+    let mesh = dir.path().join("tetra.obj");
+    std::fs::write(
+        &mesh,
+        "v 0 0 0\nv 30 0 0\nv 0 30 0\nv 0 0 30\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n",
+    )
+    .unwrap();
+    let r = ok_json(&[
+        "scene",
+        "inspect",
+        mesh.to_str().unwrap(),
+        "--units",
+        "mm",
+        "--target-points",
+        "300",
+        "--json",
+    ]);
+    assert_eq!(r["triangles"], 4);
+    assert!((r["volume_ml"].as_f64().unwrap() - 4.5).abs() < 1e-9);
+    assert!(r["points"].as_u64().unwrap().abs_diff(300) < 30);
+}
+
+#[test]
+fn malformed_inputs_fail_with_a_message_on_stderr() {
+    let dir = tempfile::tempdir().unwrap();
+    let open = dir.path().join("open.obj");
+    std::fs::write(
+        &open,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n",
+    )
+    .unwrap();
+    let err = fails(&["scene", "inspect", open.to_str().unwrap()]);
+    assert!(
+        err.contains("open.obj") && err.contains("not closed"),
+        "{err}"
+    );
+
+    let txt = dir.path().join("organ.txt");
+    std::fs::write(&txt, "hello").unwrap();
+    let err = fails(&["scene", "inspect", txt.to_str().unwrap()]);
+    assert!(err.contains("unsupported mesh format"), "{err}");
+
+    let err = fails(&[
+        "scene",
+        "inspect",
+        dir.path().join("missing.stl").to_str().unwrap(),
+    ]);
+    assert!(err.contains("cannot open mesh file"), "{err}");
+
+    let err = fails(&["scene", "inspect", "kidney"]);
+    assert!(err.contains("not a built-in scene"), "{err}");
+
+    let bad_scene = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad_scene,
+        "extends = \"liver\"\n\n[material]\nstiffness = 3\n",
+    )
+    .unwrap();
+    let err = fails(&["scene", "inspect", bad_scene.to_str().unwrap()]);
+    assert!(
+        err.contains("bad.toml") && err.contains("line 4") && err.contains("stiffness"),
+        "{err}"
+    );
+
+    let range = dir.path().join("range.toml");
+    std::fs::write(
+        &range,
+        "extends = \"liver\"\n[material]\npoisson_ratio = 0.5\n",
+    )
+    .unwrap();
+    let err = fails(&["scene", "inspect", range.to_str().unwrap()]);
+    assert!(err.contains("material.poisson_ratio"), "{err}");
+
+    let truncated = dir.path().join("cut.stl");
+    let mut bytes = vec![0u8; 80];
+    bytes.extend_from_slice(&12u32.to_le_bytes());
+    bytes.extend_from_slice(&[0u8; 100]);
+    std::fs::write(&truncated, bytes).unwrap();
+    let err = fails(&["scene", "inspect", truncated.to_str().unwrap()]);
+    assert!(err.contains("truncated"), "{err}");
+
+    let err = fails(&["scene", "inspect", "liver", "--spacing-mm=-1"]);
+    assert!(err.contains("spacing"), "{err}");
+}
+
+fn reimport(path: &Path) -> scalpel_sim::geometry::ValidatedMesh {
+    let bytes = std::fs::read(path).unwrap();
+    let name = path.display().to_string();
+    let format = MeshFormat::from_file_name(&name).unwrap();
+    let mesh = import_mesh(&bytes, format, &name, LengthUnit::M, &Default::default()).unwrap();
+    validate(mesh, &name, &ValidationOptions::default()).unwrap()
+}
+
+#[test]
+fn export_writes_files_other_tools_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let vtk = dir.path().join("beam.vtk");
+    let out = scalpel(&["scene", "export", "beam", "--out", vtk.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // An independent VTK reader (vtkio) parses it: all surface vertices plus 425 points.
+    let parsed = vtkio::Vtk::parse_legacy_be(std::fs::File::open(&vtk).unwrap())
+        .expect("vtkio reads the export");
+    let vtkio::model::DataSet::PolyData { pieces, .. } = parsed.data else {
+        panic!("expected POLYDATA")
+    };
+    let vtkio::model::Piece::Inline(piece) = &pieces[0] else {
+        panic!("expected inline data")
+    };
+    let surface = reimport(&vtk);
+    assert_eq!(piece.num_points(), surface.stats.vertices + 425);
+    assert_eq!(surface.stats.triangles, 576);
+    assert!((surface.stats.volume_m3 - 4e-6).abs() < 1e-15);
+
+    for ext in ["ply", "obj"] {
+        let path = dir.path().join(format!("liver.{ext}"));
+        let out = scalpel(&["scene", "export", "liver", "--out", path.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let back = reimport(&path);
+        assert_eq!(back.stats.triangles, 508, "{ext}");
+        assert!((back.stats.bbox.size().x - 0.25).abs() < 1e-9, "{ext}");
+    }
+
+    let err = fails(&[
+        "scene",
+        "export",
+        "beam",
+        "--out",
+        dir.path().join("beam.stl").to_str().unwrap(),
+    ]);
+    assert!(err.contains("unsupported export format"), "{err}");
+}
