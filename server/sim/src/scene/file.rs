@@ -522,4 +522,143 @@ mod tests {
             }
         }
     }
+
+    /// The complete example in docs/SCENES.md lists every key with its real default.
+    #[test]
+    fn docs_example_is_complete() {
+        let doc = include_str!("../../../../docs/SCENES.md");
+        let start = doc.find("## Complete example").expect("section");
+        let block = &doc[start..];
+        let open = block.find("```toml\n").expect("toml block") + "```toml\n".len();
+        let text = &block[open..open + block[open..].find("```").expect("end of block")];
+
+        // Exhaustive destructuring: a new key fails to compile here until it is documented.
+        let raw: RawScene = toml::from_str(text).expect("the example parses");
+        let RawScene {
+            name,
+            description,
+            extends,
+            mesh,
+            material,
+            sampling,
+            features,
+            tool,
+            force,
+        } = raw;
+        assert!(name.is_some() && description.is_some() && extends.is_none());
+        let RawMesh {
+            builtin,
+            file,
+            units,
+            scale,
+            rotate_deg,
+            translate_mm,
+            max_triangles,
+            max_file_mb,
+            check_self_intersections,
+        } = mesh.expect("[mesh]");
+        assert!(builtin.is_none() && file.is_some() && units.is_some() && scale.is_some());
+        assert!(rotate_deg.is_some() && translate_mm.is_some() && max_triangles.is_some());
+        assert!(max_file_mb.is_some() && check_self_intersections.is_some());
+        let RawMaterial {
+            youngs_modulus_kpa,
+            poisson_ratio,
+            density_kg_m3,
+            damping_per_s,
+        } = material.expect("[material]");
+        assert!(youngs_modulus_kpa.is_some() && poisson_ratio.is_some());
+        assert!(density_kg_m3.is_some() && damping_per_s.is_some());
+        let RawSampling {
+            spacing_mm,
+            target_points,
+            support_ratio,
+            min_cell_fraction,
+            neighbour_headroom,
+        } = sampling.expect("[sampling]");
+        assert!(spacing_mm.is_none() && target_points.is_some() && support_ratio.is_some());
+        assert!(min_cell_fraction.is_some() && neighbour_headroom.is_some());
+        let RawFeatures {
+            cutting,
+            haptics,
+            virtual_points,
+            ripple,
+            volume_term,
+            stiff_mode,
+            frames,
+            observers,
+        } = features.expect("[features]");
+        for f in [
+            cutting,
+            haptics,
+            virtual_points,
+            ripple,
+            volume_term,
+            stiff_mode,
+            frames,
+            observers,
+        ] {
+            assert!(f.is_some());
+        }
+        let RawTool {
+            blade_length_mm,
+            blade_width_mm,
+            blade_thickness_mm,
+        } = tool.expect("[tool]");
+        assert!(
+            blade_length_mm.is_some() && blade_width_mm.is_some() && blade_thickness_mm.is_some()
+        );
+        let RawForce {
+            rupture_force_n,
+            rupture_displacement_mm,
+            toughness_n_per_mm,
+            friction_n,
+            ripple_amplitude,
+            ripple_wavelength_mm,
+            ripple_decay_s,
+            max_force_n,
+        } = force.expect("[force]");
+        for f in [
+            rupture_force_n,
+            rupture_displacement_mm,
+            toughness_n_per_mm,
+            friction_n,
+            ripple_amplitude,
+            ripple_wavelength_mm,
+            ripple_decay_s,
+            max_force_n,
+        ] {
+            assert!(f.is_some());
+        }
+
+        // The values shown are the defaults of a mesh-file scene.
+        let parsed = SceneSpec::from_toml(text, Path::new("docs/organ.toml")).expect("valid");
+        let mut expected = for_mesh_file("docs/organ.stl".into(), LengthUnit::Mm);
+        expected.name = "organ".into();
+        expected.description = "a scanned organ".into();
+        let (a, b) = (
+            toml::Value::try_from(&parsed).unwrap(),
+            toml::Value::try_from(&expected).unwrap(),
+        );
+        assert!(
+            same_values(&a, &b),
+            "documented defaults differ:\n{a}\nvs\n{b}"
+        );
+    }
+
+    /// Structural equality with a relative tolerance on floats (mm → m conversions round).
+    fn same_values(a: &toml::Value, b: &toml::Value) -> bool {
+        use toml::Value as V;
+        match (a, b) {
+            (V::Float(x), V::Float(y)) => (x - y).abs() <= 1e-12 * x.abs().max(y.abs()),
+            (V::Table(x), V::Table(y)) => {
+                x.len() == y.len()
+                    && x.iter()
+                        .all(|(k, v)| y.get(k).is_some_and(|w| same_values(v, w)))
+            }
+            (V::Array(x), V::Array(y)) => {
+                x.len() == y.len() && x.iter().zip(y).all(|(v, w)| same_values(v, w))
+            }
+            _ => a == b,
+        }
+    }
 }
