@@ -474,3 +474,167 @@ mod never_panics {
         }
     }
 }
+
+mod binary_and_cell_formats {
+    use super::*;
+
+    fn cube_corners() -> [[f32; 3]; 8] {
+        [
+            [0.0, 0.0, 0.0],
+            [10.0, 0.0, 0.0],
+            [10.0, 10.0, 0.0],
+            [0.0, 10.0, 0.0],
+            [0.0, 0.0, 10.0],
+            [10.0, 0.0, 10.0],
+            [10.0, 10.0, 10.0],
+            [0.0, 10.0, 10.0],
+        ]
+    }
+
+    /// Outward quads of the cube above.
+    const CUBE_QUADS: [[u32; 4]; 6] = [
+        [0, 3, 2, 1],
+        [4, 5, 6, 7],
+        [0, 1, 5, 4],
+        [1, 2, 6, 5],
+        [2, 3, 7, 6],
+        [3, 0, 4, 7],
+    ];
+
+    fn accepted_cube(name: &str, bytes: &[u8]) {
+        match load(name, bytes) {
+            Outcome::Accepted(v) => {
+                assert_eq!(v.stats.triangles, 12, "{name}");
+                assert_eq!(v.stats.vertices, 8, "{name}");
+                assert!(
+                    (v.stats.volume_m3 - 1e-6).abs() < 1e-15,
+                    "{name}: {}",
+                    v.stats.volume_m3
+                );
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+
+    fn binary_ply(big_endian: bool) -> Vec<u8> {
+        let enc = if big_endian {
+            "binary_big_endian"
+        } else {
+            "binary_little_endian"
+        };
+        let mut b = format!(
+            "ply\nformat {enc} 1.0\ncomment scalpel test\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        for v in cube_corners() {
+            for c in v {
+                b.extend_from_slice(&if big_endian {
+                    c.to_be_bytes()
+                } else {
+                    c.to_le_bytes()
+                });
+            }
+        }
+        for q in CUBE_QUADS {
+            b.push(4);
+            for i in q {
+                let i = i as i32;
+                b.extend_from_slice(&if big_endian {
+                    i.to_be_bytes()
+                } else {
+                    i.to_le_bytes()
+                });
+            }
+        }
+        b
+    }
+
+    #[test]
+    fn binary_ply_in_both_byte_orders() {
+        accepted_cube("cube_le.ply", &binary_ply(false));
+        accepted_cube("cube_be.ply", &binary_ply(true));
+        // Cut mid-payload: a parse error, not a panic or a partial mesh.
+        let mut cut = binary_ply(false);
+        cut.truncate(cut.len() - 9);
+        assert!(matches!(
+            load("cut.ply", &cut),
+            Outcome::Import(MeshImportError::Parse { .. } | MeshImportError::Truncated { .. })
+        ));
+    }
+
+    #[test]
+    fn binary_legacy_vtk_polydata() {
+        let mut b = b"# vtk DataFile Version 3.0\ncube\nBINARY\nDATASET POLYDATA\nPOINTS 8 float\n"
+            .to_vec();
+        for v in cube_corners() {
+            for c in v {
+                b.extend_from_slice(&c.to_be_bytes());
+            }
+        }
+        b.extend_from_slice(b"\nPOLYGONS 6 30\n");
+        for q in CUBE_QUADS {
+            b.extend_from_slice(&4i32.to_be_bytes());
+            for i in q {
+                b.extend_from_slice(&(i as i32).to_be_bytes());
+            }
+        }
+        b.extend_from_slice(b"\nPOINT_DATA 8\nSCALARS x float 1\nLOOKUP_TABLE default\n");
+        accepted_cube("cube_bin.vtk", &b);
+    }
+
+    #[test]
+    fn vtk5_offsets_and_connectivity() {
+        let mut t = String::from(
+            "# vtk DataFile Version 5.1\ncube\nASCII\nDATASET POLYDATA\nPOINTS 8 float\n",
+        );
+        for v in cube_corners() {
+            t += &format!("{} {} {}\n", v[0], v[1], v[2]);
+        }
+        t += "POLYGONS 7 24\nOFFSETS vtktypeint64\n0 4 8 12 16 20 24\nCONNECTIVITY vtktypeint64\n";
+        for q in CUBE_QUADS {
+            t += &format!("{} {} {} {}\n", q[0], q[1], q[2], q[3]);
+        }
+        accepted_cube("cube5.vtk", t.as_bytes());
+    }
+
+    #[test]
+    fn hexahedron_and_tetrahedra_reduce_to_their_boundary() {
+        let mut t = String::from(
+            "# vtk DataFile Version 2.0\nhex\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 8 float\n",
+        );
+        for v in cube_corners() {
+            t += &format!("{} {} {}\n", v[0], v[1], v[2]);
+        }
+        t += "CELLS 1 9\n8 0 1 2 3 4 5 6 7\nCELL_TYPES 1\n12\n";
+        accepted_cube("hex.vtk", t.as_bytes());
+
+        // The same cube as five tetrahedra: the shared inner faces disappear.
+        let mut t = String::from(
+            "# vtk DataFile Version 2.0\ntets\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 8 float\n",
+        );
+        for v in cube_corners() {
+            t += &format!("{} {} {}\n", v[0], v[1], v[2]);
+        }
+        t += "CELLS 5 25\n4 0 1 3 4\n4 1 2 3 6\n4 1 4 5 6\n4 3 4 6 7\n4 1 3 4 6\nCELL_TYPES 5\n10\n10\n10\n10\n10\n";
+        accepted_cube("tets.vtk", t.as_bytes());
+    }
+
+    #[test]
+    fn obj_quads_and_negative_indices_are_triangulated() {
+        let mut t = String::new();
+        for v in cube_corners() {
+            t += &format!("v {} {} {}\n", v[0], v[1], v[2]);
+        }
+        // Relative (negative) indices count back from the last vertex.
+        for q in CUBE_QUADS {
+            t += &format!(
+                "f {} {} {} {}\n",
+                q[0] as i64 - 8,
+                q[1] as i64 - 8,
+                q[2] as i64 - 8,
+                q[3] as i64 - 8
+            );
+        }
+        accepted_cube("cube.obj", t.as_bytes());
+    }
+}
