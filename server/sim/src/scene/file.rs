@@ -138,28 +138,74 @@ impl Checker<'_> {
         }
     }
 
-    /// `value` must be finite and in `[lo, hi]` (or `(lo, hi]` when `open_lo`).
-    fn range(
+    /// Checks `value` against `limit`.
+    fn check(&self, key: &str, value: f64, limit: Limit) -> Result<f64, SceneError> {
+        let Limit {
+            lo,
+            hi,
+            open_lo,
+            unit,
+        } = limit;
+        let above_lo = if open_lo { value > lo } else { value >= lo };
+        if value.is_finite() && above_lo && value <= hi {
+            return Ok(value);
+        }
+        let bracket = if open_lo { "(" } else { "[" };
+        Err(self.fail(
+            key,
+            format!("{value} {unit} is out of range; allowed {bracket}{lo}, {hi}] {unit}"),
+        ))
+    }
+
+    /// When `value` is given, checks it and stores `value × to_si` in `slot`.
+    fn set(
         &self,
+        slot: &mut f64,
+        value: Option<f64>,
         key: &str,
-        value: f64,
-        lo: f64,
-        hi: f64,
-        open_lo: bool,
-        unit: &str,
-    ) -> Result<f64, SceneError> {
-        let ok = value.is_finite() && value <= hi && if open_lo { value > lo } else { value >= lo };
-        if ok {
-            Ok(value)
-        } else {
-            let bracket = if open_lo { "(" } else { "[" };
-            Err(self.fail(
-                key,
-                format!("{value} {unit} is out of range; allowed {bracket}{lo}, {hi}] {unit}"),
-            ))
+        limit: Limit,
+        to_si: f64,
+    ) -> Result<(), SceneError> {
+        if let Some(v) = value {
+            *slot = self.check(key, v, limit)? * to_si;
+        }
+        Ok(())
+    }
+}
+
+/// An allowed range for a number in a scene file, with its unit for messages.
+#[derive(Clone, Copy)]
+struct Limit {
+    lo: f64,
+    hi: f64,
+    open_lo: bool,
+    unit: &'static str,
+}
+
+impl Limit {
+    /// `(0, hi]`.
+    const fn positive(hi: f64, unit: &'static str) -> Self {
+        Self {
+            lo: 0.0,
+            hi,
+            open_lo: true,
+            unit,
+        }
+    }
+
+    /// `[lo, hi]`.
+    const fn closed(lo: f64, hi: f64, unit: &'static str) -> Self {
+        Self {
+            lo,
+            hi,
+            open_lo: false,
+            unit,
         }
     }
 }
+
+/// mm → m.
+const MM: f64 = 1e-3;
 
 impl SceneSpec {
     /// Reads a scene from TOML `text`. `path` is the scene file: it names the file in messages
@@ -205,30 +251,47 @@ impl SceneSpec {
         )?;
         if let Some(m) = &raw.material {
             let mat = &mut spec.material;
-            if let Some(e) = m.youngs_modulus_kpa {
-                mat.youngs_modulus_pa =
-                    check.range("material.youngs_modulus_kpa", e, 0.0, 1.0e6, true, "kPa")? * 1e3;
+            let key = "material.youngs_modulus_kpa";
+            check.set(
+                &mut mat.youngs_modulus_pa,
+                m.youngs_modulus_kpa,
+                key,
+                Limit::positive(1.0e6, "kPa"),
+                1e3,
+            )?;
+            if let Some(nu) = m.poisson_ratio
+                && nu >= 0.5
+                && nu.is_finite()
+            {
+                return Err(check.fail(
+                    "material.poisson_ratio",
+                    format!("{nu} makes the material incompressible (λ = ∞); use at most 0.499"),
+                ));
             }
-            if let Some(nu) = m.poisson_ratio {
-                if nu >= 0.5 && nu.is_finite() {
-                    return Err(check.fail(
-                        "material.poisson_ratio",
-                        format!(
-                            "{nu} makes the material incompressible (λ = ∞); use at most 0.499"
-                        ),
-                    ));
-                }
-                mat.poisson_ratio =
-                    check.range("material.poisson_ratio", nu, 0.0, 0.499, false, "")?;
-            }
-            if let Some(rho) = m.density_kg_m3 {
-                mat.density_kg_m3 =
-                    check.range("material.density_kg_m3", rho, 100.0, 5000.0, false, "kg/m³")?;
-            }
-            if let Some(g) = m.damping_per_s {
-                mat.damping_per_s =
-                    check.range("material.damping_per_s", g, 0.0, 1000.0, false, "1/s")?;
-            }
+            let key = "material.poisson_ratio";
+            check.set(
+                &mut mat.poisson_ratio,
+                m.poisson_ratio,
+                key,
+                Limit::closed(0.0, 0.499, ""),
+                1.0,
+            )?;
+            let key = "material.density_kg_m3";
+            check.set(
+                &mut mat.density_kg_m3,
+                m.density_kg_m3,
+                key,
+                Limit::closed(100.0, 5000.0, "kg/m³"),
+                1.0,
+            )?;
+            let key = "material.damping_per_s";
+            check.set(
+                &mut mat.damping_per_s,
+                m.damping_per_s,
+                key,
+                Limit::closed(0.0, 1000.0, "1/s"),
+                1.0,
+            )?;
         }
         if let Some(s) = &raw.sampling {
             let p = &mut spec.sampling;
@@ -239,9 +302,9 @@ impl SceneSpec {
                     );
                 }
                 (Some(mm), None) => {
-                    p.spacing = SpacingRule::Spacing(
-                        check.range("sampling.spacing_mm", mm, 0.0, 1000.0, true, "mm")? * 1e-3,
-                    );
+                    let limit = Limit::positive(1000.0, "mm");
+                    p.spacing =
+                        SpacingRule::Spacing(check.check("sampling.spacing_mm", mm, limit)? * MM);
                 }
                 (None, Some(n)) => {
                     if !(8..=MAX_POINTS).contains(&n) {
@@ -254,13 +317,22 @@ impl SceneSpec {
                 }
                 (None, None) => {}
             }
-            if let Some(r) = s.support_ratio {
-                p.support_ratio = check.range("sampling.support_ratio", r, 1.2, 4.0, false, "")?;
-            }
-            if let Some(f) = s.min_cell_fraction {
-                p.min_cell_fraction =
-                    check.range("sampling.min_cell_fraction", f, 0.0, 1.0, true, "")?;
-            }
+            let key = "sampling.support_ratio";
+            check.set(
+                &mut p.support_ratio,
+                s.support_ratio,
+                key,
+                Limit::closed(1.2, 4.0, ""),
+                1.0,
+            )?;
+            let key = "sampling.min_cell_fraction";
+            check.set(
+                &mut p.min_cell_fraction,
+                s.min_cell_fraction,
+                key,
+                Limit::positive(1.0, ""),
+                1.0,
+            )?;
             if let Some(h) = s.neighbour_headroom {
                 if h > 256 {
                     return Err(check.fail(
@@ -300,51 +372,95 @@ impl SceneSpec {
         }
         if let Some(t) = &raw.tool {
             let tool = &mut spec.tool;
-            if let Some(v) = t.blade_length_mm {
-                tool.blade_length_m =
-                    check.range("tool.blade_length_mm", v, 0.0, 200.0, true, "mm")? * 1e-3;
-            }
-            if let Some(v) = t.blade_width_mm {
-                tool.blade_width_m =
-                    check.range("tool.blade_width_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
-            }
-            if let Some(v) = t.blade_thickness_mm {
-                tool.blade_thickness_m =
-                    check.range("tool.blade_thickness_mm", v, 0.0, 10.0, true, "mm")? * 1e-3;
-            }
+            let mm = |hi| Limit::positive(hi, "mm");
+            check.set(
+                &mut tool.blade_length_m,
+                t.blade_length_mm,
+                "tool.blade_length_mm",
+                mm(200.0),
+                MM,
+            )?;
+            check.set(
+                &mut tool.blade_width_m,
+                t.blade_width_mm,
+                "tool.blade_width_mm",
+                mm(100.0),
+                MM,
+            )?;
+            let key = "tool.blade_thickness_mm";
+            check.set(
+                &mut tool.blade_thickness_m,
+                t.blade_thickness_mm,
+                key,
+                mm(10.0),
+                MM,
+            )?;
         }
         if let Some(f) = &raw.force {
-            let force = &mut spec.force;
-            if let Some(v) = f.rupture_force_n {
-                force.rupture_force_n =
-                    check.range("force.rupture_force_n", v, 0.0, 100.0, true, "N")?;
-            }
-            if let Some(v) = f.rupture_displacement_mm {
-                force.rupture_displacement_m =
-                    check.range("force.rupture_displacement_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
-            }
-            if let Some(v) = f.toughness_n_per_mm {
-                force.toughness_n_per_m =
-                    check.range("force.toughness_n_per_mm", v, 0.0, 10.0, false, "N/mm")? * 1e3;
-            }
-            if let Some(v) = f.friction_n {
-                force.friction_n = check.range("force.friction_n", v, 0.0, 50.0, false, "N")?;
-            }
-            if let Some(v) = f.ripple_amplitude {
-                force.ripple_amplitude =
-                    check.range("force.ripple_amplitude", v, 0.0, 0.9, false, "")?;
-            }
-            if let Some(v) = f.ripple_wavelength_mm {
-                force.ripple_wavelength_m =
-                    check.range("force.ripple_wavelength_mm", v, 0.0, 100.0, true, "mm")? * 1e-3;
-            }
-            if let Some(v) = f.ripple_decay_s {
-                force.ripple_decay_s =
-                    check.range("force.ripple_decay_s", v, 0.0, 600.0, true, "s")?;
-            }
-            if let Some(v) = f.max_force_n {
-                force.max_force_n = check.range("force.max_force_n", v, 0.0, 100.0, true, "N")?;
-            }
+            let out = &mut spec.force;
+            let newtons = Limit::positive(100.0, "N");
+            check.set(
+                &mut out.rupture_force_n,
+                f.rupture_force_n,
+                "force.rupture_force_n",
+                newtons,
+                1.0,
+            )?;
+            let key = "force.rupture_displacement_mm";
+            check.set(
+                &mut out.rupture_displacement_m,
+                f.rupture_displacement_mm,
+                key,
+                Limit::positive(100.0, "mm"),
+                MM,
+            )?;
+            // N/mm → N/m.
+            let key = "force.toughness_n_per_mm";
+            check.set(
+                &mut out.toughness_n_per_m,
+                f.toughness_n_per_mm,
+                key,
+                Limit::closed(0.0, 10.0, "N/mm"),
+                1e3,
+            )?;
+            check.set(
+                &mut out.friction_n,
+                f.friction_n,
+                "force.friction_n",
+                Limit::closed(0.0, 50.0, "N"),
+                1.0,
+            )?;
+            let key = "force.ripple_amplitude";
+            check.set(
+                &mut out.ripple_amplitude,
+                f.ripple_amplitude,
+                key,
+                Limit::closed(0.0, 0.9, ""),
+                1.0,
+            )?;
+            let key = "force.ripple_wavelength_mm";
+            check.set(
+                &mut out.ripple_wavelength_m,
+                f.ripple_wavelength_mm,
+                key,
+                Limit::positive(100.0, "mm"),
+                MM,
+            )?;
+            let key = "force.ripple_decay_s";
+            check.set(
+                &mut out.ripple_decay_s,
+                f.ripple_decay_s,
+                key,
+                Limit::positive(600.0, "s"),
+                1.0,
+            )?;
+            check.set(
+                &mut out.max_force_n,
+                f.max_force_n,
+                "force.max_force_n",
+                newtons,
+                1.0,
+            )?;
         }
         Ok(spec)
     }
@@ -411,29 +527,23 @@ fn apply_mesh(
     }
     if let Some(r) = m.rotate_deg {
         for (a, v) in r.iter().enumerate() {
-            check.range(
+            check.check(
                 &format!("mesh.rotate_deg[{a}]"),
                 *v,
-                -360.0,
-                360.0,
-                false,
-                "°",
+                Limit::closed(-360.0, 360.0, "°"),
             )?;
         }
         t.rotate_deg = r;
     }
     if let Some(tr) = m.translate_mm {
         for (a, v) in tr.iter().enumerate() {
-            check.range(
+            check.check(
                 &format!("mesh.translate_mm[{a}]"),
                 *v,
-                -1e5,
-                1e5,
-                false,
-                "mm",
+                Limit::closed(-1e5, 1e5, "mm"),
             )?;
         }
-        t.translate_m = tr.map(|v| v * 1e-3);
+        t.translate_m = tr.map(|v| v * MM);
     }
     if let Some(n) = m.max_triangles {
         if !(4..=50_000_000).contains(&n) {
@@ -446,7 +556,8 @@ fn apply_mesh(
     }
     if let Some(mb) = m.max_file_mb {
         spec.mesh.limits.max_file_bytes =
-            (check.range("mesh.max_file_mb", mb, 0.0, 4096.0, true, "MB")? * 1048576.0) as u64;
+            (check.check("mesh.max_file_mb", mb, Limit::positive(4096.0, "MB"))? * 1048576.0)
+                as u64;
     }
     if let Some(c) = m.check_self_intersections {
         spec.mesh.check_self_intersections = c;
