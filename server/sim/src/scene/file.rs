@@ -151,9 +151,10 @@ impl Checker<'_> {
             return Ok(value);
         }
         let bracket = if open_lo { "(" } else { "[" };
+        let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
         Err(self.fail(
             key,
-            format!("{value} {unit} is out of range; allowed {bracket}{lo}, {hi}] {unit}"),
+            format!("{value}{unit} is out of range; allowed {bracket}{lo}, {hi}]{unit}"),
         ))
     }
 
