@@ -23,6 +23,7 @@
 
 pub mod geometry;
 pub mod math;
+pub mod mls;
 pub mod model;
 pub mod progress;
 pub mod scene;

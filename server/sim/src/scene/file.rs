@@ -151,7 +151,11 @@ impl Checker<'_> {
             return Ok(value);
         }
         let bracket = if open_lo { "(" } else { "[" };
-        let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
         Err(self.fail(
             key,
             format!("{value}{unit} is out of range; allowed {bracket}{lo}, {hi}]{unit}"),

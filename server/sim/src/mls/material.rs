@@ -1,0 +1,367 @@
+//! Constitutive models on the MLS deformation gradient (physics.md §1.6, §1.8, §1.10).
+//!
+//! * St. Venant–Kirchhoff (default): `E = ½(FᵀF − I)`, `S = λ tr E I + 2μ E`, `P = F S`.
+//! * MuellerCompat: Müller 2004 as written (`ε = FᵀF − I`, `P = 2 F σ`). It is StVK with
+//!   λ and μ multiplied by 4 (E_eff = 4E, same ν), kept so that old scenes can be compared.
+//! * Corotated linear: `F = R S`, `e = S − I`, `P = R (λ tr e I + 2μ e)`. It does not soften
+//!   in compression, which makes it the robust choice for large squashes.
+//!
+//! Optionally Müller's volume term `½ k_v (det F − 1)²` is added. When det F leaves
+//! [0.2, 5] the stress is evaluated at F with its singular values clamped to that range (and
+//! an inversion undone): a robust fallback, not an energy gradient, reported as such.
+
+use serde::Serialize;
+
+use crate::math::Mat3;
+
+/// The constitutive law.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ElasticModel {
+    /// St. Venant–Kirchhoff with Green strain.
+    #[default]
+    StVK,
+    /// Müller 2004 as written: StVK with four times the stiffness.
+    MuellerCompat,
+    /// Corotated linear elasticity.
+    Corotated,
+}
+
+/// Lamé parameters (Pa).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Lame {
+    /// λ.
+    pub lambda: f64,
+    /// μ (shear modulus).
+    pub mu: f64,
+}
+
+impl Lame {
+    /// From Young's modulus (Pa) and Poisson's ratio.
+    pub fn from_young_poisson(e: f64, nu: f64) -> Self {
+        Self {
+            lambda: e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+            mu: e / (2.0 * (1.0 + nu)),
+        }
+    }
+
+    /// P-wave modulus λ + 2μ.
+    pub fn p_wave_modulus(&self) -> f64 {
+        self.lambda + 2.0 * self.mu
+    }
+}
+
+/// Singular values of F are kept in this range when det F leaves it.
+pub const DET_RANGE: (f64, f64) = (0.2, 5.0);
+
+/// Everything the force evaluation needs to know about the material.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ElasticParams {
+    /// Constitutive law.
+    pub model: ElasticModel,
+    /// Lamé parameters (Pa).
+    pub lame: Lame,
+    /// Young's modulus (Pa), for the hourglass stiffness.
+    pub youngs_modulus_pa: f64,
+    /// Hourglass coefficient α (physics.md §1.9; 0.05–0.1 recommended, 0 disables).
+    pub hourglass_alpha: f64,
+    /// Volume-term stiffness k_v (Pa); 0 disables.
+    pub volume_k: f64,
+}
+
+impl ElasticParams {
+    /// StVK with the given E (Pa) and ν, hourglass α = 0.1, no volume term.
+    pub fn stvk(e: f64, nu: f64) -> Self {
+        Self {
+            model: ElasticModel::StVK,
+            lame: Lame::from_young_poisson(e, nu),
+            youngs_modulus_pa: e,
+            hourglass_alpha: 0.1,
+            volume_k: 0.0,
+        }
+    }
+
+    /// The Lamé parameters the model actually uses (×4 for MuellerCompat).
+    pub fn effective_lame(&self) -> Lame {
+        match self.model {
+            ElasticModel::MuellerCompat => Lame {
+                lambda: 4.0 * self.lame.lambda,
+                mu: 4.0 * self.lame.mu,
+            },
+            _ => self.lame,
+        }
+    }
+
+    /// Modulus governing the fastest wave, including the volume term (Pa).
+    pub fn wave_modulus(&self) -> f64 {
+        self.effective_lame().p_wave_modulus() + self.volume_k
+    }
+}
+
+/// First Piola–Kirchhoff stress and energy density at F.
+#[derive(Debug, Clone, Copy)]
+pub struct StressSample {
+    /// P (Pa).
+    pub p: Mat3,
+    /// Energy density ψ (J/m³).
+    pub psi: f64,
+    /// det F before any clamping.
+    pub det: f64,
+    /// True when the singular values were clamped.
+    pub clamped: bool,
+}
+
+/// P(F) and ψ(F) for the model, plus the volume term.
+#[inline]
+pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
+    let det = f.determinant();
+    let (lo, hi) = DET_RANGE;
+    let (f_eval, clamped) = if det < lo || det > hi || !det.is_finite() {
+        (clamp_singular_values(f), true)
+    } else {
+        (*f, false)
+    };
+    let (mut p, mut psi) = match params.model {
+        ElasticModel::StVK => stvk(&params.lame, &f_eval, 1.0),
+        ElasticModel::MuellerCompat => mueller(&params.lame, &f_eval),
+        ElasticModel::Corotated => corotated(&params.lame, &f_eval),
+    };
+    if params.volume_k > 0.0 {
+        let j = f_eval.determinant();
+        p += cofactor(&f_eval) * (params.volume_k * (j - 1.0));
+        psi += 0.5 * params.volume_k * (j - 1.0) * (j - 1.0);
+    }
+    StressSample {
+        p,
+        psi,
+        det,
+        clamped,
+    }
+}
+
+/// StVK stress scaled by `scale` (1 for StVK).
+#[inline]
+fn stvk(lame: &Lame, f: &Mat3, scale: f64) -> (Mat3, f64) {
+    let e = (f.transpose() * f - Mat3::identity()) * 0.5;
+    let tr = e.trace();
+    let s = Mat3::identity() * (lame.lambda * tr) + e * (2.0 * lame.mu);
+    let psi = lame.mu * e.component_mul(&e).sum() + 0.5 * lame.lambda * tr * tr;
+    (f * s * scale, psi * scale)
+}
+
+/// Müller 2004 literally: ε = FᵀF − I (no ½), σ = λ tr ε I + 2μ ε, P = 2Fσ, ψ = ½ ε:σ.
+#[inline]
+fn mueller(lame: &Lame, f: &Mat3) -> (Mat3, f64) {
+    let eps = f.transpose() * f - Mat3::identity();
+    let tr = eps.trace();
+    let sigma = Mat3::identity() * (lame.lambda * tr) + eps * (2.0 * lame.mu);
+    (f * sigma * 2.0, 0.5 * eps.component_mul(&sigma).sum())
+}
+
+#[inline]
+fn corotated(lame: &Lame, f: &Mat3) -> (Mat3, f64) {
+    let (r, s) = polar(f);
+    let e = s - Mat3::identity();
+    let tr = e.trace();
+    let sigma = Mat3::identity() * (lame.lambda * tr) + e * (2.0 * lame.mu);
+    let psi = lame.mu * e.component_mul(&e).sum() + 0.5 * lame.lambda * tr * tr;
+    (r * sigma, psi)
+}
+
+/// Differential of P at F along dF (StVK exact; MuellerCompat ×4; corotated with the rotation
+/// held fixed, which is the symmetric "warped stiffness"). The volume term is included.
+#[inline]
+pub fn stress_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 {
+    let mut dp = match params.model {
+        ElasticModel::StVK | ElasticModel::MuellerCompat => {
+            let lame = params.effective_lame();
+            let e = (f.transpose() * f - Mat3::identity()) * 0.5;
+            let s = Mat3::identity() * (lame.lambda * e.trace()) + e * (2.0 * lame.mu);
+            let de = (df.transpose() * f + f.transpose() * df) * 0.5;
+            let ds = Mat3::identity() * (lame.lambda * de.trace()) + de * (2.0 * lame.mu);
+            df * s + f * ds
+        }
+        ElasticModel::Corotated => {
+            let (r, _) = polar(f);
+            let rt_df = r.transpose() * df;
+            let de = (rt_df + rt_df.transpose()) * 0.5;
+            r * (Mat3::identity() * (params.lame.lambda * de.trace()) + de * (2.0 * params.lame.mu))
+        }
+    };
+    if params.volume_k > 0.0 {
+        // d[(J − 1) cof F] = (cof F : dF) cof F + (J − 1) d(cof F).
+        let j = f.determinant();
+        let cof = cofactor(f);
+        let dj = cof.component_mul(df).sum();
+        dp += cof * (params.volume_k * dj)
+            + cofactor_differential(f, df) * (params.volume_k * (j - 1.0));
+    }
+    dp
+}
+
+/// cof(F) = det(F) F⁻ᵀ, written with rows: rows of cof are r1×r2, r2×r0, r0×r1.
+#[inline]
+pub fn cofactor(f: &Mat3) -> Mat3 {
+    let r0 = f.row(0).transpose();
+    let r1 = f.row(1).transpose();
+    let r2 = f.row(2).transpose();
+    Mat3::from_rows(&[
+        r1.cross(&r2).transpose(),
+        r2.cross(&r0).transpose(),
+        r0.cross(&r1).transpose(),
+    ])
+}
+
+#[inline]
+fn cofactor_differential(f: &Mat3, df: &Mat3) -> Mat3 {
+    let r = |m: &Mat3, k: usize| m.row(k).transpose();
+    let row =
+        |a: usize, b: usize| (r(df, a).cross(&r(f, b)) + r(f, a).cross(&r(df, b))).transpose();
+    Mat3::from_rows(&[row(1, 2), row(2, 0), row(0, 1)])
+}
+
+/// Polar decomposition F = R S with det R = +1 (via SVD, reflection moved into S).
+pub fn polar(f: &Mat3) -> (Mat3, Mat3) {
+    let svd = nalgebra::SVD::new(*f, true, true);
+    let (Some(mut u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return (Mat3::identity(), *f);
+    };
+    let mut sigma = svd.singular_values;
+    if (u * v_t).determinant() < 0.0 {
+        // Flip the axis of the smallest singular value so that R is a rotation.
+        let k = sigma.imin();
+        u.column_mut(k).neg_mut();
+        sigma[k] = -sigma[k];
+    }
+    let r = u * v_t;
+    let s = v_t.transpose() * Mat3::from_diagonal(&sigma) * v_t;
+    (r, s)
+}
+
+/// F with its singular values clamped to [`DET_RANGE`]; an inversion (det < 0) is undone by
+/// flipping the smallest singular direction first.
+pub fn clamp_singular_values(f: &Mat3) -> Mat3 {
+    if !f.iter().all(|x| x.is_finite()) {
+        return Mat3::identity();
+    }
+    let svd = nalgebra::SVD::new(*f, true, true);
+    let (Some(mut u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Mat3::identity();
+    };
+    let mut sigma = svd.singular_values;
+    if (u * v_t).determinant() < 0.0 {
+        let k = sigma.imin();
+        u.column_mut(k).neg_mut();
+    }
+    let (lo, hi) = DET_RANGE;
+    for s in sigma.iter_mut() {
+        *s = s.clamp(lo, hi);
+    }
+    u * Mat3::from_diagonal(&sigma) * v_t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample_f() -> Mat3 {
+        Mat3::new(1.05, 0.02, -0.01, 0.03, 0.97, 0.04, -0.02, 0.01, 1.02)
+    }
+
+    fn energy(params: &ElasticParams, f: &Mat3) -> f64 {
+        stress(params, f).psi
+    }
+
+    /// P = ∂ψ/∂F by central differences, for every model.
+    #[test]
+    fn stress_is_the_energy_gradient() {
+        for model in [
+            ElasticModel::StVK,
+            ElasticModel::MuellerCompat,
+            ElasticModel::Corotated,
+        ] {
+            let mut params = ElasticParams::stvk(5000.0, 0.45);
+            params.model = model;
+            params.volume_k = 2000.0;
+            let f = sample_f();
+            let p = stress(&params, &f).p;
+            let h = 1e-6;
+            for a in 0..3 {
+                for b in 0..3 {
+                    let mut fp = f;
+                    let mut fm = f;
+                    fp[(a, b)] += h;
+                    fm[(a, b)] -= h;
+                    let fd = (energy(&params, &fp) - energy(&params, &fm)) / (2.0 * h);
+                    assert!(
+                        (fd - p[(a, b)]).abs() < 1e-4 * p.norm().max(1.0),
+                        "{model:?} ({a},{b})"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The differential matches finite differences of P (StVK and MuellerCompat exactly).
+    #[test]
+    fn differential_matches_finite_differences() {
+        for model in [ElasticModel::StVK, ElasticModel::MuellerCompat] {
+            let mut params = ElasticParams::stvk(5000.0, 0.45);
+            params.model = model;
+            params.volume_k = 1000.0;
+            let f = sample_f();
+            let df = Mat3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.3, 0.1, 0.2, -0.2);
+            let h = 1e-6;
+            let fd =
+                (stress(&params, &(f + df * h)).p - stress(&params, &(f - df * h)).p) / (2.0 * h);
+            let an = stress_differential(&params, &f, &df);
+            assert!((fd - an).norm() < 1e-5 * an.norm(), "{model:?}");
+        }
+    }
+
+    #[test]
+    fn mueller_is_stvk_with_four_times_the_stiffness() {
+        let f = sample_f();
+        let stvk = ElasticParams::stvk(20000.0, 0.3);
+        let mut m = ElasticParams::stvk(5000.0, 0.3);
+        m.model = ElasticModel::MuellerCompat;
+        let (a, b) = (stress(&stvk, &f), stress(&m, &f));
+        assert!((a.p - b.p).norm() < 1e-12 * a.p.norm());
+        assert!((a.psi - b.psi).abs() < 1e-12 * a.psi);
+    }
+
+    #[test]
+    fn rotations_carry_no_stress() {
+        let r = *nalgebra::Rotation3::from_euler_angles(0.4, 1.3, -2.0).matrix();
+        for model in [
+            ElasticModel::StVK,
+            ElasticModel::MuellerCompat,
+            ElasticModel::Corotated,
+        ] {
+            let mut params = ElasticParams::stvk(5000.0, 0.45);
+            params.model = model;
+            params.volume_k = 1000.0;
+            let s = stress(&params, &r);
+            assert!(s.p.norm() < 1e-10 && s.psi.abs() < 1e-12, "{model:?}");
+        }
+    }
+
+    #[test]
+    fn inverted_gradient_is_clamped_to_a_proper_one() {
+        let f = Mat3::from_diagonal(&crate::math::Vec3::new(1.0, 1.0, -0.5));
+        let c = clamp_singular_values(&f);
+        assert!(c.determinant() > 0.0);
+        let s = stress(&ElasticParams::stvk(5000.0, 0.45), &f);
+        assert!(s.clamped && s.det < 0.0 && s.p.iter().all(|x| x.is_finite()));
+    }
+
+    #[test]
+    fn polar_is_a_rotation_times_symmetric() {
+        let f = sample_f();
+        let (r, s) = polar(&f);
+        assert!((r * s - f).norm() < 1e-12);
+        assert!((r.transpose() * r - Mat3::identity()).norm() < 1e-12);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+        assert!((s - s.transpose()).norm() < 1e-12);
+    }
+}

@@ -1,0 +1,312 @@
+//! The MLS gradient operator, precomputed in rest space (physics.md §1.4, §3).
+//!
+//! For point i with neighbours j: `A_i = Σ_j w_ij x_ij x_ijᵀ`, `d_ij = A_i⁺ w_ij x_ij`, and
+//! `F_i = Σ_j (p_j − p_i) d_ijᵀ = (Σ_j (p_j − p_i) ⊗ w_ij x_ij) A_i⁺` (A is symmetric). So a
+//! pair needs only `w_ij x_ij` and `w_ij`; the per-point `A_i⁺` turns the accumulated outer
+//! product into F. The same identity collapses the force scatter (see `forces`).
+//!
+//! Rank handling after cuts (§3): the eigenvalues of A_i decide the rank, with a direction
+//! counted as unsampled below `σ_max / 10⁴`. Rank 3 uses A⁻¹. Rank 2 (a planar
+//! neighbourhood, e.g. a one-layer sliver) uses the pseudo-inverse and records the range and
+//! null directions so that F can be completed with the current normal. Rank ≤ 1, or fewer than
+//! four neighbours, is an orphan: it carries no stress of its own and follows its neighbours
+//! through their fits (they still see it) and their hourglass terms.
+//!
+//! Rows are stored with a fixed capacity per point, mirroring [`Neighbourhoods`], so a cut
+//! recomputes only the points whose neighbourhood changed ([`MlsOperator::update_points`]).
+
+use crate::math::{Mat3, Vec3};
+use crate::model::{Kernel, Neighbourhoods};
+
+/// A direction is unsampled when its eigenvalue is below σ_max divided by this.
+pub const MAX_CONDITION: f64 = 1e4;
+
+/// Per-pair data: `w_ij x_ij` and `w_ij`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PairTerm {
+    /// `w_ij (X_j − X_i)` (m).
+    pub wx: Vec3,
+    /// Kernel weight w_ij.
+    pub w: f64,
+}
+
+/// How a point's neighbourhood samples space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PointRank {
+    /// Full rank: F from A⁻¹.
+    Full,
+    /// Planar neighbourhood: F from the pseudo-inverse, completed along `null` (rest normal)
+    /// with the current normal built from the images of `t1` and `t2`.
+    Planar {
+        /// In-plane principal direction.
+        t1: Vec3,
+        /// Second in-plane direction, with `t1 × t2 = null`.
+        t2: Vec3,
+        /// Unsampled (normal) direction.
+        null: Vec3,
+    },
+    /// Rank ≤ 1 or fewer than 4 neighbours: no stress of its own.
+    Orphan,
+}
+
+/// Per-point data.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointTerm {
+    /// A⁺ (inverse, or pseudo-inverse on the sampled directions).
+    pub a_pinv: Mat3,
+    /// tr(A) (m²), for the hourglass stiffness k_i = α E V_i / tr(A_i).
+    pub trace_a: f64,
+    /// Σ_j w_ij x_ij (m): with it, `F_i = (Σ_j p_j ⊗ w x − p_i ⊗ Σ w x) A⁺`.
+    pub sum_wx: Vec3,
+    /// Σ_j w_ij.
+    pub sum_w: f64,
+    /// σ_max / σ_min of A over its sampled directions.
+    pub condition: f64,
+    /// Rank classification.
+    pub rank: PointRank,
+}
+
+impl Default for PointTerm {
+    fn default() -> Self {
+        Self {
+            a_pinv: Mat3::zeros(),
+            trace_a: 0.0,
+            sum_wx: Vec3::zeros(),
+            sum_w: 0.0,
+            condition: 1.0,
+            rank: PointRank::Orphan,
+        }
+    }
+}
+
+/// The precomputed operator: for each point, its neighbours, pair terms and point term.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MlsOperator {
+    capacity: usize,
+    counts: Vec<u32>,
+    ids: Vec<u32>,
+    pairs: Vec<PairTerm>,
+    points: Vec<PointTerm>,
+}
+
+/// Counts of each rank class, for reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct RankCounts {
+    /// Full-rank points.
+    pub full: usize,
+    /// Planar (rank-2) points.
+    pub planar: usize,
+    /// Orphans.
+    pub orphan: usize,
+}
+
+impl MlsOperator {
+    /// Precomputes the operator for every point.
+    pub fn build(rest: &[Vec3], neighbours: &Neighbourhoods, kernel: &Kernel) -> Self {
+        let capacity = neighbours.capacity();
+        let n = rest.len();
+        let mut op = Self {
+            capacity,
+            counts: vec![0; n],
+            ids: vec![u32::MAX; n * capacity],
+            pairs: vec![PairTerm::default(); n * capacity],
+            points: vec![PointTerm::default(); n],
+        };
+        for i in 0..n {
+            op.compute_point(i, rest, neighbours, kernel);
+        }
+        op
+    }
+
+    /// Recomputes the rows of `points` after their neighbour lists changed (a cut). Call it
+    /// for every point whose list changed, including those that lost a neighbour because the
+    /// other end's list changed.
+    pub fn update_points(
+        &mut self,
+        points: &[u32],
+        rest: &[Vec3],
+        neighbours: &Neighbourhoods,
+        kernel: &Kernel,
+    ) {
+        for &i in points {
+            self.compute_point(i as usize, rest, neighbours, kernel);
+        }
+    }
+
+    fn compute_point(
+        &mut self,
+        i: usize,
+        rest: &[Vec3],
+        neighbours: &Neighbourhoods,
+        kernel: &Kernel,
+    ) {
+        let list = neighbours.of(i);
+        let base = i * self.capacity;
+        let mut a = Mat3::zeros();
+        let mut sum_wx = Vec3::zeros();
+        let mut sum_w = 0.0;
+        let mut count = 0;
+        for &j in list {
+            let x = rest[j as usize] - rest[i];
+            let w = kernel.weight_sq(x.norm_squared());
+            if w <= 0.0 {
+                continue;
+            }
+            a += x * x.transpose() * w;
+            sum_wx += x * w;
+            sum_w += w;
+            self.ids[base + count] = j;
+            self.pairs[base + count] = PairTerm { wx: x * w, w };
+            count += 1;
+        }
+        for k in count..self.capacity {
+            self.ids[base + k] = u32::MAX;
+            self.pairs[base + k] = PairTerm::default();
+        }
+        self.counts[i] = count as u32;
+        self.points[i] = classify(a, sum_wx, sum_w, count);
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Neighbour ids of point i.
+    #[inline]
+    pub fn neighbours(&self, i: usize) -> &[u32] {
+        let base = i * self.capacity;
+        &self.ids[base..base + self.counts[i] as usize]
+    }
+
+    /// Pair terms of point i, in the order of [`MlsOperator::neighbours`].
+    #[inline]
+    pub fn pairs(&self, i: usize) -> &[PairTerm] {
+        let base = i * self.capacity;
+        &self.pairs[base..base + self.counts[i] as usize]
+    }
+
+    /// Point term of point i.
+    #[inline]
+    pub fn point(&self, i: usize) -> &PointTerm {
+        &self.points[i]
+    }
+
+    /// Largest neighbour count any point can hold.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// The MLS gradient weight vector `d_ij = A_i⁺ w_ij x_ij` for the k-th neighbour of i.
+    pub fn d(&self, i: usize, k: usize) -> Vec3 {
+        self.points[i].a_pinv * self.pairs(i)[k].wx
+    }
+
+    /// How many points are in each rank class.
+    pub fn rank_counts(&self) -> RankCounts {
+        let mut c = RankCounts::default();
+        for p in &self.points {
+            match p.rank {
+                PointRank::Full => c.full += 1,
+                PointRank::Planar { .. } => c.planar += 1,
+                PointRank::Orphan => c.orphan += 1,
+            }
+        }
+        c
+    }
+
+    /// Deformation gradient of point i at positions `p` (completed for planar points,
+    /// identity for orphans, which have none of their own).
+    pub fn deformation_gradient(&self, i: usize, p: &[Vec3]) -> Mat3 {
+        let term = &self.points[i];
+        if let PointRank::Orphan = term.rank {
+            return Mat3::identity();
+        }
+        let fp = self.fitted_gradient(i, p);
+        complete(fp, &term.rank)
+    }
+
+    /// The least-squares fit `F_p = Σ_j (p_j − p_i) ⊗ w x · A⁺` without completion.
+    #[inline]
+    pub fn fitted_gradient(&self, i: usize, p: &[Vec3]) -> Mat3 {
+        let pi = p[i];
+        let mut b = Mat3::zeros();
+        for (j, pair) in self.neighbours(i).iter().zip(self.pairs(i)) {
+            b += (p[*j as usize] - pi) * pair.wx.transpose();
+        }
+        b * self.points[i].a_pinv
+    }
+}
+
+/// Completes a planar point's fitted gradient with the current normal (physics.md §3):
+/// `F = F_p + n_c n_rᵀ`, `n_c = normalize((F_p t1) × (F_p t2))`. Other ranks pass through.
+#[inline]
+pub fn complete(fp: Mat3, rank: &PointRank) -> Mat3 {
+    match rank {
+        PointRank::Planar { t1, t2, null } => {
+            let nc = (fp * t1).cross(&(fp * t2));
+            let len = nc.norm();
+            if len > 0.0 {
+                fp + (nc / len) * null.transpose()
+            } else {
+                // The sliver collapsed to a line; keep the rest normal rather than a zero column.
+                fp + null * null.transpose()
+            }
+        }
+        _ => fp,
+    }
+}
+
+/// Rank test and (pseudo-)inverse of a moment matrix.
+fn classify(a: Mat3, sum_wx: Vec3, sum_w: f64, count: usize) -> PointTerm {
+    let trace_a = a.trace();
+    let mut term = PointTerm {
+        trace_a,
+        sum_wx,
+        sum_w,
+        ..PointTerm::default()
+    };
+    if count < 4 || trace_a <= 0.0 {
+        return term;
+    }
+    let eig = nalgebra::SymmetricEigen::new(a);
+    let sigma_max = eig.eigenvalues.max();
+    let threshold = sigma_max / MAX_CONDITION;
+    let sampled: Vec<usize> = (0..3).filter(|&k| eig.eigenvalues[k] > threshold).collect();
+    let mut pinv = Mat3::zeros();
+    for &k in &sampled {
+        let v = eig.eigenvectors.column(k);
+        pinv += v * v.transpose() / eig.eigenvalues[k];
+    }
+    let sigma_min = sampled
+        .iter()
+        .map(|&k| eig.eigenvalues[k])
+        .fold(f64::INFINITY, f64::min);
+    term.a_pinv = pinv;
+    term.condition = sigma_max / sigma_min;
+    term.rank = match sampled.len() {
+        3 => PointRank::Full,
+        2 => {
+            let null_k = (0..3).find(|k| !sampled.contains(k)).unwrap_or(0);
+            let t1: Vec3 = eig.eigenvectors.column(sampled[0]).into();
+            let t2: Vec3 = eig.eigenvectors.column(sampled[1]).into();
+            // Orient the null direction so that (t1, t2, null) is right-handed; completion
+            // then keeps det F > 0 under any rotation.
+            let mut null: Vec3 = eig.eigenvectors.column(null_k).into();
+            if t1.cross(&t2).dot(&null) < 0.0 {
+                null = -null;
+            }
+            PointRank::Planar { t1, t2, null }
+        }
+        _ => {
+            term.a_pinv = Mat3::zeros();
+            PointRank::Orphan
+        }
+    };
+    term
+}
