@@ -27,3 +27,5 @@ pub mod mls;
 pub mod model;
 pub mod progress;
 pub mod scene;
+pub mod solver;
+pub mod validate;

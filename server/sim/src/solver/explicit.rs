@@ -1,0 +1,169 @@
+//! Explicit symplectic Euler with automatic sub-stepping and the divergence guard
+//! (physics.md §2.1, §2.5).
+
+use super::events::{DivergenceReason, SolverEvent, StepReport};
+use super::{MAX_SUBSTEPS, Solver, kinetic_energy};
+use crate::math::Vec3;
+use crate::mls::forces::{ForceStats, add_elastic_forces};
+
+/// Energy below this is treated as zero by the growth test (J).
+const ENERGY_FLOOR: f64 = 1e-12;
+/// Allowed growth of total energy within a tick beyond the work put in.
+const ENERGY_GROWTH: f64 = 1.5;
+/// A point may move at most this many lattice spacings in one sub-step.
+const MAX_MOVE_SPACINGS: f64 = 0.3;
+
+impl Solver {
+    pub(super) fn tick_explicit(&mut self, dt: f64) -> StepReport {
+        self.plan_substeps(dt);
+        self.snap_p.copy_from_slice(&self.p);
+        self.snap_v.copy_from_slice(&self.v);
+        let mut rollbacks = 0;
+        loop {
+            match self.run_substeps(dt) {
+                Ok(stats) => {
+                    self.note_clamping(&stats);
+                    return StepReport {
+                        substeps: self.substeps,
+                        dt_sub_s: dt / self.substeps as f64,
+                        rollbacks,
+                        diverged: false,
+                        kinetic_energy: self.kinetic_energy(),
+                        elastic_energy: stats.energy(),
+                        min_det_f: stats.min_det_f,
+                        clamped_points: stats.clamped_points,
+                        iterations: 0,
+                    };
+                }
+                Err(reason) => {
+                    self.p.copy_from_slice(&self.snap_p);
+                    self.v.copy_from_slice(&self.snap_v);
+                    if rollbacks >= self.config.max_rollbacks || self.substeps >= MAX_SUBSTEPS {
+                        // Keep the last good state, at rest: nothing non-finite leaves.
+                        self.v.iter_mut().for_each(|v| *v = Vec3::zeros());
+                        self.events.push(SolverEvent::Diverged {
+                            tick: self.tick,
+                            reason,
+                        });
+                        return StepReport {
+                            substeps: self.substeps,
+                            dt_sub_s: dt / self.substeps as f64,
+                            rollbacks,
+                            diverged: true,
+                            ..StepReport::default()
+                        };
+                    }
+                    rollbacks += 1;
+                    self.substeps = (self.substeps * 2).min(MAX_SUBSTEPS);
+                    self.events.push(SolverEvent::Rollback {
+                        tick: self.tick,
+                        reason,
+                        substeps: self.substeps,
+                    });
+                }
+            }
+        }
+    }
+
+    /// Sets the sub-step count for ticks of `dt`, from dt_crit (computed when missing) or the
+    /// override. Kept across ticks, so rollbacks' halvings persist.
+    fn plan_substeps(&mut self, dt: f64) {
+        if self.dt_crit.is_some() && self.substeps_for_dt == dt {
+            return;
+        }
+        let fresh = self.dt_crit.is_none();
+        let dt_crit = self.dt_crit();
+        let h = self
+            .config
+            .dt_override_s
+            .unwrap_or(self.config.safety * dt_crit);
+        self.substeps = ((dt / h).ceil() as u32).clamp(1, MAX_SUBSTEPS);
+        self.substeps_for_dt = dt;
+        if fresh {
+            self.events.push(SolverEvent::TimeStep {
+                tick: self.tick,
+                dt_crit_s: dt_crit,
+                substeps: self.substeps,
+            });
+        }
+    }
+
+    /// One attempt at the tick. Fixed dofs move linearly from their tick-start positions to
+    /// their targets. Returns the last force statistics, or why the attempt diverged.
+    fn run_substeps(&mut self, dt: f64) -> Result<ForceStats, DivergenceReason> {
+        let n = self.substeps;
+        let h = dt / n as f64;
+        let decay = (-self.config.damping_per_s * h).exp();
+        let max_move = MAX_MOVE_SPACINGS * self.spacing_m;
+        let gravity = self.config.gravity;
+        let mut reference: Option<f64> = None;
+        let mut work = 0.0;
+        let mut stats = None;
+        for s in 0..n {
+            self.force.iter_mut().for_each(|f| *f = Vec3::zeros());
+            let st = add_elastic_forces(
+                &self.op,
+                &self.params,
+                &self.volume,
+                &self.p,
+                None,
+                &mut self.force,
+            );
+            if !st.finite {
+                return Err(DivergenceReason::NonFinite);
+            }
+            let energy = kinetic_energy(&self.mass, &self.v, &self.fixed) + st.energy();
+            let e0 = *reference.get_or_insert(energy);
+            let bound = ENERGY_GROWTH * e0 + work + ENERGY_FLOOR;
+            if energy.is_nan() || energy > bound {
+                return Err(DivergenceReason::EnergyGrowth);
+            }
+            let frac = (s + 1) as f64 / n as f64;
+            for i in 0..self.p.len() {
+                let applied = self.external[i] + gravity * self.mass[i];
+                let mut moved = Vec3::zeros();
+                for a in 0..3 {
+                    if self.fixed[i][a] {
+                        let goal =
+                            self.snap_p[i][a] + frac * (self.target[i][a] - self.snap_p[i][a]);
+                        let d = goal - self.p[i][a];
+                        // The constraint holds the dof against the elastic force, so it does
+                        // −f_elastic·d of work on the body (the applied load's own work cancels).
+                        work -= self.force[i][a] * d;
+                        self.p[i][a] = goal;
+                        self.v[i][a] = d / h;
+                    } else {
+                        let total = self.force[i][a] + applied[a];
+                        self.v[i][a] = (self.v[i][a] + h * total / self.mass[i]) * decay;
+                        let d = h * self.v[i][a];
+                        work += applied[a] * d;
+                        self.p[i][a] += d;
+                        moved[a] = d;
+                    }
+                }
+                let step = moved.norm();
+                if !step.is_finite() {
+                    return Err(DivergenceReason::NonFinite);
+                }
+                if step > max_move {
+                    return Err(DivergenceReason::Speed);
+                }
+            }
+            stats = Some(st);
+        }
+        Ok(stats.expect("a tick has at least one sub-step"))
+    }
+
+    pub(super) fn note_clamping(&mut self, stats: &ForceStats) {
+        let clamping = stats.clamped_points > 0;
+        if clamping && !self.clamping {
+            self.events.push(SolverEvent::ExtremeDeformation {
+                tick: self.tick,
+                points: stats.clamped_points,
+                min_det_f: stats.min_det_f,
+            });
+        }
+        self.clamping = clamping;
+        self.last_stats = Some(*stats);
+    }
+}

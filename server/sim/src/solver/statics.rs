@@ -1,0 +1,221 @@
+//! Static equilibrium by Newton's method with Jacobi-preconditioned conjugate gradients on
+//! the exact tangent (the quasi-static mode, used by the validation benchmarks).
+
+use serde::Serialize;
+
+use super::Solver;
+use crate::math::Vec3;
+use crate::mls::forces::{add_elastic_forces, hourglass_stiffness, stiffness_product};
+use crate::mls::{ElasticParams, MlsOperator, PointRank};
+
+/// Outcome of a static solve.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StaticReport {
+    /// Residual fell below the tolerance.
+    pub converged: bool,
+    /// Newton iterations.
+    pub newton_iterations: u32,
+    /// Conjugate-gradient iterations over all Newton steps.
+    pub cg_iterations: u32,
+    /// Final residual force norm (N).
+    pub residual_n: f64,
+    /// Elastic energy at the solution (J).
+    pub elastic_energy: f64,
+}
+
+const MAX_NEWTON: u32 = 40;
+const MAX_CG: u32 = 20_000;
+const CG_TOLERANCE: f64 = 1e-10;
+
+/// A scalar per point approximating the diagonal of K (N/m), for Jacobi preconditioning:
+/// `Σ V (λ + 2μ + k_v) |c|²` over every stencil the point appears in, plus hourglass terms.
+pub(super) fn diagonal_stiffness(
+    op: &MlsOperator,
+    params: &ElasticParams,
+    volume: &[f64],
+) -> Vec<f64> {
+    let mut d = vec![0.0; op.len()];
+    let modulus = params.wave_modulus();
+    for i in 0..op.len() {
+        let term = op.point(i);
+        if let PointRank::Orphan = term.rank {
+            continue;
+        }
+        let v = volume[i];
+        let k = hourglass_stiffness(params, v, term.trace_a);
+        let dii = -(term.a_pinv * term.sum_wx);
+        d[i] += v * modulus * dii.norm_squared();
+        for (j, pair) in op.neighbours(i).iter().zip(op.pairs(i)) {
+            let dij = term.a_pinv * pair.wx;
+            d[*j as usize] += v * modulus * dij.norm_squared() + k * pair.w;
+            d[i] += k * pair.w;
+        }
+    }
+    // Points no stencil touches keep a unit diagonal so the preconditioner stays finite.
+    for x in &mut d {
+        if *x <= 0.0 {
+            *x = 1.0;
+        }
+    }
+    d
+}
+
+impl Solver {
+    /// Solves for static equilibrium under the current loads and constraints, starting from
+    /// the current positions (fixed dofs go to their targets). Velocities are zeroed.
+    pub fn solve_static(&mut self) -> StaticReport {
+        let n = self.p.len();
+        for i in 0..n {
+            for a in 0..3 {
+                if self.fixed[i][a] {
+                    self.p[i][a] = self.target[i][a];
+                }
+            }
+        }
+        self.v.iter_mut().for_each(|v| *v = Vec3::zeros());
+        let mut report = StaticReport {
+            converged: false,
+            newton_iterations: 0,
+            cg_iterations: 0,
+            residual_n: f64::INFINITY,
+            elastic_energy: 0.0,
+        };
+        let mut reference = 0.0f64;
+        for it in 0..MAX_NEWTON {
+            let (residual, energy) = self.residual_into_scratch();
+            report.residual_n = residual;
+            report.elastic_energy = energy;
+            report.newton_iterations = it;
+            let loads: f64 = (0..n)
+                .map(|i| (self.external[i] + self.config.gravity * self.mass[i]).norm_squared())
+                .sum::<f64>()
+                .sqrt();
+            reference = reference
+                .max(loads)
+                .max(if it == 0 { residual } else { 0.0 });
+            if residual <= self.config.static_tolerance * reference || residual == 0.0 {
+                report.converged = true;
+                break;
+            }
+            let cg = self.conjugate_gradients();
+            report.cg_iterations += cg;
+            // Backtrack on the potential energy if the full Newton step does not decrease it.
+            let potential0 = self.potential_energy();
+            let mut alpha = 1.0;
+            for _ in 0..12 {
+                for i in 0..n {
+                    let step = self.scratch[1][i] * alpha;
+                    self.scratch[4][i] = self.p[i];
+                    self.p[i] += step;
+                }
+                if self.potential_energy() <= potential0 + 1e-12 * potential0.abs() {
+                    break;
+                }
+                self.p.copy_from_slice(&self.scratch[4]);
+                alpha *= 0.5;
+            }
+        }
+        if let Some(stats) = self.last_stats {
+            self.note_clamping(&stats);
+        }
+        report
+    }
+
+    /// Writes the out-of-balance force (elastic + applied) on the free dofs into scratch[0];
+    /// returns its norm and the elastic energy.
+    fn residual_into_scratch(&mut self) -> (f64, f64) {
+        let n = self.p.len();
+        let r = &mut self.scratch[0];
+        r.iter_mut().for_each(|x| *x = Vec3::zeros());
+        let stats = add_elastic_forces(&self.op, &self.params, &self.volume, &self.p, None, r);
+        self.last_stats = Some(stats);
+        let mut norm = 0.0;
+        for i in 0..n {
+            r[i] += self.external[i] + self.config.gravity * self.mass[i];
+            for a in 0..3 {
+                if self.fixed[i][a] {
+                    r[i][a] = 0.0;
+                }
+            }
+            norm += r[i].norm_squared();
+        }
+        (norm.sqrt(), stats.energy())
+    }
+
+    /// Elastic energy minus the work of the applied loads.
+    fn potential_energy(&mut self) -> f64 {
+        let n = self.p.len();
+        let f = &mut self.scratch[3];
+        f.iter_mut().for_each(|x| *x = Vec3::zeros());
+        let stats = add_elastic_forces(&self.op, &self.params, &self.volume, &self.p, None, f);
+        let mut potential = stats.energy();
+        for i in 0..n {
+            potential -= (self.external[i] + self.config.gravity * self.mass[i]).dot(&self.p[i]);
+        }
+        if stats.finite {
+            potential
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// Solves K x = r (r in scratch[0]) for x in scratch[1] by Jacobi-PCG on the free dofs.
+    /// Stops at negative curvature (keeping the progress so far). Returns the iterations.
+    fn conjugate_gradients(&mut self) -> u32 {
+        let n = self.p.len();
+        let [r, x, d, q, z] = &mut self.scratch;
+        let fixed = &self.fixed;
+        let mask = |v: &mut [Vec3]| {
+            for i in 0..n {
+                for a in 0..3 {
+                    if fixed[i][a] {
+                        v[i][a] = 0.0;
+                    }
+                }
+            }
+        };
+        let dot = |a: &[Vec3], b: &[Vec3]| (0..n).map(|i| a[i].dot(&b[i])).sum::<f64>();
+        x.iter_mut().for_each(|v| *v = Vec3::zeros());
+        let b_norm = dot(r, r).sqrt();
+        if b_norm == 0.0 {
+            return 0;
+        }
+        for i in 0..n {
+            z[i] = r[i] / self.precond[i];
+        }
+        d.copy_from_slice(z);
+        let mut rz = dot(r, z);
+        let mut iterations = 0;
+        for k in 0..MAX_CG {
+            iterations = k + 1;
+            stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
+            mask(q);
+            let dq = dot(d, q);
+            if dq <= 0.0 {
+                if k == 0 {
+                    // No curvature information at all: take a preconditioned gradient step.
+                    x.copy_from_slice(z);
+                }
+                break;
+            }
+            let alpha = rz / dq;
+            for i in 0..n {
+                x[i] += d[i] * alpha;
+                r[i] -= q[i] * alpha;
+            }
+            if dot(r, r).sqrt() <= CG_TOLERANCE * b_norm {
+                break;
+            }
+            for i in 0..n {
+                z[i] = r[i] / self.precond[i];
+            }
+            let rz_new = dot(r, z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for i in 0..n {
+                d[i] = z[i] + d[i] * beta;
+            }
+        }
+        iterations
+    }
+}

@@ -1,0 +1,74 @@
+//! Box-shaped bodies for the benchmarks, built through the scene pipeline.
+
+use crate::geometry::organs::box_mesh;
+use crate::geometry::{ValidationOptions, validate};
+use crate::math::Vec3;
+use crate::model::{CoupledModel, SamplingParams, SpacingRule};
+use crate::progress::Silent;
+use crate::scene::Material;
+use crate::solver::{Solver, SolverConfig};
+
+/// A box body: its model (lattice, neighbours) and a solver on it.
+pub struct BoxBody {
+    /// The coupled model.
+    pub model: CoupledModel,
+    /// The solver.
+    pub solver: Solver,
+    /// Box edge lengths (m); the box is centred on the origin.
+    pub size: Vec3,
+}
+
+impl BoxBody {
+    /// Points whose rest coordinate on `axis` is at the box's `side` (−1 min, +1 max).
+    pub fn face(&self, axis: usize, side: f64) -> Vec<usize> {
+        let s = self.model.lattice.spacing;
+        let at = side * 0.5 * self.size[axis];
+        (0..self.model.points.len())
+            .filter(|&i| (self.model.points.rest[i][axis] - at).abs() < 1e-6 * s)
+            .collect()
+    }
+
+    /// Number of lattice points along `axis`.
+    pub fn points_along(&self, axis: usize) -> usize {
+        self.model.lattice.dims[axis]
+    }
+}
+
+/// A box of `size` (m), centred on the origin, sampled with `points_across` points along its
+/// shortest side (so points sit on all faces when the sides are multiples of the spacing).
+pub fn box_body(
+    size: Vec3,
+    points_across: usize,
+    material: &Material,
+    support_ratio: f64,
+    config: SolverConfig,
+) -> BoxBody {
+    let spacing = size.min() / (points_across - 1) as f64;
+    let mesh = box_mesh(size, [1, 1, 1]);
+    let surface = validate(mesh, "benchmark box", &ValidationOptions::default())
+        .expect("a box is a valid mesh")
+        .mesh;
+    let params = SamplingParams {
+        spacing: SpacingRule::Spacing(spacing),
+        support_ratio,
+        ..SamplingParams::default()
+    };
+    let model = CoupledModel::build(surface, &params, material.density_kg_m3, &mut Silent)
+        .expect("a box always samples");
+    let solver = Solver::for_model(&model, material, config);
+    BoxBody {
+        model,
+        solver,
+        size,
+    }
+}
+
+/// Timoshenko tip deflection of a square cantilever (m): `PL³/(3EI) + PL/(κGA)` with
+/// `κ = 10(1+ν)/(12+11ν)`.
+pub fn timoshenko_tip_deflection(load_n: f64, length: f64, side: f64, e: f64, nu: f64) -> f64 {
+    let inertia = side.powi(4) / 12.0;
+    let area = side * side;
+    let shear = e / (2.0 * (1.0 + nu));
+    let kappa = 10.0 * (1.0 + nu) / (12.0 + 11.0 * nu);
+    load_n * length.powi(3) / (3.0 * e * inertia) + load_n * length / (kappa * shear * area)
+}

@@ -1,0 +1,99 @@
+//! Analytic validation benchmarks (physics.md §8), shared by the tests and `scalpel validate`.
+//!
+//! Each benchmark builds its body through the real pipeline (box surface → validated mesh →
+//! lattice with exact clipped volumes → MLS operator → solver) and compares with the
+//! analytic answer. No clock here: callers time the runs.
+
+mod bodies;
+mod cases;
+
+use serde::Serialize;
+
+pub use bodies::{BoxBody, box_body, timoshenko_tip_deflection};
+pub use cases::*;
+
+/// The outcome of one benchmark.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchmarkResult {
+    /// Short id (B1, B2, ...).
+    pub name: &'static str,
+    /// What it checks.
+    pub title: &'static str,
+    /// Measured error (relative unless the detail says otherwise).
+    pub error: f64,
+    /// Pass band.
+    pub tolerance: f64,
+    /// `error <= tolerance`.
+    pub pass: bool,
+    /// Figures behind the error, for people.
+    pub detail: String,
+}
+
+impl BenchmarkResult {
+    fn new(
+        name: &'static str,
+        title: &'static str,
+        error: f64,
+        tolerance: f64,
+        detail: String,
+    ) -> Self {
+        Self {
+            name,
+            title,
+            error,
+            tolerance,
+            pass: error <= tolerance && error.is_finite(),
+            detail,
+        }
+    }
+}
+
+/// A benchmark that can be run by name.
+pub struct Benchmark {
+    /// Short id.
+    pub name: &'static str,
+    /// Runs it.
+    pub run: fn() -> BenchmarkResult,
+}
+
+/// Every benchmark of issue 3, in order.
+pub fn all() -> Vec<Benchmark> {
+    vec![
+        Benchmark {
+            name: "B1",
+            run: b1_kinematic_patch,
+        },
+        Benchmark {
+            name: "B2",
+            run: b2_static_patch,
+        },
+        Benchmark {
+            name: "B3",
+            run: b3_uniaxial_tension,
+        },
+        Benchmark {
+            name: "B5",
+            run: b5_cantilever,
+        },
+        Benchmark {
+            name: "B5b",
+            run: b5b_slender_cantilever,
+        },
+        Benchmark {
+            name: "B6",
+            run: b6_bending_frequency,
+        },
+        Benchmark {
+            name: "B9",
+            run: b9_rigid_rotation,
+        },
+        Benchmark {
+            name: "B11",
+            run: b11_sliver_completion,
+        },
+        Benchmark {
+            name: "B12",
+            run: b12_momentum,
+        },
+    ]
+}
