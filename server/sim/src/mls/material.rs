@@ -67,6 +67,9 @@ pub struct ElasticParams {
     pub hourglass_alpha: f64,
     /// Volume-term stiffness k_v (Pa); 0 disables.
     pub volume_k: f64,
+    /// Evaluate the stress at F with clamped singular values when det F leaves
+    /// [`DET_RANGE`] (the guard's inversion fallback). Off only to show what plain StVK does.
+    pub clamp_inversion: bool,
 }
 
 impl ElasticParams {
@@ -78,6 +81,7 @@ impl ElasticParams {
             youngs_modulus_pa: e,
             hourglass_alpha: 0.1,
             volume_k: 0.0,
+            clamp_inversion: true,
         }
     }
 
@@ -116,7 +120,8 @@ pub struct StressSample {
 pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
     let det = f.determinant();
     let (lo, hi) = DET_RANGE;
-    let (f_eval, clamped) = if det < lo || det > hi || !det.is_finite() {
+    let outside = det < lo || det > hi || !det.is_finite();
+    let (f_eval, clamped) = if outside && params.clamp_inversion {
         (clamp_singular_values(f), true)
     } else {
         (*f, false)

@@ -26,6 +26,8 @@ pub enum SolverEvent {
         tick: u64,
         /// What was detected.
         reason: DivergenceReason,
+        /// The sub-step (0-based) of the failed attempt in which it was detected.
+        detected_at_substep: u32,
         /// Sub-steps per tick from now on.
         substeps: u32,
     },
@@ -131,6 +133,8 @@ pub struct StepReport {
     pub clamped_points: u32,
     /// Iterations used (projective dynamics, Newton) where applicable.
     pub iterations: u32,
+    /// Work done on the body by applied loads and moving constraints during the tick (J).
+    pub work_j: f64,
 }
 
 #[cfg(test)]

@@ -12,6 +12,8 @@ const ENERGY_FLOOR: f64 = 1e-12;
 const ENERGY_GROWTH: f64 = 1.5;
 /// A point may move at most this many lattice spacings in one sub-step.
 const MAX_MOVE_SPACINGS: f64 = 0.3;
+/// Sub-steps added by rollbacks are halved again after this many calm ticks.
+const CALM_TICKS_BEFORE_RELAXING: u32 = 1000;
 
 impl Solver {
     pub(super) fn tick_explicit(&mut self, dt: f64) -> StepReport {
@@ -21,8 +23,9 @@ impl Solver {
         let mut rollbacks = 0;
         loop {
             match self.run_substeps(dt) {
-                Ok(stats) => {
+                Ok((stats, work)) => {
                     self.note_clamping(&stats);
+                    self.relax_substeps(rollbacks);
                     return StepReport {
                         substeps: self.substeps,
                         dt_sub_s: dt / self.substeps as f64,
@@ -33,18 +36,22 @@ impl Solver {
                         min_det_f: stats.min_det_f,
                         clamped_points: stats.clamped_points,
                         iterations: 0,
+                        work_j: work,
                     };
                 }
-                Err(reason) => {
+                Err((reason, at)) => {
                     self.p.copy_from_slice(&self.snap_p);
                     self.v.copy_from_slice(&self.snap_v);
                     if rollbacks >= self.config.max_rollbacks || self.substeps >= MAX_SUBSTEPS {
-                        // Keep the last good state, at rest: nothing non-finite leaves.
+                        // Keep the last good state, at rest: nothing non-finite leaves. The
+                        // state may be stiffer than at the last estimate: re-plan the step.
                         self.v.iter_mut().for_each(|v| *v = Vec3::zeros());
                         self.events.push(SolverEvent::Diverged {
                             tick: self.tick,
                             reason,
                         });
+                        self.dt_crit = None;
+                        self.calm_ticks = 0;
                         return StepReport {
                             substeps: self.substeps,
                             dt_sub_s: dt / self.substeps as f64,
@@ -58,6 +65,7 @@ impl Solver {
                     self.events.push(SolverEvent::Rollback {
                         tick: self.tick,
                         reason,
+                        detected_at_substep: at,
                         substeps: self.substeps,
                     });
                 }
@@ -65,8 +73,21 @@ impl Solver {
         }
     }
 
+    /// After a run of calm ticks, gives back one doubling that a rollback added.
+    fn relax_substeps(&mut self, rollbacks: u32) {
+        if rollbacks > 0 {
+            self.calm_ticks = 0;
+            return;
+        }
+        self.calm_ticks += 1;
+        if self.calm_ticks >= CALM_TICKS_BEFORE_RELAXING && self.substeps > self.planned_substeps {
+            self.substeps = (self.substeps / 2).max(self.planned_substeps);
+            self.calm_ticks = 0;
+        }
+    }
+
     /// Sets the sub-step count for ticks of `dt`, from dt_crit (computed when missing) or the
-    /// override. Kept across ticks, so rollbacks' halvings persist.
+    /// override. Kept across ticks, so rollbacks' halvings persist (until calm returns).
     fn plan_substeps(&mut self, dt: f64) {
         if self.dt_crit.is_some() && self.substeps_for_dt == dt {
             return;
@@ -78,6 +99,7 @@ impl Solver {
             .dt_override_s
             .unwrap_or(self.config.safety * dt_crit);
         self.substeps = ((dt / h).ceil() as u32).clamp(1, MAX_SUBSTEPS);
+        self.planned_substeps = self.substeps;
         self.substeps_for_dt = dt;
         if fresh {
             self.events.push(SolverEvent::TimeStep {
@@ -89,8 +111,9 @@ impl Solver {
     }
 
     /// One attempt at the tick. Fixed dofs move linearly from their tick-start positions to
-    /// their targets. Returns the last force statistics, or why the attempt diverged.
-    fn run_substeps(&mut self, dt: f64) -> Result<ForceStats, DivergenceReason> {
+    /// their targets. Returns the last force statistics and the work put in, or why the
+    /// attempt diverged and in which sub-step.
+    fn run_substeps(&mut self, dt: f64) -> Result<(ForceStats, f64), (DivergenceReason, u32)> {
         let n = self.substeps;
         let h = dt / n as f64;
         let decay = (-self.config.damping_per_s * h).exp();
@@ -99,6 +122,39 @@ impl Solver {
         let mut reference: Option<f64> = None;
         let mut work = 0.0;
         let mut stats = None;
+        // Moves of the fixed dofs in the previous sub-step: their work is the trapezoid
+        // −½(f_before + f_after)·d, completed once the force after the move is known.
+        let mut moved_fixed = std::mem::take(&mut self.scratch[2]);
+        moved_fixed.iter_mut().for_each(|d| *d = Vec3::zeros());
+        let result = self.substep_loop(
+            n,
+            h,
+            decay,
+            max_move,
+            gravity,
+            &mut reference,
+            &mut work,
+            &mut stats,
+            &mut moved_fixed,
+        );
+        self.scratch[2] = moved_fixed;
+        result?;
+        Ok((stats.expect("a tick has at least one sub-step"), work))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn substep_loop(
+        &mut self,
+        n: u32,
+        h: f64,
+        decay: f64,
+        max_move: f64,
+        gravity: Vec3,
+        reference: &mut Option<f64>,
+        work: &mut f64,
+        stats: &mut Option<ForceStats>,
+        moved_fixed: &mut [Vec3],
+    ) -> Result<(), (DivergenceReason, u32)> {
         for s in 0..n {
             self.force.iter_mut().for_each(|f| *f = Vec3::zeros());
             let st = add_elastic_forces(
@@ -110,13 +166,16 @@ impl Solver {
                 &mut self.force,
             );
             if !st.finite {
-                return Err(DivergenceReason::NonFinite);
+                return Err((DivergenceReason::NonFinite, s));
+            }
+            for (f, d) in self.force.iter().zip(moved_fixed.iter()) {
+                *work -= 0.5 * f.dot(d);
             }
             let energy = kinetic_energy(&self.mass, &self.v, &self.fixed) + st.energy();
             let e0 = *reference.get_or_insert(energy);
-            let bound = ENERGY_GROWTH * e0 + work + ENERGY_FLOOR;
+            let bound = ENERGY_GROWTH * (e0 + *work) + ENERGY_FLOOR;
             if energy.is_nan() || energy > bound {
-                return Err(DivergenceReason::EnergyGrowth);
+                return Err((DivergenceReason::EnergyGrowth, s));
             }
             let frac = (s + 1) as f64 / n as f64;
             for i in 0..self.p.len() {
@@ -128,30 +187,33 @@ impl Solver {
                             self.snap_p[i][a] + frac * (self.target[i][a] - self.snap_p[i][a]);
                         let d = goal - self.p[i][a];
                         // The constraint holds the dof against the elastic force, so it does
-                        // −f_elastic·d of work on the body (the applied load's own work cancels).
-                        work -= self.force[i][a] * d;
+                        // −f_elastic·d of work on the body (the applied load's own work
+                        // cancels); this is the first half of the trapezoid.
+                        *work -= 0.5 * self.force[i][a] * d;
+                        moved_fixed[i][a] = d;
                         self.p[i][a] = goal;
                         self.v[i][a] = d / h;
                     } else {
+                        moved_fixed[i][a] = 0.0;
                         let total = self.force[i][a] + applied[a];
                         self.v[i][a] = (self.v[i][a] + h * total / self.mass[i]) * decay;
                         let d = h * self.v[i][a];
-                        work += applied[a] * d;
+                        *work += applied[a] * d;
                         self.p[i][a] += d;
                         moved[a] = d;
                     }
                 }
                 let step = moved.norm();
                 if !step.is_finite() {
-                    return Err(DivergenceReason::NonFinite);
+                    return Err((DivergenceReason::NonFinite, s));
                 }
                 if step > max_move {
-                    return Err(DivergenceReason::Speed);
+                    return Err((DivergenceReason::Speed, s));
                 }
             }
-            stats = Some(st);
+            *stats = Some(st);
         }
-        Ok(stats.expect("a tick has at least one sub-step"))
+        Ok(())
     }
 
     pub(super) fn note_clamping(&mut self, stats: &ForceStats) {

@@ -58,6 +58,9 @@ pub struct SolverConfig {
     pub hourglass_alpha: f64,
     /// Volume-term stiffness k_v (Pa), 0 for none.
     pub volume_k_pa: f64,
+    /// Clamp F's singular values to [0.2, 5] when det F leaves that range (inversion
+    /// fallback, physics.md §2.5). On by default.
+    pub clamp_inversion: bool,
     /// Mass-proportional damping γ (1/s).
     pub damping_per_s: f64,
     /// Gravity (m/s²).
@@ -85,6 +88,7 @@ impl Default for SolverConfig {
             // stiffer in bending (see docs/BENCHMARKS.md); 0.05 still stops checkerboards.
             hourglass_alpha: 0.05,
             volume_k_pa: 0.0,
+            clamp_inversion: true,
             damping_per_s: 10.0,
             gravity: Vec3::zeros(),
             safety: 0.5,
@@ -122,6 +126,8 @@ pub struct Solver {
     precond: Vec<f64>,
     dt_crit: Option<f64>,
     substeps: u32,
+    planned_substeps: u32,
+    calm_ticks: u32,
     substeps_for_dt: f64,
     events: EventQueue,
     tick: u64,
@@ -169,6 +175,7 @@ impl Solver {
             youngs_modulus_pa,
             hourglass_alpha: config.hourglass_alpha,
             volume_k: config.volume_k_pa,
+            clamp_inversion: config.clamp_inversion,
         };
         let op = MlsOperator::build(rest, neighbours, &kernel);
         let zeros = vec![Vec3::zeros(); n];
@@ -199,6 +206,8 @@ impl Solver {
             precond: vec![0.0; n],
             dt_crit: None,
             substeps: 1,
+            planned_substeps: 1,
+            calm_ticks: 0,
             substeps_for_dt: 0.0,
             events: EventQueue::default(),
             tick: 0,

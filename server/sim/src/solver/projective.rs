@@ -149,6 +149,12 @@ impl Projective {
             }
         }
         let decay = (-s.config.damping_per_s * dt).exp();
+        // Work of the applied loads over the step (moving constraints are not tracked here).
+        let mut work = 0.0;
+        for i in 0..n {
+            let applied = s.external[i] + s.config.gravity * s.mass[i];
+            work += applied.dot(&(s.p[i] - self.start[i]));
+        }
         let mut finite = true;
         for i in 0..n {
             let v = (s.p[i] - self.start[i]) / dt * decay;
@@ -185,6 +191,7 @@ impl Projective {
             min_det_f: stats.min_det_f,
             clamped_points: stats.clamped_points,
             iterations: s.config.projective_iterations,
+            work_j: work,
         }
     }
 

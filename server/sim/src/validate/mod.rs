@@ -6,11 +6,13 @@
 
 mod bodies;
 mod cases;
+mod stability;
 
 use serde::Serialize;
 
 pub use bodies::{BoxBody, box_body, timoshenko_tip_deflection};
 pub use cases::*;
+pub use stability::*;
 
 /// The outcome of one benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize)]
