@@ -6,8 +6,10 @@
 mod bench;
 mod export;
 mod load;
+mod plot;
 mod progress;
 mod report;
+mod validate_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -40,6 +42,12 @@ enum Command {
     /// Built-in scenes, scene files and meshes.
     #[command(subcommand)]
     Scene(SceneCommand),
+    /// Run the analytic validation benchmarks (physics.md §8); exit status 1 if any fails.
+    Validate {
+        /// Print JSON: a list of {name, error, tolerance, pass, wall_ms, ...}.
+        #[arg(long)]
+        json: bool,
+    },
     /// Whole-system benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -78,6 +86,29 @@ enum BenchCommand {
         /// Builds per scene.
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The stiff and extreme cases of physics.md §9 (stiffness, ν → 0.5, huge steps,
+    /// rotations, compression, tiny lattices, orphans, slivers, point loads).
+    Stability {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Error against run time: resolution sweep × solver mode on the cantilever and the
+    /// uniaxial block; writes accuracy.csv and accuracy.png.
+    Accuracy {
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Fewest points across the beam.
+        #[arg(long, default_value_t = 3)]
+        min_across: usize,
+        /// Most points across the beam.
+        #[arg(long, default_value_t = 9)]
+        max_across: usize,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -132,7 +163,15 @@ fn main() -> ExitCode {
         Command::Scene(SceneCommand::List { json }) => report::print_scene_list(json),
         Command::Scene(SceneCommand::Inspect { target, json }) => run_inspect(&target, json),
         Command::Scene(SceneCommand::Export { target, out }) => run_export(&target, &out),
+        Command::Validate { json } => validate_cmd::run(json),
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
+        Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
+        Command::Bench(BenchCommand::Accuracy {
+            out,
+            min_across,
+            max_across,
+            json,
+        }) => bench::accuracy::run(&out, min_across, max_across, json),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

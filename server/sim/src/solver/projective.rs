@@ -129,19 +129,23 @@ impl Projective {
         let n = s.p.len();
         let h2 = dt * dt;
         self.start.copy_from_slice(&s.p);
-        // Inertial prediction y, which is also the first guess.
+        // The inertial prediction y (with the applied loads) goes into the right-hand side; the
+        // iterations start from p + dt·v instead. With a truncated number of iterations the
+        // tick map's steady state is then the true equilibrium: started from y, a resting
+        // body would settle where the unfinished iterations balance the load, not at rest.
         for i in 0..n {
             let applied = s.external[i] + s.config.gravity * s.mass[i];
             for a in 0..3 {
-                s.p[i][a] = if s.fixed[i][a] {
-                    s.target[i][a]
+                if s.fixed[i][a] {
+                    s.scratch[0][i][a] = s.target[i][a];
+                    s.p[i][a] = s.target[i][a];
                 } else {
-                    self.start[i][a] + dt * s.v[i][a] + h2 * applied[a] / s.mass[i]
-                };
+                    let coast = self.start[i][a] + dt * s.v[i][a];
+                    s.scratch[0][i][a] = coast + h2 * applied[a] / s.mass[i];
+                    s.p[i][a] = coast;
+                }
             }
         }
-        // y is kept in `scratch[0]` for the right-hand side of every iteration.
-        s.scratch[0].copy_from_slice(&s.p);
         for _ in 0..s.config.projective_iterations {
             self.local_step(&s.op, &s.p, &s.scratch[0], &s.mass, h2);
             for sys in &mut self.systems {

@@ -214,8 +214,15 @@ pub struct UniaxialResult {
 
 /// Stretches the body along x by `strain` with sliding ends and solves statically.
 pub fn uniaxial(body: &mut BoxBody, strain: f64) -> (UniaxialResult, crate::solver::StaticReport) {
+    uniaxial_setup(body, strain);
+    let report = body.solver.solve_static();
+    (uniaxial_measure(body, strain), report)
+}
+
+/// Moves the x ends of the body apart by `strain` (sliding ends: x fixed, y and z free) and
+/// pins the remaining rigid modes. The interior starts at rest.
+pub fn uniaxial_setup(body: &mut BoxBody, strain: f64) {
     let rest = body.model.points.rest.clone();
-    let length = body.size.x;
     let low = body.face(0, -1.0);
     let high = body.face(0, 1.0);
     let mut start = rest.clone();
@@ -234,15 +241,27 @@ pub fn uniaxial(body: &mut BoxBody, strain: f64) -> (UniaxialResult, crate::solv
         })
         .expect("a face has points");
     body.solver.fix(centre, [true, true, true]);
+    // A point far out in y on the row nearest z = 0 (the mid-plane row when the count is odd).
+    let nearest_z = low
+        .iter()
+        .map(|&i| rest[i].z.abs())
+        .fold(f64::INFINITY, f64::min);
     let edge = *low
         .iter()
-        .filter(|&&i| rest[i].z.abs() < 1e-9)
+        .filter(|&&i| rest[i].z.abs() <= nearest_z + 1e-9)
         .max_by(|&&a, &&b| rest[a].y.total_cmp(&rest[b].y))
-        .expect("the face has a middle row");
+        .expect("a face has points");
     let mut mask = body.solver.fixed()[edge];
     mask[2] = true;
     body.solver.fix(edge, mask);
-    let report = body.solver.solve_static();
+}
+
+/// Reaction and Poisson ratio of a stretched body, against StVK's uniaxial answer.
+pub fn uniaxial_measure(body: &mut BoxBody, strain: f64) -> UniaxialResult {
+    let rest = body.model.points.rest.clone();
+    let length = body.size.x;
+    let low = body.face(0, -1.0);
+    let high = body.face(0, 1.0);
     let (forces, _) = body.solver.elastic_forces();
     // The constraint holds each end dof against the elastic force.
     let reaction: f64 = high.iter().map(|&i| -forces[i].x).sum();
@@ -266,22 +285,18 @@ pub fn uniaxial(body: &mut BoxBody, strain: f64) -> (UniaxialResult, crate::solv
             .map(|&i| p[i].y),
     );
     let lateral = (top - bottom) / body.size.y;
-    let axial = mean(high.iter().map(|&i| p[i].x)) - mean(low.iter().map(|&i| p[i].x));
-    let axial = axial / length;
+    let axial = (mean(high.iter().map(|&i| p[i].x)) - mean(low.iter().map(|&i| p[i].x))) / length;
     let green = |l: f64| 0.5 * (l * l - 1.0);
     let nu = -green(lateral) / green(axial);
-    let nu0 = body.solver.params().lame.lambda
-        / (2.0 * (body.solver.params().lame.lambda + body.solver.params().lame.mu));
-    (
-        UniaxialResult {
-            reaction_n: reaction,
-            expected_n: expected,
-            reaction_error: reaction / expected - 1.0,
-            nu,
-            nu_error: nu / nu0 - 1.0,
-        },
-        report,
-    )
+    let lame = body.solver.params().lame;
+    let nu0 = lame.lambda / (2.0 * (lame.lambda + lame.mu));
+    UniaxialResult {
+        reaction_n: reaction,
+        expected_n: expected,
+        reaction_error: reaction / expected - 1.0,
+        nu,
+        nu_error: nu / nu0 - 1.0,
+    }
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
@@ -298,21 +313,34 @@ pub fn cantilever_deflection(
     load_n: f64,
     config: SolverConfig,
 ) -> (f64, f64, BoxBody) {
+    let mut body = cantilever_body(length, side, points_across, load_n, &LIVER_UNDAMPED, config);
+    body.solver.solve_static();
+    let deflection = tip_deflection(&body);
+    let e = LIVER_UNDAMPED.youngs_modulus_pa;
+    let expected = timoshenko_tip_deflection(load_n, length, side, e, LIVER_UNDAMPED.poisson_ratio);
+    (deflection, expected, body)
+}
+
+/// A cantilever with its root face clamped and the tip load applied, at rest.
+pub fn cantilever_body(
+    length: f64,
+    side: f64,
+    points_across: usize,
+    load_n: f64,
+    material: &Material,
+    config: SolverConfig,
+) -> BoxBody {
     let mut body = box_body(
         Vec3::new(length, side, side),
         points_across,
-        &LIVER_UNDAMPED,
+        material,
         2.0,
         config,
     );
     let root = body.face(0, -1.0);
     fix_all(&mut body, &root);
     load_tip(&mut body, load_n);
-    body.solver.solve_static();
-    let deflection = tip_deflection(&body);
-    let e = LIVER_UNDAMPED.youngs_modulus_pa;
-    let expected = timoshenko_tip_deflection(load_n, length, side, e, LIVER_UNDAMPED.poisson_ratio);
-    (deflection, expected, body)
+    body
 }
 
 /// Spreads a total load along −z over the tip face, by point volume (= face area weights).

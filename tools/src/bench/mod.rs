@@ -1,5 +1,8 @@
 //! `scalpel bench ...`: whole-system figures, reported as medians and tails.
 
+pub mod accuracy;
+pub mod stability;
+
 use scalpel_sim::scene::{self, BUILTIN_SCENES};
 use serde::Serialize;
 
