@@ -1,0 +1,116 @@
+//! Speed of the elastic force evaluation and of one 1 ms tick (with its sub-steps) at the
+//! point counts of the paper's Table 1 (liver 1526, shoulder 4812, cerebroma 7086), all with
+//! the liver material (E = 5 kPa, ν = 0.45), explicit mode; plus a projective (stiff mode)
+//! tick. Run: `cargo bench -p scalpel-sim --bench solver`.
+
+use std::hint::black_box;
+
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
+use scalpel_sim::math::Vec3;
+use scalpel_sim::mls::add_elastic_forces;
+use scalpel_sim::model::CoupledModel;
+use scalpel_sim::progress::Silent;
+use scalpel_sim::scene::{Material, build_scene, builtin};
+use scalpel_sim::solver::{Solver, SolverConfig, SolverMode};
+
+fn model(name: &str) -> CoupledModel {
+    build_scene(&builtin(name).expect("built-in"), None, &mut Silent)
+        .expect("builds")
+        .model
+}
+
+/// A solver on the scene with every point slightly displaced, so forces are non-trivial.
+fn solver(model: &CoupledModel, mode: SolverMode) -> Solver {
+    let config = SolverConfig {
+        mode,
+        ..SolverConfig::default()
+    };
+    let mut solver = Solver::for_model(model, &Material::LIVER, config);
+    let s = model.lattice.spacing;
+    let p: Vec<Vec3> = model
+        .points
+        .rest
+        .iter()
+        .enumerate()
+        .map(|(i, x)| {
+            x + Vec3::new(
+                (i as f64).sin(),
+                (1.7 * i as f64).cos(),
+                (0.3 * i as f64).sin(),
+            ) * (0.01 * s)
+        })
+        .collect();
+    solver.set_positions(&p);
+    solver
+}
+
+fn force_evaluation(c: &mut Criterion) {
+    let mut group = c.benchmark_group("force_evaluation");
+    for name in ["liver", "shoulder", "cerebroma"] {
+        let model = model(name);
+        let solver = solver(&model, SolverMode::Explicit);
+        let p = solver.positions().to_vec();
+        let mut f = vec![Vec3::zeros(); p.len()];
+        group.bench_function(format!("{name}_{}_points", p.len()), |b| {
+            b.iter(|| {
+                f.iter_mut().for_each(|x| *x = Vec3::zeros());
+                black_box(add_elastic_forces(
+                    solver.operator(),
+                    solver.params(),
+                    solver.volumes(),
+                    &p,
+                    None,
+                    &mut f,
+                ))
+            })
+        });
+    }
+    group.finish();
+}
+
+fn tick(c: &mut Criterion, group_name: &str, mode: SolverMode, scenes: &[&str]) {
+    let mut group = c.benchmark_group(group_name);
+    for name in scenes {
+        let model = model(name);
+        let mut warm = solver(&model, mode);
+        warm.step(1e-3);
+        let substeps = warm.substeps();
+        group.bench_function(
+            format!("{name}_{}_points_{substeps}_substeps", model.points.len()),
+            |b| {
+                // Each sample advances a fresh copy of the warmed-up state, so every tick does the
+                // same work (no settling toward rest across samples).
+                b.iter_batched_ref(
+                    || {
+                        let mut s = solver(&model, mode);
+                        s.step(1e-3);
+                        s
+                    },
+                    |s| black_box(s.step(1e-3)),
+                    BatchSize::LargeInput,
+                )
+            },
+        );
+    }
+    group.finish();
+}
+
+fn explicit_tick(c: &mut Criterion) {
+    tick(
+        c,
+        "tick_1ms_explicit",
+        SolverMode::Explicit,
+        &["liver", "shoulder", "cerebroma"],
+    );
+}
+
+fn projective_tick(c: &mut Criterion) {
+    tick(c, "tick_1ms_projective", SolverMode::Projective, &["liver"]);
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(4));
+    targets = force_evaluation, explicit_tick, projective_tick
+}
+criterion_main!(benches);

@@ -1,0 +1,180 @@
+//! The simulation step is on the real-time path: after warm-up it must not allocate, and
+//! it must be deterministic (two runs bitwise equal).
+
+// A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
+#![allow(unsafe_code)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use scalpel_sim::math::Vec3;
+use scalpel_sim::model::CoupledModel;
+use scalpel_sim::progress::Silent;
+use scalpel_sim::scene::{Material, build_scene, builtin};
+use scalpel_sim::solver::{Solver, SolverConfig, SolverMode};
+
+thread_local! {
+    /// Allocations made by this thread (the test harness runs tests on several threads).
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+struct Counting;
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
+
+#[test]
+fn the_counter_counts() {
+    let before = allocations();
+    let v = std::hint::black_box(vec![1u8; 64]);
+    assert!(allocations() > before);
+    drop(v);
+}
+
+fn model(name: &str) -> CoupledModel {
+    build_scene(&builtin(name).unwrap(), None, &mut Silent)
+        .unwrap()
+        .model
+}
+
+/// A solver on `model` with a deterministic perturbation, a clamped face and a load, so
+/// every part of the step (forces, constraints, loads) is exercised.
+fn prepared(model: &CoupledModel, mode: SolverMode) -> Solver {
+    let config = SolverConfig {
+        mode,
+        ..SolverConfig::default()
+    };
+    let mut solver = Solver::for_model(model, &Material::LIVER, config);
+    let p: Vec<Vec3> = model
+        .points
+        .rest
+        .iter()
+        .enumerate()
+        .map(|(i, x)| {
+            x + Vec3::new(
+                (i as f64).sin(),
+                (1.3 * i as f64).cos(),
+                (0.7 * i as f64).sin(),
+            ) * 1e-4
+        })
+        .collect();
+    solver.set_positions(&p);
+    let lowest = model
+        .points
+        .rest
+        .iter()
+        .map(|x| x.z)
+        .fold(f64::INFINITY, f64::min);
+    for (i, x) in model.points.rest.iter().enumerate() {
+        if x.z < lowest + 1e-9 {
+            solver.fix(i, [true; 3]);
+        }
+    }
+    solver.set_external_force(0, Vec3::new(0.0, 0.0, -1e-3));
+    solver
+}
+
+#[test]
+fn step_does_not_allocate_after_warm_up() {
+    let model = model("liver");
+    for mode in [
+        SolverMode::Explicit,
+        SolverMode::Projective,
+        SolverMode::QuasiStatic,
+    ] {
+        let mut solver = prepared(&model, mode);
+        // Warm-up: the first ticks compute dt_crit or factor the projective matrix.
+        for _ in 0..3 {
+            solver.step(1e-3);
+            while solver.poll_event().is_some() {}
+        }
+        let ticks = if mode == SolverMode::QuasiStatic {
+            5
+        } else {
+            50
+        };
+        let before = allocations();
+        for t in 0..ticks {
+            // A moving constraint target, as a tool would set each tick.
+            solver.set_target(
+                0,
+                model.points.rest[0] + Vec3::new(0.0, 0.0, -1e-5 * t as f64),
+            );
+            solver.step(1e-3);
+            while solver.poll_event().is_some() {}
+        }
+        let during = allocations() - before;
+        assert_eq!(
+            during, 0,
+            "{mode:?}: {during} allocations in {ticks} ticks after warm-up"
+        );
+    }
+}
+
+#[test]
+fn rollbacks_do_not_allocate_either() {
+    // A step far above dt_crit makes the guard roll back and retry inside the tick.
+    let model = model("block");
+    let dt_crit = Solver::for_model(&model, &Material::LIVER, SolverConfig::default()).dt_crit();
+    let config = SolverConfig {
+        dt_override_s: Some(10.0 * dt_crit),
+        ..SolverConfig::default()
+    };
+    let mut solver = Solver::for_model(&model, &Material::LIVER, config);
+    let p: Vec<Vec3> = model
+        .points
+        .rest
+        .iter()
+        .enumerate()
+        .map(|(i, x)| x + Vec3::new((i as f64).sin(), 0.0, 0.0) * 5e-5)
+        .collect();
+    solver.set_positions(&p);
+    solver.dt_crit();
+    let before = allocations();
+    let mut rollbacks = 0;
+    for _ in 0..5 {
+        rollbacks += solver.step(10.0 * dt_crit).rollbacks;
+        while solver.poll_event().is_some() {}
+    }
+    assert!(rollbacks > 0, "the guard should have rolled back");
+    assert_eq!(allocations() - before, 0);
+}
+
+#[test]
+fn runs_are_bitwise_deterministic() {
+    let model = model("liver");
+    for mode in [SolverMode::Explicit, SolverMode::Projective] {
+        let run = || {
+            let mut solver = prepared(&model, mode);
+            for _ in 0..40 {
+                solver.step(1e-3);
+            }
+            solver
+                .positions()
+                .iter()
+                .flat_map(|p| p.iter().map(|x| x.to_bits()))
+                .collect::<Vec<u64>>()
+        };
+        assert_eq!(run(), run(), "{mode:?}");
+    }
+}
