@@ -47,6 +47,9 @@ enum Command {
         /// Print JSON: a list of {name, error, tolerance, pass, wall_ms, ...}.
         #[arg(long)]
         json: bool,
+        /// Run only these benchmarks (comma-separated ids, e.g. B1,B9).
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
     },
     /// Whole-system benchmarks.
     #[command(subcommand)]
@@ -163,7 +166,7 @@ fn main() -> ExitCode {
         Command::Scene(SceneCommand::List { json }) => report::print_scene_list(json),
         Command::Scene(SceneCommand::Inspect { target, json }) => run_inspect(&target, json),
         Command::Scene(SceneCommand::Export { target, out }) => run_export(&target, &out),
-        Command::Validate { json } => validate_cmd::run(json),
+        Command::Validate { json, only } => validate_cmd::run(json, &only),
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
         Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
         Command::Bench(BenchCommand::Accuracy {

@@ -12,10 +12,26 @@ struct Row {
     wall_ms: f64,
 }
 
-/// Runs every benchmark; fails (exit status 1) if any is outside its band.
-pub fn run(json: bool) -> anyhow::Result<()> {
+/// Runs every benchmark (or those named in `only`); fails (exit status 1) if any is
+/// outside its band.
+pub fn run(json: bool, only: &[String]) -> anyhow::Result<()> {
+    let benchmarks = all();
+    for name in only {
+        anyhow::ensure!(
+            benchmarks.iter().any(|b| b.name.eq_ignore_ascii_case(name)),
+            "unknown benchmark '{name}'; choose from {}",
+            benchmarks
+                .iter()
+                .map(|b| b.name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let mut rows = Vec::new();
-    for b in all() {
+    for b in benchmarks {
+        if !only.is_empty() && !only.iter().any(|n| b.name.eq_ignore_ascii_case(n)) {
+            continue;
+        }
         let start = Instant::now();
         let result = (b.run)();
         rows.push(Row {

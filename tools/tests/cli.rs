@@ -241,3 +241,40 @@ fn export_writes_files_other_tools_read() {
     ]);
     assert!(err.contains("unsupported export format"), "{err}");
 }
+
+#[test]
+fn validate_reports_json_and_rejects_unknown_names() {
+    let r = ok_json(&["validate", "--only", "B1,B9,B11", "--json"]);
+    let rows = r.as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    for row in rows {
+        for key in ["name", "error", "tolerance", "pass", "wall_ms"] {
+            assert!(row.get(key).is_some(), "missing {key}");
+        }
+        assert_eq!(row["pass"], true, "{row}");
+    }
+    let err = fails(&["validate", "--only", "B42"]);
+    assert!(err.contains("unknown benchmark"), "{err}");
+}
+
+#[test]
+fn accuracy_bench_writes_csv_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = ok_json(&[
+        "bench",
+        "accuracy",
+        "--out",
+        dir.path().to_str().unwrap(),
+        "--min-across",
+        "3",
+        "--max-across",
+        "3",
+        "--json",
+    ]);
+    assert_eq!(r["rows"].as_array().unwrap().len(), 4, "2 cases × 2 modes");
+    let csv = std::fs::read_to_string(dir.path().join("accuracy.csv")).unwrap();
+    assert!(csv.starts_with("case,mode,points_across"));
+    assert_eq!(csv.lines().count(), 5);
+    let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+}

@@ -70,6 +70,7 @@ pub fn add_elastic_forces(
         clamped_points: 0,
         finite: true,
     };
+    let mut offsets = [[0.0f64; 3]; BUFFERED];
     for i in 0..op.len() {
         if active.is_some_and(|a| !a[i]) {
             continue;
@@ -78,16 +79,9 @@ pub fn add_elastic_forces(
         if let PointRank::Orphan = term.rank {
             continue;
         }
-        let ids = op.neighbours(i);
-        let pairs = op.pairs(i);
-        let pi = p[i];
-        let mut b = Mat3::zeros();
-        let mut sum_wuu = 0.0;
-        for (j, pair) in ids.iter().zip(pairs) {
-            let u = p[*j as usize] - pi;
-            b += u * pair.wx.transpose();
-            sum_wuu += pair.w * u.norm_squared();
-        }
+        let (ids, wx, w) = op.padded_row(i);
+        let used = op.neighbours(i).len();
+        let (b, sum_wuu) = accumulate_fit(ids, wx, w, used, p, p[i], &mut offsets);
         let fp = b * term.a_pinv;
         let full = complete(fp, &term.rank);
         let s = stress(params, &full);
@@ -101,17 +95,86 @@ pub fn add_elastic_forces(
         stats.clamped_points += u32::from(s.clamped);
         stats.finite &= s.det.is_finite() && s.p.iter().all(|x| x.is_finite());
         let m = s.p * (-v) * term.a_pinv + fp * k;
-        let mut acc = Vec3::zeros();
-        for (j, pair) in ids.iter().zip(pairs) {
-            let j = *j as usize;
-            let u = p[j] - pi;
-            let g = m * pair.wx - u * (k * pair.w);
-            f[j] += g;
-            acc -= g;
-        }
-        f[i] += acc;
+        scatter_pair_forces(ids, wx, w, used, &m, k, p, i, &offsets, f);
     }
     stats
+}
+
+/// Offsets `u_ij = p_j − p_i` kept between the two passes over a row; rows longer than
+/// this (support ratios above ~3) are recomputed in the second pass instead.
+const BUFFERED: usize = 64;
+
+/// `B = Σ_j u_ij ⊗ (w x)_ij` and `Σ_j w |u_ij|²` over the row (padding adds zero), leaving
+/// the offsets in `u` for the scatter.
+#[inline]
+fn accumulate_fit(
+    ids: &[u32],
+    wx: [&[f64]; 3],
+    w: &[f64],
+    used: usize,
+    p: &[Vec3],
+    pi: Vec3,
+    u: &mut [[f64; 3]; BUFFERED],
+) -> (Mat3, f64) {
+    let mut b = [0.0f64; 9];
+    let mut wuu = 0.0;
+    for k in 0..used {
+        let q = p[ids[k] as usize];
+        let d = [q.x - pi.x, q.y - pi.y, q.z - pi.z];
+        if k < BUFFERED {
+            u[k] = d;
+        }
+        let (a, bb, c) = (wx[0][k], wx[1][k], wx[2][k]);
+        for r in 0..3 {
+            b[3 * r] = d[r].mul_add(a, b[3 * r]);
+            b[3 * r + 1] = d[r].mul_add(bb, b[3 * r + 1]);
+            b[3 * r + 2] = d[r].mul_add(c, b[3 * r + 2]);
+        }
+        wuu = w[k].mul_add(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], wuu);
+    }
+    (Mat3::from_row_slice(&b), wuu)
+}
+
+/// Adds `g_ij = M (w x)_ij − k w_ij u_ij` to `f_j` and subtracts their sum from `f_i`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn scatter_pair_forces(
+    ids: &[u32],
+    wx: [&[f64]; 3],
+    w: &[f64],
+    used: usize,
+    m: &Mat3,
+    k: f64,
+    p: &[Vec3],
+    i: usize,
+    u: &[[f64; 3]; BUFFERED],
+    f: &mut [Vec3],
+) {
+    let pi = p[i];
+    let mm = [
+        [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+        [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+    ];
+    let mut acc = [0.0f64; 3];
+    for k_slot in 0..used {
+        let j = ids[k_slot] as usize;
+        let d = if k_slot < BUFFERED {
+            u[k_slot]
+        } else {
+            let q = p[j];
+            [q.x - pi.x, q.y - pi.y, q.z - pi.z]
+        };
+        let (a, b, c) = (wx[0][k_slot], wx[1][k_slot], wx[2][k_slot]);
+        let kw = -k * w[k_slot];
+        let mut g = [0.0f64; 3];
+        for r in 0..3 {
+            g[r] = kw.mul_add(d[r], mm[r][0].mul_add(a, mm[r][1].mul_add(b, mm[r][2] * c)));
+            acc[r] -= g[r];
+        }
+        f[j] += Vec3::new(g[0], g[1], g[2]);
+    }
+    f[i] += Vec3::new(acc[0], acc[1], acc[2]);
 }
 
 /// `out = K v`, where K = −∂f/∂p is the tangent stiffness of the elastic forces at `p`
@@ -133,11 +196,10 @@ pub fn stiffness_product(
             continue;
         }
         let ids = op.neighbours(i);
-        let pairs = op.pairs(i);
         let (pi, vi) = (p[i], v[i]);
         let mut b = Mat3::zeros();
         let mut db = Mat3::zeros();
-        for (j, pair) in ids.iter().zip(pairs) {
+        for (j, pair) in ids.iter().zip(op.pair_terms(i)) {
             let j = *j as usize;
             b += (p[j] - pi) * pair.wx.transpose();
             db += (v[j] - vi) * pair.wx.transpose();
@@ -150,7 +212,7 @@ pub fn stiffness_product(
         let dp = stress_differential(params, &full, &dfp);
         let dm = dp * (-vol) * term.a_pinv + dfp * k;
         let mut acc = Vec3::zeros();
-        for (j, pair) in ids.iter().zip(pairs) {
+        for (j, pair) in ids.iter().zip(op.pair_terms(i)) {
             let j = *j as usize;
             let dg = dm * pair.wx - (v[j] - vi) * (k * pair.w);
             // K v = −δf.

@@ -14,12 +14,18 @@
 //!
 //! Rows are stored with a fixed capacity per point, mirroring [`Neighbourhoods`], so a cut
 //! recomputes only the points whose neighbourhood changed ([`MlsOperator::update_points`]).
+//! The pair data is kept as structure-of-arrays with the capacity rounded up to a multiple
+//! of [`LANES`]: the force kernel reads four pairs at a time. Padding slots name the point
+//! itself and carry zero weights, so they add nothing wherever they are read.
 
 use crate::math::{Mat3, Vec3};
 use crate::model::{Kernel, Neighbourhoods};
 
 /// A direction is unsampled when its eigenvalue is below σ_max divided by this.
 pub const MAX_CONDITION: f64 = 1e4;
+
+/// Pairs processed together by the force kernel.
+pub const LANES: usize = 4;
 
 /// Per-pair data: `w_ij x_ij` and `w_ij`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -82,10 +88,13 @@ impl Default for PointTerm {
 /// The precomputed operator: for each point, its neighbours, pair terms and point term.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MlsOperator {
+    /// Slots per point: the neighbour capacity rounded up to a multiple of [`LANES`].
     capacity: usize,
     counts: Vec<u32>,
     ids: Vec<u32>,
-    pairs: Vec<PairTerm>,
+    /// `w_ij x_ij`, one array per component.
+    wx: [Vec<f64>; 3],
+    w: Vec<f64>,
     points: Vec<PointTerm>,
 }
 
@@ -103,13 +112,18 @@ pub struct RankCounts {
 impl MlsOperator {
     /// Precomputes the operator for every point.
     pub fn build(rest: &[Vec3], neighbours: &Neighbourhoods, kernel: &Kernel) -> Self {
-        let capacity = neighbours.capacity();
+        let capacity = neighbours.capacity().div_ceil(LANES).max(1) * LANES;
         let n = rest.len();
         let mut op = Self {
             capacity,
             counts: vec![0; n],
-            ids: vec![u32::MAX; n * capacity],
-            pairs: vec![PairTerm::default(); n * capacity],
+            ids: vec![0; n * capacity],
+            wx: [
+                vec![0.0; n * capacity],
+                vec![0.0; n * capacity],
+                vec![0.0; n * capacity],
+            ],
+            w: vec![0.0; n * capacity],
             points: vec![PointTerm::default(); n],
         };
         for i in 0..n {
@@ -156,12 +170,18 @@ impl MlsOperator {
             sum_wx += x * w;
             sum_w += w;
             self.ids[base + count] = j;
-            self.pairs[base + count] = PairTerm { wx: x * w, w };
+            for c in 0..3 {
+                self.wx[c][base + count] = x[c] * w;
+            }
+            self.w[base + count] = w;
             count += 1;
         }
         for k in count..self.capacity {
-            self.ids[base + k] = u32::MAX;
-            self.pairs[base + k] = PairTerm::default();
+            self.ids[base + k] = i as u32;
+            for c in 0..3 {
+                self.wx[c][base + k] = 0.0;
+            }
+            self.w[base + k] = 0.0;
         }
         self.counts[i] = count as u32;
         self.points[i] = classify(a, sum_wx, sum_w, count);
@@ -186,9 +206,40 @@ impl MlsOperator {
 
     /// Pair terms of point i, in the order of [`MlsOperator::neighbours`].
     #[inline]
-    pub fn pairs(&self, i: usize) -> &[PairTerm] {
+    pub fn pair_terms(&self, i: usize) -> impl Iterator<Item = PairTerm> + '_ {
         let base = i * self.capacity;
-        &self.pairs[base..base + self.counts[i] as usize]
+        (base..base + self.counts[i] as usize).map(|k| self.pair_at(k))
+    }
+
+    /// The k-th pair term of point i.
+    #[inline]
+    pub fn pair(&self, i: usize, k: usize) -> PairTerm {
+        debug_assert!(k < self.counts[i] as usize);
+        self.pair_at(i * self.capacity + k)
+    }
+
+    #[inline]
+    fn pair_at(&self, slot: usize) -> PairTerm {
+        PairTerm {
+            wx: Vec3::new(self.wx[0][slot], self.wx[1][slot], self.wx[2][slot]),
+            w: self.w[slot],
+        }
+    }
+
+    /// The whole padded row of point i, for the force kernel: ids (padding = i), the three
+    /// `w x` components and w, each `capacity` long.
+    #[inline]
+    pub(crate) fn padded_row(&self, i: usize) -> (&[u32], [&[f64]; 3], &[f64]) {
+        let r = i * self.capacity..(i + 1) * self.capacity;
+        (
+            &self.ids[r.clone()],
+            [
+                &self.wx[0][r.clone()],
+                &self.wx[1][r.clone()],
+                &self.wx[2][r.clone()],
+            ],
+            &self.w[r],
+        )
     }
 
     /// Point term of point i.
@@ -197,14 +248,14 @@ impl MlsOperator {
         &self.points[i]
     }
 
-    /// Largest neighbour count any point can hold.
+    /// Slots per point (the neighbour capacity rounded up to a multiple of [`LANES`]).
     pub fn capacity(&self) -> usize {
         self.capacity
     }
 
     /// The MLS gradient weight vector `d_ij = A_i⁺ w_ij x_ij` for the k-th neighbour of i.
     pub fn d(&self, i: usize, k: usize) -> Vec3 {
-        self.points[i].a_pinv * self.pairs(i)[k].wx
+        self.points[i].a_pinv * self.pair(i, k).wx
     }
 
     /// How many points are in each rank class.
@@ -236,7 +287,7 @@ impl MlsOperator {
     pub fn fitted_gradient(&self, i: usize, p: &[Vec3]) -> Mat3 {
         let pi = p[i];
         let mut b = Mat3::zeros();
-        for (j, pair) in self.neighbours(i).iter().zip(self.pairs(i)) {
+        for (j, pair) in self.neighbours(i).iter().zip(self.pair_terms(i)) {
             b += (p[*j as usize] - pi) * pair.wx.transpose();
         }
         b * self.points[i].a_pinv

@@ -232,7 +232,7 @@ impl Projective {
             // Σ_k c_ik (T c_ik)ᵀ-style scatter: rhs_k += T c_ik.
             let cii = -(term.a_pinv * term.sum_wx);
             self.rhs[i] += target * cii;
-            for (j, pair) in op.neighbours(i).iter().zip(op.pairs(i)) {
+            for (j, pair) in op.neighbours(i).iter().zip(op.pair_terms(i)) {
                 self.rhs[*j as usize] += target * (term.a_pinv * pair.wx);
             }
         }
@@ -275,19 +275,6 @@ fn assemble_columns(
     let mut listed = vec![false; n];
     let mut touched: Vec<usize> = Vec::new();
     let mut columns = Vec::with_capacity(n);
-    // The coefficient of point k in point i's gradient: c_ik = A⁺ β_k with β = w x for a
-    // neighbour and β = −Σ w x for i itself.
-    let beta = |i: usize, k: usize| -> Vec3 {
-        if i == k {
-            return -op.point(i).sum_wx;
-        }
-        let slot = op
-            .neighbours(i)
-            .iter()
-            .position(|&j| j as usize == k)
-            .expect("symmetric neighbourhoods");
-        op.pairs(i)[slot].wx
-    };
     for k in 0..n {
         touched.clear();
         let mut add = |row: usize, v: f64, acc: &mut Vec<f64>, touched: &mut Vec<usize>| {
@@ -306,13 +293,21 @@ fn assemble_columns(
             }
             let w = strain_weight[i] + volume_weight[i];
             let khg = hourglass_stiffness(&s.params, s.volume[i], term.trace_a);
-            let beta_k = beta(i, k);
+            // The coefficient of point k in point i's gradient: c_ik = A⁺ β_k with β = w x
+            // for a neighbour and β = −Σ w x for i itself.
+            let slot = (k != i).then(|| {
+                op.neighbours(i)
+                    .iter()
+                    .position(|&j| j as usize == k)
+                    .expect("neighbourhoods are symmetric")
+            });
+            let beta_k = slot.map_or(-term.sum_wx, |sl| op.pair(i, sl).wx);
             let c_k = term.a_pinv * beta_k;
             // Stencil of i: i itself and its neighbours.
             let stencil = std::iter::once((i, -term.sum_wx, 0.0)).chain(
                 op.neighbours(i)
                     .iter()
-                    .zip(op.pairs(i))
+                    .zip(op.pair_terms(i))
                     .map(|(j, pr)| (*j as usize, pr.wx, pr.w)),
             );
             for (l, beta_l, w_l) in stencil {
@@ -327,16 +322,9 @@ fn assemble_columns(
                 }
                 add(l, v, &mut acc, &mut touched);
             }
-            if k == i {
-                add(i, khg * term.sum_w, &mut acc, &mut touched);
-            } else {
-                let slot_w = op.pairs(i)[op
-                    .neighbours(i)
-                    .iter()
-                    .position(|&j| j as usize == k)
-                    .unwrap_or(0)]
-                .w;
-                add(i, -khg * slot_w, &mut acc, &mut touched);
+            match slot {
+                None => add(i, khg * term.sum_w, &mut acc, &mut touched),
+                Some(sl) => add(i, -khg * op.pair(i, sl).w, &mut acc, &mut touched),
             }
         }
         touched.sort_unstable();

@@ -45,7 +45,7 @@ pub(super) fn diagonal_stiffness(
         let k = hourglass_stiffness(params, v, term.trace_a);
         let dii = -(term.a_pinv * term.sum_wx);
         d[i] += v * modulus * dii.norm_squared();
-        for (j, pair) in op.neighbours(i).iter().zip(op.pairs(i)) {
+        for (j, pair) in op.neighbours(i).iter().zip(op.pair_terms(i)) {
             let dij = term.a_pinv * pair.wx;
             d[*j as usize] += v * modulus * dij.norm_squared() + k * pair.w;
             d[i] += k * pair.w;
