@@ -8,6 +8,7 @@ use std::hint::black_box;
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use scalpel_sim::math::Vec3;
 use scalpel_sim::mls::add_elastic_forces;
+use scalpel_sim::mls::forces::ForceScratch;
 use scalpel_sim::model::CoupledModel;
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{Material, build_scene, builtin};
@@ -51,6 +52,7 @@ fn force_evaluation(c: &mut Criterion) {
         let solver = solver(&model, SolverMode::Explicit);
         let p = solver.positions().to_vec();
         let mut f = vec![Vec3::zeros(); p.len()];
+        let mut scratch = ForceScratch::new(p.len());
         group.bench_function(format!("{name}_{}_points", p.len()), |b| {
             b.iter(|| {
                 f.iter_mut().for_each(|x| *x = Vec3::zeros());
@@ -61,6 +63,7 @@ fn force_evaluation(c: &mut Criterion) {
                     &p,
                     None,
                     &mut f,
+                    &mut scratch,
                 ))
             })
         });

@@ -27,6 +27,20 @@ pub const MAX_CONDITION: f64 = 1e4;
 /// Pairs processed together by the force kernel.
 pub const LANES: usize = 4;
 
+/// Longest row a stencil run may have (the kernel keeps a run's offsets on the stack).
+pub const MAX_RUN_ROW: usize = 64;
+
+/// Lattice coordinates of the points and the spacing: with them, rest offsets between lattice
+/// points are computed exactly as `s·(Δi, Δj, Δk)`, so every interior point with a complete
+/// stencil gets a bit-identical row (which the stencil kernel relies on).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LatticeOffsets {
+    /// Lattice coordinates (i, j, k) per point.
+    pub coords: Vec<[u32; 3]>,
+    /// Spacing s (m).
+    pub spacing: f64,
+}
+
 /// Per-pair data: `w_ij x_ij` and `w_ij`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PairTerm {
@@ -96,6 +110,12 @@ pub struct MlsOperator {
     wx: [Vec<f64>; 3],
     w: Vec<f64>,
     points: Vec<PointTerm>,
+    lattice: Option<LatticeOffsets>,
+    /// First points of runs: four consecutive full-rank points with bit-identical rows whose
+    /// neighbours in every slot are consecutive too (the interior of the lattice). The force
+    /// kernel treats a run as four SIMD lanes.
+    runs: Vec<u32>,
+    in_run: Vec<bool>,
 }
 
 /// Counts of each rank class, for reports.
@@ -110,8 +130,14 @@ pub struct RankCounts {
 }
 
 impl MlsOperator {
-    /// Precomputes the operator for every point.
-    pub fn build(rest: &[Vec3], neighbours: &Neighbourhoods, kernel: &Kernel) -> Self {
+    /// Precomputes the operator for every point. With `lattice`, offsets between lattice points
+    /// are exact multiples of the spacing.
+    pub fn build(
+        rest: &[Vec3],
+        neighbours: &Neighbourhoods,
+        kernel: &Kernel,
+        lattice: Option<LatticeOffsets>,
+    ) -> Self {
         let capacity = neighbours.capacity().div_ceil(LANES).max(1) * LANES;
         let n = rest.len();
         let mut op = Self {
@@ -125,10 +151,14 @@ impl MlsOperator {
             ],
             w: vec![0.0; n * capacity],
             points: vec![PointTerm::default(); n],
+            lattice,
+            runs: Vec::new(),
+            in_run: vec![false; n],
         };
         for i in 0..n {
             op.compute_point(i, rest, neighbours, kernel);
         }
+        op.detect_runs();
         op
     }
 
@@ -145,6 +175,60 @@ impl MlsOperator {
         for &i in points {
             self.compute_point(i as usize, rest, neighbours, kernel);
         }
+        self.detect_runs();
+    }
+
+    /// Finds the runs of four points the stencil kernel can process together.
+    fn detect_runs(&mut self) {
+        self.runs.clear();
+        self.in_run.iter_mut().for_each(|r| *r = false);
+        let n = self.len();
+        let mut i = 0;
+        while i + LANES <= n {
+            if self.is_run(i) {
+                self.runs.push(i as u32);
+                self.in_run[i..i + LANES].iter_mut().for_each(|r| *r = true);
+                i += LANES;
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    fn is_run(&self, i: usize) -> bool {
+        let first = &self.points[i];
+        let count = self.counts[i] as usize;
+        if !matches!(first.rank, PointRank::Full) || count == 0 || count > MAX_RUN_ROW {
+            return false;
+        }
+        let row = |k: usize| (k * self.capacity)..(k * self.capacity + count);
+        let same_bits =
+            |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        (1..LANES).all(|lane| {
+            let q = i + lane;
+            let other = &self.points[q];
+            self.counts[q] as usize == count
+                && matches!(other.rank, PointRank::Full)
+                && same_bits(first.a_pinv.as_slice(), other.a_pinv.as_slice())
+                && first.trace_a.to_bits() == other.trace_a.to_bits()
+                && same_bits(&self.w[row(i)], &self.w[row(q)])
+                && (0..3).all(|c| same_bits(&self.wx[c][row(i)], &self.wx[c][row(q)]))
+                && self.ids[row(i)]
+                    .iter()
+                    .zip(&self.ids[row(q)])
+                    .all(|(a, b)| *b as usize == *a as usize + lane)
+        })
+    }
+
+    /// Runs of four points for the stencil kernel (their first indices).
+    pub fn runs(&self) -> &[u32] {
+        &self.runs
+    }
+
+    /// Whether point i belongs to a run.
+    #[inline]
+    pub fn in_run(&self, i: usize) -> bool {
+        self.in_run[i]
     }
 
     fn compute_point(
@@ -161,7 +245,17 @@ impl MlsOperator {
         let mut sum_w = 0.0;
         let mut count = 0;
         for &j in list {
-            let x = rest[j as usize] - rest[i];
+            let x = match &self.lattice {
+                Some(l) => {
+                    let (a, b) = (l.coords[i], l.coords[j as usize]);
+                    Vec3::new(
+                        (b[0] as f64 - a[0] as f64) * l.spacing,
+                        (b[1] as f64 - a[1] as f64) * l.spacing,
+                        (b[2] as f64 - a[2] as f64) * l.spacing,
+                    )
+                }
+                None => rest[j as usize] - rest[i],
+            };
             let w = kernel.weight_sq(x.norm_squared());
             if w <= 0.0 {
                 continue;

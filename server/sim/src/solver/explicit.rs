@@ -164,6 +164,7 @@ impl Solver {
                 &self.p,
                 None,
                 &mut self.force,
+                &mut self.force_scratch,
             );
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));

@@ -29,7 +29,8 @@ pub use events::{DivergenceReason, EventQueue, SolverEvent, StepReport};
 pub use statics::StaticReport;
 
 use crate::math::{Mat3, Vec3};
-use crate::mls::forces::{ForceStats, add_elastic_forces};
+use crate::mls::forces::{ForceScratch, ForceStats, add_elastic_forces};
+use crate::mls::operator::LatticeOffsets;
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
 use crate::scene::Material;
@@ -120,6 +121,7 @@ pub struct Solver {
     target: Vec<Vec3>,
     external: Vec<Vec3>,
     force: Vec<Vec3>,
+    force_scratch: ForceScratch,
     snap_p: Vec<Vec3>,
     snap_v: Vec<Vec3>,
     scratch: [Vec<Vec3>; 5],
@@ -149,13 +151,18 @@ impl Solver {
             &model.neighbours,
             model.kernel,
             model.lattice.spacing,
+            Some(LatticeOffsets {
+                coords: model.points.lattice_coords.clone(),
+                spacing: model.lattice.spacing,
+            }),
             material.youngs_modulus_pa,
             material.poisson_ratio,
             config,
         )
     }
 
-    /// A solver for points at `rest` with volumes (m³), masses (kg) and neighbour lists.
+    /// A solver for points at `rest` with volumes (m³), masses (kg) and neighbour lists;
+    /// `lattice` (when the points come from one) makes rest offsets exact.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         rest: &[Vec3],
@@ -164,6 +171,7 @@ impl Solver {
         neighbours: &Neighbourhoods,
         kernel: Kernel,
         spacing_m: f64,
+        lattice: Option<LatticeOffsets>,
         youngs_modulus_pa: f64,
         poisson_ratio: f64,
         config: SolverConfig,
@@ -177,7 +185,7 @@ impl Solver {
             volume_k: config.volume_k_pa,
             clamp_inversion: config.clamp_inversion,
         };
-        let op = MlsOperator::build(rest, neighbours, &kernel);
+        let op = MlsOperator::build(rest, neighbours, &kernel, lattice);
         let zeros = vec![Vec3::zeros(); n];
         let mut solver = Self {
             config,
@@ -194,6 +202,7 @@ impl Solver {
             target: rest.to_vec(),
             external: zeros.clone(),
             force: zeros.clone(),
+            force_scratch: ForceScratch::new(n),
             snap_p: zeros.clone(),
             snap_v: zeros.clone(),
             scratch: [
@@ -394,6 +403,7 @@ impl Solver {
             &self.p,
             None,
             &mut self.force,
+            &mut self.force_scratch,
         );
         (&self.force, stats)
     }

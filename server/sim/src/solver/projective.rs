@@ -183,7 +183,15 @@ impl Projective {
             };
         }
         s.force.iter_mut().for_each(|f| *f = Vec3::zeros());
-        let stats = add_elastic_forces(&s.op, &s.params, &s.volume, &s.p, None, &mut s.force);
+        let stats = add_elastic_forces(
+            &s.op,
+            &s.params,
+            &s.volume,
+            &s.p,
+            None,
+            &mut s.force,
+            &mut s.force_scratch,
+        );
         s.note_clamping(&stats);
         StepReport {
             substeps: 1,

@@ -127,7 +127,15 @@ impl Solver {
         let n = self.p.len();
         let r = &mut self.scratch[0];
         r.iter_mut().for_each(|x| *x = Vec3::zeros());
-        let stats = add_elastic_forces(&self.op, &self.params, &self.volume, &self.p, None, r);
+        let stats = add_elastic_forces(
+            &self.op,
+            &self.params,
+            &self.volume,
+            &self.p,
+            None,
+            r,
+            &mut self.force_scratch,
+        );
         self.last_stats = Some(stats);
         let mut norm = 0.0;
         for i in 0..n {
@@ -147,7 +155,15 @@ impl Solver {
         let n = self.p.len();
         let f = &mut self.scratch[3];
         f.iter_mut().for_each(|x| *x = Vec3::zeros());
-        let stats = add_elastic_forces(&self.op, &self.params, &self.volume, &self.p, None, f);
+        let stats = add_elastic_forces(
+            &self.op,
+            &self.params,
+            &self.volume,
+            &self.p,
+            None,
+            f,
+            &mut self.force_scratch,
+        );
         let mut potential = stats.energy();
         for i in 0..n {
             potential -= (self.external[i] + self.config.gravity * self.mass[i]).dot(&self.p[i]);
