@@ -23,3 +23,62 @@ fn every_benchmark_passes() {
     }
     assert!(failures.is_empty(), "failed: {failures:?}");
 }
+
+/// physics.md §9, "Müller-literal check": MuellerCompat with E/4 gives the same motion as
+/// StVK with E (the literal form has four times the stiffness).
+#[test]
+fn mueller_compat_with_a_quarter_of_e_matches_stvk() {
+    use scalpel_sim::math::Vec3;
+    use scalpel_sim::mls::ElasticModel;
+    use scalpel_sim::scene::Material;
+    use scalpel_sim::solver::SolverConfig;
+    use scalpel_sim::validate::box_body;
+    let run = |model: ElasticModel, e: f64| {
+        let material = Material {
+            youngs_modulus_pa: e,
+            ..Material::LIVER
+        };
+        let config = SolverConfig {
+            model,
+            ..SolverConfig::default()
+        };
+        let mut body = box_body(Vec3::new(0.02, 0.01, 0.01), 5, &material, 2.0, config);
+        let p: Vec<Vec3> = body
+            .model
+            .points
+            .rest
+            .iter()
+            .enumerate()
+            .map(|(i, x)| x + Vec3::new((i as f64).sin(), 0.5, (i as f64).cos()) * 1e-4)
+            .collect();
+        body.solver.set_positions(&p);
+        for _ in 0..50 {
+            body.solver.step(1e-3);
+        }
+        (body.solver.positions().to_vec(), body.solver.substeps())
+    };
+    let (stvk, n1) = run(ElasticModel::StVK, 8000.0);
+    let (mueller, n2) = run(ElasticModel::MuellerCompat, 2000.0);
+    assert_eq!(n1, n2, "same dt_crit, same sub-steps");
+    let scale = 1e-4;
+    for (a, b) in stvk.iter().zip(&mueller) {
+        assert!((a - b).norm() < 1e-9 * scale, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn scene_features_select_the_solver() {
+    use scalpel_sim::scene::{Features, Material};
+    use scalpel_sim::solver::{SolverConfig, SolverMode};
+    let stiff = Features {
+        stiff_mode: true,
+        volume_term: true,
+        ..Features::default()
+    };
+    let c = SolverConfig::for_scene(&stiff, &Material::LIVER);
+    assert_eq!(c.mode, SolverMode::Projective);
+    assert!(c.volume_k_pa > 0.0);
+    let plain = SolverConfig::for_scene(&Features::default(), &Material::LIVER);
+    assert_eq!(plain.mode, SolverMode::Explicit);
+    assert_eq!(plain.volume_k_pa, 0.0);
+}

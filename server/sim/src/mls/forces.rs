@@ -50,7 +50,7 @@ impl ForceStats {
 #[inline]
 pub fn hourglass_stiffness(params: &ElasticParams, volume: f64, trace_a: f64) -> f64 {
     if trace_a > 0.0 {
-        params.hourglass_alpha * params.youngs_modulus_pa * volume / trace_a
+        params.hourglass_alpha * params.effective_youngs_modulus() * volume / trace_a
     } else {
         0.0
     }
@@ -326,7 +326,8 @@ fn run_kernel(
         }
     }
     let volume = load4(volumes, i);
-    let k = f64x4::splat(params.hourglass_alpha * params.youngs_modulus_pa / term.trace_a) * volume;
+    let k = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus() / term.trace_a)
+        * volume;
     // Stress: vectorised StVK when every lane is in the ordinary range, else per lane.
     let (p_stress, psi) = match lane_stvk(params, &fp) {
         Some((p, psi, det)) => {

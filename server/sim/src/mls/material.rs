@@ -96,6 +96,15 @@ impl ElasticParams {
         }
     }
 
+    /// Young's modulus the model actually has (×4 for MuellerCompat), which sets the
+    /// hourglass stiffness so that MuellerCompat with E/4 equals StVK with E throughout.
+    pub fn effective_youngs_modulus(&self) -> f64 {
+        match self.model {
+            ElasticModel::MuellerCompat => 4.0 * self.youngs_modulus_pa,
+            _ => self.youngs_modulus_pa,
+        }
+    }
+
     /// Modulus governing the fastest wave, including the volume term (Pa).
     pub fn wave_modulus(&self) -> f64 {
         self.effective_lame().p_wave_modulus() + self.volume_k

@@ -102,6 +102,29 @@ impl Default for SolverConfig {
     }
 }
 
+impl SolverConfig {
+    /// The configuration a scene asks for: projective dynamics when it declares `stiff_mode`,
+    /// Müller's volume term (k_v = λ, the upper end physics.md §1.8 recommends) when it
+    /// declares `volume_term`, the material's damping; everything else default.
+    pub fn for_scene(features: &crate::scene::Features, material: &Material) -> Self {
+        let lame = Lame::from_young_poisson(material.youngs_modulus_pa, material.poisson_ratio);
+        Self {
+            mode: if features.stiff_mode {
+                SolverMode::Projective
+            } else {
+                SolverMode::Explicit
+            },
+            volume_k_pa: if features.volume_term {
+                lame.lambda
+            } else {
+                0.0
+            },
+            damping_per_s: material.damping_per_s,
+            ..Self::default()
+        }
+    }
+}
+
 /// Most sub-steps a tick may take.
 pub const MAX_SUBSTEPS: u32 = 1 << 16;
 
