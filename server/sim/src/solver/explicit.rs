@@ -2,9 +2,9 @@
 //! (physics.md §2.1, §2.5).
 
 use super::events::{DivergenceReason, SolverEvent, StepReport};
-use super::{MAX_SUBSTEPS, Solver, kinetic_energy};
+use super::{ForceBuffer, MAX_SUBSTEPS, Solver, kinetic_energy};
 use crate::math::Vec3;
-use crate::mls::forces::{ForceStats, add_elastic_forces};
+use crate::mls::forces::ForceStats;
 
 /// Energy below this is treated as zero by the growth test (J).
 const ENERGY_FLOOR: f64 = 1e-12;
@@ -156,16 +156,7 @@ impl Solver {
         moved_fixed: &mut [Vec3],
     ) -> Result<(), (DivergenceReason, u32)> {
         for s in 0..n {
-            self.force.iter_mut().for_each(|f| *f = Vec3::zeros());
-            let st = add_elastic_forces(
-                &self.op,
-                &self.params,
-                &self.volume,
-                &self.p,
-                None,
-                &mut self.force,
-                &mut self.force_scratch,
-            );
+            let st = self.evaluate_elastic(ForceBuffer::Force);
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));
             }

@@ -418,16 +418,7 @@ impl Solver {
 
     /// Elastic forces at the current positions (N), and their statistics.
     pub fn elastic_forces(&mut self) -> (&[Vec3], ForceStats) {
-        self.force.iter_mut().for_each(|f| *f = Vec3::zeros());
-        let stats = add_elastic_forces(
-            &self.op,
-            &self.params,
-            &self.volume,
-            &self.p,
-            None,
-            &mut self.force,
-            &mut self.force_scratch,
-        );
+        let stats = self.evaluate_elastic(ForceBuffer::Force);
         (&self.force, stats)
     }
 
@@ -444,6 +435,35 @@ impl Solver {
         let dt = timestep::critical_time_step(self);
         self.dt_crit = Some(dt);
         dt
+    }
+}
+
+/// Where [`Solver::evaluate_elastic`] writes the forces.
+#[derive(Debug, Clone, Copy)]
+enum ForceBuffer {
+    /// The solver's force buffer.
+    Force,
+    /// One of the scratch buffers.
+    Scratch(usize),
+}
+
+impl Solver {
+    /// Zeroes the buffer and fills it with the elastic forces at the current positions.
+    fn evaluate_elastic(&mut self, into: ForceBuffer) -> ForceStats {
+        let out = match into {
+            ForceBuffer::Force => &mut self.force,
+            ForceBuffer::Scratch(k) => &mut self.scratch[k],
+        };
+        out.iter_mut().for_each(|f| *f = Vec3::zeros());
+        add_elastic_forces(
+            &self.op,
+            &self.params,
+            &self.volume,
+            &self.p,
+            None,
+            out,
+            &mut self.force_scratch,
+        )
     }
 }
 

@@ -27,7 +27,7 @@ use nalgebra::UnitQuaternion;
 use super::Solver;
 use super::events::{SolverEvent, StepReport};
 use crate::math::{Mat3, Vec3};
-use crate::mls::forces::{add_elastic_forces, hourglass_stiffness};
+use crate::mls::forces::hourglass_stiffness;
 use crate::mls::operator::{MlsOperator, PointRank, complete};
 
 /// Rotation-extraction iterations per local step (warm-started from the last rotation).
@@ -182,16 +182,7 @@ impl Projective {
                 ..StepReport::default()
             };
         }
-        s.force.iter_mut().for_each(|f| *f = Vec3::zeros());
-        let stats = add_elastic_forces(
-            &s.op,
-            &s.params,
-            &s.volume,
-            &s.p,
-            None,
-            &mut s.force,
-            &mut s.force_scratch,
-        );
+        let stats = s.evaluate_elastic(super::ForceBuffer::Force);
         s.note_clamping(&stats);
         StepReport {
             substeps: 1,

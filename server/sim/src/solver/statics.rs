@@ -3,9 +3,9 @@
 
 use serde::Serialize;
 
-use super::Solver;
+use super::{ForceBuffer, Solver};
 use crate::math::Vec3;
-use crate::mls::forces::{add_elastic_forces, hourglass_stiffness, stiffness_product};
+use crate::mls::forces::{hourglass_stiffness, stiffness_product};
 use crate::mls::{ElasticParams, MlsOperator, PointRank};
 
 /// Outcome of a static solve.
@@ -125,17 +125,8 @@ impl Solver {
     /// returns its norm and the elastic energy.
     fn residual_into_scratch(&mut self) -> (f64, f64) {
         let n = self.p.len();
+        let stats = self.evaluate_elastic(ForceBuffer::Scratch(0));
         let r = &mut self.scratch[0];
-        r.iter_mut().for_each(|x| *x = Vec3::zeros());
-        let stats = add_elastic_forces(
-            &self.op,
-            &self.params,
-            &self.volume,
-            &self.p,
-            None,
-            r,
-            &mut self.force_scratch,
-        );
         self.last_stats = Some(stats);
         let mut norm = 0.0;
         for i in 0..n {
@@ -153,17 +144,7 @@ impl Solver {
     /// Elastic energy minus the work of the applied loads.
     fn potential_energy(&mut self) -> f64 {
         let n = self.p.len();
-        let f = &mut self.scratch[3];
-        f.iter_mut().for_each(|x| *x = Vec3::zeros());
-        let stats = add_elastic_forces(
-            &self.op,
-            &self.params,
-            &self.volume,
-            &self.p,
-            None,
-            f,
-            &mut self.force_scratch,
-        );
+        let stats = self.evaluate_elastic(ForceBuffer::Scratch(3));
         let mut potential = stats.energy();
         for i in 0..n {
             potential -= (self.external[i] + self.config.gravity * self.mass[i]).dot(&self.p[i]);
