@@ -1,0 +1,392 @@
+//! Cutting force model (the paper's eqs. 17–19, reinterpreted per physics.md §6).
+//!
+//! The paper multiplies an internal point force by `Γ = e^{−at} sin(bt) Y(d)`, which starts
+//! and ends at zero and pulls the hand into the tissue half the time. Here the force on the
+//! blade follows three phases:
+//!
+//! * **Loading** (blade pressing on intact capsule): the eq. 19 curve used as a *shape*,
+//!   `F_pre(x) = F_r · f(x · 3.17/x_r) / 42.85`, which peaks at exactly the rupture force F_r
+//!   at the rupture displacement x_r (physics.md §6.2: f peaks at 42.85 at x = 3.17).
+//! * **Rupture**: once the blade has pressed x_r, the capsule fails.
+//! * **Cutting**: the mean force is the fracture work per unit advance plus friction,
+//!   `F_mean = J_c·d + F_friction` (d = cut depth), with a decaying ripple in blade travel,
+//!   `F = F_mean·(1 + ε e^{−τ/τ_d} sin(2π x_c/λ))`, τ and x_c measured from the rupture.
+//!
+//! The model is sans-IO: the caller passes time and the blade's contact state; it returns
+//! the force on the tool and a local linear model (f₀, x₀, K) that the 1 kHz haptic loop
+//! renders between simulation updates. Rate limiting of the rupture drop and passivity are
+//! the haptic output stage's job (physics.md §7), not this model's.
+
+use serde::Serialize;
+
+use crate::math::{Mat3, Vec3};
+use crate::scene::ForceSpec;
+
+/// Coefficients of eq. 19 (x in mm, f in the paper's units): two Gaussians.
+const EQ19: [(f64, f64, f64); 2] = [(15.29, 3.164, 0.2933), (27.69, 3.288, 1.746)];
+/// Where eq. 19 peaks (mm) and its value there (physics.md §6.2, t9).
+const EQ19_PEAK_X: f64 = 3.17;
+const EQ19_PEAK_F: f64 = 42.85;
+
+/// eq. 19 and its derivative at x (mm).
+fn eq19(x: f64) -> (f64, f64) {
+    EQ19.iter().fold((0.0, 0.0), |(f, df), &(a, b, c)| {
+        let t = (x - b) / c;
+        let g = a * (-t * t).exp();
+        (f + g, df - 2.0 * t / c * g)
+    })
+}
+
+/// Which regime the blade is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CutPhase {
+    /// Not touching the tissue.
+    Free,
+    /// Pressing on intact capsule, before rupture.
+    Loading,
+    /// Cutting after rupture.
+    Cutting,
+}
+
+/// The blade's contact with the tissue this update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BladeContact {
+    /// The cutting edge is inside the tissue (or pressing on its surface).
+    pub in_tissue: bool,
+    /// Depth of the cutting edge below the surface at entry (m).
+    pub depth_m: f64,
+    /// How far the blade moved along its cutting direction since the last update (m).
+    pub advance_m: f64,
+    /// Unit cutting direction (the blade's motion), for the force vector.
+    pub direction: Vec3,
+    /// The blade entered along an existing incision: no capsule to rupture.
+    pub in_existing_cut: bool,
+}
+
+/// The force on the tool and its local linear model.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct CutForce {
+    /// Regime after this update.
+    pub phase: CutPhase,
+    /// Magnitude of the resistance (N), ≥ 0.
+    pub magnitude_n: f64,
+    /// Force on the tool (N): the resistance, against the cutting direction.
+    pub force_n: Vec3,
+    /// Stiffness of the resistance along the cutting direction (N/m): dF/dx, for the
+    /// haptic loop's local model.
+    pub stiffness_n_per_m: f64,
+    /// The update was a rupture (capsule failed this update).
+    pub ruptured: bool,
+}
+
+impl CutForce {
+    /// The local linear model for the haptic loop at tool position `x0`: the loop renders
+    /// `f = f0 + K (x − x0)` with `K = −k d dᵀ` (the resistance grows as the tool advances
+    /// along d, pushing back).
+    pub fn local_model(&self, x0: Vec3, direction: Vec3) -> LocalForceModel {
+        LocalForceModel {
+            f0_n: self.force_n,
+            x0_m: x0,
+            stiffness_n_per_m: -(direction * direction.transpose()) * self.stiffness_n_per_m,
+        }
+    }
+}
+
+/// A linearisation of the tool force around a position, published by the simulation and
+/// rendered by the haptic loop at 1 kHz.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LocalForceModel {
+    /// Force at x0 (N).
+    pub f0_n: Vec3,
+    /// Tool position the model is taken at (m).
+    pub x0_m: Vec3,
+    /// ∂f/∂x (N/m).
+    pub stiffness_n_per_m: Mat3,
+}
+
+impl LocalForceModel {
+    /// The force the model predicts at `x` (N).
+    pub fn force_at(&self, x: Vec3) -> Vec3 {
+        self.f0_n + self.stiffness_n_per_m * (x - self.x0_m)
+    }
+}
+
+/// The cutting force state machine.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CuttingForceModel {
+    spec: ForceSpec,
+    ripple: bool,
+    phase: CutPhase,
+    /// Blade travel while loading (m).
+    loading_m: f64,
+    /// Time of the last rupture (s).
+    rupture_s: f64,
+    /// Blade travel since the last rupture (m).
+    travel_m: f64,
+}
+
+impl CuttingForceModel {
+    /// A model with the scene's force parameters; `ripple` is the scene's feature flag.
+    pub fn new(spec: &ForceSpec, ripple: bool) -> Self {
+        Self {
+            spec: *spec,
+            ripple,
+            phase: CutPhase::Free,
+            loading_m: 0.0,
+            rupture_s: 0.0,
+            travel_m: 0.0,
+        }
+    }
+
+    /// Current regime.
+    pub fn phase(&self) -> CutPhase {
+        self.phase
+    }
+
+    /// The loading curve F_pre at blade travel `x` (m) and its slope (N/m).
+    pub fn loading_force(&self, x: f64) -> (f64, f64) {
+        let scale = EQ19_PEAK_X / (self.spec.rupture_displacement_m * 1e3);
+        let (f, df) = eq19(x.max(0.0) * 1e3 * scale);
+        let to_newtons = self.spec.rupture_force_n / EQ19_PEAK_F;
+        // d/dx_m = d/dx_mm · 1000 · scale.
+        (f * to_newtons, df * to_newtons * 1e3 * scale)
+    }
+
+    /// The mean cutting force at depth `depth_m` (N): J_c·d + friction.
+    pub fn mean_cutting_force(&self, depth_m: f64) -> f64 {
+        self.spec.toughness_n_per_m * depth_m.max(0.0) + self.spec.friction_n
+    }
+
+    /// Advances the model to time `now_s` with this update's blade contact.
+    pub fn update(&mut self, now_s: f64, contact: &BladeContact) -> CutForce {
+        let advance = if contact.advance_m.is_finite() {
+            contact.advance_m.max(0.0)
+        } else {
+            0.0
+        };
+        let depth = if contact.depth_m.is_finite() {
+            contact.depth_m.max(0.0)
+        } else {
+            0.0
+        };
+        let direction = contact
+            .direction
+            .try_normalize(1e-12)
+            .unwrap_or_else(Vec3::zeros);
+        let mut ruptured = false;
+        if !contact.in_tissue {
+            self.phase = CutPhase::Free;
+            self.loading_m = 0.0;
+        } else {
+            if self.phase == CutPhase::Free {
+                if contact.in_existing_cut {
+                    self.start_cutting(now_s);
+                } else {
+                    self.phase = CutPhase::Loading;
+                    self.loading_m = 0.0;
+                }
+            }
+            match self.phase {
+                CutPhase::Loading => {
+                    self.loading_m += advance;
+                    if self.loading_m >= self.spec.rupture_displacement_m {
+                        self.start_cutting(now_s);
+                        ruptured = true;
+                    }
+                }
+                CutPhase::Cutting => self.travel_m += advance,
+                CutPhase::Free => unreachable!("entering tissue leaves the free phase"),
+            }
+        }
+        let (magnitude, stiffness) = match self.phase {
+            CutPhase::Free => (0.0, 0.0),
+            CutPhase::Loading => self.loading_force(self.loading_m),
+            CutPhase::Cutting => {
+                let mean = self.mean_cutting_force(depth);
+                if self.ripple {
+                    let tau = (now_s - self.rupture_s).max(0.0);
+                    let envelope =
+                        self.spec.ripple_amplitude * (-tau / self.spec.ripple_decay_s).exp();
+                    let phase =
+                        2.0 * std::f64::consts::PI * self.travel_m / self.spec.ripple_wavelength_m;
+                    let slope = mean * envelope * 2.0 * std::f64::consts::PI
+                        / self.spec.ripple_wavelength_m
+                        * phase.cos();
+                    (mean * (1.0 + envelope * phase.sin()), slope)
+                } else {
+                    (mean, 0.0)
+                }
+            }
+        };
+        let magnitude = magnitude.max(0.0);
+        CutForce {
+            phase: self.phase,
+            magnitude_n: magnitude,
+            force_n: -direction * magnitude,
+            stiffness_n_per_m: stiffness,
+            ruptured,
+        }
+    }
+
+    fn start_cutting(&mut self, now_s: f64) {
+        self.phase = CutPhase::Cutting;
+        self.rupture_s = now_s;
+        self.travel_m = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn contact(advance_m: f64, depth_m: f64) -> BladeContact {
+        BladeContact {
+            in_tissue: true,
+            depth_m,
+            advance_m,
+            direction: Vec3::x(),
+            in_existing_cut: false,
+        }
+    }
+
+    #[test]
+    fn eq19_peaks_where_physics_md_says() {
+        assert!((eq19(3.17).0 - 42.85).abs() < 0.01);
+        assert!((eq19(0.0).0 - 0.80).abs() < 0.01);
+        assert!((eq19(5.0).0 - 10.59).abs() < 0.01);
+        // Its derivative is the slope of the curve.
+        let h = 1e-6;
+        assert!(((eq19(2.5 + h).0 - eq19(2.5 - h).0) / (2.0 * h) - eq19(2.5).1).abs() < 1e-4);
+    }
+
+    #[test]
+    fn loading_peaks_at_the_rupture_force_then_ruptures() {
+        let spec = ForceSpec::default();
+        let m = CuttingForceModel::new(&spec, true);
+        let (peak, _) = m.loading_force(spec.rupture_displacement_m);
+        assert!((peak / spec.rupture_force_n - 1.0).abs() < 1e-3, "{peak}");
+        // Monotone rise up to the peak.
+        let mut last = 0.0;
+        for k in 0..=100 {
+            let (f, _) = m.loading_force(spec.rupture_displacement_m * 0.99 * k as f64 / 100.0);
+            assert!(f >= last - 1e-12);
+            last = f;
+        }
+        let mut m = CuttingForceModel::new(&spec, true);
+        let step = 1e-5;
+        let mut t = 0.0;
+        let mut ruptures = 0;
+        let mut peak_seen: f64 = 0.0;
+        while t < 2.0 {
+            let f = m.update(t, &contact(step, 0.01));
+            peak_seen = peak_seen.max(f.magnitude_n);
+            ruptures += usize::from(f.ruptured);
+            t += 1e-3;
+        }
+        assert_eq!(ruptures, 1);
+        assert_eq!(m.phase(), CutPhase::Cutting);
+        assert!(
+            (peak_seen / spec.rupture_force_n - 1.0).abs() < 0.01,
+            "{peak_seen}"
+        );
+    }
+
+    #[test]
+    fn steady_cutting_averages_to_toughness_times_depth_plus_friction() {
+        let spec = ForceSpec::default();
+        let mut m = CuttingForceModel::new(&spec, true);
+        m.update(
+            0.0,
+            &BladeContact {
+                in_existing_cut: true,
+                ..contact(0.0, 0.01)
+            },
+        );
+        // 5 mm/s for 10 s at 1 kHz: 25 ripple wavelengths.
+        let (mut sum, mut n, mut lo, mut hi) = (0.0, 0, f64::INFINITY, 0.0f64);
+        for k in 1..=10_000 {
+            let f = m.update(k as f64 * 1e-3, &contact(5e-6, 0.01));
+            sum += f.magnitude_n;
+            n += 1;
+            lo = lo.min(f.magnitude_n);
+            hi = hi.max(f.magnitude_n);
+            assert!(f.force_n.x <= 0.0 && f.force_n.y == 0.0);
+        }
+        let mean = sum / n as f64;
+        // 0.19 N/mm × 10 mm + 0.3 N.
+        assert!((mean - 2.2).abs() < 0.02, "{mean}");
+        assert!(hi - lo > 0.2 && hi <= 2.2 * 1.15 + 1e-9, "{lo} {hi}");
+    }
+
+    #[test]
+    fn ripple_decays_and_can_be_switched_off() {
+        let spec = ForceSpec::default();
+        let amplitude = |ripple: bool, from: f64| {
+            let mut m = CuttingForceModel::new(&spec, ripple);
+            m.update(
+                0.0,
+                &BladeContact {
+                    in_existing_cut: true,
+                    ..contact(0.0, 0.01)
+                },
+            );
+            let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+            for k in 1..=6000 {
+                let t = k as f64 * 1e-3;
+                let f = m.update(t, &contact(5e-6, 0.01));
+                if t >= from && t < from + 1.0 {
+                    lo = lo.min(f.magnitude_n);
+                    hi = hi.max(f.magnitude_n);
+                }
+            }
+            hi - lo
+        };
+        assert!(amplitude(true, 0.0) > 4.0 * amplitude(true, 5.0));
+        assert!(amplitude(false, 0.0) < 1e-12);
+    }
+
+    #[test]
+    fn leaving_the_tissue_releases_the_force() {
+        let mut m = CuttingForceModel::new(&ForceSpec::default(), true);
+        m.update(0.0, &contact(0.001, 0.01));
+        let f = m.update(
+            0.001,
+            &BladeContact {
+                in_tissue: false,
+                ..contact(0.001, 0.0)
+            },
+        );
+        assert_eq!(f.phase, CutPhase::Free);
+        assert_eq!(f.magnitude_n, 0.0);
+    }
+
+    #[test]
+    fn garbage_inputs_give_bounded_finite_forces() {
+        let spec = ForceSpec::default();
+        let mut m = CuttingForceModel::new(&spec, true);
+        for (k, (adv, depth)) in [
+            (f64::NAN, 0.01),
+            (1.0, f64::INFINITY),
+            (-5.0, -1.0),
+            (1e9, 1e9),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let f = m.update(k as f64, &contact(adv, depth));
+            assert!(f.magnitude_n.is_finite() && f.force_n.iter().all(|x| x.is_finite()));
+        }
+    }
+
+    #[test]
+    fn local_model_reproduces_the_force_at_its_origin_and_pushes_back() {
+        let mut m = CuttingForceModel::new(&ForceSpec::default(), false);
+        let f = m.update(0.0, &contact(0.002, 0.01));
+        let model = f.local_model(Vec3::new(0.01, 0.0, 0.0), Vec3::x());
+        assert_eq!(model.force_at(model.x0_m), f.force_n);
+        // Loading stiffens: advancing further along +x gives a larger force against +x.
+        let ahead = model.force_at(model.x0_m + Vec3::new(1e-4, 0.0, 0.0));
+        assert!(ahead.x < f.force_n.x);
+    }
+}
