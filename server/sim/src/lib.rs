@@ -21,6 +21,7 @@
 //! assert!(summary.volume_error.abs() < 1e-6);
 //! ```
 
+pub mod cut;
 pub mod force;
 pub mod geometry;
 pub mod math;

@@ -58,7 +58,7 @@ pub struct Benchmark {
     pub run: fn() -> BenchmarkResult,
 }
 
-/// Every benchmark of issue 3, in order.
+/// Every benchmark, in order (issue 3's list plus B10, the clean cut).
 pub fn all() -> Vec<Benchmark> {
     vec![
         Benchmark {
@@ -88,6 +88,10 @@ pub fn all() -> Vec<Benchmark> {
         Benchmark {
             name: "B9",
             run: b9_rigid_rotation,
+        },
+        Benchmark {
+            name: "B10",
+            run: b10_clean_cut,
         },
         Benchmark {
             name: "B11",

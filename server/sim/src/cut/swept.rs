@@ -1,0 +1,137 @@
+//! The swept cut surface Σ and the visibility criterion (physics.md §4.1–4.2).
+//!
+//! Each tick the immersed part of the cutting edge sweeps a ruled quad between its previous
+//! and current positions; its two triangles are appended to Σ, kept in **rest** coordinates so
+//! that the test below does not change as the tissue deforms. A neighbour pair (i, j) is
+//! disconnected when the rest segment `[X_i, X_j]` crosses a triangle of Σ (Belytschko's
+//! visibility criterion): j leaves N(i) and i leaves N(j). Only the points whose lists changed
+//! need their MLS rows recomputed.
+
+use crate::math::Vec3;
+use crate::model::{Neighbourhoods, RestGrid};
+
+/// Σ as a triangle soup in rest coordinates.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SweptSurface {
+    /// Triangles (m, rest space).
+    pub triangles: Vec<[Vec3; 3]>,
+}
+
+impl SweptSurface {
+    /// Appends the quad swept by an edge moving from `(tip0, entry0)` to `(tip1, entry1)`;
+    /// returns how many triangles were added (0 for a degenerate sweep).
+    pub fn add_sweep(&mut self, tip0: Vec3, entry0: Vec3, tip1: Vec3, entry1: Vec3) -> usize {
+        let mut added = 0;
+        for tri in [[tip0, entry0, entry1], [tip0, entry1, tip1]] {
+            let area2 = (tri[1] - tri[0]).cross(&(tri[2] - tri[0])).norm();
+            let scale = (tri[1] - tri[0]).norm().max((tri[2] - tri[0]).norm());
+            if area2 > 1e-12 * scale * scale && area2 > 0.0 {
+                self.triangles.push(tri);
+                added += 1;
+            }
+        }
+        added
+    }
+}
+
+/// Whether the segment `[p, q]` meets the closed triangle (boundary included). Hits on an
+/// edge shared by two triangles of Σ are reported by both, so no pair slips through a seam.
+/// An endpoint exactly on the triangle's plane counts as on its positive side.
+pub fn segment_meets_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> bool {
+    let [a, b, c] = tri;
+    let n = (b - a).cross(&(c - a));
+    let sp = n.dot(&(p - a));
+    let sq = n.dot(&(q - a));
+    let side = |s: f64| s >= 0.0;
+    if side(sp) == side(sq) {
+        return false;
+    }
+    let t = sp / (sp - sq);
+    let x = p + (q - p) * t;
+    // Barycentric coordinates of x, with a tolerance relative to the triangle's size.
+    let nn = n.norm_squared();
+    if nn == 0.0 {
+        return false;
+    }
+    let u = n.dot(&(b - x).cross(&(c - x))) / nn;
+    let v = n.dot(&(c - x).cross(&(a - x))) / nn;
+    let w = 1.0 - u - v;
+    let tol = -1e-12;
+    u >= tol && v >= tol && w >= tol
+}
+
+/// Removes every neighbour pair whose rest segment meets `triangle`; the points whose lists
+/// changed are appended to `changed` (unsorted, possibly repeated).
+pub fn cut_pairs(
+    triangle: &[Vec3; 3],
+    rest: &[Vec3],
+    grid: &RestGrid,
+    neighbours: &mut Neighbourhoods,
+    support_m: f64,
+    changed: &mut Vec<u32>,
+) -> usize {
+    // Both ends of a crossing pair are within h of the triangle: look around its box.
+    let lo = triangle[0].inf(&triangle[1]).inf(&triangle[2]);
+    let hi = triangle[0].sup(&triangle[1]).sup(&triangle[2]);
+    let centre = (lo + hi) * 0.5;
+    let reach = (hi - lo).norm() * 0.5 + support_m;
+    let mut removed = 0;
+    let mut candidates: Vec<u32> = Vec::new();
+    grid.for_each_within(rest, &centre, reach, |i, _| candidates.push(i));
+    for &i in &candidates {
+        let i = i as usize;
+        let mut k = 0;
+        while k < neighbours.of(i).len() {
+            let j = neighbours.of(i)[k];
+            if (j as usize) > i && segment_meets_triangle(&rest[i], &rest[j as usize], triangle) {
+                neighbours.remove(i, j);
+                neighbours.remove(j as usize, i as u32);
+                changed.push(i as u32);
+                changed.push(j);
+                removed += 1;
+            } else {
+                k += 1;
+            }
+        }
+    }
+    removed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seams_and_corners_do_not_leak() {
+        let t1 = [
+            Vec3::new(0., 0., 0.),
+            Vec3::new(1., 0., 0.),
+            Vec3::new(1., 1., 0.),
+        ];
+        let t2 = [
+            Vec3::new(0., 0., 0.),
+            Vec3::new(1., 1., 0.),
+            Vec3::new(0., 1., 0.),
+        ];
+        // Through the shared diagonal, and through a shared vertex.
+        for x in [
+            Vec3::new(0.5, 0.5, 0.0),
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.3, 0.7, 0.0),
+        ] {
+            let (p, q) = (x + Vec3::new(0.0, 0.0, -1.0), x + Vec3::new(0.0, 0.0, 1.0));
+            assert!(
+                segment_meets_triangle(&p, &q, &t1) || segment_meets_triangle(&p, &q, &t2),
+                "{x}"
+            );
+        }
+        let (p, q) = (Vec3::new(2.0, 0.5, -1.0), Vec3::new(2.0, 0.5, 1.0));
+        assert!(!segment_meets_triangle(&p, &q, &t1) && !segment_meets_triangle(&p, &q, &t2));
+        // Same side: no crossing.
+        assert!(!segment_meets_triangle(
+            &Vec3::new(0.5, 0.2, 0.1),
+            &Vec3::new(0.5, 0.2, 2.0),
+            &t1
+        ));
+    }
+}
