@@ -178,3 +178,58 @@ fn runs_are_bitwise_deterministic() {
         assert_eq!(run(), run(), "{mode:?}");
     }
 }
+
+#[test]
+fn an_explicit_active_set_of_everything_changes_nothing() {
+    let model = model("liver");
+    let run = |restrict: bool| {
+        let mut solver = prepared(&model, SolverMode::Explicit);
+        if restrict {
+            let all: Vec<u32> = (0..model.points.len() as u32).collect();
+            solver.set_active(&all);
+        }
+        for _ in 0..20 {
+            solver.step(1e-3);
+        }
+        solver
+            .positions()
+            .iter()
+            .flat_map(|p| p.iter().map(|x| x.to_bits()))
+            .collect::<Vec<u64>>()
+    };
+    assert_eq!(run(false), run(true));
+}
+
+#[test]
+fn frozen_points_stay_put_and_the_active_region_moves() {
+    let model = model("liver");
+    let mut solver = prepared(&model, SolverMode::Explicit);
+    // Activate the points within 2 cm of the first point.
+    let centre = model.points.rest[model.points.len() / 2];
+    let active: Vec<u32> = (0..model.points.len() as u32)
+        .filter(|&i| (model.points.rest[i as usize] - centre).norm() < 0.02)
+        .collect();
+    assert!(active.len() > 10 && active.len() < model.points.len() / 2);
+    solver.set_active(&active);
+    let before = solver.positions().to_vec();
+    for _ in 0..20 {
+        solver.step(1e-3);
+    }
+    let after = solver.positions();
+    let mut moved_active = 0;
+    for i in 0..before.len() {
+        if active.binary_search(&(i as u32)).is_ok() {
+            moved_active += usize::from(after[i] != before[i]);
+        } else {
+            assert_eq!(after[i], before[i], "frozen point {i} moved");
+        }
+    }
+    assert!(moved_active > 0);
+    // Restricting also must not allocate per tick.
+    let before = allocations();
+    for _ in 0..10 {
+        solver.step(1e-3);
+        solver.set_active(&active);
+    }
+    assert_eq!(allocations() - before, 0);
+}

@@ -72,24 +72,117 @@ impl ForceScratch {
         }
     }
 
-    fn prepare(&mut self, p: &[Vec3]) {
-        let n = p.len();
+    fn resize(&mut self, n: usize) {
         for c in 0..3 {
             if self.pos[c].len() != n {
                 // Only when the point count changes, never in a steady loop.
                 self.pos[c].resize(n, 0.0);
                 self.force[c].resize(n, 0.0);
             }
-            for (x, q) in self.pos[c].iter_mut().zip(p) {
-                *x = q[c];
+        }
+    }
+
+    /// Copies the positions of `points` (all when `None`) and zeroes their force entries.
+    fn prepare(&mut self, p: &[Vec3], points: Option<&[u32]>) {
+        self.resize(p.len());
+        let mut one = |i: usize| {
+            for c in 0..3 {
+                self.pos[c][i] = p[i][c];
+                self.force[c][i] = 0.0;
             }
-            self.force[c].iter_mut().for_each(|x| *x = 0.0);
+        };
+        match points {
+            Some(list) => list.iter().for_each(|&i| one(i as usize)),
+            None => (0..p.len()).for_each(one),
         }
     }
 }
 
-/// Adds the elastic forces at positions `p` to `f` (N). Only points with `active[i]` carry
-/// their own stress when a mask is given (frozen points still act through their neighbours).
+/// Which points a force evaluation covers, so that its cost follows the active region and
+/// not the body. Points outside `stress` carry no stress of their own (they are frozen
+/// neighbours); forces land on `touched` = stress ∪ their neighbours.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EvalSet {
+    /// Points whose stress is evaluated, sorted.
+    pub stress: Vec<u32>,
+    /// Points that can receive force, sorted.
+    pub touched: Vec<u32>,
+    /// Runs of the operator whose four lanes are all in `stress`.
+    pub runs: Vec<u32>,
+    /// Per point: handled by one of `runs`.
+    in_runs: Vec<bool>,
+    in_stress: Vec<bool>,
+    in_touched: Vec<bool>,
+}
+
+impl EvalSet {
+    /// The set for integrating `active` points: their stress and that of their neighbours
+    /// (which pushes on them) is evaluated.
+    pub fn for_active(op: &MlsOperator, active: &[u32]) -> Self {
+        let mut set = Self::default();
+        set.rebuild(op, active, true);
+        set
+    }
+
+    /// Like [`EvalSet::for_active`] but never using the SIMD runs (the scalar kernel only).
+    pub fn scalar_only(op: &MlsOperator, active: &[u32]) -> Self {
+        let mut set = Self::default();
+        set.rebuild(op, active, false);
+        set
+    }
+
+    /// Recomputes the set in place (reusing its buffers).
+    pub fn rebuild(&mut self, op: &MlsOperator, active: &[u32], use_runs: bool) {
+        let n = op.len();
+        self.in_stress.clear();
+        self.in_stress.resize(n, false);
+        self.in_runs.clear();
+        self.in_runs.resize(n, false);
+        self.in_touched.clear();
+        self.in_touched.resize(n, false);
+        self.stress.clear();
+        self.touched.clear();
+        self.runs.clear();
+        let mark = |i: u32, list: &mut Vec<u32>, flags: &mut Vec<bool>| {
+            if !std::mem::replace(&mut flags[i as usize], true) {
+                list.push(i);
+            }
+        };
+        for &i in active {
+            mark(i, &mut self.stress, &mut self.in_stress);
+            for &j in op.neighbours(i as usize) {
+                mark(j, &mut self.stress, &mut self.in_stress);
+            }
+        }
+        self.stress.sort_unstable();
+        for &i in &self.stress {
+            mark(i, &mut self.touched, &mut self.in_touched);
+            for &j in op.neighbours(i as usize) {
+                mark(j, &mut self.touched, &mut self.in_touched);
+            }
+        }
+        self.touched.sort_unstable();
+        if use_runs {
+            for &r in op.runs() {
+                let r = r as usize;
+                if (r..r + LANES).all(|q| self.in_stress[q]) {
+                    self.runs.push(r as u32);
+                    self.in_runs[r..r + LANES]
+                        .iter_mut()
+                        .for_each(|x| *x = true);
+                }
+            }
+        }
+    }
+
+    /// Whether point i's stress is evaluated.
+    pub fn has_stress(&self, i: usize) -> bool {
+        self.in_stress[i]
+    }
+}
+
+/// Adds the elastic forces at positions `p` to `f` (N): of every point, or, with `set`, of
+/// the points in `set.stress` (forces then land only on `set.touched`).
 ///
 /// Runs of four interior points with identical stencils go through a 4-lane SIMD kernel
 /// (contiguous loads, shared rows); every other point through the scalar kernel.
@@ -98,7 +191,7 @@ pub fn add_elastic_forces(
     params: &ElasticParams,
     volumes: &[f64],
     p: &[Vec3],
-    active: Option<&[bool]>,
+    set: Option<&EvalSet>,
     f: &mut [Vec3],
     scratch: &mut ForceScratch,
 ) -> ForceStats {
@@ -110,31 +203,30 @@ pub fn add_elastic_forces(
         clamped_points: 0,
         finite: true,
     };
+    let runs: &[u32] = match set {
+        Some(s) => &s.runs,
+        None => op.runs(),
+    };
     // Runs read positions and write forces as structure-of-arrays (contiguous lanes); the
     // scalar kernel keeps the Vec3 layout, where one neighbour is one cache line.
-    let use_runs = active.is_none();
-    if use_runs && !op.runs().is_empty() {
-        scratch.prepare(p);
+    if !runs.is_empty() {
+        scratch.prepare(p, set.map(|s| &s.touched[..]));
     }
     let ForceScratch { pos, force } = scratch;
     let pos = [&pos[0][..], &pos[1][..], &pos[2][..]];
     let mut offsets = [[0.0f64; 3]; BUFFERED];
-    // With a mask the runs would mix active and frozen lanes; the scalar kernel handles it.
-    if use_runs && !op.runs().is_empty() {
+    if !runs.is_empty() {
         let mut lanes = RunBuffers::default();
-        for &i in op.runs() {
+        for &i in runs {
             run_kernel(
                 op, params, volumes, pos, i as usize, force, &mut lanes, &mut stats,
             );
         }
     }
-    for i in 0..op.len() {
-        if active.is_some_and(|a| !a[i]) || (use_runs && op.in_run(i)) {
-            continue;
-        }
+    let mut scalar_point = |i: usize, stats: &mut ForceStats, f: &mut [Vec3]| {
         let term = op.point(i);
         if let PointRank::Orphan = term.rank {
-            continue;
+            return;
         }
         let (ids, wx, w) = op.padded_row(i);
         let used = op.neighbours(i).len();
@@ -145,17 +237,36 @@ pub fn add_elastic_forces(
         let v = volumes[i];
         let k = hourglass_stiffness(params, v, term.trace_a);
         record(
-            &mut stats,
+            stats,
             v * st.psi,
             0.5 * k * (sum_wuu - fp.component_mul(&b).sum()),
             &st,
         );
         let m = st.p * (-v) * term.a_pinv + fp * k;
         scatter_pair_forces(ids, wx, w, used, &m, k, p, i, &offsets, f);
+    };
+    match set {
+        Some(s) => {
+            for &i in &s.stress {
+                if !s.in_runs[i as usize] {
+                    scalar_point(i as usize, &mut stats, f);
+                }
+            }
+        }
+        None => {
+            for i in 0..op.len() {
+                if !op.in_run(i) {
+                    scalar_point(i, &mut stats, f);
+                }
+            }
+        }
     }
-    if use_runs && !op.runs().is_empty() {
-        for (i, fi) in f.iter_mut().enumerate() {
-            *fi += Vec3::new(force[0][i], force[1][i], force[2][i]);
+    if !runs.is_empty() {
+        let n = f.len();
+        let mut add = |i: usize| f[i] += Vec3::new(force[0][i], force[1][i], force[2][i]);
+        match set {
+            Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
+            None => (0..n).for_each(add),
         }
     }
     stats
@@ -687,8 +798,8 @@ mod tests {
         assert!(torque.norm() < 1e-13 * scale * arm, "{torque}");
     }
 
-    /// The 4-lane run kernel agrees with the scalar kernel (an all-true mask forces the
-    /// scalar path) on a lattice body with many runs, for StVK and for a clamped state.
+    /// The 4-lane run kernel agrees with the scalar kernel on a lattice body with many runs,
+    /// for StVK and for a clamped state.
     #[test]
     fn run_kernel_matches_scalar_kernel() {
         use crate::mls::operator::LatticeOffsets;
@@ -714,7 +825,8 @@ mod tests {
             .map(|i| s * s * s * (1.0 + 0.01 * (i % 7) as f64))
             .collect();
         let params = ElasticParams::stvk(5000.0, 0.45);
-        let everyone = vec![true; rest.len()];
+        let everyone: Vec<u32> = (0..rest.len() as u32).collect();
+        let scalar = EvalSet::scalar_only(&op, &everyone);
         for amplitude in [1e-4, 2e-3] {
             // The larger displacement pushes some det F below 0.2 (clamp fallback lanes).
             let p: Vec<Vec3> = rest

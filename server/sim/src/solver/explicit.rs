@@ -2,7 +2,7 @@
 //! (physics.md §2.1, §2.5).
 
 use super::events::{DivergenceReason, SolverEvent, StepReport};
-use super::{ForceBuffer, MAX_SUBSTEPS, Solver, kinetic_energy};
+use super::{ForceBuffer, MAX_SUBSTEPS, Solver};
 use crate::math::Vec3;
 use crate::mls::forces::ForceStats;
 
@@ -18,8 +18,11 @@ const CALM_TICKS_BEFORE_RELAXING: u32 = 1000;
 impl Solver {
     pub(super) fn tick_explicit(&mut self, dt: f64) -> StepReport {
         self.plan_substeps(dt);
-        self.snap_p.copy_from_slice(&self.p);
-        self.snap_v.copy_from_slice(&self.v);
+        for &i in &self.active_list {
+            let i = i as usize;
+            self.snap_p[i] = self.p[i];
+            self.snap_v[i] = self.v[i];
+        }
         let mut rollbacks = 0;
         loop {
             match self.run_substeps(dt) {
@@ -40,8 +43,11 @@ impl Solver {
                     };
                 }
                 Err((reason, at)) => {
-                    self.p.copy_from_slice(&self.snap_p);
-                    self.v.copy_from_slice(&self.snap_v);
+                    for &i in &self.active_list {
+                        let i = i as usize;
+                        self.p[i] = self.snap_p[i];
+                        self.v[i] = self.snap_v[i];
+                    }
                     if rollbacks >= self.config.max_rollbacks || self.substeps >= MAX_SUBSTEPS {
                         // Keep the last good state, at rest: nothing non-finite leaves. The
                         // state may be stiffer than at the last estimate: re-plan the step.
@@ -125,7 +131,9 @@ impl Solver {
         // Moves of the fixed dofs in the previous sub-step: their work is the trapezoid
         // −½(f_before + f_after)·d, completed once the force after the move is known.
         let mut moved_fixed = std::mem::take(&mut self.scratch[2]);
-        moved_fixed.iter_mut().for_each(|d| *d = Vec3::zeros());
+        for &i in &self.active_list {
+            moved_fixed[i as usize] = Vec3::zeros();
+        }
         let result = self.substep_loop(
             n,
             h,
@@ -160,17 +168,19 @@ impl Solver {
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));
             }
-            for (f, d) in self.force.iter().zip(moved_fixed.iter()) {
-                *work -= 0.5 * f.dot(d);
+            for &i in &self.active_list {
+                let i = i as usize;
+                *work -= 0.5 * self.force[i].dot(&moved_fixed[i]);
             }
-            let energy = kinetic_energy(&self.mass, &self.v, &self.fixed) + st.energy();
+            let energy = self.active_kinetic_energy() + st.energy();
             let e0 = *reference.get_or_insert(energy);
             let bound = ENERGY_GROWTH * (e0 + *work) + ENERGY_FLOOR;
             if energy.is_nan() || energy > bound {
                 return Err((DivergenceReason::EnergyGrowth, s));
             }
             let frac = (s + 1) as f64 / n as f64;
-            for i in 0..self.p.len() {
+            for idx in 0..self.active_list.len() {
+                let i = self.active_list[idx] as usize;
                 let applied = self.external[i] + gravity * self.mass[i];
                 let mut moved = Vec3::zeros();
                 for a in 0..3 {

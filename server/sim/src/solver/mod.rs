@@ -29,7 +29,7 @@ pub use events::{DivergenceReason, EventQueue, SolverEvent, StepReport};
 pub use statics::StaticReport;
 
 use crate::math::{Mat3, Vec3};
-use crate::mls::forces::{ForceScratch, ForceStats, add_elastic_forces};
+use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, add_elastic_forces};
 use crate::mls::operator::LatticeOffsets;
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
@@ -145,6 +145,11 @@ pub struct Solver {
     external: Vec<Vec3>,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
+    /// Points the explicit mode integrates (all, unless `set_active` restricted them).
+    active_list: Vec<u32>,
+    is_active: Vec<bool>,
+    /// Evaluation set for a restricted active list; `None` when every point is active.
+    eval_set: Option<EvalSet>,
     snap_p: Vec<Vec3>,
     snap_v: Vec<Vec3>,
     scratch: [Vec<Vec3>; 5],
@@ -226,6 +231,9 @@ impl Solver {
             external: zeros.clone(),
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n),
+            active_list: (0..n as u32).collect(),
+            is_active: vec![true; n],
+            eval_set: None,
             snap_p: zeros.clone(),
             snap_v: zeros.clone(),
             scratch: [
@@ -397,11 +405,64 @@ impl Solver {
         lambda / (2.0 * (lambda + mu))
     }
 
+    /// Restricts the explicit mode to `points` (the cutting-affected region): every other
+    /// point is frozen where it is, at rest, and costs nothing per sub-step; frozen points
+    /// next to active ones still push on them through their fits. Reuses its buffers.
+    pub fn set_active(&mut self, points: &[u32]) {
+        for &i in &self.active_list {
+            self.is_active[i as usize] = false;
+        }
+        self.active_list.clear();
+        for &i in points {
+            if !std::mem::replace(&mut self.is_active[i as usize], true) {
+                self.active_list.push(i);
+            }
+        }
+        self.active_list.sort_unstable();
+        for (i, v) in self.v.iter_mut().enumerate() {
+            if !self.is_active[i] {
+                *v = Vec3::zeros();
+            }
+        }
+        let set = self.eval_set.get_or_insert_with(EvalSet::default);
+        set.rebuild(&self.op, &self.active_list, true);
+    }
+
+    /// Makes every point active again.
+    pub fn activate_all(&mut self) {
+        self.active_list.clear();
+        self.active_list.extend(0..self.p.len() as u32);
+        self.is_active.iter_mut().for_each(|a| *a = true);
+        self.eval_set = None;
+    }
+
+    /// The points the explicit mode integrates.
+    pub fn active_points(&self) -> &[u32] {
+        &self.active_list
+    }
+
+    /// Kinetic energy of the free dofs of active points (J).
+    fn active_kinetic_energy(&self) -> f64 {
+        let mut e = 0.0;
+        for &i in &self.active_list {
+            let i = i as usize;
+            for a in 0..3 {
+                if !self.fixed[i][a] {
+                    e += 0.5 * self.mass[i] * self.v[i][a] * self.v[i][a];
+                }
+            }
+        }
+        e
+    }
+
     /// The neighbourhoods of `points` changed (a cut): recompute their operator rows and,
     /// before the next tick, the stable time step.
     pub fn topology_changed(&mut self, points: &[u32], neighbours: &Neighbourhoods) {
         self.op
             .update_points(points, &self.rest, neighbours, &self.kernel);
+        if let Some(set) = &mut self.eval_set {
+            set.rebuild(&self.op, &self.active_list, true);
+        }
         self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
         self.dt_crit = None;
         self.invalidate_projective();
@@ -454,13 +515,25 @@ impl Solver {
             ForceBuffer::Force => &mut self.force,
             ForceBuffer::Scratch(k) => &mut self.scratch[k],
         };
-        out.iter_mut().for_each(|f| *f = Vec3::zeros());
+        // With a restricted active set only the explicit mode evaluates locally; the other
+        // modes work on the whole body.
+        let set = match self.config.mode {
+            SolverMode::Explicit => self.eval_set.as_ref(),
+            _ => None,
+        };
+        match set {
+            Some(s) => s
+                .touched
+                .iter()
+                .for_each(|&i| out[i as usize] = Vec3::zeros()),
+            None => out.iter_mut().for_each(|f| *f = Vec3::zeros()),
+        }
         add_elastic_forces(
             &self.op,
             &self.params,
             &self.volume,
             &self.p,
-            None,
+            set,
             out,
             &mut self.force_scratch,
         )
