@@ -849,7 +849,7 @@ mod tests {
                 &params,
                 &volumes,
                 &p,
-                Some(&everyone),
+                Some(&scalar),
                 &mut slow,
                 &mut scratch,
             );
