@@ -48,6 +48,20 @@ impl TriangleBvh {
         }
     }
 
+    /// Moves triangle `t`'s box (after its vertices moved, or a new triangle `t`): the leaf
+    /// is updated in place and its ancestors widened, no rebuild. Boxes only grow this way;
+    /// queries stay conservative.
+    pub fn update(&mut self, t: usize, corners: &[Vec3; 3]) {
+        let lo = corners[0].inf(&corners[1]).inf(&corners[2]);
+        let hi = corners[0].sup(&corners[1]).sup(&corners[2]);
+        self.bvh.insert(conservative_box(&lo, &hi), t as u32);
+    }
+
+    /// Removes triangle `t`.
+    pub fn remove(&mut self, t: usize) {
+        self.bvh.remove(t as u32);
+    }
+
     /// Calls `f` with the index of every triangle whose box overlaps `[min, max]`
     /// (conservatively: a few extra candidates are possible, none are missed).
     pub fn for_each_overlapping(&self, min: &Vec3, max: &Vec3, mut f: impl FnMut(usize)) {

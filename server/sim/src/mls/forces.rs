@@ -131,15 +131,26 @@ impl EvalSet {
         set
     }
 
-    /// Recomputes the set in place (reusing its buffers).
+    /// Recomputes the set in place (reusing its buffers); the work is proportional to the
+    /// set, not to the body.
     pub fn rebuild(&mut self, op: &MlsOperator, active: &[u32], use_runs: bool) {
         let n = op.len();
-        self.in_stress.clear();
-        self.in_stress.resize(n, false);
-        self.in_runs.clear();
-        self.in_runs.resize(n, false);
-        self.in_touched.clear();
-        self.in_touched.resize(n, false);
+        if self.in_stress.len() != n {
+            self.in_stress = vec![false; n];
+            self.in_runs = vec![false; n];
+            self.in_touched = vec![false; n];
+            self.stress.clear();
+            self.touched.clear();
+            self.runs.clear();
+        }
+        // Clear only what the previous set marked.
+        for &i in &self.stress {
+            self.in_stress[i as usize] = false;
+            self.in_runs[i as usize] = false;
+        }
+        for &i in &self.touched {
+            self.in_touched[i as usize] = false;
+        }
         self.stress.clear();
         self.touched.clear();
         self.runs.clear();
@@ -163,11 +174,14 @@ impl EvalSet {
         }
         self.touched.sort_unstable();
         if use_runs {
-            for &r in op.runs() {
-                let r = r as usize;
-                if (r..r + LANES).all(|q| self.in_stress[q]) {
-                    self.runs.push(r as u32);
-                    self.in_runs[r..r + LANES]
+            for &i in &self.stress {
+                let i = i as usize;
+                if !op.in_run(i) || op.run_start(i) != i {
+                    continue;
+                }
+                if (i..i + LANES).all(|q| self.in_stress[q]) {
+                    self.runs.push(i as u32);
+                    self.in_runs[i..i + LANES]
                         .iter_mut()
                         .for_each(|x| *x = true);
                 }

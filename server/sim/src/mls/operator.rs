@@ -116,6 +116,7 @@ pub struct MlsOperator {
     /// kernel treats a run as four SIMD lanes.
     runs: Vec<u32>,
     in_run: Vec<bool>,
+    run_start: Vec<u32>,
 }
 
 /// Counts of each rank class, for reports.
@@ -154,6 +155,7 @@ impl MlsOperator {
             lattice,
             runs: Vec::new(),
             in_run: vec![false; n],
+            run_start: vec![0; n],
         };
         for i in 0..n {
             op.compute_point(i, rest, neighbours, kernel);
@@ -175,7 +177,29 @@ impl MlsOperator {
         for &i in points {
             self.compute_point(i as usize, rest, neighbours, kernel);
         }
-        self.detect_runs();
+        // Runs containing a changed point no longer share one row: their points go back to
+        // the scalar kernel. Local work only (new runs are not formed after a cut).
+        let mut dissolved = false;
+        for &i in points {
+            let i = i as usize;
+            if self.in_run[i] {
+                let start = self.run_start[i] as usize;
+                self.in_run[start..start + LANES]
+                    .iter_mut()
+                    .for_each(|r| *r = false);
+                dissolved = true;
+            }
+        }
+        if dissolved {
+            let in_run = &self.in_run;
+            self.runs.retain(|&r| in_run[r as usize]);
+        }
+    }
+
+    /// The first point of the run containing point i (meaningful when [`MlsOperator::in_run`]).
+    #[inline]
+    pub fn run_start(&self, i: usize) -> usize {
+        self.run_start[i] as usize
     }
 
     /// Finds the runs of four points the stencil kernel can process together.
@@ -188,6 +212,9 @@ impl MlsOperator {
             if self.is_run(i) {
                 self.runs.push(i as u32);
                 self.in_run[i..i + LANES].iter_mut().for_each(|r| *r = true);
+                self.run_start[i..i + LANES]
+                    .iter_mut()
+                    .for_each(|r| *r = i as u32);
                 i += LANES;
             } else {
                 i += 1;

@@ -147,6 +147,8 @@ pub struct Solver {
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
     active_list: Vec<u32>,
+    /// The previous active list while a new one is set (buffer reuse).
+    retired: Vec<u32>,
     is_active: Vec<bool>,
     /// Evaluation set for a restricted active list; `None` when every point is active.
     eval_set: Option<EvalSet>,
@@ -159,6 +161,11 @@ pub struct Solver {
     planned_substeps: u32,
     calm_ticks: u32,
     substeps_for_dt: f64,
+    /// λ_max(M⁻¹K) / max_i(D_i/m_i) at the last power iteration: turns the local diagonal
+    /// bound into a ω² estimate after cuts.
+    omega_calibration: Option<f64>,
+    touched_buf: Vec<u32>,
+    touched_flag: Vec<bool>,
     events: EventQueue,
     tick: u64,
     clamping: bool,
@@ -232,6 +239,7 @@ impl Solver {
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n),
             active_list: (0..n as u32).collect(),
+            retired: Vec::with_capacity(n),
             is_active: vec![true; n],
             eval_set: None,
             snap_p: zeros.clone(),
@@ -249,6 +257,9 @@ impl Solver {
             planned_substeps: 1,
             calm_ticks: 0,
             substeps_for_dt: 0.0,
+            omega_calibration: None,
+            touched_buf: Vec::new(),
+            touched_flag: vec![false; n],
             events: EventQueue::default(),
             tick: 0,
             clamping: false,
@@ -412,6 +423,8 @@ impl Solver {
         for &i in &self.active_list {
             self.is_active[i as usize] = false;
         }
+        // The previous list, to stop the points that leave it.
+        std::mem::swap(&mut self.active_list, &mut self.retired);
         self.active_list.clear();
         for &i in points {
             if !std::mem::replace(&mut self.is_active[i as usize], true) {
@@ -419,9 +432,9 @@ impl Solver {
             }
         }
         self.active_list.sort_unstable();
-        for (i, v) in self.v.iter_mut().enumerate() {
-            if !self.is_active[i] {
-                *v = Vec3::zeros();
+        for &i in &self.retired {
+            if !self.is_active[i as usize] {
+                self.v[i as usize] = Vec3::zeros();
             }
         }
         let set = self.eval_set.get_or_insert_with(EvalSet::default);
@@ -455,16 +468,46 @@ impl Solver {
         e
     }
 
-    /// The neighbourhoods of `points` changed (a cut): recompute their operator rows and,
-    /// before the next tick, the stable time step.
+    /// The neighbourhoods of `points` changed (a cut): recompute their operator rows, the
+    /// preconditioner and the stable-step bound around them. Local: the work follows the
+    /// changed points, not the body. Removing neighbours can only stiffen the rows, so the
+    /// step is shortened when the local bound rises above the current ω² (physics.md §2.2).
     pub fn topology_changed(&mut self, points: &[u32], neighbours: &Neighbourhoods) {
         self.op
             .update_points(points, &self.rest, neighbours, &self.kernel);
+        // The diagonal stiffness of a point sums its own row and its neighbours' rows.
+        self.touched_buf.clear();
+        for &i in points {
+            for j in std::iter::once(i).chain(self.op.neighbours(i as usize).iter().copied()) {
+                if !std::mem::replace(&mut self.touched_flag[j as usize], true) {
+                    self.touched_buf.push(j);
+                }
+            }
+        }
+        let mut local = 0.0f64;
+        for &a in &self.touched_buf {
+            let a = a as usize;
+            self.touched_flag[a] = false;
+            self.precond[a] =
+                statics::diagonal_stiffness_of(&self.op, &self.params, &self.volume, a);
+            local = local.max(self.precond[a] / self.mass[a]);
+        }
+        if let Some(calibration) = self.omega_calibration {
+            let omega_sq = calibration * local;
+            if let Some(dt) = self.dt_crit {
+                let current = timestep::omega_sq_of(dt);
+                if omega_sq > current {
+                    self.dt_crit = Some(timestep::dt_of(omega_sq));
+                    // Re-plan the sub-steps at the next tick.
+                    self.substeps_for_dt = f64::NAN;
+                }
+            }
+        } else {
+            self.dt_crit = None;
+        }
         if let Some(set) = &mut self.eval_set {
             set.rebuild(&self.op, &self.active_list, true);
         }
-        self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
-        self.dt_crit = None;
         self.invalidate_projective();
     }
 
@@ -493,8 +536,14 @@ impl Solver {
         if let Some(dt) = self.dt_crit {
             return dt;
         }
-        let dt = timestep::critical_time_step(self);
+        let (dt, omega_sq) = timestep::critical_time_step(self);
         self.dt_crit = Some(dt);
+        let diagonal = (0..self.p.len())
+            .map(|i| self.precond[i] / self.mass[i])
+            .fold(0.0, f64::max);
+        if omega_sq > 0.0 && diagonal > 0.0 {
+            self.omega_calibration = Some(omega_sq / diagonal);
+        }
         dt
     }
 }

@@ -60,6 +60,37 @@ pub(super) fn diagonal_stiffness(
     d
 }
 
+/// The same diagonal estimate for one point, from its own row and its neighbours' rows
+/// (local: used after a cut changed a few rows).
+pub(super) fn diagonal_stiffness_of(
+    op: &MlsOperator,
+    params: &ElasticParams,
+    volume: &[f64],
+    a: usize,
+) -> f64 {
+    let modulus = params.wave_modulus();
+    let mut d = 0.0;
+    let own = op.point(a);
+    if !matches!(own.rank, PointRank::Orphan) {
+        let k = hourglass_stiffness(params, volume[a], own.trace_a);
+        let daa = -(own.a_pinv * own.sum_wx);
+        d += volume[a] * modulus * daa.norm_squared() + k * own.sum_w;
+    }
+    for &i in op.neighbours(a) {
+        let i = i as usize;
+        let term = op.point(i);
+        if matches!(term.rank, PointRank::Orphan) {
+            continue;
+        }
+        if let Some(slot) = op.neighbours(i).iter().position(|&j| j as usize == a) {
+            let pair = op.pair(i, slot);
+            let k = hourglass_stiffness(params, volume[i], term.trace_a);
+            d += volume[i] * modulus * (term.a_pinv * pair.wx).norm_squared() + k * pair.w;
+        }
+    }
+    if d > 0.0 { d } else { 1.0 }
+}
+
 impl Solver {
     /// Solves for static equilibrium under the current loads and constraints, starting from
     /// the current positions (fixed dofs go to their targets). Velocities are zeroed.

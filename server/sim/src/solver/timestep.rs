@@ -11,13 +11,26 @@ const RAYLEIGH_MARGIN: f64 = 1.1;
 /// Largest step allowed when the body has no stiffness at all (s).
 const MAX_DT: f64 = 1.0;
 
-/// `2/ω_max` at the current positions (s).
-pub(super) fn critical_time_step(s: &mut Solver) -> f64 {
+/// `2/ω_max` at the current positions (s), and the ω² it comes from.
+pub(super) fn critical_time_step(s: &mut Solver) -> (f64, f64) {
     let omega_sq = largest_eigenvalue(s);
     if omega_sq <= 0.0 || !omega_sq.is_finite() {
+        return (MAX_DT, 0.0);
+    }
+    (dt_of(omega_sq), omega_sq)
+}
+
+/// The critical step for ω² (with the power iteration's margin), capped.
+pub(super) fn dt_of(omega_sq: f64) -> f64 {
+    if omega_sq <= 0.0 {
         return MAX_DT;
     }
     (2.0 / (omega_sq * RAYLEIGH_MARGIN).sqrt()).min(MAX_DT)
+}
+
+/// The ω² a critical step corresponds to (inverse of [`dt_of`]).
+pub(super) fn omega_sq_of(dt: f64) -> f64 {
+    (2.0 / dt).powi(2) / RAYLEIGH_MARGIN
 }
 
 /// λ_max(M⁻¹K) by power iteration with Rayleigh quotients in the M inner product.
