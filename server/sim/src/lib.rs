@@ -27,6 +27,7 @@ pub mod geometry;
 pub mod math;
 pub mod mls;
 pub mod model;
+pub mod pipeline;
 pub mod progress;
 pub mod scene;
 pub mod solver;

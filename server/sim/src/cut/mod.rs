@@ -3,5 +3,6 @@
 pub mod blade;
 pub mod swept;
 
+pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
-pub use swept::{SweptSurface, cut_pairs, segment_meets_triangle};
+pub use swept::{SweptSurface, cut_pairs};

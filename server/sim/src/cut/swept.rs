@@ -7,6 +7,7 @@
 //! visibility criterion): j leaves N(i) and i leaves N(j). Only the points whose lists changed
 //! need their MLS rows recomputed.
 
+use crate::geometry::predicates::segment_meets_triangle;
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
 
@@ -34,34 +35,8 @@ impl SweptSurface {
     }
 }
 
-/// Whether the segment `[p, q]` meets the closed triangle (boundary included). Hits on an
-/// edge shared by two triangles of Σ are reported by both, so no pair slips through a seam.
-/// An endpoint exactly on the triangle's plane counts as on its positive side.
-pub fn segment_meets_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> bool {
-    let [a, b, c] = tri;
-    let n = (b - a).cross(&(c - a));
-    let sp = n.dot(&(p - a));
-    let sq = n.dot(&(q - a));
-    let side = |s: f64| s >= 0.0;
-    if side(sp) == side(sq) {
-        return false;
-    }
-    let t = sp / (sp - sq);
-    let x = p + (q - p) * t;
-    // Barycentric coordinates of x, with a tolerance relative to the triangle's size.
-    let nn = n.norm_squared();
-    if nn == 0.0 {
-        return false;
-    }
-    let u = n.dot(&(b - x).cross(&(c - x))) / nn;
-    let v = n.dot(&(c - x).cross(&(a - x))) / nn;
-    let w = 1.0 - u - v;
-    let tol = -1e-12;
-    u >= tol && v >= tol && w >= tol
-}
-
 /// Removes every neighbour pair whose rest segment meets `triangle`; the points whose lists
-/// changed are appended to `changed` (unsorted, possibly repeated).
+/// changed are appended to `changed` (unsorted, possibly repeated). `candidates` is scratch.
 pub fn cut_pairs(
     triangle: &[Vec3; 3],
     rest: &[Vec3],
@@ -69,6 +44,7 @@ pub fn cut_pairs(
     neighbours: &mut Neighbourhoods,
     support_m: f64,
     changed: &mut Vec<u32>,
+    candidates: &mut Vec<u32>,
 ) -> usize {
     // Both ends of a crossing pair are within h of the triangle: look around its box.
     let lo = triangle[0].inf(&triangle[1]).inf(&triangle[2]);
@@ -76,9 +52,9 @@ pub fn cut_pairs(
     let centre = (lo + hi) * 0.5;
     let reach = (hi - lo).norm() * 0.5 + support_m;
     let mut removed = 0;
-    let mut candidates: Vec<u32> = Vec::new();
+    candidates.clear();
     grid.for_each_within(rest, &centre, reach, |i, _| candidates.push(i));
-    for &i in &candidates {
+    for &i in candidates.iter() {
         let i = i as usize;
         let mut k = 0;
         while k < neighbours.of(i).len() {

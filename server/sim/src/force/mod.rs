@@ -62,6 +62,9 @@ pub struct BladeContact {
     pub direction: Vec3,
     /// The blade entered along an existing incision: no capsule to rupture.
     pub in_existing_cut: bool,
+    /// The blade is pulling back along its own edge (toward its back): it opens no new
+    /// cut, so only friction resists it.
+    pub withdrawing: bool,
 }
 
 /// The force on the tool and its local linear model.
@@ -202,6 +205,7 @@ impl CuttingForceModel {
         let (magnitude, stiffness) = match self.phase {
             CutPhase::Free => (0.0, 0.0),
             CutPhase::Loading => self.loading_force(self.loading_m),
+            CutPhase::Cutting if contact.withdrawing => (self.spec.friction_n, 0.0),
             CutPhase::Cutting => {
                 let mean = self.mean_cutting_force(depth);
                 if self.ripple {
@@ -247,6 +251,7 @@ mod tests {
             advance_m,
             direction: Vec3::x(),
             in_existing_cut: false,
+            withdrawing: false,
         }
     }
 
@@ -300,6 +305,7 @@ mod tests {
             0.0,
             &BladeContact {
                 in_existing_cut: true,
+                withdrawing: false,
                 ..contact(0.0, 0.01)
             },
         );
@@ -328,6 +334,7 @@ mod tests {
                 0.0,
                 &BladeContact {
                     in_existing_cut: true,
+                    withdrawing: false,
                     ..contact(0.0, 0.01)
                 },
             );

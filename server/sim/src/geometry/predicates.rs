@@ -83,6 +83,91 @@ pub fn point_in_triangle_2d(tri: [[f64; 2]; 3], p: [f64; 2]) -> Option<i8> {
     Some(sign)
 }
 
+/// Whether the segment `[p, q]` meets the closed triangle (boundary included). Hits on an
+/// edge shared by two triangles of Σ are reported by both, so no pair slips through a seam.
+/// An endpoint exactly on the triangle's plane counts as on its positive side.
+pub fn segment_meets_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> bool {
+    let [a, b, c] = tri;
+    let n = (b - a).cross(&(c - a));
+    let sp = n.dot(&(p - a));
+    let sq = n.dot(&(q - a));
+    let side = |s: f64| s >= 0.0;
+    if side(sp) == side(sq) {
+        return false;
+    }
+    let t = sp / (sp - sq);
+    let x = p + (q - p) * t;
+    // Barycentric coordinates of x, with a tolerance relative to the triangle's size.
+    let nn = n.norm_squared();
+    if nn == 0.0 {
+        return false;
+    }
+    let u = n.dot(&(b - x).cross(&(c - x))) / nn;
+    let v = n.dot(&(c - x).cross(&(a - x))) / nn;
+    let w = 1.0 - u - v;
+    let tol = -1e-12;
+    u >= tol && v >= tol && w >= tol
+}
+
+/// Squared distance from `x` to the segment `[a, b]`.
+pub fn distance_sq_to_segment(x: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
+    let ab = b - a;
+    let len2 = ab.norm_squared();
+    let t = if len2 > 0.0 {
+        ((x - a).dot(&ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a + ab * t - x).norm_squared()
+}
+
+/// The point of the closed triangle nearest to `x` (Ericson, Real-Time Collision Detection
+/// §5.1.5: Voronoi regions of the vertices, edges and face).
+pub fn closest_point_on_triangle(x: &Vec3, tri: &[Vec3; 3]) -> Vec3 {
+    let [a, b, c] = tri;
+    let ab = b - a;
+    let ac = c - a;
+    let ap = x - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return *a;
+    }
+    let bp = x - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return *b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = x - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return *c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = va + vb + vc;
+    if denom == 0.0 {
+        // Degenerate triangle: the nearest of its vertices.
+        return [*a, *b, *c]
+            .into_iter()
+            .min_by(|p, q| (p - x).norm_squared().total_cmp(&(q - x).norm_squared()))
+            .unwrap_or(*a);
+    }
+    a + ab * (vb / denom) + ac * (vc / denom)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -152,5 +237,33 @@ mod tests {
             })
             .count();
         assert_eq!(n, 1);
+    }
+
+    #[test]
+    fn closest_points_in_every_region() {
+        let tri = [v(0., 0., 0.), v(1., 0., 0.), v(0., 1., 0.)];
+        let cases = [
+            (v(0.2, 0.2, 1.0), v(0.2, 0.2, 0.0)),
+            (v(-1.0, -1.0, 0.5), v(0.0, 0.0, 0.0)),
+            (v(2.0, -0.5, 0.0), v(1.0, 0.0, 0.0)),
+            (v(0.5, -1.0, 0.0), v(0.5, 0.0, 0.0)),
+            (v(1.0, 1.0, 0.0), v(0.5, 0.5, 0.0)),
+            (v(-1.0, 0.5, 0.0), v(0.0, 0.5, 0.0)),
+            (v(-0.1, 3.0, 0.0), v(0.0, 1.0, 0.0)),
+        ];
+        for (x, want) in cases {
+            assert!(
+                (closest_point_on_triangle(&x, &tri) - want).norm() < 1e-12,
+                "{x}"
+            );
+        }
+        assert!(
+            (distance_sq_to_segment(&v(0.5, 1.0, 0.0), &v(0., 0., 0.), &v(1., 0., 0.)) - 1.0).abs()
+                < 1e-15
+        );
+        assert!(
+            (distance_sq_to_segment(&v(3.0, 0.0, 0.0), &v(0., 0., 0.), &v(1., 0., 0.)) - 4.0).abs()
+                < 1e-15
+        );
     }
 }

@@ -9,7 +9,7 @@ use serde::Serialize;
 use super::neighbours::{Kernel, RestGrid};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
-use crate::geometry::predicates::segment_crosses_triangle;
+use crate::geometry::predicates::{segment_crosses_triangle, segment_meets_triangle};
 use crate::math::Vec3;
 
 /// Embedding weights of every surface vertex, in compressed rows.
@@ -106,6 +106,40 @@ impl SurfaceEmbedding {
     pub fn of(&self, v: usize) -> (&[u32], &[f64]) {
         let r = self.start[v] as usize..self.start[v + 1] as usize;
         (&self.points[r.clone()], &self.weights[r])
+    }
+
+    /// Stops vertex `v` (rest position `x`) from following points across the cut triangle
+    /// `cut`: their weights drop to zero and the rest are renormalised. A vertex whose every
+    /// point lies across keeps its weights (it must follow something; the cut is then
+    /// thinner than the sampling there). Returns whether anything changed.
+    pub fn drop_across(&mut self, v: usize, x: &Vec3, points: &[Vec3], cut: &[Vec3; 3]) -> bool {
+        let r = self.start[v] as usize..self.start[v + 1] as usize;
+        let crosses = |k: u32| segment_meets_triangle(x, &points[k as usize], cut);
+        let mut kept = 0.0;
+        let mut dropped = false;
+        for (&k, &w) in self.points[r.clone()].iter().zip(&self.weights[r.clone()]) {
+            if w > 0.0 {
+                if crosses(k) {
+                    dropped = true;
+                } else {
+                    kept += w;
+                }
+            }
+        }
+        if !dropped || kept <= 0.0 {
+            return false;
+        }
+        for idx in r {
+            let w = &mut self.weights[idx];
+            if *w > 0.0 {
+                *w = if crosses(self.points[idx]) {
+                    0.0
+                } else {
+                    *w / kept
+                };
+            }
+        }
+        true
     }
 
     /// Summary for reports.

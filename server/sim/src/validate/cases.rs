@@ -568,6 +568,7 @@ pub fn b10_clean_cut() -> BenchmarkResult {
         ],
     ];
     let mut changed = Vec::new();
+    let mut candidates = Vec::new();
     let mut removed = 0;
     for tri in &plane {
         removed += crate::cut::cut_pairs(
@@ -577,6 +578,7 @@ pub fn b10_clean_cut() -> BenchmarkResult {
             &mut neighbours,
             body.model.kernel.support_m,
             &mut changed,
+            &mut candidates,
         );
     }
     changed.sort_unstable();

@@ -1,0 +1,253 @@
+//! One simulation tick, from the tool pose to the surface the renderers draw.
+//!
+//! ```text
+//!   tool pose ─► surface contact (BVH on the current surface)          [surface]
+//!             ─► cutting stage: force, Σ, visibility, affected region  [internal]
+//!             ─► solver step on the awake points                       [internal]
+//!             ─► surface follows the points that moved                 [surface]
+//! ```
+//!
+//! Only what the scene uses is built: a scene without cutting has no cutting stage, no tool
+//! contact and no force model, and integrates every point. Timing is the caller's business:
+//! the pipeline reports stage boundaries to a [`StageObserver`] and never reads a clock.
+
+pub mod cutting;
+pub mod script;
+pub mod surface;
+
+use crate::cut::{Blade, ToolPose};
+use crate::force::{CutForce, CutPhase, LocalForceModel};
+use crate::geometry::TriMesh;
+use crate::math::Vec3;
+use crate::model::{Neighbourhoods, RestGrid};
+use crate::scene::{BuiltScene, SceneSpec};
+use crate::solver::{Solver, SolverConfig, StepReport};
+
+pub use cutting::{CutTick, CuttingStage};
+pub use script::{CutScript, ScriptError};
+pub use surface::{CurrentSurface, SurfaceContact};
+
+/// The two halves of a tick that Table 1 of the paper reports separately.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stage {
+    /// Surface work: blade contact, incision, vertices following the points.
+    Surface,
+    /// Interior work: force model, cut surface, visibility, MLS rows, integration.
+    Internal,
+}
+
+/// Told when a stage starts and ends; the caller measures time with it.
+pub trait StageObserver {
+    /// `stage` starts.
+    fn enter(&mut self, _stage: Stage) {}
+    /// `stage` ends.
+    fn leave(&mut self, _stage: Stage) {}
+}
+
+/// An observer that ignores everything.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Unobserved;
+
+impl StageObserver for Unobserved {}
+
+/// What happened in one tick.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TickReport {
+    /// Simulated time at the end of the tick (s).
+    pub time_s: f64,
+    /// The cutting stage's part, for scenes that cut and while a tool is present.
+    pub cut: Option<CutTick>,
+    /// Force for the device (N), bounded by the scene's `max_force_n`.
+    pub tool_force_n: Vec3,
+    /// Points integrated this tick.
+    pub active_points: usize,
+    /// Surface vertices moved this tick.
+    pub vertices_moved: usize,
+    /// The solver's report.
+    pub solver: StepReport,
+}
+
+/// A running scene.
+pub struct Simulation {
+    spec: SceneSpec,
+    solver: Solver,
+    neighbours: Neighbourhoods,
+    grid: RestGrid,
+    surface: CurrentSurface,
+    cutting: Option<CuttingStage>,
+    tool: Option<ToolPose>,
+    time_s: f64,
+    local_model: LocalForceModel,
+    all_points: Vec<u32>,
+}
+
+impl Simulation {
+    /// Starts a built scene at rest.
+    pub fn new(scene: &BuiltScene) -> Self {
+        let spec = scene.spec.clone();
+        let model = &scene.model;
+        let config = SolverConfig::for_scene(&spec.features, &spec.material);
+        let mut solver = Solver::for_model(model, &spec.material, config);
+        let n = model.points.len();
+        let cutting = spec.features.cutting.then(|| {
+            CuttingStage::new(
+                n,
+                model.kernel,
+                model.lattice.spacing,
+                spec.tool,
+                &spec.force,
+                spec.features.ripple,
+            )
+        });
+        if cutting.is_some() {
+            // Nothing moves until the tool touches: no point is integrated.
+            solver.set_active(&[]);
+        }
+        Self {
+            surface: CurrentSurface::new(model),
+            neighbours: model.neighbours.clone(),
+            grid: model.grid.clone(),
+            solver,
+            cutting,
+            tool: None,
+            time_s: 0.0,
+            local_model: LocalForceModel {
+                f0_n: Vec3::zeros(),
+                x0_m: Vec3::zeros(),
+                stiffness_n_per_m: crate::math::Mat3::zeros(),
+            },
+            all_points: (0..n as u32).collect(),
+            spec,
+        }
+    }
+
+    /// The tool's pose for the next tick; `None` takes the tool away.
+    pub fn set_tool(&mut self, pose: Option<ToolPose>) {
+        self.tool = pose;
+    }
+
+    /// Advances by `dt` seconds.
+    pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
+        let blade = self.tool.map(|pose| Blade::at(&pose, &self.spec.tool));
+        let mut cut = None;
+        if let Some(stage) = &mut self.cutting {
+            observer.enter(Stage::Surface);
+            let contact = match &blade {
+                Some(b) => self.surface.contact(b),
+                None => SurfaceContact::none(),
+            };
+            observer.leave(Stage::Surface);
+            observer.enter(Stage::Internal);
+            let tick = stage.advance(
+                self.time_s + dt,
+                blade.as_ref(),
+                &contact,
+                &self.surface,
+                &mut self.solver,
+                &mut self.neighbours,
+                &self.grid,
+            );
+            observer.leave(Stage::Internal);
+            cut = Some(tick);
+        }
+        observer.enter(Stage::Internal);
+        let solver = self.solver.step(dt);
+        observer.leave(Stage::Internal);
+        observer.enter(Stage::Surface);
+        if let (Some(stage), Some(tick)) = (&self.cutting, &cut) {
+            for t in tick.new_sigma.clone() {
+                self.surface
+                    .cut_embedding(&stage.sigma.triangles[t], self.solver.rest());
+            }
+        }
+        let moved = if self.cutting.is_some() {
+            self.solver.active_points()
+        } else {
+            &self.all_points
+        };
+        let vertices_moved = self.surface.follow(
+            self.solver.operator(),
+            self.solver.rest(),
+            self.solver.positions(),
+            moved,
+        );
+        observer.leave(Stage::Surface);
+        self.time_s += dt;
+        let tool_force_n = match (&cut, &blade, &self.cutting) {
+            (Some(t), Some(b), Some(stage)) => {
+                let force = bounded(&t.force, self.spec.force.max_force_n);
+                self.local_model = force.local_model(b.tip, stage.direction());
+                if t.force.phase == CutPhase::Free {
+                    self.local_model.stiffness_n_per_m = crate::math::Mat3::zeros();
+                }
+                force.force_n
+            }
+            _ => Vec3::zeros(),
+        };
+        TickReport {
+            time_s: self.time_s,
+            cut,
+            tool_force_n,
+            active_points: self.solver.active_points().len(),
+            vertices_moved,
+            solver,
+        }
+    }
+
+    /// The scene.
+    pub fn spec(&self) -> &SceneSpec {
+        &self.spec
+    }
+
+    /// Simulated time (s).
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    /// The surface as drawn now.
+    pub fn surface(&self) -> &TriMesh {
+        &self.surface.mesh
+    }
+
+    /// The current surface with its contact queries.
+    pub fn current_surface(&mut self) -> &mut CurrentSurface {
+        &mut self.surface
+    }
+
+    /// The solver.
+    pub fn solver(&self) -> &Solver {
+        &self.solver
+    }
+
+    /// The neighbour lists as cut so far.
+    pub fn neighbours(&self) -> &Neighbourhoods {
+        &self.neighbours
+    }
+
+    /// The cutting stage, for scenes that cut.
+    pub fn cutting(&self) -> Option<&CuttingStage> {
+        self.cutting.as_ref()
+    }
+
+    /// The latest local force model for the haptic loop.
+    pub fn local_force_model(&self) -> LocalForceModel {
+        self.local_model
+    }
+}
+
+/// The force scaled down (never distorted in direction) to at most `max_n`; NaN becomes zero.
+fn bounded(force: &CutForce, max_n: f64) -> CutForce {
+    let mut f = *force;
+    let m = f.force_n.norm();
+    if !m.is_finite() {
+        f.force_n = Vec3::zeros();
+        f.magnitude_n = 0.0;
+        f.stiffness_n_per_m = 0.0;
+    } else if m > max_n {
+        let s = max_n / m;
+        f.force_n *= s;
+        f.magnitude_n *= s;
+        f.stiffness_n_per_m *= s;
+    }
+    f
+}

@@ -1,0 +1,371 @@
+//! Scripted blade trajectories: the offline `scalpel cut`, Table 1 and the scripted device.
+//!
+//! A script is a list of keyframes (time, tip position, edge direction); the pose between
+//! two keyframes is interpolated linearly in position and spherically in orientation. The
+//! default script is the paper's Fig. 9 experiment adapted to the scene: the blade comes
+//! down on the top of the organ at 5 mm/s, cuts 10 mm deep along the organ's long axis for
+//! 60 mm (at most 60 % of the organ's length), following the top surface, and comes out.
+//!
+//! Script files are TOML, in millimetres and seconds:
+//!
+//! ```toml
+//! [[keyframe]]
+//! t_s = 0.0
+//! tip_mm = [-30.0, 0.0, 40.0]
+//! edge = [0.0, 0.0, 1.0]     # from the tip toward the back of the blade (any length)
+//!
+//! [[keyframe]]
+//! t_s = 3.0
+//! tip_mm = [-30.0, 0.0, 25.0]
+//! ```
+//! A keyframe without `edge` keeps the previous one's.
+
+use serde::Deserialize;
+use thiserror::Error;
+
+use crate::cut::ToolPose;
+use crate::geometry::TriMesh;
+use crate::math::Vec3;
+
+/// Default blade speed (m/s), the paper's Fig. 9.
+pub const DEFAULT_SPEED_M_PER_S: f64 = 0.005;
+/// Default stroke length (m).
+pub const DEFAULT_STROKE_M: f64 = 0.060;
+/// Default cut depth (m).
+pub const DEFAULT_DEPTH_M: f64 = 0.010;
+/// Most keyframes a script file may have.
+pub const MAX_KEYFRAMES: usize = 100_000;
+
+/// One keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Keyframe {
+    /// Time (s).
+    pub t_s: f64,
+    /// Blade pose.
+    pub pose: ToolPose,
+}
+
+/// A blade trajectory.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CutScript {
+    /// Keyframes in increasing time.
+    pub keyframes: Vec<Keyframe>,
+    /// What the script does, for reports.
+    pub description: String,
+}
+
+/// Why a script was rejected.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum ScriptError {
+    /// Not valid TOML, or a key of the wrong type or unknown.
+    #[error("{file}: {message}")]
+    Parse {
+        /// Script file.
+        file: String,
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A keyframe is inconsistent.
+    #[error("{file}: keyframe {index}: {message}")]
+    Invalid {
+        /// Script file.
+        file: String,
+        /// 1-based keyframe number.
+        index: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The scene has no top surface to cut along.
+    #[error("the default cut needs a surface under the stroke: {0}")]
+    NoSurface(String),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScript {
+    keyframe: Vec<RawKeyframe>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawKeyframe {
+    t_s: f64,
+    tip_mm: [f64; 3],
+    edge: Option<[f64; 3]>,
+}
+
+impl CutScript {
+    /// Parses a script file's text; `file` names it in messages.
+    pub fn from_toml(text: &str, file: &str) -> Result<Self, ScriptError> {
+        let raw: RawScript = toml::from_str(text).map_err(|e| ScriptError::Parse {
+            file: file.to_string(),
+            message: e.to_string(),
+        })?;
+        let invalid = |index: usize, message: String| ScriptError::Invalid {
+            file: file.to_string(),
+            index: index + 1,
+            message,
+        };
+        if raw.keyframe.len() < 2 {
+            return Err(ScriptError::Parse {
+                file: file.to_string(),
+                message: format!(
+                    "a script needs at least 2 [[keyframe]] tables, found {}",
+                    raw.keyframe.len()
+                ),
+            });
+        }
+        if raw.keyframe.len() > MAX_KEYFRAMES {
+            return Err(invalid(
+                MAX_KEYFRAMES,
+                format!("at most {MAX_KEYFRAMES} keyframes"),
+            ));
+        }
+        let mut keyframes = Vec::with_capacity(raw.keyframe.len());
+        let mut edge: Option<Vec3> = None;
+        for (index, k) in raw.keyframe.iter().enumerate() {
+            if !k.t_s.is_finite() || k.t_s < 0.0 || k.t_s > 86_400.0 {
+                return Err(invalid(
+                    index,
+                    format!("t_s = {} must be within 0..=86400 s", k.t_s),
+                ));
+            }
+            if let Some(prev) = keyframes.last().map(|k: &Keyframe| k.t_s)
+                && k.t_s <= prev
+            {
+                return Err(invalid(
+                    index,
+                    format!(
+                        "t_s = {} must be after the previous keyframe's {prev}",
+                        k.t_s
+                    ),
+                ));
+            }
+            if k.tip_mm.iter().any(|c| !c.is_finite() || c.abs() > 1e4) {
+                return Err(invalid(
+                    index,
+                    format!("tip_mm = {:?} must be finite and within ±10 m", k.tip_mm),
+                ));
+            }
+            if let Some(e) = k.edge {
+                let e = Vec3::from(e);
+                if !e.iter().all(|c| c.is_finite()) || e.norm() < 1e-9 {
+                    return Err(invalid(
+                        index,
+                        format!(
+                            "edge = {:?} must be a non-zero direction",
+                            k.edge.unwrap_or_default()
+                        ),
+                    ));
+                }
+                edge = Some(e);
+            }
+            let Some(e) = edge else {
+                return Err(invalid(
+                    index,
+                    "the first keyframe needs an edge direction".into(),
+                ));
+            };
+            keyframes.push(Keyframe {
+                t_s: k.t_s,
+                pose: ToolPose::pointing(Vec3::from(k.tip_mm) * 1e-3, e),
+            });
+        }
+        Ok(Self {
+            keyframes,
+            description: format!("script {file}"),
+        })
+    }
+
+    /// The default cut for a surface (see the module documentation).
+    pub fn default_for(surface: &TriMesh) -> Result<Self, ScriptError> {
+        Self::stroke_for(
+            surface,
+            DEFAULT_STROKE_M,
+            DEFAULT_DEPTH_M,
+            DEFAULT_SPEED_M_PER_S,
+        )
+    }
+
+    /// A straight stroke along the surface's long horizontal axis through its centre, at
+    /// most `length_m` long (and 60 % of the organ), `depth_m` deep (at most 30 % of the
+    /// thickness at the centre), at `speed` m/s, following the top surface.
+    pub fn stroke_for(
+        surface: &TriMesh,
+        length_m: f64,
+        depth_m: f64,
+        speed: f64,
+    ) -> Result<Self, ScriptError> {
+        let bbox = surface.bbox();
+        let (lo, hi) = (Vec3::from(bbox.min), Vec3::from(bbox.max));
+        let size = hi - lo;
+        let centre = (hi + lo) * 0.5;
+        let axis = if size.x >= size.y {
+            Vec3::x()
+        } else {
+            Vec3::y()
+        };
+        let along = axis.dot(&size);
+        let length = length_m.min(0.6 * along);
+        let (top, bottom) = vertical_extent(surface, centre.x, centre.y).ok_or_else(|| {
+            ScriptError::NoSurface("no surface above the centre of the bounding box".into())
+        })?;
+        let depth = depth_m.min(0.3 * (top - bottom));
+        let clearance = 0.005;
+        let start = centre - axis * (length * 0.5);
+        let samples = ((length / 0.005).ceil() as usize).max(2);
+        let up = Vec3::z();
+        let mut keyframes = Vec::with_capacity(samples + 4);
+        let mut t = 0.0;
+        let mut push = |tip: Vec3, t: f64| {
+            keyframes.push(Keyframe {
+                t_s: t,
+                pose: ToolPose::pointing(tip, up),
+            })
+        };
+        let top_at = |s: f64| {
+            let x = start + axis * s;
+            vertical_extent(surface, x.x, x.y).map(|(top, _)| top)
+        };
+        let top0 = top_at(0.0).ok_or_else(|| {
+            ScriptError::NoSurface("no surface under the start of the stroke".into())
+        })?;
+        let above = Vec3::new(start.x, start.y, top0 + clearance);
+        push(above, t);
+        let mut last = above;
+        let mut tip = Vec3::new(start.x, start.y, top0 - depth);
+        t += (tip - last).norm() / speed;
+        push(tip, t);
+        last = tip;
+        for k in 1..=samples {
+            let s = length * k as f64 / samples as f64;
+            let x = start + axis * s;
+            let top = top_at(s).unwrap_or(last.z + depth);
+            tip = Vec3::new(x.x, x.y, top - depth);
+            t += (tip - last).norm() / speed;
+            push(tip, t);
+            last = tip;
+        }
+        let out = Vec3::new(last.x, last.y, last.z + depth + clearance);
+        t += (out - last).norm() / speed;
+        push(out, t);
+        Ok(Self {
+            keyframes,
+            description: format!(
+                "{:.0} mm stroke along {}, {:.1} mm deep, {:.1} mm/s",
+                length * 1e3,
+                if axis.x > 0.5 { "x" } else { "y" },
+                depth * 1e3,
+                speed * 1e3
+            ),
+        })
+    }
+
+    /// Duration (s).
+    pub fn duration_s(&self) -> f64 {
+        self.keyframes.last().map_or(0.0, |k| k.t_s)
+    }
+
+    /// The pose at time `t` (held at the ends).
+    pub fn pose_at(&self, t: f64) -> ToolPose {
+        let k = &self.keyframes;
+        let i = k.partition_point(|f| f.t_s <= t);
+        if i == 0 {
+            return k[0].pose;
+        }
+        if i >= k.len() {
+            return k[k.len() - 1].pose;
+        }
+        let (a, b) = (&k[i - 1], &k[i]);
+        let s = ((t - a.t_s) / (b.t_s - a.t_s)).clamp(0.0, 1.0);
+        ToolPose {
+            tip_m: a.pose.tip_m.lerp(&b.pose.tip_m, s),
+            orientation: a
+                .pose
+                .orientation
+                .try_slerp(&b.pose.orientation, s, 1e-9)
+                .unwrap_or(if s < 0.5 {
+                    a.pose.orientation
+                } else {
+                    b.pose.orientation
+                }),
+        }
+    }
+}
+
+/// Highest and lowest crossing of the vertical line through (x, y) with the surface.
+pub fn vertical_extent(surface: &TriMesh, x: f64, y: f64) -> Option<(f64, f64)> {
+    let mut top = f64::NEG_INFINITY;
+    let mut bottom = f64::INFINITY;
+    for t in 0..surface.triangles.len() {
+        let [a, b, c] = surface.corners(t);
+        let d = (b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y);
+        if d.abs() < 1e-300 {
+            continue;
+        }
+        let u = ((x - a.x) * (c.y - a.y) - (c.x - a.x) * (y - a.y)) / d;
+        let v = ((b.x - a.x) * (y - a.y) - (x - a.x) * (b.y - a.y)) / d;
+        if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
+            let z = a.z + u * (b.z - a.z) + v * (c.z - a.z);
+            top = top.max(z);
+            bottom = bottom.min(z);
+        }
+    }
+    (top > bottom).then_some((top, bottom))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::BuiltinMesh;
+
+    #[test]
+    fn default_liver_cut_is_the_papers_stroke() {
+        let liver = BuiltinMesh::Liver.generate();
+        let s = CutScript::default_for(&liver).expect("a stroke");
+        // 15 mm down at 5 mm/s, 60 mm along, 15 mm up: about 18 s.
+        assert!((s.duration_s() - 18.0).abs() < 0.5, "{}", s.duration_s());
+        let mid = s.pose_at(9.0);
+        let (top, _) = vertical_extent(&liver, mid.tip_m.x, mid.tip_m.y).unwrap();
+        assert!((top - mid.tip_m.z - DEFAULT_DEPTH_M).abs() < 1e-3);
+        assert_eq!(s.pose_at(-1.0), s.keyframes[0].pose);
+        assert_eq!(s.pose_at(1e9), s.keyframes.last().unwrap().pose);
+    }
+
+    #[test]
+    fn script_files_are_checked() {
+        let good = "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 10]\nedge = [0, 0, 1]\n\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n";
+        let s = CutScript::from_toml(good, "a.toml").expect("valid");
+        assert!((s.pose_at(0.5).tip_m.z - 0.005).abs() < 1e-12);
+        let cases = [
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\n",
+                "at least 2",
+            ),
+            (
+                "[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 2: t_s = 1 must be after",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 1: the first keyframe needs an edge",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "non-zero direction",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, nan, 0]\nedge = [0, 0, 1]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "must be finite",
+            ),
+            ("[[keyframe]]\nt_s = 0\ntip = [0, 0, 0]\n", "unknown field"),
+        ];
+        for (text, want) in cases {
+            let e = CutScript::from_toml(text, "s.toml")
+                .expect_err(text)
+                .to_string();
+            assert!(e.contains(want) && e.starts_with("s.toml"), "{e}");
+        }
+    }
+}

@@ -1,0 +1,315 @@
+//! The rendered surface in its current configuration.
+//!
+//! Vertices follow the meshless field (physics.md §5.3):
+//! `x_v = Σ_k ŵ_vk (p_k + F_k (X_v − X_k))`. Only vertices that follow moved points are
+//! recomputed, and only their triangles' boxes are updated in the BVH used for blade contact
+//! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
+//! cut surface Σ (its weights toward them drop to zero).
+
+use crate::cut::{Blade, segment_meets_triangle};
+use crate::geometry::TriMesh;
+use crate::geometry::parry_adapter::TriangleBvh;
+use crate::math::{Mat3, Vec3};
+use crate::mls::MlsOperator;
+use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
+
+/// Where the blade meets the surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceContact {
+    /// The blade tip is inside the tissue.
+    pub tip_inside: bool,
+    /// Entry point on the current surface, where the edge crosses it going in (m).
+    pub entry: Option<Vec3>,
+    /// The entry triangle and barycentric coordinates.
+    pub entry_triangle: Option<(usize, [f64; 3])>,
+    /// Outward unit normal of the entry triangle.
+    pub normal: Vec3,
+}
+
+impl SurfaceContact {
+    /// No blade.
+    pub fn none() -> Self {
+        Self {
+            tip_inside: false,
+            entry: None,
+            entry_triangle: None,
+            normal: Vec3::z(),
+        }
+    }
+}
+
+/// Compressed rows: `items[start[i]..start[i + 1]]`.
+#[derive(Debug, Clone, Default)]
+struct Rows {
+    start: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl Rows {
+    fn build(n: usize, pairs: impl Iterator<Item = (u32, u32)> + Clone) -> Self {
+        let mut count = vec![0u32; n + 1];
+        for (a, _) in pairs.clone() {
+            count[a as usize + 1] += 1;
+        }
+        for i in 1..=n {
+            count[i] += count[i - 1];
+        }
+        let mut fill = count.clone();
+        let mut items = vec![0u32; count[n] as usize];
+        for (a, b) in pairs {
+            items[fill[a as usize] as usize] = b;
+            fill[a as usize] += 1;
+        }
+        Self {
+            start: count,
+            items,
+        }
+    }
+
+    fn of(&self, i: usize) -> &[u32] {
+        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
+    }
+}
+
+/// The current surface and what is needed to move it with the points.
+pub struct CurrentSurface {
+    /// Current positions (m) and the triangles.
+    pub mesh: TriMesh,
+    rest: Vec<Vec3>,
+    bvh: TriangleBvh,
+    vertex_triangles: Rows,
+    point_vertices: Rows,
+    embedding: SurfaceEmbedding,
+    vertex_grid: RestGrid,
+    support_m: f64,
+    // Scratch, reused every tick.
+    vertex_flag: Vec<bool>,
+    vertex_list: Vec<u32>,
+    triangle_flag: Vec<bool>,
+    triangle_list: Vec<u32>,
+    point_flag: Vec<bool>,
+    point_list: Vec<u32>,
+    gradients: Vec<Mat3>,
+    crossings: Vec<(f64, usize, [f64; 3])>,
+}
+
+impl CurrentSurface {
+    /// The surface of `model` at rest.
+    pub fn new(model: &CoupledModel) -> Self {
+        let mesh = model.surface.clone();
+        let nv = mesh.positions.len();
+        let vertex_triangles = Rows::build(
+            nv,
+            mesh.triangles
+                .iter()
+                .enumerate()
+                .flat_map(|(t, tri)| tri.iter().map(move |&v| (v, t as u32))),
+        );
+        let emb = &model.embedding;
+        let point_vertices = Rows::build(
+            model.points.len(),
+            (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
+        );
+        Self {
+            bvh: TriangleBvh::build(&mesh),
+            rest: mesh.positions.clone(),
+            vertex_grid: RestGrid::build(&mesh.positions, model.kernel.support_m),
+            support_m: model.kernel.support_m,
+            vertex_flag: vec![false; nv],
+            vertex_list: Vec::with_capacity(nv),
+            triangle_flag: vec![false; mesh.triangles.len()],
+            triangle_list: Vec::with_capacity(mesh.triangles.len()),
+            point_flag: vec![false; model.points.len()],
+            point_list: Vec::with_capacity(model.points.len()),
+            gradients: vec![Mat3::identity(); model.points.len()],
+            crossings: Vec::with_capacity(64),
+            mesh,
+            vertex_triangles,
+            point_vertices,
+            embedding: emb.clone(),
+        }
+    }
+
+    /// Rest position of a point on the surface given by triangle and barycentrics.
+    pub fn rest_point(&self, triangle: usize, bary: [f64; 3]) -> Vec3 {
+        let [a, b, c] = self.mesh.triangles[triangle];
+        self.rest[a as usize] * bary[0]
+            + self.rest[b as usize] * bary[1]
+            + self.rest[c as usize] * bary[2]
+    }
+
+    /// Moves the vertices that follow any of `moved` points to their place in the field at
+    /// positions `p`, and updates their triangles in the BVH. Returns how many moved.
+    pub fn follow(
+        &mut self,
+        op: &MlsOperator,
+        rest_points: &[Vec3],
+        p: &[Vec3],
+        moved: &[u32],
+    ) -> usize {
+        self.vertex_list.clear();
+        for &k in moved {
+            for &v in self.point_vertices.of(k as usize) {
+                if !std::mem::replace(&mut self.vertex_flag[v as usize], true) {
+                    self.vertex_list.push(v);
+                }
+            }
+        }
+        // The gradients those vertices read: a frozen point next to a moving one deforms too.
+        self.point_list.clear();
+        for &v in &self.vertex_list {
+            for &k in self.embedding.of(v as usize).0 {
+                if !std::mem::replace(&mut self.point_flag[k as usize], true) {
+                    self.point_list.push(k);
+                }
+            }
+        }
+        for &k in &self.point_list {
+            self.point_flag[k as usize] = false;
+            self.gradients[k as usize] = op.deformation_gradient(k as usize, p);
+        }
+        self.triangle_list.clear();
+        for &v in &self.vertex_list {
+            let v = v as usize;
+            self.vertex_flag[v] = false;
+            let (points, weights) = self.embedding.of(v);
+            let xv = self.rest[v];
+            let mut x = Vec3::zeros();
+            for (&k, &w) in points.iter().zip(weights) {
+                if w == 0.0 {
+                    continue;
+                }
+                let k = k as usize;
+                x += (p[k] + self.gradients[k] * (xv - rest_points[k])) * w;
+            }
+            self.mesh.positions[v] = x;
+            for &t in self.vertex_triangles.of(v) {
+                if !std::mem::replace(&mut self.triangle_flag[t as usize], true) {
+                    self.triangle_list.push(t);
+                }
+            }
+        }
+        for &t in &self.triangle_list {
+            let t = t as usize;
+            self.triangle_flag[t] = false;
+            self.bvh.update(t, &self.mesh.corners(t));
+        }
+        self.vertex_list.len()
+    }
+
+    /// Stops vertices near the rest-space triangle `cut` from following points across it.
+    pub fn cut_embedding(&mut self, cut: &[Vec3; 3], rest_points: &[Vec3]) {
+        let lo = cut[0].inf(&cut[1]).inf(&cut[2]);
+        let hi = cut[0].sup(&cut[1]).sup(&cut[2]);
+        let centre = (lo + hi) * 0.5;
+        let reach = (hi - lo).norm() * 0.5 + self.support_m * 3.5;
+        let rest = &self.rest;
+        let embedding = &mut self.embedding;
+        self.vertex_grid
+            .for_each_within(rest, &centre, reach, |v, _| {
+                embedding.drop_across(v as usize, &rest[v as usize], rest_points, cut);
+            });
+    }
+
+    /// Where the blade's edge (from its back P' to its tip P) meets the current surface.
+    pub fn contact(&mut self, blade: &Blade) -> SurfaceContact {
+        let (p, q) = (blade.back, blade.tip);
+        let lo = p.inf(&q);
+        let hi = p.sup(&q);
+        self.crossings.clear();
+        let mesh = &self.mesh;
+        let crossings = &mut self.crossings;
+        self.bvh.for_each_overlapping(&lo, &hi, |t| {
+            if let Some((s, bary)) = segment_triangle(&p, &q, &mesh.corners(t)) {
+                crossings.push((s, t, bary));
+            }
+        });
+        self.crossings.sort_by(|a, b| a.0.total_cmp(&b.0));
+        // A closed surface: the tip is inside iff the edge crossed it an odd number of times.
+        let tip_inside =
+            self.crossings.len() % 2 == 1 || (self.crossings.is_empty() && self.point_inside(&q));
+        match self.crossings.first() {
+            Some(&(s, t, bary)) => {
+                let normal = self
+                    .mesh
+                    .doubled_area_normal(t)
+                    .try_normalize(1e-300)
+                    .unwrap_or_else(Vec3::z);
+                SurfaceContact {
+                    tip_inside,
+                    entry: Some(p + (q - p) * s),
+                    entry_triangle: Some((t, bary)),
+                    normal,
+                }
+            }
+            None => SurfaceContact {
+                tip_inside,
+                entry: None,
+                entry_triangle: None,
+                normal: Vec3::z(),
+            },
+        }
+    }
+
+    /// Whether `x` is inside the current surface (ray parity along +z; used only when the
+    /// whole blade is inside or outside).
+    fn point_inside(&self, x: &Vec3) -> bool {
+        let far = x + Vec3::new(0.0, 0.0, 10.0);
+        let lo = x.inf(&far);
+        let hi = x.sup(&far);
+        let mut count = 0;
+        self.bvh.for_each_overlapping(&lo, &hi, |t| {
+            if segment_triangle(x, &far, &self.mesh.corners(t)).is_some() {
+                count += 1;
+            }
+        });
+        count % 2 == 1
+    }
+
+    /// The support radius of the model (m).
+    pub fn support(&self) -> f64 {
+        self.support_m
+    }
+
+    /// Kernel of the embedding (for callers that need weights consistent with it).
+    pub fn kernel(&self) -> Kernel {
+        Kernel {
+            support_m: self.support_m,
+        }
+    }
+
+    /// Whether vertex `v`'s embedding crosses `cut` (for tests).
+    pub fn follows_across(&self, v: usize, rest_points: &[Vec3], cut: &[Vec3; 3]) -> bool {
+        let (points, weights) = self.embedding.of(v);
+        points.iter().zip(weights).any(|(&k, &w)| {
+            w > 0.0 && segment_meets_triangle(&self.rest[v], &rest_points[k as usize], cut)
+        })
+    }
+}
+
+/// Intersection of the segment p→q with a triangle: the parameter along the segment and the
+/// barycentric coordinates, or `None`.
+fn segment_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> Option<(f64, [f64; 3])> {
+    let [a, b, c] = tri;
+    let d = q - p;
+    let e1 = b - a;
+    let e2 = c - a;
+    let h = d.cross(&e2);
+    let det = e1.dot(&h);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = p - a;
+    let u = s.dot(&h) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let qv = s.cross(&e1);
+    let v = d.dot(&qv) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = e2.dot(&qv) * inv;
+    (0.0..=1.0).contains(&t).then_some((t, [1.0 - u - v, u, v]))
+}

@@ -1,0 +1,80 @@
+//! End-to-end cuts through the pipeline: the default scripted stroke on the built-in liver.
+
+use scalpel_sim::cut::segment_meets_triangle;
+use scalpel_sim::force::CutPhase;
+use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
+use scalpel_sim::progress::Silent;
+use scalpel_sim::scene::{build_scene, builtin};
+
+#[test]
+fn default_liver_stroke_cuts_with_the_expected_forces() {
+    let spec = builtin("liver").unwrap();
+    let scene = build_scene(&spec, None, &mut Silent).unwrap();
+    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let mut sim = Simulation::new(&scene);
+    let dt = 1e-3;
+    let ticks = (script.duration_s() / dt).ceil() as usize;
+    let mut peak: f64 = 0.0;
+    let mut ruptures = 0;
+    let mut cutting_forces = Vec::new();
+    let mut max_active = 0;
+    for k in 0..ticks {
+        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
+        let r = sim.tick(dt, &mut Unobserved);
+        let cut = r.cut.as_ref().unwrap();
+        assert!(r.tool_force_n.iter().all(|c| c.is_finite()));
+        assert!(r.tool_force_n.norm() <= spec.force.max_force_n + 1e-12);
+        peak = peak.max(r.tool_force_n.norm());
+        ruptures += usize::from(cut.force.ruptured);
+        let stroking = sim.cutting().unwrap().direction().z.abs() < 0.5;
+        if cut.force.phase == CutPhase::Cutting && cut.depth_m > 0.009 && stroking {
+            cutting_forces.push((cut.force.magnitude_n, cut.depth_m));
+        }
+        max_active = max_active.max(r.active_points);
+        assert!(!r.solver.diverged, "tick {k}");
+    }
+    let stage = sim.cutting().unwrap();
+    println!(
+        "peak {peak:.3} N, ruptures {ruptures}, Σ {} triangles, pairs removed {}, max active {max_active}",
+        stage.sigma.triangles.len(),
+        stage.pairs_removed_total
+    );
+    assert_eq!(ruptures, 1);
+    assert!((peak - spec.force.rupture_force_n).abs() < 0.05 * spec.force.rupture_force_n);
+    // Exactly the pairs whose rest segment crosses Σ are gone (visibility criterion).
+    let rest = &scene.model.points.rest;
+    let before = &scene.model.neighbours;
+    let after = sim.neighbours();
+    let mut crossing = 0;
+    for i in 0..rest.len() {
+        for &j in before.of(i) {
+            let cut = stage
+                .sigma
+                .triangles
+                .iter()
+                .any(|t| segment_meets_triangle(&rest[i], &rest[j as usize], t));
+            crossing += usize::from(cut);
+            assert_eq!(!after.of(i).contains(&j), cut, "pair {i}-{j}");
+        }
+    }
+    assert_eq!(crossing, 2 * stage.pairs_removed_total);
+    assert!(stage.pairs_removed_total > 30);
+    assert!(
+        sim.surface()
+            .positions
+            .iter()
+            .all(|x| x.iter().all(|c| c.is_finite()))
+    );
+    // The mean cutting force is J_c d + friction (the ripple averages out).
+    let n = cutting_forces.len() as f64;
+    let mean_f = cutting_forces.iter().map(|c| c.0).sum::<f64>() / n;
+    let mean_d = cutting_forces.iter().map(|c| c.1).sum::<f64>() / n;
+    let want = spec.force.toughness_n_per_m * mean_d + spec.force.friction_n;
+    println!(
+        "steady {mean_f:.3} N at depth {:.2} mm (want {want:.3})",
+        mean_d * 1e3
+    );
+    assert!((mean_f - want).abs() < 0.05 * want);
+    // The work stays in the affected region.
+    assert!(max_active < scene.model.points.len() / 2, "{max_active}");
+}
