@@ -93,3 +93,103 @@ pub fn triangle_neighbours(triangles: &[[u32; 3]], table: &EdgeTable) -> Vec<[u3
     }
     nb
 }
+
+/// Topological soundness of a triangle set (a whole surface or part of one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct SurfaceCheck {
+    /// Every edge is used by exactly two triangles.
+    pub closed: bool,
+    /// No edge has more than two triangles and the triangles around every vertex form one
+    /// fan (a single cycle when closed).
+    pub manifold: bool,
+    /// Every edge shared by two triangles is traversed once in each direction.
+    pub oriented: bool,
+}
+
+/// Checks `triangles` over `vertex_count` vertices.
+pub fn check_surface(triangles: &[[u32; 3]], vertex_count: usize) -> SurfaceCheck {
+    let table = EdgeTable::build(triangles);
+    let mut closed = true;
+    let mut manifold = true;
+    let mut oriented = true;
+    for e in 0..table.len() {
+        let uses = table.uses_of(e);
+        match uses.len() {
+            2 => oriented &= uses[0].ascending != uses[1].ascending,
+            1 => closed = false,
+            _ => {
+                closed = false;
+                manifold = false;
+            }
+        }
+    }
+    // Vertex fans: the edges opposite a vertex, in triangle order, must chain into one
+    // path (one cycle when closed).
+    let mut opposite: Vec<Vec<(u32, u32)>> = vec![Vec::new(); vertex_count];
+    for tri in triangles {
+        for k in 0..3 {
+            opposite[tri[k] as usize].push((tri[(k + 1) % 3], tri[(k + 2) % 3]));
+        }
+    }
+    for fan in opposite.iter_mut().filter(|f| !f.is_empty()) {
+        fan.sort_unstable();
+        if fan.windows(2).any(|w| w[0].0 == w[1].0) {
+            manifold = false;
+            continue;
+        }
+        // Start at an edge whose start is no other edge's end (an open fan), or anywhere.
+        let ends: std::collections::HashSet<u32> = fan.iter().map(|e| e.1).collect();
+        let start = fan
+            .iter()
+            .find(|e| !ends.contains(&e.0))
+            .copied()
+            .unwrap_or(fan[0]);
+        let mut visited = 1;
+        let mut at = start.1;
+        while let Ok(i) = fan.binary_search_by_key(&at, |e| e.0) {
+            if fan[i] == start {
+                break;
+            }
+            visited += 1;
+            at = fan[i].1;
+            if visited > fan.len() {
+                break;
+            }
+        }
+        if visited != fan.len() {
+            manifold = false;
+        }
+    }
+    SurfaceCheck {
+        closed,
+        manifold,
+        oriented,
+    }
+}
+
+#[cfg(test)]
+mod surface_check_tests {
+    use super::*;
+
+    #[test]
+    fn tetrahedron_and_its_defects() {
+        let tet = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+        let ok = check_surface(&tet, 4);
+        assert!(ok.closed && ok.manifold && ok.oriented);
+        let mut flipped = tet;
+        flipped[0] = [0, 1, 2];
+        assert!(!check_surface(&flipped, 4).oriented);
+        assert!(!check_surface(&tet[..3], 4).closed);
+        // Two tetrahedra sharing only a vertex: closed, but not vertex-manifold.
+        let two: Vec<[u32; 3]> = tet
+            .iter()
+            .copied()
+            .chain(
+                tet.iter()
+                    .map(|t| t.map(|v| if v == 0 { 0 } else { v + 3 })),
+            )
+            .collect();
+        let c = check_surface(&two, 7);
+        assert!(c.closed && c.oriented && !c.manifold);
+    }
+}
