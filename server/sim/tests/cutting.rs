@@ -1,7 +1,9 @@
 //! End-to-end cuts through the pipeline: the default scripted stroke on the built-in liver.
 
-use scalpel_sim::cut::segment_meets_triangle;
+use scalpel_sim::cut::{FaceKind, segment_meets_triangle};
 use scalpel_sim::force::CutPhase;
+use scalpel_sim::geometry::topology::check_surface;
+use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{build_scene, builtin};
@@ -75,6 +77,37 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         mean_d * 1e3
     );
     assert!((mean_f - want).abs() < 0.05 * want);
+    // The surface was opened along the stroke and is still a sound closed surface.
+    let stats = sim.incisions().unwrap();
+    println!("{stats:?}");
+    assert_eq!(stats.incisions, 1);
+    assert_eq!(stats.refused, 0, "{:?}", stats.last_refusal);
+    assert!(stats.min_angle_deg >= 15.0);
+    let (drawn, kinds) = sim.current_surface().drawn();
+    let check = check_surface(&drawn.triangles, drawn.positions.len());
+    assert!(
+        check.closed && check.manifold && check.oriented,
+        "{check:?}"
+    );
+    assert!(kinds.contains(&FaceKind::Wall));
+    // The wound is about 60 mm long and 10 mm deep.
+    let walls: Vec<_> = drawn
+        .triangles
+        .iter()
+        .zip(&kinds)
+        .filter(|(_, k)| **k == FaceKind::Wall)
+        .flat_map(|(t, _)| t.map(|v| drawn.positions[v as usize]))
+        .collect();
+    let lo = walls
+        .iter()
+        .fold(Vec3::repeat(f64::INFINITY), |a, b| a.inf(b));
+    let hi = walls
+        .iter()
+        .fold(Vec3::repeat(f64::NEG_INFINITY), |a, b| a.sup(b));
+    println!("wound box {:?} .. {:?}", lo.as_slice(), hi.as_slice());
+    assert!((0.05..0.065).contains(&(hi.x - lo.x)), "{}", hi.x - lo.x);
+    assert!((stats.depth_m - 0.0105).abs() < 0.002, "{}", stats.depth_m);
+    assert!(stats.lip_max_turn_deg < 15.0, "{}", stats.lip_max_turn_deg);
     // The work stays in the affected region.
     assert!(max_active < scene.model.points.len() / 2, "{max_active}");
 }

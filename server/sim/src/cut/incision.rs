@@ -93,7 +93,8 @@ pub struct Incised {
     pub source: Vec<Option<u32>>,
     /// Triangles created by this incision (skin, wall and lid).
     pub created: Vec<u32>,
-    /// Largest turn between consecutive lip segments (degrees).
+    /// Largest turn between consecutive lip segments in the incision's tangent plane
+    /// (degrees).
     pub lip_max_turn_deg: f64,
     /// Smallest angle of the created skin and wall triangles (degrees).
     pub min_angle_deg: f64,
@@ -518,7 +519,8 @@ pub fn incise(
     let w_o = w_wanted.min(0.45 * margin).max(0.0);
 
     // Lips.
-    let m = ((length / spacing).ceil() as usize).clamp(2, 400);
+    // At least eight segments per lip, so that even a short lip turns smoothly.
+    let m = ((length / spacing).ceil() as usize).clamp(8, 400);
     let mut centre = Vec::with_capacity(m + 1);
     let mut upper = Vec::with_capacity(m + 1);
     let mut lower = Vec::with_capacity(m + 1);
@@ -751,7 +753,9 @@ pub fn incise(
         tops.push(top);
         bottoms.push(top + d);
     }
-    let rows = ((depth_max_out / spacing).round() as usize).clamp(1, 32);
+    // Rows about as tall as the columns are wide: near-square cells.
+    let column = length / m as f64;
+    let rows = ((depth_max_out / column).round() as usize).clamp(1, 64);
     let push = |p: Vec3, positions: &mut Vec<Vec3>, source: &mut Vec<Option<u32>>| {
         positions.push(p);
         source.push(None);
@@ -855,15 +859,18 @@ pub fn incise(
             min_angle = min_angle.min(a);
         }
     }
-    let turn = |ids: &[u32]| {
-        ids.windows(3)
+    // The lips' own smoothness, in the incision's tangent plane (the facets of the surface
+    // they are lifted onto add their dihedral angles on top).
+    let turn = |lip: &[[f64; 2]]| {
+        lip.windows(3)
             .map(|w| {
-                let p = [w[0], w[1], w[2]].map(|v| out.positions[v as usize]);
-                angle_deg(p[1] - p[0], p[2] - p[1])
+                let d0 = Vec3::new(w[1][0] - w[0][0], w[1][1] - w[0][1], 0.0);
+                let d1 = Vec3::new(w[2][0] - w[1][0], w[2][1] - w[1][1], 0.0);
+                angle_deg(d0, d1)
             })
             .fold(0.0, f64::max)
     };
-    let lip_max_turn_deg = turn(&upper_ids).max(turn(&lower_ids));
+    let lip_max_turn_deg = turn(&upper).max(turn(&lower));
     Ok(Incised {
         mesh: out,
         kinds: out_kinds,

@@ -142,6 +142,80 @@ impl SurfaceEmbedding {
         true
     }
 
+    /// Embedding rows given per vertex (weights are normalised here).
+    pub fn from_rows(rows: &[Vec<(u32, f64)>], widened: usize) -> Self {
+        let mut start = Vec::with_capacity(rows.len() + 1);
+        start.push(0u32);
+        let mut points = Vec::new();
+        let mut weights = Vec::new();
+        for row in rows {
+            let total: f64 = row.iter().map(|(_, w)| w).sum();
+            for &(k, w) in row {
+                points.push(k);
+                weights.push(if total > 0.0 { w / total } else { 0.0 });
+            }
+            start.push(points.len() as u32);
+        }
+        Self {
+            start,
+            points,
+            weights,
+            widened,
+        }
+    }
+
+    /// The row of vertex `v` as (point, weight) pairs.
+    pub fn row(&self, v: usize) -> Vec<(u32, f64)> {
+        let (p, w) = self.of(v);
+        p.iter().copied().zip(w.iter().copied()).collect()
+    }
+
+    /// Kernel weights of a new vertex at `x` over the points within the support whose rest
+    /// segment to it crosses none of `blockers` (the cut surface). The support widens up to
+    /// three times when nothing is visible; the nearest point is the last resort.
+    pub fn row_for(
+        x: &Vec3,
+        positions: &[Vec3],
+        grid: &RestGrid,
+        kernel: &Kernel,
+        blockers: &[[Vec3; 3]],
+    ) -> Vec<(u32, f64)> {
+        let mut radius = kernel.support_m;
+        let mut found = Vec::new();
+        for _ in 0..4 {
+            let wider = Kernel { support_m: radius };
+            grid.for_each_within(positions, x, radius, |k, d2| {
+                let w = wider.weight_sq(d2);
+                let p = &positions[k as usize];
+                if w > 0.0
+                    && !blockers.iter().any(|tri| {
+                        let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
+                        let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
+                        (0..3).all(|a| x[a].min(p[a]) <= hi[a] && x[a].max(p[a]) >= lo[a])
+                            && segment_meets_triangle(x, p, tri)
+                    })
+                {
+                    found.push((k, w));
+                }
+            });
+            if !found.is_empty() {
+                found.sort_unstable_by_key(|(k, _)| *k);
+                return found;
+            }
+            radius *= 1.5;
+        }
+        positions
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                (a.1 - x)
+                    .norm_squared()
+                    .total_cmp(&(b.1 - x).norm_squared())
+            })
+            .map(|(k, _)| vec![(k as u32, 1.0)])
+            .unwrap_or_default()
+    }
+
     /// Summary for reports.
     pub fn stats(&self) -> EmbeddingStats {
         let n = self.start.len() - 1;

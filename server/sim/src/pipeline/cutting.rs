@@ -219,15 +219,21 @@ impl CuttingStage {
         match (force.phase, edge_rest) {
             // Pulling out opens nothing new; the sweep resumes from where it stopped.
             (CutPhase::Cutting, Some(_)) if withdrawing => {}
-            (CutPhase::Cutting, Some(edge)) => match self.last_sweep {
-                None => self.last_sweep = Some(edge),
-                Some(last) => {
-                    if self.moved_enough(&last, &edge) {
-                        self.sigma.add_sweep(last[0], last[1], edge[0], edge[1]);
-                        self.last_sweep = Some(edge);
+            (CutPhase::Cutting, Some([tip, entry])) => {
+                // Σ reaches a quarter spacing above the surface, so that no pair or surface
+                // vertex near the top sees across it through rounding.
+                let up = (entry - tip).try_normalize(1e-12).unwrap_or_else(Vec3::z);
+                let edge = [tip, entry + up * (0.25 * self.spacing_m)];
+                match self.last_sweep {
+                    None => self.last_sweep = Some(edge),
+                    Some(last) => {
+                        if self.moved_enough(&last, &edge) {
+                            self.sigma.add_sweep(last[0], last[1], edge[0], edge[1]);
+                            self.last_sweep = Some(edge);
+                        }
                     }
                 }
-            },
+            }
             _ => self.last_sweep = None,
         }
         let new_sigma = sigma_before..self.sigma.triangles.len();

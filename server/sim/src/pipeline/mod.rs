@@ -12,10 +12,11 @@
 //! the pipeline reports stage boundaries to a [`StageObserver`] and never reads a clock.
 
 pub mod cutting;
+pub mod incision;
 pub mod script;
 pub mod surface;
 
-use crate::cut::{Blade, ToolPose};
+use crate::cut::{Blade, IncisionParams, ToolPose};
 use crate::force::{CutForce, CutPhase, LocalForceModel};
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
@@ -24,8 +25,11 @@ use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::{Solver, SolverConfig, StepReport};
 
 pub use cutting::{CutTick, CuttingStage};
+pub use incision::{IncisionStats, IncisionTracker};
 pub use script::{CutScript, ScriptError};
 pub use surface::{CurrentSurface, SurfaceContact};
+
+use incision::IncisionInputs;
 
 /// The two halves of a tick that Table 1 of the paper reports separately.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -75,6 +79,7 @@ pub struct Simulation {
     grid: RestGrid,
     surface: CurrentSurface,
     cutting: Option<CuttingStage>,
+    incisions: Option<IncisionTracker>,
     tool: Option<ToolPose>,
     time_s: f64,
     local_model: LocalForceModel,
@@ -103,7 +108,11 @@ impl Simulation {
             // Nothing moves until the tool touches: no point is integrated.
             solver.set_active(&[]);
         }
+        let incisions = spec.features.cutting.then(|| {
+            IncisionTracker::new(model.surface.mean_edge_length(), IncisionParams::default())
+        });
         Self {
+            incisions,
             surface: CurrentSurface::new(model),
             neighbours: model.neighbours.clone(),
             grid: model.grid.clone(),
@@ -159,6 +168,23 @@ impl Simulation {
                 self.surface
                     .cut_embedding(&stage.sigma.triangles[t], self.solver.rest());
             }
+            if let Some(tracker) = &mut self.incisions {
+                let edge = tick
+                    .edge_rest
+                    .filter(|_| tick.force.phase == CutPhase::Cutting);
+                tracker.update(
+                    edge,
+                    stage.direction(),
+                    &mut self.surface,
+                    &IncisionInputs {
+                        rest_points: self.solver.rest(),
+                        grid: &self.grid,
+                        sigma: &stage.sigma.triangles,
+                        op: self.solver.operator(),
+                        positions: self.solver.positions(),
+                    },
+                );
+            }
         }
         let moved = if self.cutting.is_some() {
             self.solver.active_points()
@@ -209,9 +235,9 @@ impl Simulation {
         &self.surface.mesh
     }
 
-    /// The current surface with its contact queries.
-    pub fn current_surface(&mut self) -> &mut CurrentSurface {
-        &mut self.surface
+    /// The current surface with its kinds and embedding.
+    pub fn current_surface(&self) -> &CurrentSurface {
+        &self.surface
     }
 
     /// The solver.
@@ -227,6 +253,16 @@ impl Simulation {
     /// The cutting stage, for scenes that cut.
     pub fn cutting(&self) -> Option<&CuttingStage> {
         self.cutting.as_ref()
+    }
+
+    /// The incisions so far, for scenes that cut.
+    pub fn incisions(&self) -> Option<&IncisionStats> {
+        self.incisions.as_ref().map(|t| &t.stats)
+    }
+
+    /// The incision tracker, for scenes that cut.
+    pub fn incision_tracker(&self) -> Option<&IncisionTracker> {
+        self.incisions.as_ref()
     }
 
     /// The latest local force model for the haptic loop.

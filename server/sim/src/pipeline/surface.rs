@@ -6,9 +6,10 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
-use crate::cut::{Blade, segment_meets_triangle};
+use crate::cut::{Blade, FaceKind, Incised, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
+use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::{Mat3, Vec3};
 use crate::mls::MlsOperator;
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
@@ -75,7 +76,10 @@ impl Rows {
 pub struct CurrentSurface {
     /// Current positions (m) and the triangles.
     pub mesh: TriMesh,
+    /// What each triangle is (skin, wound wall, lid).
+    pub kinds: Vec<FaceKind>,
     rest: Vec<Vec3>,
+    kernel: Kernel,
     bvh: TriangleBvh,
     vertex_triangles: Rows,
     point_vertices: Rows,
@@ -112,6 +116,8 @@ impl CurrentSurface {
         );
         Self {
             bvh: TriangleBvh::build(&mesh),
+            kinds: vec![FaceKind::Skin; mesh.triangles.len()],
+            kernel: model.kernel,
             rest: mesh.positions.clone(),
             vertex_grid: RestGrid::build(&mesh.positions, model.kernel.support_m),
             support_m: model.kernel.support_m,
@@ -219,8 +225,12 @@ impl CurrentSurface {
         self.crossings.clear();
         let mesh = &self.mesh;
         let crossings = &mut self.crossings;
+        let kinds = &self.kinds;
+        // Wound walls are inside the envelope (skin + lids): the blade passes them.
         self.bvh.for_each_overlapping(&lo, &hi, |t| {
-            if let Some((s, bary)) = segment_triangle(&p, &q, &mesh.corners(t)) {
+            if kinds[t] != FaceKind::Wall
+                && let Some((s, bary)) = segment_triangle(&p, &q, &mesh.corners(t))
+            {
                 crossings.push((s, t, bary));
             }
         });
@@ -259,7 +269,9 @@ impl CurrentSurface {
         let hi = x.sup(&far);
         let mut count = 0;
         self.bvh.for_each_overlapping(&lo, &hi, |t| {
-            if segment_triangle(x, &far, &self.mesh.corners(t)).is_some() {
+            if self.kinds[t] != FaceKind::Wall
+                && segment_triangle(x, &far, &self.mesh.corners(t)).is_some()
+            {
                 count += 1;
             }
         });
@@ -273,9 +285,100 @@ impl CurrentSurface {
 
     /// Kernel of the embedding (for callers that need weights consistent with it).
     pub fn kernel(&self) -> Kernel {
-        Kernel {
-            support_m: self.support_m,
+        self.kernel
+    }
+
+    /// The surface in rest space (what incisions are computed on).
+    pub fn rest_mesh(&self) -> TriMesh {
+        TriMesh::new(self.rest.clone(), self.mesh.triangles.clone())
+    }
+
+    /// The drawn surface (skin and wound walls, no lids) at the current positions, with the
+    /// kind of each triangle.
+    pub fn drawn(&self) -> (TriMesh, Vec<FaceKind>) {
+        let (triangles, kinds): (Vec<[u32; 3]>, Vec<FaceKind>) = self
+            .mesh
+            .triangles
+            .iter()
+            .zip(&self.kinds)
+            .filter(|(_, k)| **k != FaceKind::Lid)
+            .map(|(t, k)| (*t, *k))
+            .unzip();
+        (TriMesh::new(self.mesh.positions.clone(), triangles), kinds)
+    }
+
+    /// Replaces the surface by an incised one. `base_to_current[b]` is the current vertex
+    /// that the incision's input vertex b is (vertices keep their embedding); new vertices
+    /// are embedded in the points they see without crossing `sigma`. All vertices are then
+    /// placed in the current field. Returns the map from the incision's input vertices to
+    /// the new vertices.
+    #[allow(clippy::too_many_arguments)]
+    pub fn replace(
+        &mut self,
+        incised: &Incised,
+        base_to_current: &[Option<u32>],
+        rest_points: &[Vec3],
+        grid: &RestGrid,
+        sigma: &[[Vec3; 3]],
+        op: &MlsOperator,
+        p: &[Vec3],
+    ) -> Vec<Option<u32>> {
+        let nv = incised.mesh.positions.len();
+        let mut rows = Vec::with_capacity(nv);
+        let mut base_to_new = vec![None; base_to_current.len()];
+        let reach = 3.5 * self.support_m;
+        for v in 0..nv {
+            let x = incised.mesh.positions[v];
+            let carried = incised.source[v].and_then(|b| {
+                base_to_new[b as usize] = Some(v as u32);
+                base_to_current[b as usize]
+            });
+            rows.push(match carried {
+                Some(c) => self.embedding.row(c as usize),
+                None => {
+                    // Only the cut triangles near this vertex can hide a point from it.
+                    let near: Vec<[Vec3; 3]> = sigma
+                        .iter()
+                        .filter(|t| (closest_point_on_triangle(&x, t) - x).norm() < reach)
+                        .copied()
+                        .collect();
+                    SurfaceEmbedding::row_for(&x, rest_points, grid, &self.kernel, &near)
+                }
+            });
         }
+        self.embedding = SurfaceEmbedding::from_rows(&rows, self.embedding.widened);
+        self.rest = incised.mesh.positions.clone();
+        self.mesh = incised.mesh.clone();
+        self.kinds = incised.kinds.clone();
+        self.rebuild_indices(rest_points.len());
+        let all: Vec<u32> = (0..rest_points.len() as u32).collect();
+        self.follow(op, rest_points, p, &all);
+        self.bvh = TriangleBvh::build(&self.mesh);
+        base_to_new
+    }
+
+    /// Adjacency, grid and scratch sized for the current mesh.
+    fn rebuild_indices(&mut self, points: usize) {
+        let nv = self.mesh.positions.len();
+        self.vertex_triangles = Rows::build(
+            nv,
+            self.mesh
+                .triangles
+                .iter()
+                .enumerate()
+                .flat_map(|(t, tri)| tri.iter().map(move |&v| (v, t as u32))),
+        );
+        let emb = &self.embedding;
+        self.point_vertices = Rows::build(
+            points,
+            (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
+        );
+        self.vertex_grid = RestGrid::build(&self.rest, self.support_m);
+        self.vertex_flag = vec![false; nv];
+        self.vertex_list = Vec::with_capacity(nv);
+        self.triangle_flag = vec![false; self.mesh.triangles.len()];
+        self.triangle_list = Vec::with_capacity(self.mesh.triangles.len());
+        self.bvh = TriangleBvh::build(&self.mesh);
     }
 
     /// Whether vertex `v`'s embedding crosses `cut` (for tests).

@@ -1,0 +1,254 @@
+//! Progressive surface incisions: path sampling, hysteresis and re-runs (physics.md §5.2
+//! step 9).
+//!
+//! While the blade cuts, the entry point (rest space) is sampled every quarter of a local
+//! edge, each sample keeping the deepest tip seen there. The incision of the stroke is
+//! recomputed from the surface as it was when the stroke started, only when the end of the
+//! path has moved more than one edge length since the last run (so the topology is not
+//! edited every tick), and once more when the stroke ends. Parts of the path that run over
+//! an earlier wound (its lid or walls) are left out, so crossing cuts split into separate
+//! incisions on either side of the earlier one.
+
+use serde::Serialize;
+
+use crate::cut::{FaceKind, IncisionError, IncisionParams, PathSample, incise};
+use crate::geometry::TriMesh;
+use crate::geometry::predicates::closest_point_on_triangle;
+use crate::math::Vec3;
+use crate::mls::MlsOperator;
+use crate::model::RestGrid;
+
+use super::surface::CurrentSurface;
+
+/// Figures of the incisions so far.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct IncisionStats {
+    /// Strokes that opened the surface.
+    pub incisions: usize,
+    /// Times an incision was (re)computed.
+    pub runs: usize,
+    /// Runs that were refused (the surface stayed as it was), and the last reason.
+    pub refused: usize,
+    /// Why the last refused run was refused.
+    pub last_refusal: Option<String>,
+    /// Largest lip turn of any incision (degrees).
+    pub lip_max_turn_deg: f64,
+    /// Smallest angle of any remeshed triangle (degrees), 180 before any incision.
+    pub min_angle_deg: f64,
+    /// Largest half-opening (m).
+    pub opening_m: f64,
+    /// Deepest wound wall (m).
+    pub depth_m: f64,
+}
+
+/// The surface at the start of the current stroke.
+struct Base {
+    mesh: TriMesh,
+    kinds: Vec<FaceKind>,
+    /// The current vertex each base vertex is now.
+    to_current: Vec<Option<u32>>,
+}
+
+/// Follows the blade along the surface and keeps the drawn incision up to date.
+pub struct IncisionTracker {
+    params: IncisionParams,
+    sample_step_m: f64,
+    rerun_step_m: f64,
+    base: Option<Base>,
+    samples: Vec<PathSample>,
+    last_run_end: Option<Vec3>,
+    /// The most advanced entry since the last sample, taken as the path's end when the
+    /// stroke finishes between two samples.
+    front: Option<PathSample>,
+    opened_this_stroke: bool,
+    /// Figures so far.
+    pub stats: IncisionStats,
+}
+
+/// What the cutting stage knows that the incision needs.
+pub struct IncisionInputs<'a> {
+    /// Rest positions of the points.
+    pub rest_points: &'a [Vec3],
+    /// Their grid.
+    pub grid: &'a RestGrid,
+    /// The cut surface Σ so far.
+    pub sigma: &'a [[Vec3; 3]],
+    /// The MLS operator (to place new vertices).
+    pub op: &'a MlsOperator,
+    /// Current positions of the points.
+    pub positions: &'a [Vec3],
+}
+
+impl IncisionTracker {
+    /// A tracker for a surface with mean edge length `edge_m`.
+    pub fn new(edge_m: f64, params: IncisionParams) -> Self {
+        Self {
+            params,
+            sample_step_m: 0.25 * edge_m,
+            rerun_step_m: edge_m,
+            base: None,
+            samples: Vec::new(),
+            last_run_end: None,
+            front: None,
+            opened_this_stroke: false,
+            stats: IncisionStats {
+                min_angle_deg: 180.0,
+                ..IncisionStats::default()
+            },
+        }
+    }
+
+    /// One tick: `edge` is the blade's rest-space (tip, entry) while it cuts, `None`
+    /// otherwise; `direction` is the blade's latest motion. Returns whether the surface was
+    /// re-meshed.
+    pub fn update(
+        &mut self,
+        edge: Option<[Vec3; 2]>,
+        direction: Vec3,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
+        let Some([tip, entry]) = edge else {
+            // The stroke ended: settle its incision on the final path.
+            if let (Some(front), Some(last)) = (self.front.take(), self.samples.last())
+                && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
+            {
+                self.samples.push(front);
+            }
+            let rerun = self.samples.len() >= 2
+                && self.last_run_end != self.samples.last().map(|s| s.surface);
+            let changed = rerun && self.run(surface, inputs);
+            self.base = None;
+            self.samples.clear();
+            self.last_run_end = None;
+            self.opened_this_stroke = false;
+            return changed;
+        };
+        if self.base.is_none() {
+            self.base = Some(Base {
+                mesh: surface.rest_mesh(),
+                kinds: surface.kinds.clone(),
+                to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
+            });
+        }
+        match self.samples.last_mut() {
+            Some(last) if (entry - last.surface).norm() < self.sample_step_m => {
+                if (tip - entry).norm() > (last.bottom - last.surface).norm() {
+                    last.bottom = last.surface + (tip - entry);
+                }
+                let step = entry - last.surface;
+                let ahead = step.dot(&direction) >= 0.5 * step.norm();
+                if ahead
+                    && self
+                        .front
+                        .is_none_or(|f| step.norm() > (f.surface - last.surface).norm())
+                {
+                    self.front = Some(PathSample {
+                        surface: entry,
+                        bottom: tip,
+                    });
+                }
+                return false;
+            }
+            // The path goes where the blade goes: an entry point that moved against the
+            // blade (the torn surface around it maps to rest space only roughly while
+            // the blade plunges or drags the tissue) is not a new sample.
+            Some(last)
+                if (entry - last.surface).dot(&direction) < 0.5 * (entry - last.surface).norm() =>
+            {
+                return false;
+            }
+            _ => {
+                self.front = None;
+                self.samples.push(PathSample {
+                    surface: entry,
+                    bottom: tip,
+                });
+            }
+        }
+        let start = self.samples[0].surface;
+        let due = match self.last_run_end {
+            None => (entry - start).norm() >= self.rerun_step_m,
+            Some(end) => (entry - end).norm() >= self.rerun_step_m,
+        };
+        due && self.run(surface, inputs)
+    }
+
+    /// The current stroke's path samples (empty between strokes).
+    pub fn path(&self) -> &[PathSample] {
+        &self.samples
+    }
+
+    /// Recomputes the stroke's incision from the base surface.
+    fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        let Some(base) = &mut self.base else {
+            return false;
+        };
+        self.last_run_end = self.samples.last().map(|s| s.surface);
+        self.stats.runs += 1;
+        // The path over intact skin, split where it crosses earlier wounds.
+        let margin = 0.5 * self.rerun_step_m;
+        let wounds: Vec<[Vec3; 3]> = (0..base.mesh.triangles.len())
+            .filter(|&t| base.kinds[t] != FaceKind::Skin)
+            .map(|t| base.mesh.corners(t))
+            .collect();
+        let mut pieces: Vec<Vec<PathSample>> = vec![Vec::new()];
+        for s in &self.samples {
+            let clear = wounds
+                .iter()
+                .all(|t| (closest_point_on_triangle(&s.surface, t) - s.surface).norm() >= margin);
+            match (clear, pieces.last_mut()) {
+                (true, Some(piece)) => piece.push(*s),
+                (false, Some(piece)) if !piece.is_empty() => pieces.push(Vec::new()),
+                _ => {}
+            }
+        }
+        let mut mesh = base.mesh.clone();
+        let mut kinds = base.kinds.clone();
+        // Composition of the pieces' vertex maps, back to the base.
+        let mut source: Vec<Option<u32>> = (0..mesh.positions.len() as u32).map(Some).collect();
+        let mut last: Option<crate::cut::Incised> = None;
+        for piece in pieces.iter().filter(|p| p.len() >= 2) {
+            match incise(&mesh, &kinds, piece, &self.params) {
+                Ok(out) => {
+                    source = out
+                        .source
+                        .iter()
+                        .map(|s| s.and_then(|v| source[v as usize]))
+                        .collect();
+                    self.stats.lip_max_turn_deg =
+                        self.stats.lip_max_turn_deg.max(out.lip_max_turn_deg);
+                    self.stats.min_angle_deg = self.stats.min_angle_deg.min(out.min_angle_deg);
+                    self.stats.opening_m = self.stats.opening_m.max(out.opening_m);
+                    self.stats.depth_m = self.stats.depth_m.max(out.depth_m);
+                    mesh = out.mesh.clone();
+                    kinds = out.kinds.clone();
+                    last = Some(out);
+                }
+                Err(IncisionError::TooShort { .. }) => {}
+                Err(e) => {
+                    self.stats.refused += 1;
+                    self.stats.last_refusal = Some(e.to_string());
+                }
+            }
+        }
+        let Some(mut out) = last else {
+            return false;
+        };
+        out.source = source;
+        base.to_current = surface.replace(
+            &out,
+            &base.to_current,
+            inputs.rest_points,
+            inputs.grid,
+            inputs.sigma,
+            inputs.op,
+            inputs.positions,
+        );
+        if !self.opened_this_stroke {
+            self.opened_this_stroke = true;
+            self.stats.incisions += 1;
+        }
+        true
+    }
+}
