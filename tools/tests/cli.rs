@@ -278,3 +278,102 @@ fn accuracy_bench_writes_csv_and_plot() {
     let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
 }
+
+/// A short scripted cut on the liver: down 14 mm at 10 mm/s, 20 mm along, back up.
+const SHORT_CUT: &str = r#"
+[[keyframe]]
+t_s = 0.0
+tip_mm = [-10.0, 0.0, 25.0]
+edge = [0.0, 0.0, 1.0]
+
+[[keyframe]]
+t_s = 1.4
+tip_mm = [-10.0, 0.0, 11.0]
+
+[[keyframe]]
+t_s = 3.4
+tip_mm = [10.0, 0.0, 12.0]
+
+[[keyframe]]
+t_s = 4.9
+tip_mm = [10.0, 0.0, 27.0]
+"#;
+
+#[test]
+fn cut_writes_forces_mesh_render_and_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("short.toml");
+    std::fs::write(&script, SHORT_CUT).unwrap();
+    let out = dir.path().join("out");
+    let m = ok_json(&[
+        "cut",
+        "liver",
+        "--script",
+        script.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--mesh-format",
+        "ply",
+        "--json",
+    ]);
+    for key in [
+        "steps",
+        "surface_ms",
+        "internal_ms",
+        "lip_max_turn_deg",
+        "min_angle_deg",
+        "closed",
+        "manifold",
+        "peak_force_n",
+        "steady_force_n",
+        "ripple_n",
+    ] {
+        assert!(m.get(key).is_some(), "metrics lack {key}: {m}");
+    }
+    assert_eq!(m["steps"].as_u64(), Some(4901));
+    assert!(m["surface_ms"]["p50"].as_f64().unwrap() > 0.0);
+    assert!(m["internal_ms"]["p99"].as_f64().unwrap() > 0.0);
+    assert_eq!(m["closed"], true);
+    assert_eq!(m["manifold"], true);
+    assert_eq!(m["incisions"].as_u64(), Some(1));
+    assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
+    // The capsule ruptures at 3 N; about 13 mm deep the blade meets 0.19 N/mm + 0.3 N.
+    let peak = m["peak_force_n"].as_f64().unwrap();
+    assert!((peak - 3.0).abs() < 0.1, "{peak}");
+    let steady = m["steady_force_n"].as_f64().unwrap();
+    let depth_mm = m["steady_depth_mm"].as_f64().unwrap();
+    let want = 0.19 * depth_mm + 0.3;
+    assert!((steady - want).abs() < 0.1 * want, "{steady} vs {want}");
+    // Every file is there and readable.
+    let csv = std::fs::read_to_string(out.join("force.csv")).unwrap();
+    assert!(csv.starts_with("t_s,tip_x_mm"));
+    assert_eq!(csv.lines().count(), 4902);
+    for png in ["force.png", "incision.png"] {
+        let bytes = std::fs::read(out.join(png)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{png}");
+    }
+    let mesh = reimport(&out.join("incision.ply"));
+    assert!(mesh.mesh.triangles.len() > 508);
+    let metrics: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(metrics, m);
+}
+
+#[test]
+fn cut_refuses_scenes_that_do_not_cut_and_bad_scripts() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let e = fails(&["cut", "block", "--out", out.to_str().unwrap()]);
+    assert!(e.contains("does not cut"), "{e}");
+    let script = dir.path().join("bad.toml");
+    std::fs::write(&script, "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\n").unwrap();
+    let e = fails(&[
+        "cut",
+        "liver",
+        "--script",
+        script.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(e.contains("bad.toml") && e.contains("at least 2"), "{e}");
+}

@@ -400,11 +400,15 @@ pub fn incise(
     let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
 
     // Region R: skin facing n̄ within reach of the opening, plus its one-ring.
-    let facing = |t: usize| {
+    // Triangles under the opening may be steep; the ring around them must face n̄ well, or
+    // their angles would change a lot between the projection and the surface.
+    let facing_at = |t: usize, min_cos: f64| {
         mesh.doubled_area_normal(t)
             .try_normalize(1e-300)
-            .is_some_and(|n| n.dot(&n_bar) > 0.2)
+            .is_some_and(|n| n.dot(&n_bar) > min_cos)
     };
+    let facing = |t: usize| facing_at(t, 0.2);
+    let facing_well = |t: usize| facing_at(t, 0.6);
     let tri2 = |t: usize| mesh.triangles[t].map(|v| frame.project(&mesh.positions[v as usize]));
     let touch = w_wanted + 0.1 * edge;
     let mut in_region = vec![false; mesh.triangles.len()];
@@ -427,194 +431,345 @@ pub fn incise(
         return Err(IncisionError::NoRegion);
     }
     for &t in &candidates {
-        if !in_region[t] && facing(t) && mesh.triangles[t].iter().any(|v| core_vertices.contains(v))
+        if !in_region[t]
+            && facing_well(t)
+            && mesh.triangles[t].iter().any(|v| core_vertices.contains(v))
         {
             in_region[t] = true;
         }
     }
-    let region: Vec<usize> = (0..mesh.triangles.len())
-        .filter(|&t| in_region[t])
-        .collect();
+    // The triangle on the other side of each directed edge.
+    let mut edge_owner: HashMap<(u32, u32), usize> = HashMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if kinds[t] == FaceKind::Skin {
+            for k in 0..3 {
+                edge_owner.insert((tri[k], tri[(k + 1) % 3]), t);
+            }
+        }
+    }
+    // R grows where the refinement had to split its boundary (the triangles beyond would
+    // be split into slivers), and is triangulated again; a few times at most.
+    let mut grown = in_region;
+    let mut attempt = 0;
+    let (
+        in_region,
+        region,
+        boundary,
+        boundary2,
+        interior,
+        upper,
+        lower,
+        lens,
+        w_o,
+        m,
+        cdt,
+        cdt_to_mesh,
+        upper_handles,
+        lower_handles,
+        result,
+    ) = loop {
+        let in_region = grown.clone();
+        let region: Vec<usize> = (0..mesh.triangles.len())
+            .filter(|&t| in_region[t])
+            .collect();
 
-    // Boundary of R: directed edges of R whose twin is not in R; one loop for a disk.
-    let mut directed: HashSet<(u32, u32)> = HashSet::new();
-    for &t in &region {
-        let tri = mesh.triangles[t];
-        for k in 0..3 {
-            directed.insert((tri[k], tri[(k + 1) % 3]));
+        // Boundary of R: directed edges of R whose twin is not in R; one loop for a disk.
+        let mut directed: HashSet<(u32, u32)> = HashSet::new();
+        for &t in &region {
+            let tri = mesh.triangles[t];
+            for k in 0..3 {
+                directed.insert((tri[k], tri[(k + 1) % 3]));
+            }
         }
-    }
-    let mut next: HashMap<u32, u32> = HashMap::new();
-    let mut pinched = false;
-    for &(a, b) in &directed {
-        if !directed.contains(&(b, a)) && next.insert(a, b).is_some() {
-            pinched = true;
+        let mut next: HashMap<u32, u32> = HashMap::new();
+        let mut pinched = false;
+        for &(a, b) in &directed {
+            if !directed.contains(&(b, a)) && next.insert(a, b).is_some() {
+                pinched = true;
+            }
         }
-    }
-    let mut loops = Vec::new();
-    let mut seen: HashSet<u32> = HashSet::new();
-    let mut starts: Vec<u32> = next.keys().copied().collect();
-    starts.sort_unstable();
-    for start in starts {
-        if seen.contains(&start) {
+        let mut loops = Vec::new();
+        let mut seen: HashSet<u32> = HashSet::new();
+        let mut starts: Vec<u32> = next.keys().copied().collect();
+        starts.sort_unstable();
+        for start in starts {
+            if seen.contains(&start) {
+                continue;
+            }
+            let mut lp = vec![start];
+            seen.insert(start);
+            let mut at = next[&start];
+            while at != start {
+                if !seen.insert(at) || lp.len() > next.len() {
+                    pinched = true;
+                    break;
+                }
+                lp.push(at);
+                match next.get(&at) {
+                    Some(&n) => at = n,
+                    None => {
+                        pinched = true;
+                        break;
+                    }
+                }
+            }
+            loops.push(lp);
+        }
+        if pinched || loops.len() != 1 {
+            return Err(IncisionError::NotDisk {
+                loops: loops.len(),
+                pinched,
+            });
+        }
+        let boundary = loops.pop().unwrap_or_default();
+        let on_boundary: HashSet<u32> = boundary.iter().copied().collect();
+        let boundary2: Vec<[f64; 2]> = boundary
+            .iter()
+            .map(|&v| frame.project(&mesh.positions[v as usize]))
+            .collect();
+        // The whole path must lie inside R, with room for the lips.
+        if path2
+            .points
+            .iter()
+            .any(|&p| !point_in_polygon(&boundary2, p))
+        {
+            return Err(IncisionError::PathOutsideRegion);
+        }
+        let margin = (0..boundary2.len())
+            .flat_map(|i| {
+                let (a, b) = (boundary2[i], boundary2[(i + 1) % boundary2.len()]);
+                path2
+                    .points
+                    .windows(2)
+                    .map(move |w| {
+                        // Segment–segment distance via endpoint distances (no crossing: the path
+                        // is inside R).
+                        dist_sq_point_segment_2d(w[0], a, b)
+                            .min(dist_sq_point_segment_2d(w[1], a, b))
+                            .min(dist_sq_point_segment_2d(a, w[0], w[1]))
+                            .min(dist_sq_point_segment_2d(b, w[0], w[1]))
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .fold(f64::INFINITY, f64::min)
+            .sqrt();
+        let w_o = w_wanted.min(0.45 * margin).max(0.0);
+
+        // Lips.
+        // At least eight segments per lip, so that even a short lip turns smoothly.
+        // Lip segments no longer than three quarters of the depth either: the walls below are
+        // gridded at the lips' spacing with rows about as tall, and a shallow wall under long
+        // segments would be all slivers.
+        let lip_step = spacing.min((0.75 * depth_max).max(0.25 * spacing));
+        let m = ((length / lip_step).ceil() as usize).clamp(8, 400);
+        let mut centre = Vec::with_capacity(m + 1);
+        let mut upper = Vec::with_capacity(m + 1);
+        let mut lower = Vec::with_capacity(m + 1);
+        let mut across = Vec::with_capacity(m + 1);
+        for r in 0..=m {
+            let u = length * r as f64 / m as f64;
+            let c = path2.at(u);
+            let tau = path2.tangent(u, 0.5 * spacing);
+            let nu = [-tau[1], tau[0]];
+            let x = u / length;
+            let w = 4.0 * w_o * x * (1.0 - x);
+            centre.push(c);
+            upper.push([c[0] + w * nu[0], c[1] + w * nu[1]]);
+            lower.push([c[0] - w * nu[0], c[1] - w * nu[1]]);
+            across.push(nu);
+        }
+        let mut lens: Vec<[f64; 2]> = upper.clone();
+        lens.extend(lower[1..m].iter().rev());
+        let near_lens = |p: [f64; 2]| {
+            point_in_polygon(&lens, p)
+                || (0..lens.len()).any(|i| {
+                    dist_sq_point_segment_2d(p, lens[i], lens[(i + 1) % lens.len()])
+                        < 0.25 * spacing * spacing
+                })
+        };
+
+        // Constrained triangulation of R with the lips.
+        let mut cdt = Cdt::new();
+        let mut cdt_to_mesh: HashMap<usize, u32> = HashMap::new();
+        let insert = |cdt: &mut Cdt, p: [f64; 2]| {
+            cdt.insert(V2(Point2::new(p[0], p[1])))
+                .map_err(|e| IncisionError::Triangulation(format!("{e:?}")))
+        };
+        let mut boundary_handles = Vec::with_capacity(boundary.len());
+        for (k, &v) in boundary.iter().enumerate() {
+            let h = insert(&mut cdt, boundary2[k])?;
+            cdt_to_mesh.insert(h.index(), v);
+            boundary_handles.push(h);
+        }
+        let region_vertices: HashSet<u32> =
+            region.iter().flat_map(|&t| mesh.triangles[t]).collect();
+        let mut interior: Vec<u32> = region_vertices
+            .iter()
+            .copied()
+            .filter(|v| !on_boundary.contains(v))
+            .collect();
+        interior.sort_unstable();
+        for &v in &interior {
+            let p = frame.project(&mesh.positions[v as usize]);
+            if !near_lens(p) {
+                let h = insert(&mut cdt, p)?;
+                cdt_to_mesh.insert(h.index(), v);
+            }
+        }
+        let mut upper_handles = Vec::with_capacity(m + 1);
+        let mut lower_handles = Vec::with_capacity(m + 1);
+        for r in 0..=m {
+            let hu = insert(&mut cdt, upper[r])?;
+            upper_handles.push(hu);
+            if r == 0 || r == m {
+                lower_handles.push(hu);
+            } else {
+                lower_handles.push(insert(&mut cdt, lower[r])?);
+            }
+        }
+        let constrain = |cdt: &mut Cdt, a, b| {
+            if cdt.can_add_constraint(a, b) {
+                cdt.add_constraint(a, b);
+                Ok(())
+            } else {
+                Err(IncisionError::Triangulation(
+                    "a lip crosses the region boundary".into(),
+                ))
+            }
+        };
+        for k in 0..boundary_handles.len() {
+            let (a, b) = (
+                boundary_handles[k],
+                boundary_handles[(k + 1) % boundary_handles.len()],
+            );
+            constrain(&mut cdt, a, b)?;
+        }
+        for r in 0..m {
+            constrain(&mut cdt, upper_handles[r], upper_handles[r + 1])?;
+            constrain(&mut cdt, lower_handles[r], lower_handles[r + 1])?;
+        }
+        // Ruppert/Chew refinement. Constraint edges may be split (the lips and R's boundary
+        // get extra vertices on them): with them locked, skinny triangles next to them could not
+        // be repaired. Splits of R's boundary are carried into the triangles outside R below.
+        let before = cdt.num_vertices();
+        let result = cdt.refine(
+            RefinementParameters::<f64>::new()
+                .with_angle_limit(AngleLimit::from_deg(params.refine_angle_deg))
+                .exclude_outer_faces(true)
+                .with_max_additional_vertices(20 * before + 100),
+        );
+        if !result.refinement_complete {
+            return Err(IncisionError::Triangulation(
+                "refinement ran out of Steiner points".into(),
+            ));
+        }
+        let scale = edge.max(length);
+        let tol2 = (1e-9 * scale).powi(2);
+        let mut split: Vec<usize> = Vec::new();
+        for vh in cdt.fixed_vertices() {
+            if cdt_to_mesh.contains_key(&vh.index()) {
+                continue;
+            }
+            let p = cdt.vertex(vh).position();
+            for k in 0..boundary2.len() {
+                let (a, b) = (boundary2[k], boundary2[(k + 1) % boundary2.len()]);
+                if dist_sq_point_segment_2d([p.x, p.y], a, b) < tol2 {
+                    split.push(k);
+                }
+            }
+        }
+        let mut grew = false;
+        if attempt < 3 {
+            for &k in &split {
+                let (a, b) = (boundary[k], boundary[(k + 1) % boundary.len()]);
+                if let Some(&t) = edge_owner.get(&(b, a))
+                    && !grown[t]
+                    && facing_well(t)
+                {
+                    grown[t] = true;
+                    grew = true;
+                }
+            }
+        }
+        attempt += 1;
+        if grew {
             continue;
         }
-        let mut lp = vec![start];
-        seen.insert(start);
-        let mut at = next[&start];
-        while at != start {
-            if !seen.insert(at) || lp.len() > next.len() {
-                pinched = true;
+        break (
+            in_region,
+            region,
+            boundary,
+            boundary2,
+            interior,
+            upper,
+            lower,
+            lens,
+            w_o,
+            m,
+            cdt,
+            cdt_to_mesh,
+            upper_handles,
+            lower_handles,
+            result,
+        );
+    };
+    let excluded: HashSet<_> = result.excluded_faces.iter().copied().collect();
+
+    // Which input segment each new vertex was put on (boundary k, upper lip r, lower lip r),
+    // with its parameter along the segment.
+    #[derive(Clone, Copy)]
+    enum On {
+        Boundary(usize),
+        Upper(usize),
+        Lower(usize),
+    }
+    let tol2 = (1e-9 * edge.max(length)).powi(2);
+    let lip_seg = |lip: &[[f64; 2]], r: usize| (lip[r], lip[r + 1]);
+    let mut on_segment: HashMap<usize, (On, f64)> = HashMap::new();
+    let known: HashSet<usize> = cdt_to_mesh
+        .keys()
+        .copied()
+        .chain(upper_handles.iter().map(|h| h.index()))
+        .chain(lower_handles.iter().map(|h| h.index()))
+        .collect();
+    for vh in cdt.fixed_vertices() {
+        if known.contains(&vh.index()) {
+            continue;
+        }
+        let p = cdt.vertex(vh).position();
+        let q = [p.x, p.y];
+        let param = |a: [f64; 2], b: [f64; 2]| {
+            let ab = sub2(b, a);
+            let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+            let aq = sub2(q, a);
+            (aq[0] * ab[0] + aq[1] * ab[1]) / len2
+        };
+        let mut found = None;
+        for k in 0..boundary2.len() {
+            let (a, b) = (boundary2[k], boundary2[(k + 1) % boundary2.len()]);
+            if dist_sq_point_segment_2d(q, a, b) < tol2 {
+                found = Some((On::Boundary(k), param(a, b)));
                 break;
             }
-            lp.push(at);
-            match next.get(&at) {
-                Some(&n) => at = n,
-                None => {
-                    pinched = true;
+        }
+        if found.is_none() {
+            for r in 0..m {
+                let (a, b) = lip_seg(&upper, r);
+                if dist_sq_point_segment_2d(q, a, b) < tol2 {
+                    found = Some((On::Upper(r), param(a, b)));
+                    break;
+                }
+                let (a, b) = lip_seg(&lower, r);
+                if dist_sq_point_segment_2d(q, a, b) < tol2 {
+                    found = Some((On::Lower(r), param(a, b)));
                     break;
                 }
             }
         }
-        loops.push(lp);
-    }
-    if pinched || loops.len() != 1 {
-        return Err(IncisionError::NotDisk {
-            loops: loops.len(),
-            pinched,
-        });
-    }
-    let boundary = loops.pop().unwrap_or_default();
-    let on_boundary: HashSet<u32> = boundary.iter().copied().collect();
-    let boundary2: Vec<[f64; 2]> = boundary
-        .iter()
-        .map(|&v| frame.project(&mesh.positions[v as usize]))
-        .collect();
-    // The whole path must lie inside R, with room for the lips.
-    if path2
-        .points
-        .iter()
-        .any(|&p| !point_in_polygon(&boundary2, p))
-    {
-        return Err(IncisionError::PathOutsideRegion);
-    }
-    let margin = (0..boundary2.len())
-        .flat_map(|i| {
-            let (a, b) = (boundary2[i], boundary2[(i + 1) % boundary2.len()]);
-            path2
-                .points
-                .windows(2)
-                .map(move |w| {
-                    // Segment–segment distance via endpoint distances (no crossing: the path
-                    // is inside R).
-                    dist_sq_point_segment_2d(w[0], a, b)
-                        .min(dist_sq_point_segment_2d(w[1], a, b))
-                        .min(dist_sq_point_segment_2d(a, w[0], w[1]))
-                        .min(dist_sq_point_segment_2d(b, w[0], w[1]))
-                })
-                .collect::<Vec<_>>()
-        })
-        .fold(f64::INFINITY, f64::min)
-        .sqrt();
-    let w_o = w_wanted.min(0.45 * margin).max(0.0);
-
-    // Lips.
-    // At least eight segments per lip, so that even a short lip turns smoothly.
-    let m = ((length / spacing).ceil() as usize).clamp(8, 400);
-    let mut centre = Vec::with_capacity(m + 1);
-    let mut upper = Vec::with_capacity(m + 1);
-    let mut lower = Vec::with_capacity(m + 1);
-    let mut across = Vec::with_capacity(m + 1);
-    for r in 0..=m {
-        let u = length * r as f64 / m as f64;
-        let c = path2.at(u);
-        let tau = path2.tangent(u, 0.5 * spacing);
-        let nu = [-tau[1], tau[0]];
-        let x = u / length;
-        let w = 4.0 * w_o * x * (1.0 - x);
-        centre.push(c);
-        upper.push([c[0] + w * nu[0], c[1] + w * nu[1]]);
-        lower.push([c[0] - w * nu[0], c[1] - w * nu[1]]);
-        across.push(nu);
-    }
-    let mut lens: Vec<[f64; 2]> = upper.clone();
-    lens.extend(lower[1..m].iter().rev());
-    let near_lens = |p: [f64; 2]| {
-        point_in_polygon(&lens, p)
-            || (0..lens.len()).any(|i| {
-                dist_sq_point_segment_2d(p, lens[i], lens[(i + 1) % lens.len()])
-                    < 0.25 * spacing * spacing
-            })
-    };
-
-    // Constrained triangulation of R with the lips.
-    let mut cdt = Cdt::new();
-    let mut cdt_to_mesh: HashMap<usize, u32> = HashMap::new();
-    let insert = |cdt: &mut Cdt, p: [f64; 2]| {
-        cdt.insert(V2(Point2::new(p[0], p[1])))
-            .map_err(|e| IncisionError::Triangulation(format!("{e:?}")))
-    };
-    let mut boundary_handles = Vec::with_capacity(boundary.len());
-    for (k, &v) in boundary.iter().enumerate() {
-        let h = insert(&mut cdt, boundary2[k])?;
-        cdt_to_mesh.insert(h.index(), v);
-        boundary_handles.push(h);
-    }
-    let region_vertices: HashSet<u32> = region.iter().flat_map(|&t| mesh.triangles[t]).collect();
-    let mut interior: Vec<u32> = region_vertices
-        .iter()
-        .copied()
-        .filter(|v| !on_boundary.contains(v))
-        .collect();
-    interior.sort_unstable();
-    for &v in &interior {
-        let p = frame.project(&mesh.positions[v as usize]);
-        if !near_lens(p) {
-            let h = insert(&mut cdt, p)?;
-            cdt_to_mesh.insert(h.index(), v);
+        if let Some(f) = found {
+            on_segment.insert(vh.index(), f);
         }
     }
-    let mut upper_handles = Vec::with_capacity(m + 1);
-    let mut lower_handles = Vec::with_capacity(m + 1);
-    for r in 0..=m {
-        let hu = insert(&mut cdt, upper[r])?;
-        upper_handles.push(hu);
-        if r == 0 || r == m {
-            lower_handles.push(hu);
-        } else {
-            lower_handles.push(insert(&mut cdt, lower[r])?);
-        }
-    }
-    let constrain = |cdt: &mut Cdt, a, b| {
-        if cdt.can_add_constraint(a, b) {
-            cdt.add_constraint(a, b);
-            Ok(())
-        } else {
-            Err(IncisionError::Triangulation(
-                "a lip crosses the region boundary".into(),
-            ))
-        }
-    };
-    for k in 0..boundary_handles.len() {
-        let (a, b) = (
-            boundary_handles[k],
-            boundary_handles[(k + 1) % boundary_handles.len()],
-        );
-        constrain(&mut cdt, a, b)?;
-    }
-    for r in 0..m {
-        constrain(&mut cdt, upper_handles[r], upper_handles[r + 1])?;
-        constrain(&mut cdt, lower_handles[r], lower_handles[r + 1])?;
-    }
-    let before = cdt.num_vertices();
-    let result = cdt.refine(
-        RefinementParameters::<f64>::new()
-            .with_angle_limit(AngleLimit::from_deg(params.refine_angle_deg))
-            .keep_constraint_edges()
-            .exclude_outer_faces(true)
-            .with_max_additional_vertices(20 * before + 100),
-    );
-    let excluded: HashSet<_> = result.excluded_faces.iter().copied().collect();
 
     // New vertices: everything the triangulation has that the mesh does not, lifted.
     let region2: Vec<([[f64; 2]; 3], usize)> = region.iter().map(|&t| (tri2(t), t)).collect();
@@ -640,10 +795,11 @@ pub fn incise(
     };
 
     // Output vertices: the input's, minus the interior vertices of R that were dropped.
+    let kept: HashSet<u32> = cdt_to_mesh.values().copied().collect();
     let dropped: HashSet<u32> = interior
         .iter()
         .copied()
-        .filter(|v| !cdt_to_mesh.values().any(|w| w == v))
+        .filter(|v| !kept.contains(v))
         .collect();
     let mut remap = vec![u32::MAX; mesh.positions.len()];
     let mut positions = Vec::with_capacity(mesh.positions.len() + 64);
@@ -661,7 +817,17 @@ pub fn incise(
             Some(&v) => remap[v as usize],
             None => {
                 let p = cdt.vertex(vh).data().0;
-                positions.push(lift([p.x, p.y]));
+                let x = match on_segment.get(&vh.index()) {
+                    // On R's boundary: exactly on the original edge, so the triangle outside
+                    // R that shares the edge can be split without a crack.
+                    Some(&(On::Boundary(k), t)) => {
+                        let a = mesh.positions[boundary[k] as usize];
+                        let b = mesh.positions[boundary[(k + 1) % boundary.len()] as usize];
+                        a + (b - a) * t.clamp(0.0, 1.0)
+                    }
+                    _ => lift([p.x, p.y]),
+                };
+                positions.push(x);
                 source.push(None);
                 (positions.len() - 1) as u32
             }
@@ -669,15 +835,84 @@ pub fn incise(
         cdt_vertex.insert(vh.index(), id);
     }
 
+    // Vertices put on R's boundary edges, in order along each edge.
+    let mut boundary_inserts: HashMap<usize, Vec<(f64, u32)>> = HashMap::new();
+    let mut upper_inserts: HashMap<usize, Vec<(f64, u32)>> = HashMap::new();
+    let mut lower_inserts: HashMap<usize, Vec<(f64, u32)>> = HashMap::new();
+    for (&h, &(on, t)) in &on_segment {
+        let id = cdt_vertex[&h];
+        let (map, key) = match on {
+            On::Boundary(k) => (&mut boundary_inserts, k),
+            On::Upper(r) => (&mut upper_inserts, r),
+            On::Lower(r) => (&mut lower_inserts, r),
+        };
+        map.entry(key).or_default().push((t, id));
+    }
+    for list in boundary_inserts
+        .values_mut()
+        .chain(upper_inserts.values_mut())
+        .chain(lower_inserts.values_mut())
+    {
+        list.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+
     let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(mesh.triangles.len() + 256);
     let mut out_kinds = Vec::with_capacity(mesh.triangles.len() + 256);
+    let mut created = Vec::new();
+    // Triangles outside R: unchanged, unless R's boundary edge they share was split.
+    let mut split_of: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+    for (&k, list) in &boundary_inserts {
+        let (a, b) = (boundary[k], boundary[(k + 1) % boundary.len()]);
+        // The outside triangle runs the edge from b to a.
+        split_of.insert((b, a), list.iter().rev().map(|&(_, id)| id).collect());
+    }
     for (t, tri) in mesh.triangles.iter().enumerate() {
-        if !in_region[t] {
-            triangles.push(tri.map(|v| remap[v as usize]));
+        if in_region[t] {
+            continue;
+        }
+        let splits: [Vec<u32>; 3] = std::array::from_fn(|e| {
+            split_of
+                .get(&(tri[e], tri[(e + 1) % 3]))
+                .cloned()
+                .unwrap_or_default()
+        });
+        let corners = tri.map(|v| remap[v as usize]);
+        let split_edges = splits.iter().filter(|s| !s.is_empty()).count();
+        if split_edges == 0 {
+            triangles.push(corners);
+            out_kinds.push(kinds[t]);
+            continue;
+        }
+        // The polygon around the triangle with the new vertices on its edges.
+        let mut ring = Vec::new();
+        for e in 0..3 {
+            ring.push(corners[e]);
+            ring.extend(splits[e].iter().copied());
+        }
+        let fan: Vec<[u32; 3]> = if split_edges == 1 {
+            // Fan from the corner opposite the split edge.
+            let e = (0..3).find(|&e| !splits[e].is_empty()).unwrap_or(0);
+            let apex = corners[(e + 2) % 3];
+            let mut chain = vec![corners[e]];
+            chain.extend(splits[e].iter().copied());
+            chain.push(corners[(e + 1) % 3]);
+            chain.windows(2).map(|w| [w[0], w[1], apex]).collect()
+        } else {
+            // Fan from a new vertex at the centroid.
+            let [pa, pb, pc] = corners.map(|v| positions[v as usize]);
+            positions.push((pa + pb + pc) / 3.0);
+            source.push(None);
+            let c = (positions.len() - 1) as u32;
+            (0..ring.len())
+                .map(|i| [ring[i], ring[(i + 1) % ring.len()], c])
+                .collect()
+        };
+        for f in fan {
+            created.push(triangles.len() as u32);
+            triangles.push(f);
             out_kinds.push(kinds[t]);
         }
     }
-    let mut created = Vec::new();
     for face in cdt.inner_faces() {
         let vs = face.vertices();
         let p = vs.map(|v| v.position());
@@ -697,21 +932,27 @@ pub fn incise(
         triangles.push(vs.map(|v| cdt_vertex[&v.fix().index()]));
         out_kinds.push(kind);
     }
-    if !result.refinement_complete {
-        return Err(IncisionError::Triangulation(
-            "refinement ran out of Steiner points".into(),
-        ));
-    }
 
-    // Wound walls.
-    let upper_ids: Vec<u32> = upper_handles
-        .iter()
-        .map(|h| cdt_vertex[&h.index()])
-        .collect();
-    let lower_ids: Vec<u32> = lower_handles
-        .iter()
-        .map(|h| cdt_vertex[&h.index()])
-        .collect();
+    // The lips as refined: (parameter along the lip in [0, 1], vertex).
+    let chain = |handles: &[spade::handles::FixedVertexHandle],
+                 inserts: &HashMap<usize, Vec<(f64, u32)>>| {
+        let mut out = Vec::new();
+        for r in 0..=m {
+            out.push((r as f64 / m as f64, cdt_vertex[&handles[r].index()]));
+            if r < m
+                && let Some(list) = inserts.get(&r)
+            {
+                out.extend(list.iter().map(|&(t, id)| ((r as f64 + t) / m as f64, id)));
+            }
+        }
+        out
+    };
+    let upper_chain = chain(&upper_handles, &upper_inserts);
+    let lower_chain = chain(&lower_handles, &lower_inserts);
+
+    // Wound walls: from each lip down to the bottom curve (the blade tip's track), meeting
+    // at the bottom and at both ends. Rows below the lip are sampled at every parameter of
+    // either lip, so the two walls share the bottom row and the end columns exactly.
     let sample_arc: Vec<f64> = path2.arc.clone();
     let bottom_at = |u: f64| -> Vec3 {
         let i = sample_arc
@@ -730,40 +971,62 @@ pub fn incise(
         let d1 = s1.bottom - s1.surface;
         d0 * (1.0 - f) + d1 * f
     };
+    // Columns below the lips: evenly spaced, as many as the denser lip has vertices.
+    let n_cols = upper_chain.len().max(lower_chain.len());
+    let params_all: Vec<f64> = (0..n_cols)
+        .map(|c| c as f64 / (n_cols - 1) as f64)
+        .collect();
     let min_depth = 0.5 * spacing;
     let other_skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && !in_region[t])
         .collect();
-    let mut tops = Vec::with_capacity(m + 1);
-    let mut bottoms = Vec::with_capacity(m + 1);
+    // Centre line and bottom at every parameter.
+    let mut bottoms = Vec::with_capacity(params_all.len());
     let mut depth_max_out: f64 = 0.0;
-    for r in 0..=m {
-        let u = length * r as f64 / m as f64;
-        let top = lift(centre[r]);
-        let mut d = bottom_at(u);
-        let mut depth = d.norm();
-        let dir = if depth > 1e-9 { d / depth } else { -n_bar };
-        depth = depth.max(min_depth);
+    for &tp in &params_all {
+        let u = tp * length;
+        let top = lift(path2.at(u));
+        let d = bottom_at(u);
+        let depth = d.norm();
+        // Columns go straight into the tissue: along the inward surface normal (smoothed
+        // over the region near the path), square to the path, so that the wall's cells stay
+        // rectangles where the surface slopes along the cut. The blade's own track sets the
+        // depth.
+        let delta = 0.5 * spacing;
+        let tangent =
+            lift(path2.at((u + delta).min(length))) - lift(path2.at((u - delta).max(0.0)));
+        let mut normal = Vec3::zeros();
+        for &t in &region {
+            let [a, b, c] = mesh.corners(t);
+            if ((a + b + c) / 3.0 - top).norm() < edge {
+                normal += mesh.doubled_area_normal(t);
+            }
+        }
+        let inward = -normal.try_normalize(1e-300).unwrap_or(n_bar);
+        let dir = tangent
+            .try_normalize(1e-300)
+            .and_then(|t| (inward - t * inward.dot(&t)).try_normalize(1e-9))
+            .unwrap_or(inward);
+        let mut depth = depth.max(min_depth);
         // A thin part: stop the wall short of the far side of the organ.
         if let Some(hit) = first_hit(mesh, &other_skin, &top, &dir, depth + spacing) {
             depth = depth.min(0.7 * hit);
         }
-        d = dir * depth;
         depth_max_out = depth_max_out.max(depth);
-        tops.push(top);
-        bottoms.push(top + d);
+        bottoms.push(top + dir * depth);
     }
-    // Rows about as tall as the columns are wide: near-square cells.
-    let column = length / m as f64;
-    let rows = ((depth_max_out / column).round() as usize).clamp(1, 64);
+    let column = length / (params_all.len() - 1).max(1) as f64;
+    // At least two rows: with one, the row under the lips would be the shared bottom row,
+    // and both walls would fan the same triangles from the shared end vertices.
+    let rows = ((depth_max_out / column.max(spacing / 4.0)).round() as usize).clamp(2, 64);
     let push = |p: Vec3, positions: &mut Vec<Vec3>, source: &mut Vec<Option<u32>>| {
         positions.push(p);
         source.push(None);
         (positions.len() - 1) as u32
     };
-    // End columns (shared by both walls) and the bottom row (shared).
-    let a_id = upper_ids[0];
-    let b_id = upper_ids[m];
+    let a_id = upper_chain[0].1;
+    let b_id = upper_chain[upper_chain.len() - 1].1;
+    // Shared: the end columns (rows 1..=rows) and the bottom row.
     let mut end0 = vec![a_id];
     let mut end1 = vec![b_id];
     for j in 1..=rows {
@@ -774,58 +1037,112 @@ pub fn incise(
             &mut source,
         ));
         end1.push(push(
-            positions[b_id as usize] * (1.0 - f) + bottoms[m] * f,
+            positions[b_id as usize] * (1.0 - f) + bottoms[n_cols - 1] * f,
             &mut positions,
             &mut source,
         ));
     }
     let mut bottom_ids = vec![end0[rows]];
-    for r in 1..m {
-        bottom_ids.push(push(bottoms[r], &mut positions, &mut source));
+    for c in 1..n_cols - 1 {
+        bottom_ids.push(push(bottoms[c], &mut positions, &mut source));
     }
     bottom_ids.push(end1[rows]);
-    for (lip_ids, side) in [(&upper_ids, 1.0), (&lower_ids, -1.0)] {
-        // Grid of this wall: column r, row j.
-        let mut grid = vec![vec![0u32; rows + 1]; m + 1];
-        for r in 0..=m {
-            for j in 0..=rows {
-                grid[r][j] = if r == 0 {
+    for (lip, side) in [(&upper_chain, 1.0), (&lower_chain, -1.0)] {
+        // The lip's position at any parameter (on its refined polyline).
+        let lip_at = |tp: f64, positions: &[Vec3]| -> Vec3 {
+            let i = lip
+                .partition_point(|&(t, _)| t <= tp)
+                .clamp(1, lip.len() - 1)
+                - 1;
+            let (t0, v0) = lip[i];
+            let (t1, v1) = lip[i + 1];
+            let f = if t1 > t0 {
+                ((tp - t0) / (t1 - t0)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            positions[v0 as usize] * (1.0 - f) + positions[v1 as usize] * f
+        };
+        // grid[j][c]: row j ≥ 1 at every parameter.
+        let mut grid = vec![vec![0u32; n_cols]; rows + 1];
+        for j in 1..=rows {
+            for c in 0..n_cols {
+                grid[j][c] = if c == 0 {
                     end0[j]
-                } else if r == m {
+                } else if c == n_cols - 1 {
                     end1[j]
-                } else if j == 0 {
-                    lip_ids[r]
                 } else if j == rows {
-                    bottom_ids[r]
+                    bottom_ids[c]
                 } else {
                     let f = j as f64 / rows as f64;
-                    let top = positions[lip_ids[r] as usize];
+                    let top = lip_at(params_all[c], &positions);
                     push(
-                        top * (1.0 - f) + bottoms[r] * f,
+                        top * (1.0 - f) + bottoms[c] * f,
                         &mut positions,
                         &mut source,
                     )
                 };
             }
         }
-        for r in 0..m {
+        let mut emit = |tri: [u32; 3], c: usize, positions: &[Vec3]| {
             // The wall faces the gap: its outward normal points away from its own side.
-            let nu = frame.lift_direction(across[r]) + frame.lift_direction(across[r + 1]);
-            let outward = -nu * side;
-            for j in 0..rows {
+            let u = params_all[c.min(n_cols - 1)] * length;
+            let tau = path2.tangent(u, 0.5 * spacing);
+            let outward = -frame.lift_direction([-tau[1], tau[0]]) * side;
+            let q = tri.map(|v| positions[v as usize]);
+            let n = (q[1] - q[0]).cross(&(q[2] - q[0]));
+            let tri = if n.dot(&outward) < 0.0 {
+                [tri[0], tri[2], tri[1]]
+            } else {
+                tri
+            };
+            created.push(triangles.len() as u32);
+            triangles.push(tri);
+            out_kinds.push(FaceKind::Wall);
+        };
+        // Between the lip and row 1: zip the two polylines together by parameter.
+        let (mut i, mut k) = (0, 0);
+        while i + 1 < lip.len() || k + 1 < n_cols {
+            // Take the step that makes the better-shaped triangle.
+            let advance_lip = if i + 1 == lip.len() {
+                false
+            } else if k + 1 == n_cols {
+                true
+            } else if (lip[i + 1].0 - params_all[k + 1]).abs() > 0.5 / (n_cols - 1) as f64 {
+                // Keep the two fronts in step along the cut.
+                lip[i + 1].0 < params_all[k + 1]
+            } else {
+                let shape = |t: [u32; 3]| {
+                    let q = t.map(|v| positions[v as usize]);
+                    (0..3)
+                        .map(|e| angle_deg(q[(e + 1) % 3] - q[e], q[(e + 2) % 3] - q[e]))
+                        .fold(180.0, f64::min)
+                };
+                shape([lip[i].1, grid[1][k], lip[i + 1].1])
+                    >= shape([lip[i].1, grid[1][k], grid[1][k + 1]])
+            };
+            if advance_lip {
+                emit([lip[i].1, grid[1][k], lip[i + 1].1], k, &positions);
+                i += 1;
+            } else {
+                emit([lip[i].1, grid[1][k], grid[1][k + 1]], k, &positions);
+                k += 1;
+            }
+        }
+        // Rows below: quads split along the shorter diagonal, avoiding a diagonal between
+        // two shared vertices (both walls would emit the same triangle).
+        let shared = |c: usize, j: usize| c == 0 || c == n_cols - 1 || j == rows;
+        for j in 1..rows {
+            for c in 0..n_cols - 1 {
                 let q = [
-                    grid[r][j],
-                    grid[r + 1][j],
-                    grid[r + 1][j + 1],
-                    grid[r][j + 1],
+                    grid[j][c],
+                    grid[j][c + 1],
+                    grid[j + 1][c + 1],
+                    grid[j + 1][c],
                 ];
                 let p = q.map(|v| positions[v as usize]);
-                // The end columns and the bottom row are shared with the other wall: a
-                // diagonal between two shared vertices would make both walls emit the same
-                // triangle.
-                let shared = |r: usize, j: usize| r == 0 || r == m || j == rows;
-                let first_shared = shared(r, j) && shared(r + 1, j + 1);
-                let second_shared = shared(r + 1, j) && shared(r, j + 1);
+                let first_shared = shared(c, j) && shared(c + 1, j + 1);
+                let second_shared = shared(c + 1, j) && shared(c, j + 1);
                 let use_first = if first_shared != second_shared {
                     second_shared
                 } else {
@@ -837,16 +1154,7 @@ pub fn incise(
                     [[q[0], q[1], q[3]], [q[1], q[2], q[3]]]
                 };
                 for tri in pair {
-                    let c = tri.map(|v| positions[v as usize]);
-                    let n = (c[1] - c[0]).cross(&(c[2] - c[0]));
-                    let tri = if n.dot(&outward) < 0.0 {
-                        [tri[0], tri[2], tri[1]]
-                    } else {
-                        tri
-                    };
-                    created.push(triangles.len() as u32);
-                    triangles.push(tri);
-                    out_kinds.push(FaceKind::Wall);
+                    emit(tri, c, &positions);
                 }
             }
         }
@@ -986,10 +1294,36 @@ mod tests {
             c.closed && c.manifold && c.oriented,
             "{name}: envelope {c:?}"
         );
+        let worst = out
+            .created
+            .iter()
+            .filter(|&&t| out.kinds[t as usize] != FaceKind::Lid)
+            .map(|&t| {
+                let a = out
+                    .mesh
+                    .angles_deg(t as usize)
+                    .into_iter()
+                    .fold(180.0, f64::min);
+                (
+                    a,
+                    out.kinds[t as usize],
+                    out.mesh.corners(t as usize).map(|c| {
+                        [
+                            (c.x * 1e4).round() / 10.0,
+                            (c.y * 1e4).round() / 10.0,
+                            (c.z * 1e4).round() / 10.0,
+                        ]
+                    }),
+                )
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
         assert!(
             out.min_angle_deg >= 15.0,
-            "{name}: min angle {}",
-            out.min_angle_deg
+            "{name}: min angle {} {worst:?} depth {} w {} L {}",
+            out.min_angle_deg,
+            out.depth_m,
+            out.opening_m,
+            out.length_m
         );
         // Every vertex is used.
         let mut used = vec![false; nv];
@@ -1060,7 +1394,7 @@ mod tests {
             let bb = mesh.bbox();
             let size = [bb.max[0] - bb.min[0], bb.max[1] - bb.min[1]];
             let centre = [0.5 * (bb.max[0] + bb.min[0]), 0.5 * (bb.max[1] + bb.min[1])];
-            for case in 0..12 {
+            for case in 0..24 {
                 let angle = next() * std::f64::consts::TAU;
                 let half = (0.1 + 0.25 * next()) * size[0].min(size[1]);
                 let (c, s) = (angle.cos(), angle.sin());

@@ -9,7 +9,8 @@
 //!   at the rupture displacement x_r (physics.md §6.2: f peaks at 42.85 at x = 3.17).
 //! * **Rupture**: once the blade has pressed x_r, the capsule fails.
 //! * **Cutting**: the mean force is the fracture work per unit advance plus friction,
-//!   `F_mean = J_c·d + F_friction` (d = cut depth), with a decaying ripple in blade travel,
+//!   `F_mean = J_c·d + F_friction(d)` (d = cut depth; friction grows with the rubbing area,
+//!   in proportion to d up to a reference depth), with a decaying ripple in blade travel,
 //!   `F = F_mean·(1 + ε e^{−τ/τ_d} sin(2π x_c/λ))`, τ and x_c measured from the rupture.
 //!
 //! The model is sans-IO: the caller passes time and the blade's contact state; it returns
@@ -156,9 +157,15 @@ impl CuttingForceModel {
         (f * to_newtons, df * to_newtons * 1e3 * scale)
     }
 
+    /// Friction on a blade `depth_m` deep (N): proportional to the rubbing area, up to
+    /// `friction_n` at `friction_depth_m`.
+    pub fn friction(&self, depth_m: f64) -> f64 {
+        self.spec.friction_n * (depth_m.max(0.0) / self.spec.friction_depth_m).min(1.0)
+    }
+
     /// The mean cutting force at depth `depth_m` (N): J_c·d + friction.
     pub fn mean_cutting_force(&self, depth_m: f64) -> f64 {
-        self.spec.toughness_n_per_m * depth_m.max(0.0) + self.spec.friction_n
+        self.spec.toughness_n_per_m * depth_m.max(0.0) + self.friction(depth_m)
     }
 
     /// Advances the model to time `now_s` with this update's blade contact.
@@ -205,7 +212,7 @@ impl CuttingForceModel {
         let (magnitude, stiffness) = match self.phase {
             CutPhase::Free => (0.0, 0.0),
             CutPhase::Loading => self.loading_force(self.loading_m),
-            CutPhase::Cutting if contact.withdrawing => (self.spec.friction_n, 0.0),
+            CutPhase::Cutting if contact.withdrawing => (self.friction(depth), 0.0),
             CutPhase::Cutting => {
                 let mean = self.mean_cutting_force(depth);
                 if self.ripple {

@@ -27,6 +27,9 @@ use crate::solver::Solver;
 
 use super::surface::{CurrentSurface, SurfaceContact};
 
+/// How far outside the surface a cutting blade must be to count as out of the tissue (m),
+/// at least; a tenth of the support radius on coarse models.
+const EXIT_MARGIN_M: f64 = 0.001;
 /// The affected region reaches this many support radii from the edge (physics.md §4.4).
 const AFFECTED_SUPPORTS: f64 = 3.0;
 /// A point away from the tool sleeps once slower than this (m/s) ...
@@ -57,6 +60,8 @@ pub struct CutTick {
     pub pairs_removed: usize,
     /// Points whose MLS rows were recomputed this tick.
     pub points_changed: usize,
+    /// The blade is pulling back along its edge (friction only, no new cut).
+    pub withdrawing: bool,
 }
 
 /// The point the blade presses down before the capsule ruptures.
@@ -71,12 +76,12 @@ struct Press {
 pub struct CuttingStage {
     tool: ToolSpec,
     force: CuttingForceModel,
-    friction_n: f64,
     /// Σ in rest space.
     pub sigma: SweptSurface,
     kernel: Kernel,
     spacing_m: f64,
     r_aff: f64,
+    exit_margin_m: f64,
     last_sweep: Option<[Vec3; 2]>,
     last_mark: Option<([Vec3; 2], u64)>,
     last_tip: Option<Vec3>,
@@ -111,11 +116,11 @@ impl CuttingStage {
         Self {
             tool,
             force: CuttingForceModel::new(force, ripple),
-            friction_n: force.friction_n,
             sigma: SweptSurface::default(),
             kernel,
             spacing_m,
             r_aff: AFFECTED_SUPPORTS * kernel.support_m,
+            exit_margin_m: EXIT_MARGIN_M.max(0.1 * kernel.support_m),
             last_sweep: None,
             last_mark: None,
             last_tip: None,
@@ -156,7 +161,16 @@ impl CuttingStage {
         grid: &RestGrid,
     ) -> CutTick {
         self.tick += 1;
-        let in_tissue = blade.is_some() && contact.tip_inside;
+        // Hysteresis: once the capsule is open, the surface around the blade moves with it
+        // (friction drags it, the released dent springs back), so a tip a hair outside
+        // the surface is still in its cut. It leaves only when clearly out.
+        let in_tissue = match blade {
+            None => false,
+            Some(_) if contact.tip_inside => true,
+            Some(b) => {
+                self.force.phase() == CutPhase::Cutting && surface.near(&b.tip, self.exit_margin_m)
+            }
+        };
         let mut advance = 0.0;
         if let Some(b) = blade {
             if let Some(last) = self.last_tip {
@@ -178,11 +192,13 @@ impl CuttingStage {
         let mut edge_rest = None;
         if let (true, Some(b)) = (in_tissue, blade) {
             match (contact.entry, contact.entry_triangle) {
-                (Some(entry), Some((t, bary))) => {
+                (Some(entry), Some((t, bary))) if contact.tip_inside => {
                     let entry_rest = surface.rest_point(t, bary);
                     depth_m = (b.tip - entry).norm();
                     edge_rest = Some([entry_rest + (b.tip - entry), entry_rest]);
                 }
+                // Just outside, in the cut's hysteresis band: no depth, same edge.
+                _ if !contact.tip_inside => edge_rest = self.last_edge,
                 // Buried blade (no crossing along the edge): hold the last edge.
                 _ => {
                     if let Some(last) = self.last_edge {
@@ -292,7 +308,8 @@ impl CuttingStage {
             self.active_dirty = false;
         }
         self.press_tissue(&force, blade, edge_rest, solver, grid);
-        self.drag_tissue(&force, edge_rest, solver, grid, self.friction_n);
+        let friction = self.force.friction(depth_m);
+        self.drag_tissue(&force, edge_rest, solver, grid, friction);
         CutTick {
             force,
             in_tissue,
@@ -301,6 +318,7 @@ impl CuttingStage {
             new_sigma,
             pairs_removed,
             points_changed: self.changed.len(),
+            withdrawing,
         }
     }
 

@@ -99,12 +99,13 @@ impl IncisionTracker {
     }
 
     /// One tick: `edge` is the blade's rest-space (tip, entry) while it cuts, `None`
-    /// otherwise; `direction` is the blade's latest motion. Returns whether the surface was
-    /// re-meshed.
+    /// otherwise; `direction` is the blade's latest motion; a `withdrawing` blade neither
+    /// extends nor deepens the path. Returns whether the surface was re-meshed.
     pub fn update(
         &mut self,
         edge: Option<[Vec3; 2]>,
         direction: Vec3,
+        withdrawing: bool,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
@@ -130,6 +131,9 @@ impl IncisionTracker {
                 kinds: surface.kinds.clone(),
                 to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
             });
+        }
+        if withdrawing {
+            return false;
         }
         match self.samples.last_mut() {
             Some(last) if (entry - last.surface).norm() < self.sample_step_m => {

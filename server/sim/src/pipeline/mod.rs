@@ -175,6 +175,7 @@ impl Simulation {
                 tracker.update(
                     edge,
                     stage.direction(),
+                    tick.withdrawing,
                     &mut self.surface,
                     &IncisionInputs {
                         rest_points: self.solver.rest(),

@@ -261,6 +261,21 @@ impl CurrentSurface {
         }
     }
 
+    /// Whether `x` is within `margin` of the envelope (skin and lids).
+    pub fn near(&self, x: &Vec3, margin: f64) -> bool {
+        let d = Vec3::repeat(margin);
+        let mut near = false;
+        self.bvh.for_each_overlapping(&(x - d), &(x + d), |t| {
+            if !near
+                && self.kinds[t] != FaceKind::Wall
+                && (closest_point_on_triangle(x, &self.mesh.corners(t)) - x).norm() <= margin
+            {
+                near = true;
+            }
+        });
+        near
+    }
+
     /// Whether `x` is inside the current surface (ray parity along +z; used only when the
     /// whole blade is inside or outside).
     fn point_inside(&self, x: &Vec3) -> bool {

@@ -118,6 +118,7 @@ struct RawForce {
     rupture_displacement_mm: Option<f64>,
     toughness_n_per_mm: Option<f64>,
     friction_n: Option<f64>,
+    friction_depth_mm: Option<f64>,
     ripple_amplitude: Option<f64>,
     ripple_wavelength_mm: Option<f64>,
     ripple_decay_s: Option<f64>,
@@ -435,6 +436,13 @@ impl SceneSpec {
                 Limit::closed(0.0, 50.0, "N"),
                 1.0,
             )?;
+            check.set(
+                &mut out.friction_depth_m,
+                f.friction_depth_mm,
+                "force.friction_depth_mm",
+                Limit::closed(0.1, 200.0, "mm"),
+                MM,
+            )?;
             let key = "force.ripple_amplitude";
             check.set(
                 &mut out.ripple_amplitude,
@@ -728,6 +736,7 @@ mod tests {
             rupture_displacement_mm,
             toughness_n_per_mm,
             friction_n,
+            friction_depth_mm,
             ripple_amplitude,
             ripple_wavelength_mm,
             ripple_decay_s,
@@ -738,6 +747,7 @@ mod tests {
             rupture_displacement_mm,
             toughness_n_per_mm,
             friction_n,
+            friction_depth_mm,
             ripple_amplitude,
             ripple_wavelength_mm,
             ripple_decay_s,

@@ -280,8 +280,11 @@ pub struct ForceSpec {
     pub rupture_displacement_m: f64,
     /// Fracture toughness J_c per unit depth (N/m); 190 J/m² = 0.19 N/mm for liver.
     pub toughness_n_per_m: f64,
-    /// Friction on the blade while cutting (N).
+    /// Friction on the blade while cutting (N), reached at `friction_depth_m`.
     pub friction_n: f64,
+    /// Cut depth at which the friction reaches `friction_n` (m); a shallower blade rubs on
+    /// less tissue, and friction grows with the contact area, so in proportion to depth.
+    pub friction_depth_m: f64,
     /// Ripple amplitude ε as a fraction of the mean force.
     pub ripple_amplitude: f64,
     /// Ripple wavelength λ in blade travel (m).
@@ -299,6 +302,7 @@ impl Default for ForceSpec {
             rupture_displacement_m: 0.00317,
             toughness_n_per_m: 190.0,
             friction_n: 0.3,
+            friction_depth_m: 0.010,
             ripple_amplitude: 0.15,
             ripple_wavelength_m: 0.002,
             ripple_decay_s: 1.0,

@@ -1,0 +1,256 @@
+//! `scalpel cut`: a scripted cut, offline, with everything it produced written out.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
+use scalpel_sim::cut::FaceKind;
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::CutScript;
+use scalpel_sim::scene::BuiltScene;
+
+use crate::cutrun::{self, CutMetrics, CutRun};
+use crate::plot::{self, Series};
+use crate::{TargetArgs, export, load};
+
+/// Colours of the render: skin, wound wall (linear RGB).
+const PALETTE: [[f32; 3]; 2] = [[0.50, 0.14, 0.11], [0.93, 0.62, 0.52]];
+
+/// The script of a run: a file, or the scene's default stroke.
+pub fn script_for(scene: &BuiltScene, file: Option<&Path>) -> anyhow::Result<CutScript> {
+    match file {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read script {}", path.display()))?;
+            Ok(CutScript::from_toml(&text, &path.display().to_string())?)
+        }
+        None => Ok(CutScript::default_for(&scene.model.surface)?),
+    }
+}
+
+/// Runs `script` on the built scene with a progress bar (on a terminal).
+pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
+    let bar = ProgressBar::hidden();
+    let run = cutrun::run_cut(scene, script, |done, total| {
+        if done == 1 {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            bar.set_length(total as u64);
+            bar.set_style(
+                ProgressStyle::with_template("cutting {bar:40} {pos}/{len} ticks {eta}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+        }
+        if done % 250 == 0 || done == total {
+            bar.set_position(done as u64);
+        }
+    });
+    bar.finish_and_clear();
+    run
+}
+
+/// `scalpel cut`.
+pub fn run(
+    target: &TargetArgs,
+    script_file: Option<&Path>,
+    out: &Path,
+    mesh_format: &str,
+    json: bool,
+) -> anyhow::Result<()> {
+    let spec = load::resolve(target)?;
+    if !spec.features.cutting {
+        bail!(
+            "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma",
+            spec.name
+        );
+    }
+    let timed = load::build_with_progress(&spec)?;
+    let scene = &timed.scene;
+    let script = script_for(scene, script_file)?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let run = run_with_progress(scene, &script);
+    let metrics = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
+
+    let csv = out.join("force.csv");
+    write_csv(&run, &csv)?;
+    let plot_path = out.join("force.png");
+    plot_force(&run, &spec.name, &plot_path)?;
+    let (drawn, kinds) = run.sim.current_surface().drawn();
+    let mesh_path = out.join(format!("incision.{mesh_format}"));
+    export::write_cut_surface(
+        &drawn,
+        &kinds,
+        &format!("scalpel cut {}: skin and wound walls", spec.name),
+        &mesh_path,
+    )?;
+    let render_path = out.join("incision.png");
+    render_incision(&run, &render_path)?;
+    let metrics_path = out.join("metrics.json");
+    std::fs::write(&metrics_path, serde_json::to_string_pretty(&metrics)?)
+        .with_context(|| format!("cannot write {}", metrics_path.display()))?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&metrics)?);
+    } else {
+        print!("{}", text_report(&spec.name, &script, &metrics));
+        println!(
+            "wrote {}, {}, {}, {}, {}",
+            csv.display(),
+            plot_path.display(),
+            mesh_path.display(),
+            render_path.display(),
+            metrics_path.display()
+        );
+    }
+    Ok(())
+}
+
+fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "cut {name}: {}", script.description);
+    let _ = writeln!(
+        s,
+        "  {} ticks at 1 kHz, {} with the blade in the tissue",
+        m.steps, m.cut_steps
+    );
+    let _ = writeln!(
+        s,
+        "  per cut step: surface {:.3} ms median, {:.3} ms p99; internal {:.3} ms median, {:.3} ms p99",
+        m.surface_ms.p50, m.surface_ms.p99, m.internal_ms.p50, m.internal_ms.p99
+    );
+    let _ = writeln!(
+        s,
+        "  force: peak {:.2} N, steady {:.2} N at {:.1} mm deep, ripple ±{:.2} N",
+        m.peak_force_n, m.steady_force_n, m.steady_depth_mm, m.ripple_n
+    );
+    let _ = writeln!(
+        s,
+        "  interior: {} pairs cut by {} triangles of Σ, at most {} of {} points integrated",
+        m.pairs_removed, m.sigma_triangles, m.max_active_points, m.points
+    );
+    match (m.min_angle_deg, m.lip_max_turn_deg) {
+        (Some(angle), Some(turn)) => {
+            let _ = writeln!(
+                s,
+                "  surface: {} incision(s), {} → {} triangles, min angle {angle:.1}°, lip turn ≤ {turn:.1}°, closed {}, manifold {}, oriented {}",
+                m.incisions,
+                m.triangles_before,
+                m.triangles_after,
+                m.closed,
+                m.manifold,
+                m.oriented
+            );
+        }
+        _ => {
+            let _ = writeln!(s, "  surface: not opened (the blade never cut far enough)");
+        }
+    }
+    s
+}
+
+fn write_csv(run: &CutRun, path: &Path) -> anyhow::Result<()> {
+    let mut s = String::from(
+        "t_s,tip_x_mm,tip_y_mm,tip_z_mm,travel_mm,phase,in_tissue,depth_mm,force_n,fx_n,fy_n,fz_n,surface_ms,internal_ms,active_points\n",
+    );
+    for r in &run.rows {
+        let phase = serde_json::to_value(r.phase)?;
+        let _ = writeln!(
+            s,
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
+            r.t_s,
+            r.tip_m[0] * 1e3,
+            r.tip_m[1] * 1e3,
+            r.tip_m[2] * 1e3,
+            r.travel_m * 1e3,
+            phase.as_str().unwrap_or("?"),
+            u8::from(r.in_tissue),
+            r.depth_m * 1e3,
+            r.force_mag_n,
+            r.force_n[0],
+            r.force_n[1],
+            r.force_n[2],
+            r.surface_ms,
+            r.internal_ms,
+            r.active_points
+        );
+    }
+    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn plot_force(run: &CutRun, name: &str, path: &Path) -> anyhow::Result<()> {
+    let points: Vec<(f64, f64)> = run
+        .rows
+        .iter()
+        .map(|r| (r.travel_m * 1e3, r.force_mag_n))
+        .collect();
+    plot::lines(
+        path,
+        &format!("{name}: force on the blade"),
+        "blade travel (mm)",
+        "force (N)",
+        &[Series {
+            label: "|F| on the tool".into(),
+            points,
+        }],
+    )
+}
+
+/// Draws the final surface from a camera above the wound, looking across it.
+pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
+    let (drawn, kinds) = run.sim.current_surface().drawn();
+    let walls: Vec<Vec3> = drawn
+        .triangles
+        .iter()
+        .zip(&kinds)
+        .filter(|(_, k)| **k == FaceKind::Wall)
+        .flat_map(|(t, _)| t.map(|v| drawn.positions[v as usize]))
+        .collect();
+    // Aim at the wound, or at the blade's path when the surface was not opened.
+    let focus: Vec<Vec3> = if walls.is_empty() {
+        run.rows
+            .iter()
+            .filter(|r| r.in_tissue)
+            .map(|r| Vec3::from(r.tip_m))
+            .collect()
+    } else {
+        walls
+    };
+    let focus = if focus.is_empty() {
+        drawn.positions.clone()
+    } else {
+        focus
+    };
+    let lo = focus
+        .iter()
+        .fold(Vec3::repeat(f64::INFINITY), |a, b| a.inf(b));
+    let hi = focus
+        .iter()
+        .fold(Vec3::repeat(f64::NEG_INFINITY), |a, b| a.sup(b));
+    let centre = (lo + hi) * 0.5;
+    let extent = (hi - lo).norm().max(0.02);
+    // Look across the cut: the camera's azimuth is perpendicular to the wound's long axis.
+    let along = hi - lo;
+    let axis_deg = along.y.atan2(along.x).to_degrees();
+    let fov = 40.0;
+    let distance = 0.9 * extent / (0.5 * f64::to_radians(fov)).tan();
+    let camera = Camera::orbit(centre.into(), distance, 55.0, axis_deg - 70.0, fov);
+    let positions: Vec<[f64; 3]> = drawn.positions.iter().map(|p| (*p).into()).collect();
+    let materials: Vec<u8> = kinds
+        .iter()
+        .map(|k| u8::from(*k == FaceKind::Wall))
+        .collect();
+    let image = render(
+        &SurfaceView {
+            positions: &positions,
+            triangles: &drawn.triangles,
+            materials: &materials,
+        },
+        &PALETTE,
+        &camera,
+        &RenderOptions::default(),
+    )?;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    image.write_png(std::io::BufWriter::new(file))?;
+    Ok(())
+}

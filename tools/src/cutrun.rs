@@ -1,0 +1,291 @@
+//! A scripted cut, run tick by tick and measured: shared by `scalpel cut` and the cutting
+//! benchmarks (Table 1, scaling).
+
+use std::time::Instant;
+
+use scalpel_sim::force::CutPhase;
+use scalpel_sim::geometry::topology::check_surface;
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::{CutScript, Simulation, Stage, StageObserver};
+use scalpel_sim::scene::BuiltScene;
+use serde::Serialize;
+
+/// Time per tick (s): the haptic rate.
+pub const TICK_S: f64 = 1e-3;
+
+/// One tick of a run.
+#[derive(Debug, Clone, Serialize)]
+pub struct TickRow {
+    /// Time at the end of the tick (s).
+    pub t_s: f64,
+    /// Blade tip (m).
+    pub tip_m: [f64; 3],
+    /// Distance the tip has travelled since the start (m).
+    pub travel_m: f64,
+    /// Force regime.
+    pub phase: CutPhase,
+    /// The blade is in the tissue.
+    pub in_tissue: bool,
+    /// Depth of the edge below the entry (m).
+    pub depth_m: f64,
+    /// Force on the tool (N).
+    pub force_n: [f64; 3],
+    /// Its magnitude (N).
+    pub force_mag_n: f64,
+    /// The blade moves mostly across its edge (a stroke, not a plunge or pull-out).
+    pub stroking: bool,
+    /// Surface stage time (ms).
+    pub surface_ms: f64,
+    /// Internal stage time (ms).
+    pub internal_ms: f64,
+    /// Points integrated.
+    pub active_points: usize,
+}
+
+/// Measures the two stages of each tick.
+#[derive(Default)]
+struct StageClock {
+    started: Option<Instant>,
+    surface_s: f64,
+    internal_s: f64,
+}
+
+impl StageObserver for StageClock {
+    fn enter(&mut self, _stage: Stage) {
+        self.started = Some(Instant::now());
+    }
+
+    fn leave(&mut self, stage: Stage) {
+        if let Some(t0) = self.started.take() {
+            let dt = t0.elapsed().as_secs_f64();
+            match stage {
+                Stage::Surface => self.surface_s += dt,
+                Stage::Internal => self.internal_s += dt,
+            }
+        }
+    }
+}
+
+/// A finished run.
+pub struct CutRun {
+    /// Every tick.
+    pub rows: Vec<TickRow>,
+    /// The simulation at the end.
+    pub sim: Simulation,
+}
+
+/// Runs `script` on `scene` at 1 kHz; `tick` is told the progress (done, total).
+pub fn run_cut(
+    scene: &BuiltScene,
+    script: &CutScript,
+    mut tick: impl FnMut(usize, usize),
+) -> CutRun {
+    let mut sim = Simulation::new(scene);
+    let ticks = (script.duration_s() / TICK_S).ceil() as usize + 1;
+    let mut rows = Vec::with_capacity(ticks);
+    let mut travel = 0.0;
+    let mut last_tip: Option<Vec3> = None;
+    for k in 0..ticks {
+        let pose = script.pose_at(k as f64 * TICK_S);
+        sim.set_tool(Some(pose));
+        let mut clock = StageClock::default();
+        let report = sim.tick(TICK_S, &mut clock);
+        if let Some(last) = last_tip {
+            travel += (pose.tip_m - last).norm();
+        }
+        last_tip = Some(pose.tip_m);
+        let edge = pose.orientation * Vec3::z();
+        let direction = sim.cutting().map_or(Vec3::zeros(), |c| c.direction());
+        let cut = report.cut.as_ref();
+        rows.push(TickRow {
+            t_s: report.time_s,
+            tip_m: pose.tip_m.into(),
+            travel_m: travel,
+            phase: cut.map_or(CutPhase::Free, |c| c.force.phase),
+            in_tissue: cut.is_some_and(|c| c.in_tissue),
+            depth_m: cut.map_or(0.0, |c| c.depth_m),
+            force_n: report.tool_force_n.into(),
+            force_mag_n: report.tool_force_n.norm(),
+            stroking: direction.norm() > 0.0
+                && direction.dot(&edge).abs() < 0.5
+                && !cut.is_some_and(|c| c.withdrawing),
+            surface_ms: clock.surface_s * 1e3,
+            internal_ms: clock.internal_s * 1e3,
+            active_points: report.active_points,
+        });
+        tick(k + 1, ticks);
+    }
+    CutRun { rows, sim }
+}
+
+/// Median, 99th percentile and maximum of a sample (ms).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Quantiles {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Quantiles {
+    /// Of a sample (zeros when empty).
+    pub fn of(values: &[f64]) -> Self {
+        if values.is_empty() {
+            return Self {
+                p50: 0.0,
+                p99: 0.0,
+                max: 0.0,
+            };
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
+        Self {
+            p50: crate::bench::median(&mut v.clone()),
+            p99: at(0.99),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// The figures of a run (the JSON of `scalpel cut`).
+#[derive(Debug, Clone, Serialize)]
+pub struct CutMetrics {
+    /// Ticks run.
+    pub steps: usize,
+    /// Ticks with the blade in the tissue: the "cut steps" the timings are taken over.
+    pub cut_steps: usize,
+    /// Surface stage per cut step (ms).
+    pub surface_ms: Quantiles,
+    /// Internal stage per cut step (ms).
+    pub internal_ms: Quantiles,
+    /// Both stages per cut step (ms).
+    pub total_ms: Quantiles,
+    /// Largest turn between consecutive lip segments (degrees).
+    pub lip_max_turn_deg: Option<f64>,
+    /// Smallest angle of the remeshed triangles (degrees).
+    pub min_angle_deg: Option<f64>,
+    /// The drawn surface is closed at the end.
+    pub closed: bool,
+    /// ... and edge- and vertex-manifold.
+    pub manifold: bool,
+    /// ... and consistently oriented.
+    pub oriented: bool,
+    /// Largest force on the tool (N).
+    pub peak_force_n: f64,
+    /// Mean force while stroking after rupture (N).
+    pub steady_force_n: f64,
+    /// Ripple amplitude about the moving mean while stroking (N).
+    pub ripple_n: f64,
+    /// Depth while stroking, mean (mm).
+    pub steady_depth_mm: f64,
+    /// Incisions opened on the surface.
+    pub incisions: usize,
+    /// Incision runs refused (surface left as it was).
+    pub incisions_refused: usize,
+    /// Neighbour pairs the cut removed.
+    pub pairs_removed: usize,
+    /// Triangles of the cut surface Σ.
+    pub sigma_triangles: usize,
+    /// Most points integrated in any tick, and the total.
+    pub max_active_points: usize,
+    /// Interior points.
+    pub points: usize,
+    /// Surface triangles before and after (drawn: skin and walls).
+    pub triangles_before: usize,
+    /// Drawn triangles at the end.
+    pub triangles_after: usize,
+    /// The solver diverged in some tick (state restored).
+    pub diverged_ticks: usize,
+}
+
+/// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
+pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetrics {
+    let cut_rows: Vec<&TickRow> = run.rows.iter().filter(|r| r.in_tissue).collect();
+    let surface: Vec<f64> = cut_rows.iter().map(|r| r.surface_ms).collect();
+    let internal: Vec<f64> = cut_rows.iter().map(|r| r.internal_ms).collect();
+    let total: Vec<f64> = cut_rows
+        .iter()
+        .map(|r| r.surface_ms + r.internal_ms)
+        .collect();
+    // Steady cutting: stroking after rupture, past the first wavelength.
+    let rupture_travel = run
+        .rows
+        .iter()
+        .find(|r| r.phase == CutPhase::Cutting)
+        .map(|r| r.travel_m);
+    let steady: Vec<&TickRow> = run
+        .rows
+        .iter()
+        .filter(|r| {
+            r.phase == CutPhase::Cutting
+                && r.stroking
+                && rupture_travel.is_some_and(|t0| r.travel_m > t0 + wavelength_m)
+        })
+        .collect();
+    let mean = |v: &[f64]| {
+        if v.is_empty() {
+            0.0
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    let steady_force = mean(&steady.iter().map(|r| r.force_mag_n).collect::<Vec<_>>());
+    let steady_depth = mean(&steady.iter().map(|r| r.depth_m).collect::<Vec<_>>());
+    // Ripple: RMS of the force about its moving mean over one wavelength of travel, as the
+    // amplitude of a sine (× √2).
+    let mut sq = 0.0;
+    let mut lo = 0;
+    let mut hi = 0;
+    let mut window = 0.0;
+    for (i, r) in steady.iter().enumerate() {
+        while hi < steady.len() && steady[hi].travel_m <= r.travel_m + 0.5 * wavelength_m {
+            window += steady[hi].force_mag_n;
+            hi += 1;
+        }
+        while steady[lo].travel_m < r.travel_m - 0.5 * wavelength_m {
+            window -= steady[lo].force_mag_n;
+            lo += 1;
+        }
+        let local = window / (hi - lo) as f64;
+        let _ = i;
+        sq += (r.force_mag_n - local).powi(2);
+    }
+    let ripple = if steady.is_empty() {
+        0.0
+    } else {
+        (sq / steady.len() as f64).sqrt() * std::f64::consts::SQRT_2
+    };
+    let sim = &run.sim;
+    let (drawn, _) = sim.current_surface().drawn();
+    let check = check_surface(&drawn.triangles, drawn.positions.len());
+    let incisions = sim.incisions().cloned().unwrap_or_default();
+    let opened = incisions.incisions > 0;
+    CutMetrics {
+        steps: run.rows.len(),
+        cut_steps: cut_rows.len(),
+        surface_ms: Quantiles::of(&surface),
+        internal_ms: Quantiles::of(&internal),
+        total_ms: Quantiles::of(&total),
+        lip_max_turn_deg: opened.then_some(incisions.lip_max_turn_deg),
+        min_angle_deg: opened.then_some(incisions.min_angle_deg),
+        closed: check.closed,
+        manifold: check.manifold,
+        oriented: check.oriented,
+        peak_force_n: run.rows.iter().map(|r| r.force_mag_n).fold(0.0, f64::max),
+        steady_force_n: steady_force,
+        ripple_n: ripple,
+        steady_depth_mm: steady_depth * 1e3,
+        incisions: incisions.incisions,
+        incisions_refused: incisions.refused,
+        pairs_removed: sim.cutting().map_or(0, |c| c.pairs_removed_total),
+        sigma_triangles: sim.cutting().map_or(0, |c| c.sigma.triangles.len()),
+        max_active_points: run.rows.iter().map(|r| r.active_points).max().unwrap_or(0),
+        points: scene.model.points.len(),
+        triangles_before: scene.model.surface.triangles.len(),
+        triangles_after: drawn.triangles.len(),
+        diverged_ticks: 0,
+    }
+}
