@@ -11,9 +11,9 @@
 
 use std::io::Write;
 
+use euc::Pipeline;
 use euc::buffer::Buffer2d;
 use euc::rasterizer::{BackfaceCullingDisabled, Triangles};
-use euc::Pipeline;
 use thiserror::Error;
 
 /// Why a render failed.

@@ -106,6 +106,32 @@ enum SceneCommand {
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// The paper's Table 1: the default scripted cut on liver, shoulder and cerebroma,
+    /// surface and internal time per cut step (median, p99) against the paper's figures.
+    Table1 {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The default liver cut at several resolutions: cost per cut step against points.
+    Scaling {
+        /// Target interior point counts.
+        #[arg(long, value_delimiter = ',', default_value = "1526,15000,100000")]
+        points: Vec<usize>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Idle ticks of the liver with and without the cutting feature: what a scene that
+    /// does not cut pays for cutting (nothing), and what an untouched cutting scene costs.
+    Idle {
+        /// Ticks per variant.
+        #[arg(long, default_value_t = 2000)]
+        ticks: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Build every built-in scene several times and report build times.
     Scenes {
         /// Builds per scene.
@@ -198,6 +224,11 @@ fn main() -> ExitCode {
         } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
         Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
+        Command::Bench(BenchCommand::Table1 { json }) => bench::cutting::table1(json),
+        Command::Bench(BenchCommand::Scaling { points, json }) => {
+            bench::cutting::scaling(&points, json)
+        }
+        Command::Bench(BenchCommand::Idle { ticks, json }) => bench::cutting::idle(ticks, json),
         Command::Bench(BenchCommand::Accuracy {
             out,
             min_across,

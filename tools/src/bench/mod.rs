@@ -1,6 +1,7 @@
 //! `scalpel bench ...`: whole-system figures, reported as medians and tails.
 
 pub mod accuracy;
+pub mod cutting;
 pub mod stability;
 
 use scalpel_sim::scene::{self, BUILTIN_SCENES};

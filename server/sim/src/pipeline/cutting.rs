@@ -2,8 +2,8 @@
 //!
 //! Per tick, with the blade's contact on the current surface:
 //!
-//! 1. The entry point is mapped to rest space through its surface triangle, the tip hangs
-//!    below it along the edge.
+//! 1. The entry point is mapped to rest space through the displacement field of the points
+//!    around it, the tip hangs below it along the edge.
 //! 2. The force model advances (loading, rupture, cutting with ripple).
 //! 3. After rupture, the immersed edge sweeps Σ in rest space; every new triangle of Σ
 //!    removes the neighbour pairs it separates, and only the points whose lists changed get
@@ -12,8 +12,11 @@
 //!    wake up and are integrated; points away from the tool that have come to rest fall
 //!    asleep and are frozen where they are, so they hold the active region like a halo.
 //!    Everything else costs nothing per tick.
-//! 5. Before rupture the blade dents the capsule (the point under it follows the blade);
-//!    while cutting, friction drags the points along the edge.
+//! 5. Before rupture the blade dents the capsule (a patch under it follows the blade, and
+//!    relaxes after rupture);
+//!    while cutting, the friction is felt at the tool only. (Dragging the tissue with it was
+//!    tried: a force spread over the few cells along the edge shears them inside out on
+//!    fine lattices of soft organs, and the surface sinks with the blade.)
 
 use std::ops::Range;
 
@@ -42,6 +45,8 @@ const SLEEP_CHECK_EVERY: u64 = 16;
 /// fraction of the lattice spacing, or after [`REMARK_AFTER_TICKS`].
 const SWEEP_FRACTION_OF_SPACING: f64 = 0.125;
 const REMARK_AFTER_TICKS: u64 = 32;
+/// Fixed-point iterations mapping a current position to rest space.
+const REST_MAP_ITERATIONS: usize = 3;
 
 /// What the cutting stage did in one tick.
 #[derive(Debug, Clone, PartialEq)]
@@ -64,12 +69,23 @@ pub struct CutTick {
     pub withdrawing: bool,
 }
 
-/// The point the blade presses down before the capsule ruptures.
+/// The dent is a smooth patch this many rupture displacements wide (at least one support
+/// radius): a one-point dent deeper than the lattice spacing would invert the cells around
+/// it on fine models, while the physical dent spreads over the blade's contact.
+const DENT_RADIUS_PER_RUPTURE_DISPLACEMENT: f64 = 2.0;
+
+/// After rupture the dent relaxes over this time (s) as the crack opens under the blade,
+/// rather than springing back at once: a sudden release of a soft organ's stored dent
+/// throws the points around the fresh crack inside out.
+const DENT_RELEASE_S: f64 = 0.1;
+
+/// A point the blade presses down before the capsule ruptures: it follows the tip by
+/// `weight` of the tip's travel since the press began.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Press {
+struct Pressed {
     point: u32,
-    start_tip: Vec3,
     start_position: Vec3,
+    weight: f64,
 }
 
 /// State of the cutting stage; built only for scenes that cut.
@@ -87,7 +103,13 @@ pub struct CuttingStage {
     last_tip: Option<Vec3>,
     last_edge: Option<[Vec3; 2]>,
     last_depth_m: f64,
-    press: Option<Press>,
+    /// Tip position when the dent began, and the dented points.
+    press_start: Option<Vec3>,
+    /// The tip's travel since the press began, and when the release began.
+    press_travel: Vec3,
+    release_start_s: Option<f64>,
+    pressed: Vec<Pressed>,
+    dent_radius_m: f64,
     direction: Vec3,
     awake: Vec<bool>,
     last_near: Vec<u64>,
@@ -97,8 +119,6 @@ pub struct CuttingStage {
     changed: Vec<u32>,
     changed_flag: Vec<bool>,
     candidates: Vec<u32>,
-    loaded: Vec<u32>,
-    load_weights: Vec<(u32, f64)>,
     /// Pairs removed since the start.
     pub pairs_removed_total: usize,
 }
@@ -126,7 +146,12 @@ impl CuttingStage {
             last_tip: None,
             last_edge: None,
             last_depth_m: 0.0,
-            press: None,
+            press_start: None,
+            press_travel: Vec3::zeros(),
+            release_start_s: None,
+            pressed: Vec::with_capacity(256),
+            dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
+                .max(kernel.support_m),
             direction: Vec3::zeros(),
             awake: vec![false; n],
             last_near: vec![0; n],
@@ -136,8 +161,6 @@ impl CuttingStage {
             changed: Vec::with_capacity(1024),
             changed_flag: vec![false; n],
             candidates: Vec::with_capacity(4096),
-            loaded: Vec::with_capacity(256),
-            load_weights: Vec::with_capacity(256),
             pairs_removed_total: 0,
         }
     }
@@ -162,7 +185,7 @@ impl CuttingStage {
     ) -> CutTick {
         self.tick += 1;
         // Hysteresis: once the capsule is open, the surface around the blade moves with it
-        // (friction drags it, the released dent springs back), so a tip a hair outside
+        // (the released dent springs back), so a tip a hair outside
         // the surface is still in its cut. It leaves only when clearly out.
         let in_tissue = match blade {
             None => false,
@@ -184,16 +207,20 @@ impl CuttingStage {
         } else {
             self.last_tip = None;
         }
-        // The edge in rest space. The entry maps exactly through its surface triangle; the
-        // tip hangs below it along the current edge (the tissue around a cut is only dragged
-        // by friction, so the rigid offset is accurate to that drag, and it does not jump
-        // when the nearest points change sides of the cut).
+        // The edge in rest space. The entry maps through the displacement field; the tip
+        // hangs below it along the current edge (the tissue around a cut is not dragged by
+        // the blade, so the rigid offset is accurate, and it does not jump when the nearest
+        // points change sides of the cut).
         let mut depth_m = 0.0;
         let mut edge_rest = None;
         if let (true, Some(b)) = (in_tissue, blade) {
             match (contact.entry, contact.entry_triangle) {
                 (Some(entry), Some((t, bary))) if contact.tip_inside => {
-                    let entry_rest = surface.rest_point(t, bary);
+                    // Through the smooth displacement field of the points around it: the
+                    // crossed triangle's own rest map jumps with every sliver of the
+                    // deformed surface the edge happens to pierce.
+                    let guess = surface.rest_point(t, bary);
+                    let entry_rest = self.rest_of(&entry, &guess, solver, grid);
                     depth_m = (b.tip - entry).norm();
                     edge_rest = Some([entry_rest + (b.tip - entry), entry_rest]);
                 }
@@ -307,9 +334,7 @@ impl CuttingStage {
             solver.set_active(&self.awake_list);
             self.active_dirty = false;
         }
-        self.press_tissue(&force, blade, edge_rest, solver, grid);
-        let friction = self.force.friction(depth_m);
-        self.drag_tissue(&force, edge_rest, solver, grid, friction);
+        self.press_tissue(now_s, &force, blade, edge_rest, solver, grid);
         CutTick {
             force,
             in_tissue,
@@ -320,6 +345,27 @@ impl CuttingStage {
             points_changed: self.changed.len(),
             withdrawing,
         }
+    }
+
+    /// The rest position X with X + u(X) = x, u the kernel-weighted displacement of the
+    /// points around X, by fixed-point iteration from `guess`.
+    fn rest_of(&self, x: &Vec3, guess: &Vec3, solver: &Solver, grid: &RestGrid) -> Vec3 {
+        let (rest, p) = (solver.rest(), solver.positions());
+        let h = self.kernel.support_m;
+        let mut at = *guess;
+        for _ in 0..REST_MAP_ITERATIONS {
+            let (mut u, mut total) = (Vec3::zeros(), 0.0);
+            grid.for_each_within(rest, &at, h, |i, d2| {
+                let w = self.kernel.weight_sq(d2);
+                u += (p[i as usize] - rest[i as usize]) * w;
+                total += w;
+            });
+            if total <= 0.0 {
+                break;
+            }
+            at = x - u / total;
+        }
+        at
     }
 
     fn moved_enough(&self, last: &[Vec3; 2], edge: &[Vec3; 2]) -> bool {
@@ -382,12 +428,14 @@ impl CuttingStage {
         }
     }
 
-    /// Before rupture the blade dents the capsule: the point under the tip moves with the
-    /// blade (displacement control; the device force comes from the measured loading curve,
-    /// which a linear-elastic organ this soft could not reproduce). The dent is released at
-    /// rupture or when the blade leaves.
+    /// Before rupture the blade dents the capsule: the points under the tip follow the blade
+    /// (displacement control; the device force comes from the measured loading curve,
+    /// which a linear-elastic organ this soft could not reproduce), the nearest fully and
+    /// the others of the patch with a smooth fall-off. The dent relaxes over
+    /// [`DENT_RELEASE_S`] after rupture or when the blade leaves.
     fn press_tissue(
         &mut self,
+        now_s: f64,
         force: &CutForce,
         blade: Option<&Blade>,
         edge: Option<[Vec3; 2]>,
@@ -395,86 +443,68 @@ impl CuttingStage {
         grid: &RestGrid,
     ) {
         let pressing = force.phase == CutPhase::Loading;
-        match (pressing, self.press, blade, edge) {
+        match (pressing, self.press_start, blade, edge) {
             (true, None, Some(b), Some(edge)) => {
                 let rest = solver.rest();
-                let mut best: Option<(f64, u32)> = None;
+                let radius = self.dent_radius_m;
+                let mut nearest: Option<(f64, u32)> = None;
                 grid.for_each_within(rest, &edge[0], 2.0 * self.kernel.support_m, |k, d2| {
-                    if best.is_none_or(|(d, _)| d2 < d) {
-                        best = Some((d2, k));
+                    if nearest.is_none_or(|(d, _)| d2 < d) {
+                        nearest = Some((d2, k));
                     }
                 });
-                if let Some((_, k)) = best {
+                let Some((_, centre)) = nearest else { return };
+                let c = rest[centre as usize];
+                let positions = solver.positions();
+                let pressed = &mut self.pressed;
+                pressed.clear();
+                grid.for_each_within(rest, &c, radius, |k, d2| {
+                    let q = 1.0 - d2 / (radius * radius);
+                    if q > 0.0 && pressed.len() < pressed.capacity() {
+                        pressed.push(Pressed {
+                            point: k,
+                            start_position: positions[k as usize],
+                            weight: if k == centre { 1.0 } else { q * q },
+                        });
+                    }
+                });
+                for r in 0..self.pressed.len() {
+                    let k = self.pressed[r].point;
                     self.wake(k);
                     solver.fix(k as usize, [true; 3]);
-                    self.press = Some(Press {
-                        point: k,
-                        start_tip: b.tip,
-                        start_position: solver.positions()[k as usize],
-                    });
                 }
+                self.press_start = Some(b.tip);
+                self.press_travel = Vec3::zeros();
+                self.release_start_s = None;
             }
-            (true, Some(press), Some(b), _) => {
-                self.last_near[press.point as usize] = self.tick;
-                solver.set_target(
-                    press.point as usize,
-                    press.start_position + (b.tip - press.start_tip),
-                );
+            (true, Some(start), Some(b), _) if self.release_start_s.is_none() => {
+                self.press_travel = b.tip - start;
+                self.hold_dent(1.0, solver);
             }
-            (false, Some(press), _, _) => {
-                solver.fix(press.point as usize, [false; 3]);
-                self.press = None;
+            (_, Some(_), _, _) => {
+                let since = *self.release_start_s.get_or_insert(now_s);
+                let left = 1.0 - (now_s - since) / DENT_RELEASE_S;
+                if left > 0.0 {
+                    self.hold_dent(left, solver);
+                } else {
+                    for p in &self.pressed {
+                        solver.fix(p.point as usize, [false; 3]);
+                    }
+                    self.pressed.clear();
+                    self.press_start = None;
+                    self.release_start_s = None;
+                }
             }
             _ => {}
         }
     }
 
-    /// While cutting, friction drags the cut faces along with the blade: the awake points
-    /// along the edge carry it, with kernel weights of their distance to the edge. (The
-    /// fracture part J_c·d of the resistance is spent opening the crack at the edge, not
-    /// on the bulk.)
-    fn drag_tissue(
-        &mut self,
-        force: &CutForce,
-        edge: Option<[Vec3; 2]>,
-        solver: &mut Solver,
-        grid: &RestGrid,
-        friction_n: f64,
-    ) {
-        for &i in &self.loaded {
-            solver.set_external_force(i as usize, Vec3::zeros());
-        }
-        self.loaded.clear();
-        let Some(edge) = edge else { return };
-        if force.phase != CutPhase::Cutting || friction_n <= 0.0 {
-            return;
-        }
-        let rest = solver.rest();
-        let h = self.kernel.support_m;
-        let centre = (edge[0] + edge[1]) * 0.5;
-        let reach = (edge[0] - edge[1]).norm() * 0.5 + h;
-        self.load_weights.clear();
-        let (weights, awake, kernel) = (&mut self.load_weights, &self.awake, &self.kernel);
-        grid.for_each_within(rest, &centre, reach, |i, _| {
-            if awake[i as usize] {
-                let w = kernel.weight_sq(distance_sq_to_segment(
-                    &rest[i as usize],
-                    &edge[0],
-                    &edge[1],
-                ));
-                if w > 0.0 {
-                    weights.push((i, w));
-                }
-            }
-        });
-        let total: f64 = self.load_weights.iter().map(|(_, w)| w).sum();
-        if total <= 0.0 {
-            return;
-        }
-        let drag = self.direction * friction_n;
-        for &(i, w) in &self.load_weights {
-            solver.set_external_force(i as usize, drag * (w / total));
-            self.loaded.push(i);
+    /// Holds the dented points at `fraction` of the dent.
+    fn hold_dent(&mut self, fraction: f64, solver: &mut Solver) {
+        let travel = self.press_travel * fraction;
+        for p in &self.pressed {
+            self.last_near[p.point as usize] = self.tick;
+            solver.set_target(p.point as usize, p.start_position + travel * p.weight);
         }
     }
 
