@@ -64,7 +64,7 @@ pub struct BladeContact {
     /// The blade entered along an existing incision: no capsule to rupture.
     pub in_existing_cut: bool,
     /// The blade is pulling back along its own edge (toward its back): it opens no new
-    /// cut, so only friction resists it.
+    /// cut: the fracture term fades out and friction remains.
     pub withdrawing: bool,
 }
 
@@ -128,7 +128,15 @@ pub struct CuttingForceModel {
     rupture_s: f64,
     /// Blade travel since the last rupture (m).
     travel_m: f64,
+    /// How much of the fracture term J_c·d the blade carries, 0–1: 1 while it advances its
+    /// crack, fading toward 0 over [`ENGAGEMENT_TRAVEL_M`] of travel once it pulls back
+    /// (and back up when it cuts forward again), so the force eases between the two regimes
+    /// instead of dropping by J_c·d in one tick.
+    engagement: f64,
 }
+
+/// Travel over which the fracture term fades in and out (m).
+const ENGAGEMENT_TRAVEL_M: f64 = 0.0005;
 
 impl CuttingForceModel {
     /// A model with the scene's force parameters; `ripple` is the scene's feature flag.
@@ -140,6 +148,7 @@ impl CuttingForceModel {
             loading_m: 0.0,
             rupture_s: 0.0,
             travel_m: 0.0,
+            engagement: 0.0,
         }
     }
 
@@ -205,20 +214,27 @@ impl CuttingForceModel {
                         ruptured = true;
                     }
                 }
-                CutPhase::Cutting => self.travel_m += advance,
+                CutPhase::Cutting => {
+                    self.travel_m += advance;
+                    let target = if contact.withdrawing { 0.0 } else { 1.0 };
+                    let blend = advance / (advance + ENGAGEMENT_TRAVEL_M);
+                    self.engagement += (target - self.engagement) * blend;
+                }
                 CutPhase::Free => unreachable!("entering tissue leaves the free phase"),
             }
         }
         let (magnitude, stiffness) = match self.phase {
             CutPhase::Free => (0.0, 0.0),
             CutPhase::Loading => self.loading_force(self.loading_m),
-            CutPhase::Cutting if contact.withdrawing => (self.friction(depth), 0.0),
             CutPhase::Cutting => {
-                let mean = self.mean_cutting_force(depth);
+                let mean =
+                    self.spec.toughness_n_per_m * depth * self.engagement + self.friction(depth);
                 if self.ripple {
                     let tau = (now_s - self.rupture_s).max(0.0);
-                    let envelope =
-                        self.spec.ripple_amplitude * (-tau / self.spec.ripple_decay_s).exp();
+                    // The ripple is the crack's stick-slip: it goes with the fracture term.
+                    let envelope = self.spec.ripple_amplitude
+                        * self.engagement
+                        * (-tau / self.spec.ripple_decay_s).exp();
                     let phase =
                         2.0 * std::f64::consts::PI * self.travel_m / self.spec.ripple_wavelength_m;
                     let slope = mean * envelope * 2.0 * std::f64::consts::PI
@@ -244,6 +260,7 @@ impl CuttingForceModel {
         self.phase = CutPhase::Cutting;
         self.rupture_s = now_s;
         self.travel_m = 0.0;
+        self.engagement = 1.0;
     }
 }
 

@@ -45,6 +45,8 @@ const SLEEP_CHECK_EVERY: u64 = 16;
 /// fraction of the lattice spacing, or after [`REMARK_AFTER_TICKS`].
 const SWEEP_FRACTION_OF_SPACING: f64 = 0.125;
 const REMARK_AFTER_TICKS: u64 = 32;
+/// The blade's direction of motion is averaged over about this much travel (m).
+const DIRECTION_TRAVEL_M: f64 = 0.0005;
 /// Fixed-point iterations mapping a current position to rest space.
 const REST_MAP_ITERATIONS: usize = 3;
 
@@ -189,7 +191,7 @@ impl CuttingStage {
         // the surface is still in its cut. It leaves only when clearly out.
         let in_tissue = match blade {
             None => false,
-            Some(_) if contact.tip_inside => true,
+            Some(_) if contact.tip_inside || contact.exit.is_some() => true,
             Some(b) => {
                 self.force.phase() == CutPhase::Cutting && surface.near(&b.tip, self.exit_margin_m)
             }
@@ -200,7 +202,12 @@ impl CuttingStage {
                 let d = b.tip - last;
                 advance = d.norm();
                 if let Some(dir) = d.try_normalize(1e-9) {
-                    self.direction = dir;
+                    // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns
+                    // with the path, not in one tick at a corner of it.
+                    let blend = advance / (advance + DIRECTION_TRAVEL_M);
+                    self.direction = (self.direction * (1.0 - blend) + dir * blend)
+                        .try_normalize(1e-9)
+                        .unwrap_or(dir);
                 }
             }
             self.last_tip = Some(b.tip);
@@ -215,14 +222,16 @@ impl CuttingStage {
         let mut edge_rest = None;
         if let (true, Some(b)) = (in_tissue, blade) {
             match (contact.entry, contact.entry_triangle) {
-                (Some(entry), Some((t, bary))) if contact.tip_inside => {
+                (Some(entry), Some((t, bary))) if contact.tip_inside || contact.exit.is_some() => {
                     // Through the smooth displacement field of the points around it: the
                     // crossed triangle's own rest map jumps with every sliver of the
                     // deformed surface the edge happens to pierce.
                     let guess = surface.rest_point(t, bary);
                     let entry_rest = self.rest_of(&entry, &guess, solver, grid);
-                    depth_m = (b.tip - entry).norm();
-                    edge_rest = Some([entry_rest + (b.tip - entry), entry_rest]);
+                    // A blade right through a thin part is in it up to where it comes out.
+                    let inner = contact.exit.unwrap_or(b.tip);
+                    depth_m = (inner - entry).norm();
+                    edge_rest = Some([entry_rest + (inner - entry), entry_rest]);
                 }
                 // Just outside, in the cut's hysteresis band: no depth, same edge.
                 _ if !contact.tip_inside => edge_rest = self.last_edge,

@@ -26,7 +26,7 @@ use crate::solver::{Solver, SolverConfig, StepReport};
 
 pub use cutting::{CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
-pub use script::{CutScript, ScriptError};
+pub use script::{CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
 
 use incision::IncisionInputs;

@@ -25,6 +25,9 @@ pub struct SurfaceContact {
     pub entry_triangle: Option<(usize, [f64; 3])>,
     /// Outward unit normal of the entry triangle.
     pub normal: Vec3,
+    /// With the tip outside: where the edge leaves the tissue again, when it passes right
+    /// through a part (m). The blade is then in the tissue between `entry` and `exit`.
+    pub exit: Option<Vec3>,
 }
 
 impl SurfaceContact {
@@ -35,6 +38,7 @@ impl SurfaceContact {
             entry: None,
             entry_triangle: None,
             normal: Vec3::z(),
+            exit: None,
         }
     }
 }
@@ -245,11 +249,16 @@ impl CurrentSurface {
                     .doubled_area_normal(t)
                     .try_normalize(1e-300)
                     .unwrap_or_else(Vec3::z);
+                let exit = match self.crossings.get(1) {
+                    Some(&(s_out, ..)) if !tip_inside => Some(p + (q - p) * s_out),
+                    _ => None,
+                };
                 SurfaceContact {
                     tip_inside,
                     entry: Some(p + (q - p) * s),
                     entry_triangle: Some((t, bary)),
                     normal,
+                    exit,
                 }
             }
             None => SurfaceContact {
@@ -257,6 +266,7 @@ impl CurrentSurface {
                 entry: None,
                 entry_triangle: None,
                 normal: Vec3::z(),
+                exit: None,
             },
         }
     }
