@@ -10,7 +10,7 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Keyframe, Simulation, Unobserved};
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{BuiltScene, build_scene, builtin};
+use scalpel_sim::scene::{BuiltScene, ForceSpec, build_scene, builtin};
 
 /// Largest change of the tool force in one tick outside a rupture (N). The loading curve
 /// rises by millinewtons per tick at 5 mm/s and the ripple is a fraction of a newton over
@@ -53,7 +53,8 @@ struct Trace {
 }
 
 /// Plays `script` tick by tick (then `idle_ticks` with no tool), checking every tick.
-fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, max_force: f64) -> Trace {
+fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &ForceSpec) -> Trace {
+    let max_force = spec.max_force_n;
     let ticks = (script.duration_s() / TICK_S).ceil() as usize;
     let mut trace = Trace::default();
     let mut last = Vec3::zeros();
@@ -76,9 +77,6 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, max_force:
             .cut
             .as_ref()
             .map(|c| (c.force.phase, c.in_tissue, c.withdrawing));
-        if std::env::var("TRACE_PHASES").is_ok() && phase != last_phase {
-            println!("tick {k}: {phase:?} tip {:?}", pose.map(|p| p.tip_m * 1e3));
-        }
         // A blade cutting forward out of the far side of the tissue parts the last ligament:
         // like a rupture, a physical drop, bounded by the cutting force.
         // So is a depth that falls by millimetres in one tick as the edge comes out of the
@@ -87,13 +85,20 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, max_force:
         let cutting_forward = matches!(last_phase, Some((CutPhase::Cutting, true, false)));
         let breakthrough =
             cutting_forward && (matches!(phase, Some((_, false, _))) || last_depth - depth > 1e-3);
-        last_depth = depth;
+        let depth_before = std::mem::replace(&mut last_depth, depth);
         trace.breakthroughs += usize::from(breakthrough);
         // With no tool there is no device to push: the force is simply zero.
         if pose.is_none() {
             assert_eq!(f, Vec3::zeros(), "tick {k}: force without a tool");
         } else if breakthrough {
-            assert!(last.norm() <= max_force, "tick {k}");
+            // The drop is at most the cutting force at the depth just before it.
+            let cutting = (1.0 + spec.ripple_amplitude)
+                * (spec.toughness_n_per_m * depth_before + spec.friction_n);
+            assert!(
+                (f - last).norm() <= cutting + 1e-9,
+                "tick {k}: breakthrough step {} over the cutting force {cutting}",
+                (f - last).norm()
+            );
         } else if !ruptured && (f - last).norm() > trace.max_step_n {
             trace.max_step_n = (f - last).norm();
             trace.max_step_at = format!(
@@ -161,8 +166,7 @@ fn blade_that_starts_and_stops_inside() {
         (3.5, [5.0, 0.0, z]),
     ]);
     let mut sim = Simulation::new(&scene);
-    let max_force = scene.spec.force.max_force_n;
-    let trace = drive(&mut sim, &s, 300, max_force);
+    let trace = drive(&mut sim, &s, 300, &scene.spec.force);
     assert_calm(&trace);
     // With the blade gone the force is gone and the dent released.
     let r = sim.tick(TICK_S, &mut Unobserved);
@@ -187,8 +191,7 @@ fn blade_that_leaves_and_reenters() {
         (23.4, [30.0, 0.0, up]),
     ]);
     let mut sim = Simulation::new(&scene);
-    let max_force = scene.spec.force.max_force_n;
-    let trace = drive(&mut sim, &s, 0, max_force);
+    let trace = drive(&mut sim, &s, 0, &scene.spec.force);
     assert_calm(&trace);
     assert_eq!(
         trace.ruptures, 2,
@@ -217,8 +220,7 @@ fn two_crossing_cuts() {
         (36.4, [0.0, 25.0, up]),
     ]);
     let mut sim = Simulation::new(&scene);
-    let max_force = scene.spec.force.max_force_n;
-    let trace = drive(&mut sim, &s, 0, max_force);
+    let trace = drive(&mut sim, &s, 0, &scene.spec.force);
     assert_calm(&trace);
     let stats = sim.incisions().unwrap();
     println!("{stats:?}");
@@ -245,8 +247,7 @@ fn cut_through_a_thin_part() {
         (9.0, [0.0, y1 + 5.0, z1 + 5.0]),
     ]);
     let mut sim = Simulation::new(&scene);
-    let max_force = scene.spec.force.max_force_n;
-    let trace = drive(&mut sim, &s, 200, max_force);
+    let trace = drive(&mut sim, &s, 200, &scene.spec.force);
     assert_calm(&trace);
     assert_sound_surface(&sim);
 }
@@ -275,8 +276,7 @@ fn slivers_and_isolated_points() {
         (44.0, [20.0, 0.5 * s_mm, up]),
     ]);
     let mut sim = Simulation::new(&scene);
-    let max_force = scene.spec.force.max_force_n;
-    let trace = drive(&mut sim, &s, 300, max_force);
+    let trace = drive(&mut sim, &s, 300, &scene.spec.force);
     assert_calm(&trace);
     let ranks = sim.solver().operator().rank_counts();
     println!("{ranks:?}");

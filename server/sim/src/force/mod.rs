@@ -172,9 +172,10 @@ impl CuttingForceModel {
         self.spec.friction_n * (depth_m.max(0.0) / self.spec.friction_depth_m).min(1.0)
     }
 
-    /// The mean cutting force at depth `depth_m` (N): J_c·d + friction.
+    /// The mean cutting force at depth `depth_m` (N): J_c·d, as far as the blade carries
+    /// its crack now, + friction.
     pub fn mean_cutting_force(&self, depth_m: f64) -> f64 {
-        self.spec.toughness_n_per_m * depth_m.max(0.0) + self.friction(depth_m)
+        self.spec.toughness_n_per_m * depth_m.max(0.0) * self.engagement + self.friction(depth_m)
     }
 
     /// Advances the model to time `now_s` with this update's blade contact.
@@ -227,8 +228,7 @@ impl CuttingForceModel {
             CutPhase::Free => (0.0, 0.0),
             CutPhase::Loading => self.loading_force(self.loading_m),
             CutPhase::Cutting => {
-                let mean =
-                    self.spec.toughness_n_per_m * depth * self.engagement + self.friction(depth);
+                let mean = self.mean_cutting_force(depth);
                 if self.ripple {
                     let tau = (now_s - self.rupture_s).max(0.0);
                     // The ripple is the crack's stick-slip: it goes with the fracture term.

@@ -80,6 +80,9 @@ const DENT_RADIUS_PER_RUPTURE_DISPLACEMENT: f64 = 2.0;
 /// rather than springing back at once: a sudden release of a soft organ's stored dent
 /// throws the points around the fresh crack inside out.
 const DENT_RELEASE_S: f64 = 0.1;
+/// Most points in the dent patch (preallocated: the tick does not allocate). A patch of
+/// radius 2h holds about 270 lattice points, half of them inside a flat surface.
+const MAX_DENT_POINTS: usize = 256;
 
 /// A point the blade presses down before the capsule ruptures: it follows the tip by
 /// `weight` of the tip's travel since the press began.
@@ -151,7 +154,7 @@ impl CuttingStage {
             press_start: None,
             press_travel: Vec3::zeros(),
             release_start_s: None,
-            pressed: Vec::with_capacity(256),
+            pressed: Vec::with_capacity(MAX_DENT_POINTS),
             dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
                 .max(kernel.support_m),
             direction: Vec3::zeros(),
@@ -187,11 +190,11 @@ impl CuttingStage {
     ) -> CutTick {
         self.tick += 1;
         // Hysteresis: once the capsule is open, the surface around the blade moves with it
-        // (the released dent springs back), so a tip a hair outside
-        // the surface is still in its cut. It leaves only when clearly out.
+        // (the dent relaxes, the lips part), so a tip a hair outside the surface is still in
+        // its cut. It leaves only when clearly out.
         let in_tissue = match blade {
             None => false,
-            Some(_) if contact.tip_inside || contact.exit.is_some() => true,
+            Some(_) if contact.immersed() => true,
             Some(b) => {
                 self.force.phase() == CutPhase::Cutting && surface.near(&b.tip, self.exit_margin_m)
             }
@@ -222,7 +225,7 @@ impl CuttingStage {
         let mut edge_rest = None;
         if let (true, Some(b)) = (in_tissue, blade) {
             match (contact.entry, contact.entry_triangle) {
-                (Some(entry), Some((t, bary))) if contact.tip_inside || contact.exit.is_some() => {
+                (Some(entry), Some((t, bary))) if contact.immersed() => {
                     // Through the smooth displacement field of the points around it: the
                     // crossed triangle's own rest map jumps with every sliver of the
                     // deformed surface the edge happens to pierce.
@@ -469,7 +472,7 @@ impl CuttingStage {
                 pressed.clear();
                 grid.for_each_within(rest, &c, radius, |k, d2| {
                     let q = 1.0 - d2 / (radius * radius);
-                    if q > 0.0 && pressed.len() < pressed.capacity() {
+                    if q > 0.0 && pressed.len() < MAX_DENT_POINTS {
                         pressed.push(Pressed {
                             point: k,
                             start_position: positions[k as usize],

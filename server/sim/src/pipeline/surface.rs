@@ -31,6 +31,11 @@ pub struct SurfaceContact {
 }
 
 impl SurfaceContact {
+    /// Part of the edge is in the tissue: the tip, or a stretch between entry and exit.
+    pub fn immersed(&self) -> bool {
+        self.tip_inside || self.exit.is_some()
+    }
+
     /// No blade.
     pub fn none() -> Self {
         Self {
