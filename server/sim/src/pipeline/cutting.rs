@@ -47,6 +47,9 @@ const SWEEP_FRACTION_OF_SPACING: f64 = 0.125;
 const REMARK_AFTER_TICKS: u64 = 32;
 /// The blade's direction of motion is averaged over about this much travel (m).
 const DIRECTION_TRAVEL_M: f64 = 0.0005;
+/// The depth reading changes at most this fast (m/s) beyond the blade's own motion along
+/// its edge: the dent relaxes at about 30 mm/s, the tissue around a cut moves slower.
+const DEPTH_SLEW_M_PER_S: f64 = 0.05;
 /// Fixed-point iterations mapping a current position to rest space.
 const REST_MAP_ITERATIONS: usize = 3;
 
@@ -108,6 +111,10 @@ pub struct CuttingStage {
     last_tip: Option<Vec3>,
     last_edge: Option<[Vec3; 2]>,
     last_depth_m: f64,
+    /// The entry of the last tick with the edge through the surface (current, rest), and
+    /// where the edge came out again if it went right through.
+    last_entry: Option<(Vec3, Vec3, Option<Vec3>)>,
+    last_now_s: Option<f64>,
     /// Tip position when the dent began, and the dented points.
     press_start: Option<Vec3>,
     /// The tip's travel since the press began, and when the release began.
@@ -151,6 +158,8 @@ impl CuttingStage {
             last_tip: None,
             last_edge: None,
             last_depth_m: 0.0,
+            last_entry: None,
+            last_now_s: None,
             press_start: None,
             press_travel: Vec3::zeros(),
             release_start_s: None,
@@ -189,16 +198,21 @@ impl CuttingStage {
         grid: &RestGrid,
     ) -> CutTick {
         self.tick += 1;
-        // Hysteresis: once the capsule is open, the surface around the blade moves with it
-        // (the dent relaxes, the lips part), so a tip a hair outside the surface is still in
-        // its cut. It leaves only when clearly out.
-        let in_tissue = match blade {
-            None => false,
-            Some(_) if contact.immersed() => true,
-            Some(b) => {
-                self.force.phase() == CutPhase::Cutting && surface.near(&b.tip, self.exit_margin_m)
+        // Hysteresis: once in contact, the surface around the blade moves with it (the dent
+        // follows the tip, then relaxes and the lips part), so a tip a hair outside the
+        // surface is still pressing or in its cut, and a tip in its own open wound (between
+        // the walls) is still cutting. It leaves only when clearly out.
+        let phase_before = self.force.phase();
+        let in_tissue = match (blade, phase_before) {
+            (None, _) => false,
+            (Some(_), _) if contact.immersed() => true,
+            (Some(_), CutPhase::Free) => false,
+            (Some(b), CutPhase::Loading) => surface.near(&b.tip, self.exit_margin_m, false),
+            (Some(b), CutPhase::Cutting) => {
+                surface.near(&b.tip, self.exit_margin_m, true) || self.in_own_wound(b)
             }
         };
+        let last_tip = self.last_tip;
         let mut advance = 0.0;
         if let Some(b) = blade {
             if let Some(last) = self.last_tip {
@@ -235,9 +249,25 @@ impl CuttingStage {
                     let inner = contact.exit.unwrap_or(b.tip);
                     depth_m = (inner - entry).norm();
                     edge_rest = Some([entry_rest + (inner - entry), entry_rest]);
+                    self.last_entry = Some((entry, entry_rest, contact.exit));
                 }
-                // Just outside, in the cut's hysteresis band: no depth, same edge.
-                _ if !contact.tip_inside => edge_rest = self.last_edge,
+                // Just outside, in the cut's hysteresis band: the tip is in the open wound
+                // (the lips have parted around the blade). The depth is still measured from
+                // the last entry, so it neither drops to zero while the blade goes on down
+                // the wound nor jumps back when the tip touches its floor; lifted above
+                // the entry it is zero.
+                _ if !contact.tip_inside => match self.last_entry {
+                    // Pressing, the dent follows the tip: it is at the surface.
+                    _ if phase_before == CutPhase::Loading => edge_rest = self.last_edge,
+                    Some((entry, entry_rest, exit)) => {
+                        let up = b.edge;
+                        // Through a thin part, no deeper than where the edge came out.
+                        let floor = exit.map_or(f64::INFINITY, |x| (entry - x).dot(&up));
+                        depth_m = (entry - b.tip).dot(&up).clamp(0.0, floor.max(0.0));
+                        edge_rest = Some([entry_rest - up * depth_m, entry_rest]);
+                    }
+                    None => edge_rest = self.last_edge,
+                },
                 // Buried blade (no crossing along the edge): hold the last edge.
                 _ => {
                     if let Some(last) = self.last_edge {
@@ -246,6 +276,24 @@ impl CuttingStage {
                     }
                 }
             }
+        }
+        if !in_tissue {
+            self.last_entry = None;
+        }
+        let dt = self.last_now_s.map_or(0.0, |t| (now_s - t).max(0.0));
+        self.last_now_s = Some(now_s);
+        if in_tissue
+            && phase_before == CutPhase::Cutting
+            && let Some((b, last_tip)) = blade.zip(last_tip)
+        {
+            // The depth is read off a discrete, deforming surface: as the dent relaxes, the
+            // lips part and lids appear, the crossing can hop from one sheet to another.
+            // A true change comes from the blade moving along its edge, or the tissue
+            // moving, at tissue speeds; anything faster is an artefact of the reading, and
+            // would be felt as a kick.
+            let along = (b.tip - last_tip).dot(&b.edge).abs();
+            let limit = along + DEPTH_SLEW_M_PER_S * dt;
+            depth_m = self.last_depth_m + (depth_m - self.last_depth_m).clamp(-limit, limit);
         }
         self.last_edge = edge_rest;
         self.last_depth_m = depth_m;
@@ -378,6 +426,17 @@ impl CuttingStage {
             at = x - u / total;
         }
         at
+    }
+
+    /// Whether the blade's tip is down in the wound it has cut (below the last entry and
+    /// under it, within the exit margin): the lips have parted around the blade there, so
+    /// no surface is near the tip, yet it is in the tissue.
+    fn in_own_wound(&self, b: &Blade) -> bool {
+        self.last_entry.is_some_and(|(entry, ..)| {
+            let d = entry - b.tip;
+            let below = d.dot(&b.edge);
+            below > 0.0 && (d - b.edge * below).norm() <= self.exit_margin_m
+        })
     }
 
     fn moved_enough(&self, last: &[Vec3; 2], edge: &[Vec3; 2]) -> bool {

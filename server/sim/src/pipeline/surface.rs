@@ -103,7 +103,46 @@ pub struct CurrentSurface {
     point_flag: Vec<bool>,
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
-    crossings: Vec<(f64, usize, [f64; 3])>,
+    crossings: Vec<Crossing>,
+}
+
+/// Where a segment passes through a surface triangle.
+#[derive(Debug, Clone, Copy)]
+struct Crossing {
+    /// Parameter along the segment, 0 at its start.
+    s: f64,
+    triangle: usize,
+    bary: [f64; 3],
+    /// The segment goes in (against the outward normal) rather than out.
+    entering: bool,
+}
+
+/// Crossings closer than this along a segment (as a fraction of it) are one crossing seen
+/// by several triangles: a segment through a shared edge or vertex hits all of them.
+const SAME_CROSSING: f64 = 1e-9;
+
+/// Sorts `crossings` along the segment and merges each cluster of hits at one place into a
+/// single crossing with the net direction of the cluster (none when it goes in and out
+/// again, a touch). Parity counts on the result are right even when the segment passes
+/// exactly through a mesh edge or vertex, as a blade on a symmetric part's centre line does.
+fn merge_crossings(crossings: &mut Vec<Crossing>) {
+    crossings.sort_by(|a, b| a.s.total_cmp(&b.s));
+    let (mut read, mut write) = (0, 0);
+    while read < crossings.len() {
+        let start = read;
+        let mut net = 0i32;
+        while read < crossings.len() && crossings[read].s - crossings[start].s <= SAME_CROSSING {
+            net += if crossings[read].entering { 1 } else { -1 };
+            read += 1;
+        }
+        if net != 0 {
+            let mut kept = crossings[start];
+            kept.entering = net > 0;
+            crossings[write] = kept;
+            write += 1;
+        }
+    }
+    crossings.truncate(write);
 }
 
 impl CurrentSurface {
@@ -229,39 +268,37 @@ impl CurrentSurface {
     /// Where the blade's edge (from its back P' to its tip P) meets the current surface.
     pub fn contact(&mut self, blade: &Blade) -> SurfaceContact {
         let (p, q) = (blade.back, blade.tip);
-        let lo = p.inf(&q);
-        let hi = p.sup(&q);
-        self.crossings.clear();
-        let mesh = &self.mesh;
-        let crossings = &mut self.crossings;
-        let kinds = &self.kinds;
-        // Wound walls are inside the envelope (skin + lids): the blade passes them.
-        self.bvh.for_each_overlapping(&lo, &hi, |t| {
-            if kinds[t] != FaceKind::Wall
-                && let Some((s, bary)) = segment_triangle(&p, &q, &mesh.corners(t))
-            {
-                crossings.push((s, t, bary));
-            }
-        });
-        self.crossings.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Self::collect_crossings(
+            &self.bvh,
+            &self.mesh,
+            &self.kinds,
+            &p,
+            &q,
+            &mut self.crossings,
+        );
         // A closed surface: the tip is inside iff the edge crossed it an odd number of times.
-        let tip_inside =
-            self.crossings.len() % 2 == 1 || (self.crossings.is_empty() && self.point_inside(&q));
+        let tip_inside = if self.crossings.is_empty() {
+            self.point_inside(&q)
+        } else {
+            self.crossings.len() % 2 == 1
+        };
         match self.crossings.first() {
-            Some(&(s, t, bary)) => {
+            Some(&Crossing {
+                s, triangle, bary, ..
+            }) => {
                 let normal = self
                     .mesh
-                    .doubled_area_normal(t)
+                    .doubled_area_normal(triangle)
                     .try_normalize(1e-300)
                     .unwrap_or_else(Vec3::z);
                 let exit = match self.crossings.get(1) {
-                    Some(&(s_out, ..)) if !tip_inside => Some(p + (q - p) * s_out),
+                    Some(out) if !tip_inside => Some(p + (q - p) * out.s),
                     _ => None,
                 };
                 SurfaceContact {
                     tip_inside,
                     entry: Some(p + (q - p) * s),
-                    entry_triangle: Some((t, bary)),
+                    entry_triangle: Some((triangle, bary)),
                     normal,
                     exit,
                 }
@@ -276,13 +313,41 @@ impl CurrentSurface {
         }
     }
 
-    /// Whether `x` is within `margin` of the envelope (skin and lids).
-    pub fn near(&self, x: &Vec3, margin: f64) -> bool {
+    /// The crossings of the segment p→q with the envelope (skin and lids; wound walls are
+    /// inside it and the blade passes them), merged and in order along the segment.
+    fn collect_crossings(
+        bvh: &TriangleBvh,
+        mesh: &TriMesh,
+        kinds: &[FaceKind],
+        p: &Vec3,
+        q: &Vec3,
+        crossings: &mut Vec<Crossing>,
+    ) {
+        crossings.clear();
+        let d = q - p;
+        bvh.for_each_overlapping(&p.inf(q), &p.sup(q), |t| {
+            if kinds[t] != FaceKind::Wall
+                && let Some((s, bary)) = segment_triangle(p, q, &mesh.corners(t))
+            {
+                crossings.push(Crossing {
+                    s,
+                    triangle: t,
+                    bary,
+                    entering: mesh.doubled_area_normal(t).dot(&d) < 0.0,
+                });
+            }
+        });
+        merge_crossings(crossings);
+    }
+
+    /// Whether `x` is within `margin` of the envelope (skin and lids), or of the wound walls
+    /// too when `walls`.
+    pub fn near(&self, x: &Vec3, margin: f64, walls: bool) -> bool {
         let d = Vec3::repeat(margin);
         let mut near = false;
         self.bvh.for_each_overlapping(&(x - d), &(x + d), |t| {
             if !near
-                && self.kinds[t] != FaceKind::Wall
+                && (walls || self.kinds[t] != FaceKind::Wall)
                 && (closest_point_on_triangle(x, &self.mesh.corners(t)) - x).norm() <= margin
             {
                 near = true;
@@ -293,19 +358,19 @@ impl CurrentSurface {
 
     /// Whether `x` is inside the current surface (ray parity along +z; used only when the
     /// whole blade is inside or outside).
-    fn point_inside(&self, x: &Vec3) -> bool {
+    fn point_inside(&mut self, x: &Vec3) -> bool {
         let far = x + Vec3::new(0.0, 0.0, 10.0);
-        let lo = x.inf(&far);
-        let hi = x.sup(&far);
-        let mut count = 0;
-        self.bvh.for_each_overlapping(&lo, &hi, |t| {
-            if self.kinds[t] != FaceKind::Wall
-                && segment_triangle(x, &far, &self.mesh.corners(t)).is_some()
-            {
-                count += 1;
-            }
-        });
-        count % 2 == 1
+        Self::collect_crossings(
+            &self.bvh,
+            &self.mesh,
+            &self.kinds,
+            x,
+            &far,
+            &mut self.crossings,
+        );
+        let inside = self.crossings.len() % 2 == 1;
+        self.crossings.clear();
+        inside
     }
 
     /// The support radius of the model (m).
@@ -445,4 +510,45 @@ fn segment_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> Option<(f64, [f64; 3
     }
     let t = e2.dot(&qv) * inv;
     (0.0..=1.0).contains(&t).then_some((t, [1.0 - u - v, u, v]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hit(s: f64, entering: bool) -> Crossing {
+        Crossing {
+            s,
+            triangle: 0,
+            bary: [1.0 / 3.0; 3],
+            entering,
+        }
+    }
+
+    #[test]
+    fn a_crossing_through_a_shared_edge_or_vertex_counts_once() {
+        // Through an edge (two triangles) going in, out through a vertex (five triangles).
+        let mut c = vec![hit(0.5, true), hit(0.2, true), hit(0.2 + 1e-13, true)];
+        c.extend((0..5).map(|k| hit(0.8 + k as f64 * 1e-14, false)));
+        merge_crossings(&mut c);
+        assert_eq!(c.len(), 3);
+        assert!(c[0].entering && (c[0].s - 0.2).abs() < 1e-12);
+        assert!(c[1].entering && c[1].s == 0.5);
+        assert!(!c[2].entering);
+    }
+
+    #[test]
+    fn a_touch_on_a_silhouette_edge_is_no_crossing() {
+        let mut c = vec![hit(0.4, true), hit(0.4, false)];
+        merge_crossings(&mut c);
+        assert!(c.is_empty());
+    }
+
+    #[test]
+    fn distinct_crossings_are_kept_in_order() {
+        let mut c = vec![hit(0.9, false), hit(0.1, true)];
+        merge_crossings(&mut c);
+        assert_eq!(c.len(), 2);
+        assert!(c[0].s < c[1].s);
+    }
 }
