@@ -1,5 +1,7 @@
 //! The simulation step is on the real-time path: after warm-up it must not allocate, and
-//! it must be deterministic (two runs bitwise equal).
+//! it must be deterministic (two runs bitwise equal). So is a cutting tick (contact, force,
+//! affected region, step, surface following) that changes no topology; a tick that grows
+//! the cut surface or re-meshes the incision may allocate (docs/CUTTING.md).
 
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
 #![allow(unsafe_code)]
@@ -232,4 +234,60 @@ fn frozen_points_stay_put_and_the_active_region_moves() {
         solver.set_active(&active);
     }
     assert_eq!(allocations() - before, 0);
+}
+
+/// A cutting tick's allocations, by what the tick did.
+#[derive(Debug, Default)]
+struct CutAllocations {
+    /// Ticks with no new cut surface and no change of the drawn surface.
+    plain_ticks: u64,
+    plain_allocations: u64,
+    /// Ticks that grew Σ or re-cut the incision (topology changes).
+    topology_ticks: u64,
+}
+
+#[test]
+fn cutting_ticks_without_topology_change_do_not_allocate() {
+    use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
+    let mut spec = builtin("liver").unwrap();
+    spec.features.cutting = true;
+    let scene = build_scene(&spec, None, &mut Silent).unwrap();
+    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let mut sim = Simulation::new(&scene);
+    let ticks = (script.duration_s() / 1e-3) as usize;
+    let mut seen = CutAllocations::default();
+    // Warm-up: the approach, the press and the first second of cutting (scratch buffers
+    // reach their working size).
+    let warm_up = ticks / 4;
+    for k in 0..ticks {
+        sim.set_tool(Some(script.pose_at(k as f64 * 1e-3)));
+        let triangles = sim.surface().triangles.len();
+        let before = allocations();
+        let report = sim.tick(1e-3, &mut Unobserved);
+        let during = allocations() - before;
+        let cut = report.cut.as_ref().unwrap();
+        let topology = !cut.new_sigma.is_empty()
+            || cut.pairs_removed > 0
+            || sim.surface().triangles.len() != triangles
+            || report.remeshed;
+        if during > 0 && !topology && k >= warm_up {
+            println!("tick {k}: {during} allocations, {cut:?}");
+        }
+        if k < warm_up {
+            continue;
+        }
+        if topology {
+            seen.topology_ticks += 1;
+        } else {
+            seen.plain_ticks += 1;
+            seen.plain_allocations += during;
+        }
+    }
+    println!("{seen:?}");
+    assert!(seen.plain_ticks > 1000, "{seen:?}");
+    assert!(
+        seen.topology_ticks > 10,
+        "the cut should have grown: {seen:?}"
+    );
+    assert_eq!(seen.plain_allocations, 0, "{seen:?}");
 }

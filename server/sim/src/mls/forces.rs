@@ -142,6 +142,11 @@ impl EvalSet {
             self.stress.clear();
             self.touched.clear();
             self.runs.clear();
+            // Room for the whole body up front: an active region that grows while cutting
+            // must not grow these on the real-time path.
+            self.stress.reserve(n);
+            self.touched.reserve(n);
+            self.runs.reserve(n / LANES + 1);
         }
         // Clear only what the previous set marked.
         for &i in &self.stress {

@@ -79,6 +79,9 @@ pub struct IncisionInputs<'a> {
     pub positions: &'a [Vec3],
 }
 
+/// Path samples preallocated per stroke.
+const PATH_SAMPLE_CAPACITY: usize = 1024;
+
 impl IncisionTracker {
     /// A tracker for a surface with mean edge length `edge_m`.
     pub fn new(edge_m: f64, params: IncisionParams) -> Self {
@@ -87,7 +90,9 @@ impl IncisionTracker {
             sample_step_m: 0.25 * edge_m,
             rerun_step_m: edge_m,
             base: None,
-            samples: Vec::new(),
+            // A 250 mm stroke at a quarter of a 1 mm edge: the path grows without
+            // allocating on the tick.
+            samples: Vec::with_capacity(PATH_SAMPLE_CAPACITY),
             last_run_end: None,
             front: None,
             opened_this_stroke: false,

@@ -67,6 +67,8 @@ pub struct TickReport {
     pub active_points: usize,
     /// Surface vertices moved this tick.
     pub vertices_moved: usize,
+    /// The incision re-meshed the surface this tick (its topology changed).
+    pub remeshed: bool,
     /// The solver's report.
     pub solver: StepReport,
 }
@@ -139,6 +141,7 @@ impl Simulation {
     pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
         let blade = self.tool.map(|pose| Blade::at(&pose, &self.spec.tool));
         let mut cut = None;
+        let mut remeshed = false;
         if let Some(stage) = &mut self.cutting {
             observer.enter(Stage::Surface);
             let contact = match &blade {
@@ -172,7 +175,7 @@ impl Simulation {
                 let edge = tick
                     .edge_rest
                     .filter(|_| tick.force.phase == CutPhase::Cutting);
-                tracker.update(
+                remeshed = tracker.update(
                     edge,
                     stage.direction(),
                     tick.withdrawing,
@@ -217,6 +220,7 @@ impl Simulation {
             tool_force_n,
             active_points: self.solver.active_points().len(),
             vertices_moved,
+            remeshed,
             solver,
         }
     }
