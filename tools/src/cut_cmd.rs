@@ -125,8 +125,13 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
     );
     let _ = writeln!(
         s,
-        "  interior: {} pairs cut by {} triangles of Σ, at most {} of {} points integrated",
-        m.pairs_removed, m.sigma_triangles, m.max_active_points, m.points
+        "  interior: {} pairs cut by {} triangles of Σ, at most {} of {} points integrated, {} left / {} right of the blade",
+        m.pairs_removed,
+        m.sigma_triangles,
+        m.max_active_points,
+        m.points,
+        m.left_points,
+        m.right_points
     );
     match (m.min_angle_deg, m.lip_max_turn_deg) {
         (Some(angle), Some(turn)) => {

@@ -191,6 +191,10 @@ pub struct CutMetrics {
     pub sigma_triangles: usize,
     /// Most points integrated in any tick, and the total.
     pub max_active_points: usize,
+    /// Points classified left and right of the blade plane (level set φ) along the cut.
+    pub left_points: usize,
+    /// See `left_points`.
+    pub right_points: usize,
     /// Interior points.
     pub points: usize,
     /// Surface triangles before and after (drawn: skin and walls).
@@ -283,6 +287,8 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         pairs_removed: sim.cutting().map_or(0, |c| c.pairs_removed_total),
         sigma_triangles: sim.cutting().map_or(0, |c| c.sigma.triangles.len()),
         max_active_points: run.rows.iter().map(|r| r.active_points).max().unwrap_or(0),
+        left_points: sim.cutting().map_or(0, |c| c.classification().left),
+        right_points: sim.cutting().map_or(0, |c| c.classification().right),
         points: scene.model.points.len(),
         triangles_before: scene.model.surface.triangles.len(),
         triangles_after: drawn.triangles.len(),

@@ -7,4 +7,4 @@ pub mod swept;
 pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
 pub use incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
-pub use swept::{SweptSurface, cut_pairs};
+pub use swept::{SweptSurface, cut_pairs, visit_crossing_pairs};

@@ -46,12 +46,43 @@ pub fn cut_pairs(
     changed: &mut Vec<u32>,
     candidates: &mut Vec<u32>,
 ) -> usize {
+    let mut removed = 0;
+    visit_crossing_pairs(
+        triangle,
+        rest,
+        grid,
+        neighbours,
+        support_m,
+        candidates,
+        |neighbours, i, j, _| {
+            neighbours.remove(i as usize, j);
+            neighbours.remove(j as usize, i);
+            changed.push(i);
+            changed.push(j);
+            removed += 1;
+            true
+        },
+    );
+    removed
+}
+
+/// Calls `act(neighbours, i, j, crossing)` for every neighbour pair (i < j) whose rest
+/// segment meets `triangle`, with the rest point where it does; `act` returns whether it
+/// removed the pair from N(i). `candidates` is scratch.
+pub fn visit_crossing_pairs(
+    triangle: &[Vec3; 3],
+    rest: &[Vec3],
+    grid: &RestGrid,
+    neighbours: &mut Neighbourhoods,
+    support_m: f64,
+    candidates: &mut Vec<u32>,
+    mut act: impl FnMut(&mut Neighbourhoods, u32, u32, Vec3) -> bool,
+) {
     // Both ends of a crossing pair are within h of the triangle: look around its box.
     let lo = triangle[0].inf(&triangle[1]).inf(&triangle[2]);
     let hi = triangle[0].sup(&triangle[1]).sup(&triangle[2]);
     let centre = (lo + hi) * 0.5;
     let reach = (hi - lo).norm() * 0.5 + support_m;
-    let mut removed = 0;
     candidates.clear();
     grid.for_each_within(rest, &centre, reach, |i, _| candidates.push(i));
     for &i in candidates.iter() {
@@ -59,18 +90,31 @@ pub fn cut_pairs(
         let mut k = 0;
         while k < neighbours.of(i).len() {
             let j = neighbours.of(i)[k];
-            if (j as usize) > i && segment_meets_triangle(&rest[i], &rest[j as usize], triangle) {
-                neighbours.remove(i, j);
-                neighbours.remove(j as usize, i as u32);
-                changed.push(i as u32);
-                changed.push(j);
-                removed += 1;
-            } else {
+            let (a, b) = (rest[i], rest[j as usize]);
+            let removed = (j as usize) > i
+                && segment_meets_triangle(&a, &b, triangle)
+                && act(
+                    neighbours,
+                    i as u32,
+                    j,
+                    segment_plane_point(&a, &b, triangle),
+                );
+            if !removed {
                 k += 1;
             }
         }
     }
-    removed
+}
+
+/// Where the segment a–b meets the plane of `triangle` (its midpoint when it lies in it).
+fn segment_plane_point(a: &Vec3, b: &Vec3, triangle: &[Vec3; 3]) -> Vec3 {
+    let n = (triangle[1] - triangle[0]).cross(&(triangle[2] - triangle[0]));
+    let along = n.dot(&(b - a));
+    if along.abs() <= 1e-300 {
+        return (a + b) * 0.5;
+    }
+    let t = (n.dot(&(triangle[0] - a)) / along).clamp(0.0, 1.0);
+    a + (b - a) * t
 }
 
 #[cfg(test)]

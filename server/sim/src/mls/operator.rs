@@ -266,12 +266,13 @@ impl MlsOperator {
         kernel: &Kernel,
     ) {
         let list = neighbours.of(i);
+        let extra = neighbours.extra_of(i);
         let base = i * self.capacity;
         let mut a = Mat3::zeros();
         let mut sum_wx = Vec3::zeros();
         let mut sum_w = 0.0;
         let mut count = 0;
-        for &j in list {
+        for (&j, &e) in list.iter().zip(extra) {
             let x = match &self.lattice {
                 Some(l) => {
                     let (a, b) = (l.coords[i], l.coords[j as usize]);
@@ -283,7 +284,13 @@ impl MlsOperator {
                 }
                 None => rest[j as usize] - rest[i],
             };
-            let w = kernel.weight_sq(x.norm_squared());
+            // A transparent pair (near the crack front) weighs as if it were `e` farther.
+            let w = if e > 0.0 {
+                let r = x.norm() + e;
+                kernel.weight_sq(r * r)
+            } else {
+                kernel.weight_sq(x.norm_squared())
+            };
             if w <= 0.0 {
                 continue;
             }

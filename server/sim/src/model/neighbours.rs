@@ -119,6 +119,9 @@ pub struct Neighbourhoods {
     capacity: usize,
     counts: Vec<u32>,
     ids: Vec<u32>,
+    /// Per slot, a distance added to the pair's rest distance in the kernel (m): zero, or the
+    /// transparency of a pair that crosses the cut near its front (physics.md §4.3).
+    extra: Vec<f64>,
 }
 
 /// A neighbour list is full; the model was built with too little headroom.
@@ -159,6 +162,7 @@ impl Neighbourhoods {
         Self {
             capacity,
             counts,
+            extra: vec![0.0; ids.len()],
             ids,
         }
     }
@@ -193,9 +197,32 @@ impl Neighbourhoods {
             return false;
         };
         self.ids[start + k] = self.ids[start + n - 1];
+        self.extra[start + k] = self.extra[start + n - 1];
         self.ids[start + n - 1] = u32::MAX;
+        self.extra[start + n - 1] = 0.0;
         self.counts[i] -= 1;
         true
+    }
+
+    /// The kernel-distance additions of N(i), slot by slot (see [`Neighbourhoods::of`]).
+    #[inline]
+    pub fn extra_of(&self, i: usize) -> &[f64] {
+        let start = i * self.capacity;
+        &self.extra[start..start + self.counts[i] as usize]
+    }
+
+    /// Sets the kernel-distance addition of the pair (i, j) on both sides; returns whether
+    /// the pair is there.
+    pub fn set_extra(&mut self, i: usize, j: u32, extra_m: f64) -> bool {
+        let mut found = true;
+        for (a, b) in [(i, j), (j as usize, i as u32)] {
+            let start = a * self.capacity;
+            match self.of(a).iter().position(|&x| x == b) {
+                Some(k) => self.extra[start + k] = extra_m,
+                None => found = false,
+            }
+        }
+        found
     }
 
     /// Adds j to N(i) if it is not there yet.
@@ -211,6 +238,7 @@ impl Neighbourhoods {
             });
         }
         self.ids[i * self.capacity + n] = j;
+        self.extra[i * self.capacity + n] = 0.0;
         self.counts[i] += 1;
         Ok(())
     }

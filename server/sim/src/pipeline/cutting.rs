@@ -20,7 +20,7 @@
 
 use std::ops::Range;
 
-use crate::cut::{Blade, SweptSurface, cut_pairs};
+use crate::cut::{Blade, SweptSurface, visit_crossing_pairs};
 use crate::force::{BladeContact, CutForce, CutPhase, CuttingForceModel};
 use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
 use crate::math::Vec3;
@@ -52,6 +52,19 @@ const DIRECTION_TRAVEL_M: f64 = 0.0005;
 const DEPTH_SLEW_M_PER_S: f64 = 0.05;
 /// Fixed-point iterations mapping a current position to rest space.
 const REST_MAP_ITERATIONS: usize = 3;
+
+/// The level-set classification of the points (physics.md §4.4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct Classification {
+    /// Points in the cutting-affected region now (integrated).
+    pub affected: usize,
+    /// Points not integrated (never reached, or asleep).
+    pub unaffected: usize,
+    /// Points classified left of the blade plane (φ > 0).
+    pub left: usize,
+    /// Points classified right of it (φ < 0).
+    pub right: usize,
+}
 
 /// What the cutting stage did in one tick.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,6 +99,21 @@ const DENT_RELEASE_S: f64 = 0.1;
 /// Most points in the dent patch (preallocated: the tick does not allocate). A patch of
 /// radius 2h holds about 270 lattice points, half of them inside a flat surface.
 const MAX_DENT_POINTS: usize = 256;
+
+/// Most pairs in the transparency zone at once (preallocated); beyond it a crossing pair is
+/// cut at once, as with hard visibility. A front 20 mm long on a 1 mm lattice has about 2000.
+const MAX_TRANSPARENT_PAIRS: usize = 8192;
+
+/// A neighbour pair whose rest segment crosses Σ near the crack front (physics.md §4.3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct TransparentPair {
+    i: u32,
+    j: u32,
+    /// Where the segment crosses Σ (rest).
+    crossing: Vec3,
+    /// The distance added in the kernel now (m).
+    extra_m: f64,
+}
 
 /// A point the blade presses down before the capsule ruptures: it follows the tip by
 /// `weight` of the tip's travel since the press began.
@@ -124,6 +152,8 @@ pub struct CuttingStage {
     dent_radius_m: f64,
     direction: Vec3,
     awake: Vec<bool>,
+    /// Side of each point relative to the blade plane (+1 left, −1 right, 0 unknown).
+    side: Vec<i8>,
     last_near: Vec<u64>,
     awake_list: Vec<u32>,
     active_dirty: bool,
@@ -131,6 +161,10 @@ pub struct CuttingStage {
     changed: Vec<u32>,
     changed_flag: Vec<bool>,
     candidates: Vec<u32>,
+    /// κ of the crack-front transparency (0: hard visibility).
+    transparency: f64,
+    /// Pairs across Σ near the current front, fading out.
+    transparent: Vec<TransparentPair>,
     /// Pairs removed since the start.
     pub pairs_removed_total: usize,
 }
@@ -168,6 +202,7 @@ impl CuttingStage {
                 .max(kernel.support_m),
             direction: Vec3::zeros(),
             awake: vec![false; n],
+            side: vec![0; n],
             last_near: vec![0; n],
             awake_list: Vec::with_capacity(n),
             active_dirty: true,
@@ -175,6 +210,8 @@ impl CuttingStage {
             changed: Vec::with_capacity(1024),
             changed_flag: vec![false; n],
             candidates: Vec::with_capacity(4096),
+            transparency: force.crack_transparency,
+            transparent: Vec::with_capacity(MAX_TRANSPARENT_PAIRS),
             pairs_removed_total: 0,
         }
     }
@@ -342,16 +379,45 @@ impl CuttingStage {
         let new_sigma = sigma_before..self.sigma.triangles.len();
         let mut pairs_removed = 0;
         self.changed.clear();
+        let fade_m = 0.5 * self.transparency * self.kernel.support_m;
         for t in new_sigma.clone() {
-            pairs_removed += cut_pairs(
+            let (transparent, changed) = (&mut self.transparent, &mut self.changed);
+            visit_crossing_pairs(
                 &self.sigma.triangles[t],
                 solver.rest(),
                 grid,
                 neighbours,
                 self.kernel.support_m,
-                &mut self.changed,
                 &mut self.candidates,
+                |neighbours, i, j, crossing| {
+                    // Near the front the pair fades out as the blade moves on (below).
+                    if fade_m > 0.0 && transparent.len() < MAX_TRANSPARENT_PAIRS {
+                        if !transparent.iter().any(|p| p.i == i && p.j == j) {
+                            transparent.push(TransparentPair {
+                                i,
+                                j,
+                                crossing,
+                                extra_m: 0.0,
+                            });
+                        }
+                        return false;
+                    }
+                    neighbours.remove(i as usize, j);
+                    neighbours.remove(j as usize, i);
+                    changed.extend([i, j]);
+                    pairs_removed += 1;
+                    true
+                },
             );
+        }
+        match self.last_sweep {
+            Some(front) if !new_sigma.is_empty() => {
+                pairs_removed += self.fade_transparent_pairs(&front, solver.rest(), neighbours);
+            }
+            Some(_) => {}
+            // The stroke is over: its crack front stays where it is, with the pairs across
+            // it as transparent as they are now.
+            None => self.transparent.clear(),
         }
         // Unique changed points, all of them awake.
         let mut write = 0;
@@ -439,6 +505,52 @@ impl CuttingStage {
         })
     }
 
+    /// Transparency near the crack front (physics.md §4.3, Organ et al. 1996): a pair that
+    /// crosses Σ at distance d_s from the front (the blade's edge) weighs as if it were
+    /// h·(2d_s/κh)² farther apart, so it fades out over κh/2 of travel instead of switching
+    /// off in one tick — hard visibility makes a spurious discontinuity ahead of the crack
+    /// and the points there jerk as their pairs switch off one by one. Fully faded pairs are
+    /// removed; the rest get their new weight. Returns the pairs removed.
+    fn fade_transparent_pairs(
+        &mut self,
+        front: &[Vec3; 2],
+        rest: &[Vec3],
+        neighbours: &mut Neighbourhoods,
+    ) -> usize {
+        let h = self.kernel.support_m;
+        let kappa_h = self.transparency * h;
+        let mut removed = 0;
+        let mut r = 0;
+        while r < self.transparent.len() {
+            let pair = self.transparent[r];
+            let (i, j) = (pair.i as usize, pair.j);
+            let d_s = distance_sq_to_segment(&pair.crossing, &front[0], &front[1]).sqrt();
+            let extra = h * (2.0 * d_s / kappa_h).powi(2);
+            if (rest[i] - rest[j as usize]).norm() + extra >= h {
+                // Faded out: the pair is cut.
+                neighbours.remove(i, j);
+                neighbours.remove(j as usize, pair.i);
+                removed += 1;
+                self.transparent.swap_remove(r);
+                self.changed.extend([pair.i, j]);
+                continue;
+            }
+            // Rows are rebuilt only when the weight moved by more than rounding.
+            if (extra - pair.extra_m).abs() > 1e-9 * h {
+                neighbours.set_extra(i, j, extra);
+                self.transparent[r].extra_m = extra;
+                self.changed.extend([pair.i, j]);
+            }
+            r += 1;
+        }
+        removed
+    }
+
+    /// Pairs across the cut near its front, still partly connected.
+    pub fn transparent_pairs(&self) -> usize {
+        self.transparent.len()
+    }
+
     fn moved_enough(&self, last: &[Vec3; 2], edge: &[Vec3; 2]) -> bool {
         let step = SWEEP_FRACTION_OF_SPACING * self.spacing_m;
         (edge[0] - last[0]).norm() >= step || (edge[1] - last[1]).norm() >= step
@@ -475,10 +587,38 @@ impl CuttingStage {
                 candidates.push(i);
             }
         });
+        // Left/right (physics.md §4.4): the sign of φ(X) = n_b·(X − P), n_b the blade
+        // plane's normal, up the edge × the way it moves (+ is the left hand of someone
+        // looking along the cut with the edge pointing up). Undefined while plunging.
+        let up = edge[1] - edge[0];
+        let normal = up.cross(&self.direction).try_normalize(1e-12);
         for r in 0..self.candidates.len() {
             let i = self.candidates[r];
             self.wake(i);
+            if let Some(n) = normal {
+                let phi = n.dot(&(rest[i as usize] - edge[0]));
+                if phi.abs() > 1e-9 * self.spacing_m {
+                    self.side[i as usize] = if phi > 0.0 { 1 } else { -1 };
+                }
+            }
         }
+    }
+
+    /// The level-set classification so far: points integrated now (cutting-affected) and
+    /// not, and of the points ever in the affected region, those left and right of the
+    /// blade plane when last marked.
+    pub fn classification(&self) -> Classification {
+        Classification {
+            affected: self.awake_list.len(),
+            unaffected: self.awake.len() - self.awake_list.len(),
+            left: self.side.iter().filter(|&&s| s > 0).count(),
+            right: self.side.iter().filter(|&&s| s < 0).count(),
+        }
+    }
+
+    /// Side of point `i`: +1 left of the blade plane, −1 right, 0 never classified.
+    pub fn side(&self, i: usize) -> i8 {
+        self.side[i]
     }
 
     /// Points out of the tool's reach that have come to rest stop being integrated.

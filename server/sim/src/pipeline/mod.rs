@@ -24,7 +24,7 @@ use crate::model::{Neighbourhoods, RestGrid};
 use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::{Solver, SolverConfig, StepReport};
 
-pub use cutting::{CutTick, CuttingStage};
+pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
 pub use script::{CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};

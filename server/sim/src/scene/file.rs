@@ -122,6 +122,7 @@ struct RawForce {
     ripple_amplitude: Option<f64>,
     ripple_wavelength_mm: Option<f64>,
     ripple_decay_s: Option<f64>,
+    crack_transparency: Option<f64>,
     max_force_n: Option<f64>,
 }
 
@@ -468,6 +469,13 @@ impl SceneSpec {
                 1.0,
             )?;
             check.set(
+                &mut out.crack_transparency,
+                f.crack_transparency,
+                "force.crack_transparency",
+                Limit::closed(0.0, 2.0, ""),
+                1.0,
+            )?;
+            check.set(
                 &mut out.max_force_n,
                 f.max_force_n,
                 "force.max_force_n",
@@ -740,6 +748,7 @@ mod tests {
             ripple_amplitude,
             ripple_wavelength_mm,
             ripple_decay_s,
+            crack_transparency,
             max_force_n,
         } = force.expect("[force]");
         for f in [
@@ -751,6 +760,7 @@ mod tests {
             ripple_amplitude,
             ripple_wavelength_mm,
             ripple_decay_s,
+            crack_transparency,
             max_force_n,
         ] {
             assert!(f.is_some());

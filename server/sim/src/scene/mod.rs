@@ -291,6 +291,10 @@ pub struct ForceSpec {
     pub ripple_wavelength_m: f64,
     /// Ripple decay time τ_d (s).
     pub ripple_decay_s: f64,
+    /// κ of the transparency zone at the crack front (physics.md §4.3): a pair crossing the
+    /// cut within κh/2 of the blade's edge fades out instead of switching off; 0 is hard
+    /// visibility.
+    pub crack_transparency: f64,
     /// Largest force ever sent to a device (N).
     pub max_force_n: f64,
 }
@@ -306,6 +310,7 @@ impl Default for ForceSpec {
             ripple_amplitude: 0.15,
             ripple_wavelength_m: 0.002,
             ripple_decay_s: 1.0,
+            crack_transparency: 1.0,
             // Geomagic Touch peak rating (physics.md §7.5).
             max_force_n: 3.3,
         }
