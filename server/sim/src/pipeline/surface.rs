@@ -101,10 +101,20 @@ pub struct CurrentSurface {
     triangle_flag: Vec<bool>,
     triangle_list: Vec<u32>,
     point_flag: Vec<bool>,
+    /// Each point's position when the vertices that follow it were last placed.
+    followed: Vec<Vec3>,
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
     crossings: Vec<Crossing>,
 }
+
+/// Vertices follow a point again once it has moved this far (m) since they were last
+/// placed: well below what a display or the blade contact can resolve, and most awake
+/// points near a cut are still at any one tick.
+const FOLLOW_TOLERANCE_M: f64 = 1e-6;
+
+/// A `followed` position that always counts as moved.
+const STALE: Vec3 = Vec3::new(f64::NAN, f64::NAN, f64::NAN);
 
 /// Where a segment passes through a surface triangle.
 #[derive(Debug, Clone, Copy)]
@@ -174,6 +184,7 @@ impl CurrentSurface {
             triangle_flag: vec![false; mesh.triangles.len()],
             triangle_list: Vec::with_capacity(mesh.triangles.len()),
             point_flag: vec![false; model.points.len()],
+            followed: vec![STALE; model.points.len()],
             point_list: Vec::with_capacity(model.points.len()),
             gradients: vec![Mat3::identity(); model.points.len()],
             crossings: Vec::with_capacity(64),
@@ -203,7 +214,14 @@ impl CurrentSurface {
     ) -> usize {
         self.vertex_list.clear();
         for &k in moved {
-            for &v in self.point_vertices.of(k as usize) {
+            let k = k as usize;
+            // A point that has not moved by more than the tolerance since its vertices were
+            // last placed leaves them where they are.
+            if (p[k] - self.followed[k]).norm_squared() < FOLLOW_TOLERANCE_M * FOLLOW_TOLERANCE_M {
+                continue;
+            }
+            self.followed[k] = p[k];
+            for &v in self.point_vertices.of(k) {
                 if !std::mem::replace(&mut self.vertex_flag[v as usize], true) {
                     self.vertex_list.push(v);
                 }
@@ -259,9 +277,14 @@ impl CurrentSurface {
         let reach = (hi - lo).norm() * 0.5 + self.support_m * 3.5;
         let rest = &self.rest;
         let embedding = &mut self.embedding;
+        let followed = &mut self.followed;
         self.vertex_grid
             .for_each_within(rest, &centre, reach, |v, _| {
                 embedding.drop_across(v as usize, &rest[v as usize], rest_points, cut);
+                // The vertex reads other points now: move it at the next follow.
+                for &k in embedding.of(v as usize).0 {
+                    followed[k as usize] = STALE;
+                }
             });
     }
 
@@ -447,6 +470,7 @@ impl CurrentSurface {
         self.kinds = incised.kinds.clone();
         self.rebuild_indices(rest_points.len());
         let all: Vec<u32> = (0..rest_points.len() as u32).collect();
+        self.followed.iter_mut().for_each(|f| *f = STALE);
         self.follow(op, rest_points, p, &all);
         self.bvh = TriangleBvh::build(&self.mesh);
         base_to_new
