@@ -273,8 +273,10 @@ impl MlsOperator {
         let mut sum_w = 0.0;
         let mut count = 0;
         for (&j, &e) in list.iter().zip(extra) {
+            // Exact lattice offsets between lattice points; nodes added after the lattice
+            // (virtual points) use their rest positions.
             let x = match &self.lattice {
-                Some(l) => {
+                Some(l) if i < l.coords.len() && (j as usize) < l.coords.len() => {
                     let (a, b) = (l.coords[i], l.coords[j as usize]);
                     Vec3::new(
                         (b[0] as f64 - a[0] as f64) * l.spacing,
@@ -282,7 +284,7 @@ impl MlsOperator {
                         (b[2] as f64 - a[2] as f64) * l.spacing,
                     )
                 }
-                None => rest[j as usize] - rest[i],
+                _ => rest[j as usize] - rest[i],
             };
             // A transparent pair (near the crack front) weighs as if it were `e` farther.
             let w = if e > 0.0 {
@@ -388,8 +390,13 @@ impl MlsOperator {
 
     /// How many points are in each rank class.
     pub fn rank_counts(&self) -> RankCounts {
+        self.rank_counts_of(0..self.points.len())
+    }
+
+    /// Counts of each rank class over the points in `range`.
+    pub fn rank_counts_of(&self, range: std::ops::Range<usize>) -> RankCounts {
         let mut c = RankCounts::default();
-        for p in &self.points {
+        for p in &self.points[range] {
             match p.rank {
                 PointRank::Full => c.full += 1,
                 PointRank::Planar { .. } => c.planar += 1,

@@ -167,6 +167,25 @@ impl Neighbourhoods {
         }
     }
 
+    /// The same lists followed by `extra` empty ones (with the same capacity), for nodes
+    /// added later, such as virtual points.
+    pub fn with_spare_lists(&self, extra: usize) -> Self {
+        let mut out = self.clone();
+        out.counts.resize(self.counts.len() + extra, 0);
+        out.ids.resize(out.counts.len() * self.capacity, u32::MAX);
+        out.extra.resize(out.ids.len(), 0.0);
+        out
+    }
+
+    /// Empties N(i).
+    pub fn clear(&mut self, i: usize) {
+        let start = i * self.capacity;
+        let n = self.counts[i] as usize;
+        self.ids[start..start + n].fill(u32::MAX);
+        self.extra[start..start + n].fill(0.0);
+        self.counts[i] = 0;
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.counts.len()

@@ -167,12 +167,15 @@ pub struct CuttingStage {
     transparent: Vec<TransparentPair>,
     /// Pairs removed since the start.
     pub pairs_removed_total: usize,
+    material_points: usize,
 }
 
 impl CuttingStage {
-    /// A stage for `n` points with the scene's tool and force parameters.
+    /// A stage for `n` points (the body's `material_points` first, then any virtual
+    /// nodes) with the scene's tool and force parameters.
     pub fn new(
         n: usize,
+        material_points: usize,
         kernel: Kernel,
         spacing_m: f64,
         tool: ToolSpec,
@@ -213,6 +216,7 @@ impl CuttingStage {
             transparency: force.crack_transparency,
             transparent: Vec::with_capacity(MAX_TRANSPARENT_PAIRS),
             pairs_removed_total: 0,
+            material_points,
         }
     }
 
@@ -567,6 +571,12 @@ impl CuttingStage {
         })
     }
 
+    /// Integrates point `i` from the next tick on (it falls asleep again once at rest and
+    /// out of the tool's reach).
+    pub fn wake_point(&mut self, i: u32) {
+        self.wake(i);
+    }
+
     fn wake(&mut self, i: u32) {
         self.last_near[i as usize] = self.tick;
         if !std::mem::replace(&mut self.awake[i as usize], true) {
@@ -608,9 +618,16 @@ impl CuttingStage {
     /// not, and of the points ever in the affected region, those left and right of the
     /// blade plane when last marked.
     pub fn classification(&self) -> Classification {
+        // Nodes after the body's points (virtual points) are not classified.
+        let material = self.material_points;
+        let affected = self
+            .awake_list
+            .iter()
+            .filter(|&&i| (i as usize) < material)
+            .count();
         Classification {
-            affected: self.awake_list.len(),
-            unaffected: self.awake.len() - self.awake_list.len(),
+            affected,
+            unaffected: material - affected,
             left: self.side.iter().filter(|&&s| s > 0).count(),
             right: self.side.iter().filter(|&&s| s < 0).count(),
         }

@@ -15,6 +15,7 @@ pub mod cutting;
 pub mod incision;
 pub mod script;
 pub mod surface;
+pub mod virtual_points;
 
 use crate::cut::{Blade, IncisionParams, ToolPose};
 use crate::force::{CutForce, CutPhase, LocalForceModel};
@@ -28,8 +29,10 @@ pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
 pub use script::{CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
+pub use virtual_points::{VirtualPointStats, VirtualPoints};
 
 use incision::IncisionInputs;
+use virtual_points::VIRTUAL_NODE_CAPACITY;
 
 /// The two halves of a tick that Table 1 of the paper reports separately.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -82,6 +85,9 @@ pub struct Simulation {
     surface: CurrentSurface,
     cutting: Option<CuttingStage>,
     incisions: Option<IncisionTracker>,
+    virtual_points: Option<VirtualPoints>,
+    /// Scratch for the points whose lists virtual points changed.
+    vp_changed: Vec<u32>,
     tool: Option<ToolPose>,
     time_s: f64,
     local_model: LocalForceModel,
@@ -94,10 +100,24 @@ impl Simulation {
         let spec = scene.spec.clone();
         let model = &scene.model;
         let config = SolverConfig::for_scene(&spec.features, &spec.material);
-        let mut solver = Solver::for_model(model, &spec.material, config);
         let n = model.points.len();
+        // Virtual points are spare nodes after the body's points (virtual_points.rs).
+        let spare = if spec.features.cutting && spec.features.virtual_points {
+            VIRTUAL_NODE_CAPACITY
+        } else {
+            0
+        };
+        let neighbours = model.neighbours.with_spare_lists(spare);
+        let mut solver = if spare > 0 {
+            Solver::for_model_with_spare_nodes(model, &spec.material, config, &neighbours, spare)
+        } else {
+            Solver::for_model(model, &spec.material, config)
+        };
+        let virtual_points = (spare > 0)
+            .then(|| VirtualPoints::new(n, spare, model.lattice.spacing, model.kernel.support_m));
         let cutting = spec.features.cutting.then(|| {
             CuttingStage::new(
+                n + spare,
                 n,
                 model.kernel,
                 model.lattice.spacing,
@@ -115,8 +135,10 @@ impl Simulation {
         });
         Self {
             incisions,
+            virtual_points,
+            vp_changed: Vec::with_capacity(4096),
             surface: CurrentSurface::new(model),
-            neighbours: model.neighbours.clone(),
+            neighbours,
             grid: model.grid.clone(),
             solver,
             cutting,
@@ -159,6 +181,22 @@ impl Simulation {
                 &mut self.neighbours,
                 &self.grid,
             );
+            if let (Some(vp), Some(edge)) = (&mut self.virtual_points, tick.edge_rest) {
+                self.vp_changed.clear();
+                let released = vp.release_near(
+                    &edge,
+                    stage.affected_radius(),
+                    self.solver.rest(),
+                    &mut self.neighbours,
+                    &mut self.vp_changed,
+                );
+                if released {
+                    self.vp_changed.sort_unstable();
+                    self.vp_changed.dedup();
+                    self.solver
+                        .topology_changed(&self.vp_changed, &self.neighbours);
+                }
+            }
             observer.leave(Stage::Internal);
             cut = Some(tick);
         }
@@ -189,6 +227,21 @@ impl Simulation {
                     },
                 );
             }
+            if let (true, Some(vp)) = (remeshed, &mut self.virtual_points) {
+                let mut changed = Vec::new();
+                vp.place(
+                    &self.surface,
+                    &stage.sigma.triangles,
+                    tick.edge_rest.map(|e| (e, stage.affected_radius())),
+                    &mut self.solver,
+                    &mut self.neighbours,
+                    &self.grid,
+                    &mut changed,
+                );
+                changed.sort_unstable();
+                changed.dedup();
+                self.solver.topology_changed(&changed, &self.neighbours);
+            }
         }
         let moved = if self.cutting.is_some() {
             self.solver.active_points()
@@ -201,6 +254,9 @@ impl Simulation {
             self.solver.positions(),
             moved,
         );
+        if let (Some(vp), Some(stage)) = (&self.virtual_points, &mut self.cutting) {
+            vp.follow(&self.surface, &mut self.solver, |i| stage.wake_point(i));
+        }
         observer.leave(Stage::Surface);
         self.time_s += dt;
         let tool_force_n = match (&cut, &blade, &self.cutting) {
@@ -263,6 +319,11 @@ impl Simulation {
     /// The incisions so far, for scenes that cut.
     pub fn incisions(&self) -> Option<&IncisionStats> {
         self.incisions.as_ref().map(|t| &t.stats)
+    }
+
+    /// The virtual points, for cutting scenes that use them.
+    pub fn virtual_points(&self) -> Option<&VirtualPoints> {
+        self.virtual_points.as_ref()
     }
 
     /// The incision tracker, for scenes that cut.

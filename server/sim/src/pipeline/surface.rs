@@ -215,6 +215,10 @@ impl CurrentSurface {
         self.vertex_list.clear();
         for &k in moved {
             let k = k as usize;
+            // Nodes after the body's points (virtual points) carry no surface.
+            if k >= self.followed.len() {
+                continue;
+            }
             // A point that has not moved by more than the tolerance since its vertices were
             // last placed leaves them where they are.
             if (p[k] - self.followed[k]).norm_squared() < FOLLOW_TOLERANCE_M * FOLLOW_TOLERANCE_M {
@@ -404,6 +408,11 @@ impl CurrentSurface {
     /// Kernel of the embedding (for callers that need weights consistent with it).
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+
+    /// Rest positions of the vertices (m).
+    pub fn rest_positions(&self) -> &[Vec3] {
+        &self.rest
     }
 
     /// The surface in rest space (what incisions are computed on).

@@ -30,7 +30,7 @@ pub use statics::StaticReport;
 
 use crate::math::{Mat3, Vec3};
 use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, add_elastic_forces};
-use crate::mls::operator::LatticeOffsets;
+use crate::mls::operator::{LatticeOffsets, RankCounts};
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
 use crate::scene::Material;
@@ -172,6 +172,8 @@ pub struct Solver {
     last: StepReport,
     last_stats: Option<ForceStats>,
     projective: Option<projective::Projective>,
+    /// Points of the body; nodes after them (virtual points) are kinematic.
+    material_points: usize,
 }
 
 impl Solver {
@@ -194,6 +196,75 @@ impl Solver {
             material.poisson_ratio,
             config,
         )
+    }
+
+    /// A solver for `model` with `spare` nodes after its points, for virtual points
+    /// (physics.md §5.3): kinematic (fixed, moved by targets), without volume (no stress
+    /// of their own), and nobody's neighbour until placed with [`Solver::place_node`].
+    /// `neighbours` must be the model's lists with `spare` empty lists after them.
+    pub fn for_model_with_spare_nodes(
+        model: &CoupledModel,
+        material: &Material,
+        config: SolverConfig,
+        neighbours: &Neighbourhoods,
+        spare: usize,
+    ) -> Self {
+        let mut config = config;
+        config.damping_per_s = material.damping_per_s;
+        let n = model.points.len();
+        let centre = model.points.rest.iter().sum::<Vec3>() / n.max(1) as f64;
+        let mean_mass = model.points.mass_kg.iter().sum::<f64>() / n.max(1) as f64;
+        let mut rest = model.points.rest.clone();
+        rest.resize(n + spare, centre);
+        let mut volume = model.points.volume_m3.clone();
+        volume.resize(n + spare, 0.0);
+        let mut mass = model.points.mass_kg.clone();
+        // Never integrated (all dofs fixed); a mass keeps M⁻¹ finite where it appears.
+        mass.resize(n + spare, mean_mass);
+        let mut solver = Self::new(
+            &rest,
+            &volume,
+            &mass,
+            neighbours,
+            model.kernel,
+            model.lattice.spacing,
+            Some(LatticeOffsets {
+                coords: model.points.lattice_coords.clone(),
+                spacing: model.lattice.spacing,
+            }),
+            material.youngs_modulus_pa,
+            material.poisson_ratio,
+            config,
+        );
+        for i in n..n + spare {
+            solver.fixed[i] = [true; 3];
+        }
+        solver.material_points = n;
+        solver
+    }
+
+    /// Puts spare node `i` at `rest`, now at `position`, at rest and fixed there; its
+    /// neighbour pairs are the caller's (then [`Solver::topology_changed`]).
+    pub fn place_node(&mut self, i: usize, rest: Vec3, position: Vec3) {
+        assert!(
+            i >= self.material_points,
+            "point {i} is material, not a spare node"
+        );
+        self.rest[i] = rest;
+        self.p[i] = position;
+        self.target[i] = position;
+        self.v[i] = Vec3::zeros();
+        self.fixed[i] = [true; 3];
+    }
+
+    /// Points of the body (the nodes after them are virtual).
+    pub fn material_points(&self) -> usize {
+        self.material_points
+    }
+
+    /// Rank classes of the body's points (virtual nodes left out).
+    pub fn rank_counts(&self) -> RankCounts {
+        self.op.rank_counts_of(0..self.material_points)
     }
 
     /// A solver for points at `rest` with volumes (m³), masses (kg) and neighbour lists;
@@ -266,6 +337,7 @@ impl Solver {
             last: StepReport::default(),
             last_stats: None,
             projective: None,
+            material_points: n,
         };
         solver.precond = statics::diagonal_stiffness(&solver.op, &solver.params, &solver.volume);
         solver
@@ -490,7 +562,10 @@ impl Solver {
             self.touched_flag[a] = false;
             self.precond[a] =
                 statics::diagonal_stiffness_of(&self.op, &self.params, &self.volume, a);
-            local = local.max(self.precond[a] / self.mass[a]);
+            // Fixed points are not integrated: they do not limit the step.
+            if self.fixed[a] != [true; 3] {
+                local = local.max(self.precond[a] / self.mass[a]);
+            }
         }
         if let Some(calibration) = self.omega_calibration {
             let omega_sq = calibration * local;

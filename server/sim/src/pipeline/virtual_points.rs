@@ -1,0 +1,271 @@
+//! Virtual points (paper §5, physics.md §5.3): kinematic MLS nodes on the wound walls.
+//!
+//! A cut leaves the points next to it with half a neighbourhood: their moment matrices lose
+//! rank on the cut side (planar points, orphans in slivers) and nothing ties the wall the
+//! renderer draws to the field behind it. Virtual points are nodes placed on the walls,
+//! about one lattice spacing apart: they join the neighbourhoods of the interior points
+//! within h on their own side of the cut (never across Σ), so those points' MLS fits are
+//! supported on the cut side again — a Dirichlet condition imposed through MLS, which is
+//! what the paper means by treating them as boundary points. They have no volume (no
+//! stress of their own) and are kinematic: each follows the wall vertex it sits on, a
+//! fixed node moved by a target every tick.
+//!
+//! They sit on the walls as the incision draws them (opened in rest space), a twentieth of
+//! a spacing inside the tissue, so the field they prescribe is the one the wall already
+//! follows: they support the fit without driving the opening.
+//!
+//! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
+//! the surface; the nodes are then released and placed again on the new walls (a topology
+//! change, off the per-tick path). Between re-meshes a tick only moves the targets of the
+//! nodes whose wall vertex moved.
+
+use serde::Serialize;
+
+use crate::cut::FaceKind;
+use crate::geometry::predicates::{distance_sq_to_segment, segment_meets_triangle};
+use crate::math::Vec3;
+use crate::model::{Neighbourhoods, RestGrid};
+use crate::solver::Solver;
+
+use super::surface::CurrentSurface;
+
+/// Nodes available to a simulation (placed ones are re-used at every re-mesh).
+pub const VIRTUAL_NODE_CAPACITY: usize = 1024;
+/// Nodes are placed at least this many lattice spacings apart.
+const MIN_SEPARATION_SPACINGS: f64 = 0.75;
+/// ... and this many spacings inside the tissue from their wall (physics.md §5.3).
+const INSET_SPACINGS: f64 = 0.05;
+/// A node's target is updated (and the node woken) once its wall vertex moved this far (m).
+const RETARGET_M: f64 = 1e-6;
+
+/// Figures of the virtual points, for reports and tests.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct VirtualPointStats {
+    /// Nodes on the walls now.
+    pub placed: usize,
+    /// Neighbour pairs between them and interior points.
+    pub pairs: usize,
+    /// Wall sites left without a node (capacity reached, or no interior point in reach).
+    pub not_placed: usize,
+    /// Times the nodes were placed (once per re-mesh).
+    pub placements: usize,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    /// Solver index.
+    node: u32,
+    /// The wall vertex it follows.
+    vertex: u32,
+    /// Rest offset from the vertex into the tissue.
+    inset: Vec3,
+}
+
+/// The virtual points of a simulation.
+pub struct VirtualPoints {
+    first: usize,
+    capacity: usize,
+    nodes: Vec<Node>,
+    spacing_m: f64,
+    support_m: f64,
+    /// Figures so far.
+    pub stats: VirtualPointStats,
+}
+
+impl VirtualPoints {
+    /// Nodes `first..first + capacity` of the solver, for a lattice of `spacing_m` and
+    /// support `support_m`.
+    pub fn new(first: usize, capacity: usize, spacing_m: f64, support_m: f64) -> Self {
+        Self {
+            first,
+            capacity,
+            nodes: Vec::with_capacity(capacity),
+            spacing_m,
+            support_m,
+            stats: VirtualPointStats::default(),
+        }
+    }
+
+    /// Solver indices of the placed nodes.
+    pub fn nodes(&self) -> impl Iterator<Item = u32> + '_ {
+        self.nodes.iter().map(|n| n.node)
+    }
+
+    /// The wall vertex node `k` (in placement order) follows, and its rest inset.
+    pub fn site(&self, k: usize) -> (u32, u32, Vec3) {
+        let n = self.nodes[k];
+        (n.node, n.vertex, n.inset)
+    }
+
+    /// Releases the nodes within `radius` of the blade's rest `edge`: the blade cuts and
+    /// dents the tissue there, and a node tied to a wall the blade is re-cutting would
+    /// prescribe where that tissue is (a stiff, lagged loop that diverged when a second
+    /// cut crossed a first). The next placement puts nodes back once the blade has gone.
+    /// Returns whether any was released; changed lists are appended to `changed`.
+    pub fn release_near(
+        &mut self,
+        edge: &[Vec3; 2],
+        radius: f64,
+        rest: &[Vec3],
+        neighbours: &mut Neighbourhoods,
+        changed: &mut Vec<u32>,
+    ) -> bool {
+        let before = self.nodes.len();
+        let mut k = 0;
+        while k < self.nodes.len() {
+            let node = self.nodes[k].node;
+            if distance_sq_to_segment(&rest[node as usize], &edge[0], &edge[1]) < radius * radius {
+                release(node, neighbours, changed);
+                self.nodes.swap_remove(k);
+            } else {
+                k += 1;
+            }
+        }
+        self.stats.placed = self.nodes.len();
+        self.nodes.len() != before
+    }
+
+    /// Releases every node and places new ones on the walls of `surface`, but not within
+    /// `clear` = (edge, radius) of the blade; the points whose neighbour lists changed are
+    /// appended to `changed` (then [`Solver::topology_changed`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn place(
+        &mut self,
+        surface: &CurrentSurface,
+        sigma: &[[Vec3; 3]],
+        clear: Option<([Vec3; 2], f64)>,
+        solver: &mut Solver,
+        neighbours: &mut Neighbourhoods,
+        grid: &RestGrid,
+        changed: &mut Vec<u32>,
+    ) {
+        for n in self.nodes.drain(..) {
+            release(n.node, neighbours, changed);
+        }
+        let mut sites = wall_sites(surface, MIN_SEPARATION_SPACINGS * self.spacing_m);
+        if let Some((edge, radius)) = clear {
+            let rest = surface.rest_positions();
+            sites.retain(|(v, _)| {
+                distance_sq_to_segment(&rest[*v as usize], &edge[0], &edge[1]) >= radius * radius
+            });
+        }
+        let h = self.support_m;
+        let mut pairs = 0;
+        let mut not_placed = 0;
+        let mut candidates = Vec::new();
+        let mut near_sigma: Vec<&[Vec3; 3]> = Vec::new();
+        for (vertex, outward) in sites {
+            if self.nodes.len() == self.capacity {
+                not_placed += 1;
+                continue;
+            }
+            let node = (self.first + self.nodes.len()) as u32;
+            let inset = -outward * (INSET_SPACINGS * self.spacing_m);
+            let x = surface.rest_positions()[vertex as usize] + inset;
+            // Only the cut triangles within h of the node can hide a point from it.
+            near_sigma.clear();
+            near_sigma.extend(sigma.iter().filter(|t| {
+                let lo = t[0].inf(&t[1]).inf(&t[2]);
+                let hi = t[0].sup(&t[1]).sup(&t[2]);
+                (0..3).all(|a| x[a] >= lo[a] - h && x[a] <= hi[a] + h)
+            }));
+            candidates.clear();
+            let rest = solver.rest();
+            grid.for_each_within(rest, &x, h, |i, _| {
+                let seen = !near_sigma
+                    .iter()
+                    .any(|t| segment_meets_triangle(&x, &rest[i as usize], t));
+                if seen {
+                    candidates.push(i);
+                }
+            });
+            let mut connected = 0;
+            for &i in &candidates {
+                if neighbours.add(i as usize, node).is_err() {
+                    continue;
+                }
+                if neighbours.add(node as usize, i).is_err() {
+                    neighbours.remove(i as usize, node);
+                    break;
+                }
+                changed.push(i);
+                connected += 1;
+            }
+            if connected == 0 {
+                not_placed += 1;
+                continue;
+            }
+            pairs += connected;
+            let now = surface.mesh.positions[vertex as usize] + inset;
+            solver.place_node(node as usize, x, now);
+            changed.push(node);
+            self.nodes.push(Node {
+                node,
+                vertex,
+                inset,
+            });
+        }
+        self.stats = VirtualPointStats {
+            placed: self.nodes.len(),
+            pairs,
+            not_placed,
+            placements: self.stats.placements + 1,
+        };
+    }
+
+    /// Moves each node's target to its wall vertex as drawn now; the nodes that moved are
+    /// handed to `wake` (the solver moves only active points to their targets).
+    pub fn follow(&self, surface: &CurrentSurface, solver: &mut Solver, mut wake: impl FnMut(u32)) {
+        for n in &self.nodes {
+            let goal = surface.mesh.positions[n.vertex as usize] + n.inset;
+            let i = n.node as usize;
+            if (goal - solver.positions()[i]).norm_squared() > RETARGET_M * RETARGET_M {
+                solver.set_target(i, goal);
+                wake(n.node);
+            }
+        }
+    }
+}
+
+/// Takes node `node` out of every neighbourhood.
+fn release(node: u32, neighbours: &mut Neighbourhoods, changed: &mut Vec<u32>) {
+    let i = node as usize;
+    while let Some(&j) = neighbours.of(i).last() {
+        neighbours.remove(j as usize, node);
+        neighbours.remove(i, j);
+        changed.push(j);
+    }
+    changed.push(node);
+}
+
+/// Wall vertices at least `separation` apart (rest space, in vertex order), each with the
+/// outward unit normal of the wall around it.
+fn wall_sites(surface: &CurrentSurface, separation: f64) -> Vec<(u32, Vec3)> {
+    let rest = surface.rest_positions();
+    let mut normal = vec![Vec3::zeros(); rest.len()];
+    for (tri, kind) in surface.mesh.triangles.iter().zip(&surface.kinds) {
+        if *kind != FaceKind::Wall {
+            continue;
+        }
+        let [a, b, c] = tri.map(|v| rest[v as usize]);
+        let n = (b - a).cross(&(c - a));
+        for &v in tri {
+            normal[v as usize] += n;
+        }
+    }
+    let mut sites: Vec<(u32, Vec3)> = Vec::new();
+    let min2 = separation * separation;
+    for (v, n) in normal.iter().enumerate() {
+        let Some(n) = n.try_normalize(1e-300) else {
+            continue;
+        };
+        let x = rest[v];
+        if sites
+            .iter()
+            .all(|(s, _)| (rest[*s as usize] - x).norm_squared() >= min2)
+        {
+            sites.push((v as u32, n));
+        }
+    }
+    sites
+}
