@@ -179,23 +179,7 @@ pub struct Solver {
 impl Solver {
     /// A solver for a built model with a scene material.
     pub fn for_model(model: &CoupledModel, material: &Material, config: SolverConfig) -> Self {
-        let mut config = config;
-        config.damping_per_s = material.damping_per_s;
-        Self::new(
-            &model.points.rest,
-            &model.points.volume_m3,
-            &model.points.mass_kg,
-            &model.neighbours,
-            model.kernel,
-            model.lattice.spacing,
-            Some(LatticeOffsets {
-                coords: model.points.lattice_coords.clone(),
-                spacing: model.lattice.spacing,
-            }),
-            material.youngs_modulus_pa,
-            material.poisson_ratio,
-            config,
-        )
+        Self::for_model_with_spare_nodes(model, material, config, &model.neighbours, 0)
     }
 
     /// A solver for `model` with `spare` nodes after its points, for virtual points
