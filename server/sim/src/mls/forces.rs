@@ -244,7 +244,9 @@ pub fn add_elastic_forces(
     }
     let mut scalar_point = |i: usize, stats: &mut ForceStats, f: &mut [Vec3]| {
         let term = op.point(i);
-        if let PointRank::Orphan = term.rank {
+        // Orphans have no stress of their own; nor do virtual points (no volume), whose
+        // one-sided fits must not feed the statistics (det F, clamping) either.
+        if matches!(term.rank, PointRank::Orphan) || volumes[i] == 0.0 {
             return;
         }
         let (ids, wx, w) = op.padded_row(i);

@@ -177,15 +177,6 @@ impl Neighbourhoods {
         out
     }
 
-    /// Empties N(i).
-    pub fn clear(&mut self, i: usize) {
-        let start = i * self.capacity;
-        let n = self.counts[i] as usize;
-        self.ids[start..start + n].fill(u32::MAX);
-        self.extra[start..start + n].fill(0.0);
-        self.counts[i] = 0;
-    }
-
     /// Number of points.
     pub fn len(&self) -> usize {
         self.counts.len()

@@ -165,7 +165,7 @@ pub struct CuttingStage {
     transparency: f64,
     /// Pairs across Σ near the current front, fading out.
     transparent: Vec<TransparentPair>,
-    /// Pairs removed since the start.
+    /// Pairs of body points removed since the start (virtual points' pairs not counted).
     pub pairs_removed_total: usize,
     material_points: usize,
 }
@@ -384,6 +384,8 @@ impl CuttingStage {
         let mut pairs_removed = 0;
         self.changed.clear();
         let fade_m = 0.5 * self.transparency * self.kernel.support_m;
+        let material = self.material_points as u32;
+        let mut body_pairs_removed = 0;
         for t in new_sigma.clone() {
             let (transparent, changed) = (&mut self.transparent, &mut self.changed);
             visit_crossing_pairs(
@@ -394,8 +396,10 @@ impl CuttingStage {
                 self.kernel.support_m,
                 &mut self.candidates,
                 |neighbours, i, j, crossing| {
-                    // Near the front the pair fades out as the blade moves on (below).
-                    if fade_m > 0.0 && transparent.len() < MAX_TRANSPARENT_PAIRS {
+                    // Near the front a body pair fades out as the blade moves on (below);
+                    // a virtual point's pair is cut at once (the node is released anyway).
+                    let body = i < material && j < material;
+                    if body && fade_m > 0.0 && transparent.len() < MAX_TRANSPARENT_PAIRS {
                         if !transparent.iter().any(|p| p.i == i && p.j == j) {
                             transparent.push(TransparentPair {
                                 i,
@@ -410,18 +414,18 @@ impl CuttingStage {
                     neighbours.remove(j as usize, i);
                     changed.extend([i, j]);
                     pairs_removed += 1;
+                    body_pairs_removed += usize::from(body);
                     true
                 },
             );
         }
-        match self.last_sweep {
-            Some(front) if !new_sigma.is_empty() => {
-                pairs_removed += self.fade_transparent_pairs(&front, solver.rest(), neighbours);
-            }
-            Some(_) => {}
-            // The stroke is over: its crack front stays where it is, with the pairs across
-            // it as transparent as they are now.
-            None => self.transparent.clear(),
+        // The front moved: fade the pairs within its reach. Pairs left by an earlier
+        // stroke, out of reach, keep the weight they have (a finished incision's crack tip
+        // stays partly connected) until a front comes by again.
+        if let (Some(front), false) = (self.last_sweep, new_sigma.is_empty()) {
+            let faded = self.fade_transparent_pairs(&front, solver.rest(), neighbours);
+            pairs_removed += faded;
+            body_pairs_removed += faded;
         }
         // Unique changed points, all of them awake.
         let mut write = 0;
@@ -441,7 +445,7 @@ impl CuttingStage {
         if !self.changed.is_empty() {
             solver.topology_changed(&self.changed, neighbours);
         }
-        self.pairs_removed_total += pairs_removed;
+        self.pairs_removed_total += body_pairs_removed;
 
         if let Some(edge) = edge_rest {
             let due = match self.last_mark {
@@ -505,7 +509,10 @@ impl CuttingStage {
         self.last_entry.is_some_and(|(entry, ..)| {
             let d = entry - b.tip;
             let below = d.dot(&b.edge);
-            below > 0.0 && (d - b.edge * below).norm() <= self.exit_margin_m
+            // The tip below the entry, the back above it: the edge spans the surface.
+            below > 0.0
+                && (entry - b.back).dot(&b.edge) < 0.0
+                && (d - b.edge * below).norm() <= self.exit_margin_m
         })
     }
 
@@ -523,13 +530,21 @@ impl CuttingStage {
     ) -> usize {
         let h = self.kernel.support_m;
         let kappa_h = self.transparency * h;
+        // A pair is faded out by the time the front is κh/2 past its crossing; one farther
+        // away than that (and a support radius more) belongs to another front.
+        let reach = 0.5 * kappa_h + h;
         let mut removed = 0;
         let mut r = 0;
         while r < self.transparent.len() {
             let pair = self.transparent[r];
             let (i, j) = (pair.i as usize, pair.j);
             let d_s = distance_sq_to_segment(&pair.crossing, &front[0], &front[1]).sqrt();
-            let extra = h * (2.0 * d_s / kappa_h).powi(2);
+            if d_s > reach {
+                r += 1;
+                continue;
+            }
+            // Only ever more transparent: a front that turns back does not re-join a pair.
+            let extra = (h * (2.0 * d_s / kappa_h).powi(2)).max(pair.extra_m);
             if (rest[i] - rest[j as usize]).norm() + extra >= h {
                 // Faded out: the pair is cut.
                 neighbours.remove(i, j);
@@ -540,7 +555,7 @@ impl CuttingStage {
                 continue;
             }
             // Rows are rebuilt only when the weight moved by more than rounding.
-            if (extra - pair.extra_m).abs() > 1e-9 * h {
+            if extra - pair.extra_m > 1e-9 * h {
                 neighbours.set_extra(i, j, extra);
                 self.transparent[r].extra_m = extra;
                 self.changed.extend([pair.i, j]);
@@ -600,8 +615,14 @@ impl CuttingStage {
         // Left/right (physics.md §4.4): the sign of φ(X) = n_b·(X − P), n_b the blade
         // plane's normal, up the edge × the way it moves (+ is the left hand of someone
         // looking along the cut with the edge pointing up). Undefined while plunging.
-        let up = edge[1] - edge[0];
-        let normal = up.cross(&self.direction).try_normalize(1e-12);
+        // Only while the blade moves across its edge: plunging or lifting (the edge along
+        // the motion) leaves the plane undefined, and pulling back would flip it.
+        let up = (edge[1] - edge[0])
+            .try_normalize(1e-12)
+            .unwrap_or_else(Vec3::z);
+        let across = up.cross(&self.direction);
+        let normal =
+            (across.norm() > 0.5 && self.direction.dot(&up) <= 0.7).then(|| across.normalize());
         for r in 0..self.candidates.len() {
             let i = self.candidates[r];
             self.wake(i);

@@ -164,6 +164,7 @@ impl Simulation {
         let blade = self.tool.map(|pose| Blade::at(&pose, &self.spec.tool));
         let mut cut = None;
         let mut remeshed = false;
+        let mut placed = false;
         if let Some(stage) = &mut self.cutting {
             observer.enter(Stage::Surface);
             let contact = match &blade {
@@ -195,6 +196,10 @@ impl Simulation {
                     self.vp_changed.dedup();
                     self.solver
                         .topology_changed(&self.vp_changed, &self.neighbours);
+                    // Their fits changed: let them relax.
+                    for &i in &self.vp_changed {
+                        stage.wake_point(i);
+                    }
                 }
             }
             observer.leave(Stage::Internal);
@@ -228,7 +233,8 @@ impl Simulation {
                 );
             }
             if let (true, Some(vp)) = (remeshed, &mut self.virtual_points) {
-                let mut changed = Vec::new();
+                let changed = &mut self.vp_changed;
+                changed.clear();
                 vp.place(
                     &self.surface,
                     &stage.sigma.triangles,
@@ -236,11 +242,18 @@ impl Simulation {
                     &mut self.solver,
                     &mut self.neighbours,
                     &self.grid,
-                    &mut changed,
+                    changed,
                 );
                 changed.sort_unstable();
                 changed.dedup();
-                self.solver.topology_changed(&changed, &self.neighbours);
+                self.solver.topology_changed(changed, &self.neighbours);
+                placed = true;
+            }
+        }
+        if let (true, Some(stage)) = (placed, &mut self.cutting) {
+            // The points whose fits the new nodes changed relax to them.
+            for &i in &self.vp_changed {
+                stage.wake_point(i);
             }
         }
         let moved = if self.cutting.is_some() {
@@ -274,7 +287,15 @@ impl Simulation {
             time_s: self.time_s,
             cut,
             tool_force_n,
-            active_points: self.solver.active_points().len(),
+            // The body's points (virtual points are kinematic nodes, not integrated).
+            active_points: {
+                let body = self.solver.material_points() as u32;
+                self.solver
+                    .active_points()
+                    .iter()
+                    .filter(|&&i| i < body)
+                    .count()
+            },
             vertices_moved,
             remeshed,
             solver,

@@ -16,8 +16,8 @@
 //!
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
 //! the surface; the nodes are then released and placed again on the new walls (a topology
-//! change, off the per-tick path). Between re-meshes a tick only moves the targets of the
-//! nodes whose wall vertex moved.
+//! change, off the per-tick path). Between re-meshes a tick moves the targets of the nodes
+//! whose wall vertex moved, and releases the nodes the blade comes within R_aff of.
 
 use serde::Serialize;
 

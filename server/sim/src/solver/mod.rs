@@ -196,6 +196,11 @@ impl Solver {
         let mut config = config;
         config.damping_per_s = material.damping_per_s;
         let n = model.points.len();
+        assert_eq!(
+            neighbours.len(),
+            n + spare,
+            "neighbour lists for the spare nodes"
+        );
         let centre = model.points.rest.iter().sum::<Vec3>() / n.max(1) as f64;
         let mean_mass = model.points.mass_kg.iter().sum::<f64>() / n.max(1) as f64;
         let mut rest = model.points.rest.clone();
@@ -597,7 +602,9 @@ impl Solver {
         }
         let (dt, omega_sq) = timestep::critical_time_step(self);
         self.dt_crit = Some(dt);
+        // Fixed points are not integrated: they do not limit the step.
         let diagonal = (0..self.p.len())
+            .filter(|&i| self.fixed[i] != [true; 3])
             .map(|i| self.precond[i] / self.mass[i])
             .fold(0.0, f64::max);
         if omega_sq > 0.0 && diagonal > 0.0 {
