@@ -1,0 +1,308 @@
+//! The server's configuration file (TOML; every key in docs/SERVER.md; unknown keys are
+//! rejected). With no file the embedded default runs: the built-in liver and an in-process
+//! scripted device performing the demo cut.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use thiserror::Error;
+
+/// A rejected configuration: which file and what is wrong.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// Not readable.
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        /// The file.
+        file: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Not valid TOML, or a key that does not exist or has the wrong type.
+    #[error("{file}: {message}")]
+    Parse {
+        /// The file.
+        file: PathBuf,
+        /// The parser's message (with line and column).
+        message: String,
+    },
+    /// A value out of range.
+    #[error("{file}: {key} = {value}: {expected}")]
+    Range {
+        /// The file.
+        file: PathBuf,
+        /// The key.
+        key: &'static str,
+        /// The value given.
+        value: String,
+        /// What is accepted.
+        expected: &'static str,
+    },
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    /// Station name (names the shared-memory services of this station).
+    pub station: String,
+    /// A built-in scene name or a scene file (docs/SCENES.md).
+    pub scene: String,
+    /// The haptic device.
+    pub device: DeviceConfig,
+    /// Loop rates.
+    pub rates: RateConfig,
+    /// Real-time scheduling of the haptic thread.
+    pub realtime: RealtimeConfig,
+    /// The output stage.
+    pub output: OutputConfig,
+}
+
+/// The haptic device.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeviceConfig {
+    /// `scripted`: an in-process device playing a cut script at the haptic rate.
+    pub kind: DeviceKind,
+    /// Cut script (TOML, `scalpel cut --script` format); empty: the scene's demo cut.
+    pub script: String,
+    /// Start the script again when it ends.
+    pub loop_script: bool,
+}
+
+/// Device kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceKind {
+    /// In-process scripted device.
+    Scripted,
+}
+
+/// Loop rates.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RateConfig {
+    /// Haptic loop rate (Hz).
+    pub haptic_hz: f64,
+    /// Status line interval (s).
+    pub status_interval_s: f64,
+}
+
+/// Real-time scheduling.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RealtimeConfig {
+    /// SCHED_FIFO priority for the haptic thread (1–99); 0 keeps the normal scheduler.
+    pub fifo_priority: i32,
+    /// Lock the process's memory (mlockall) so the haptic loop never waits on a page fault.
+    pub lock_memory: bool,
+}
+
+/// Output stage limits.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Largest force sent (N); 0 uses the scene's `force.max_force_n`.
+    pub max_force_n: f64,
+    /// Largest change of the force per millisecond (N).
+    pub rate_limit_n_per_ms: f64,
+    /// No device sample for this long fades the force out (ms).
+    pub device_timeout_ms: f64,
+    /// No simulation update for this long fades the force out (ms).
+    pub sim_timeout_ms: f64,
+    /// Length of the fade (ms).
+    pub fade_ms: f64,
+    /// Hannaford–Ryu passivity observer and controller.
+    pub passivity: bool,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            station: "station-1".into(),
+            scene: "liver".into(),
+            device: DeviceConfig::default(),
+            rates: RateConfig::default(),
+            realtime: RealtimeConfig::default(),
+            output: OutputConfig::default(),
+        }
+    }
+}
+
+impl Default for DeviceConfig {
+    fn default() -> Self {
+        Self {
+            kind: DeviceKind::Scripted,
+            script: String::new(),
+            loop_script: true,
+        }
+    }
+}
+
+impl Default for RateConfig {
+    fn default() -> Self {
+        Self {
+            haptic_hz: 1000.0,
+            status_interval_s: 1.0,
+        }
+    }
+}
+
+impl Default for RealtimeConfig {
+    fn default() -> Self {
+        Self {
+            fifo_priority: 80,
+            lock_memory: true,
+        }
+    }
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self {
+            max_force_n: 0.0,
+            rate_limit_n_per_ms: 0.5,
+            device_timeout_ms: 5.0,
+            sim_timeout_ms: 100.0,
+            fade_ms: 50.0,
+            passivity: true,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Reads and checks a configuration file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            file: path.to_owned(),
+            source,
+        })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Parses and checks `text` (named `file` in errors).
+    pub fn from_toml(text: &str, file: &Path) -> Result<Self, ConfigError> {
+        let config: Self = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            file: file.to_owned(),
+            message: e.to_string(),
+        })?;
+        config.check(file)?;
+        Ok(config)
+    }
+
+    fn check(&self, file: &Path) -> Result<(), ConfigError> {
+        let range = |key: &'static str, value: f64, ok: bool, expected: &'static str| {
+            if ok && value.is_finite() {
+                Ok(())
+            } else {
+                Err(ConfigError::Range {
+                    file: file.to_owned(),
+                    key,
+                    value: value.to_string(),
+                    expected,
+                })
+            }
+        };
+        let r = &self.rates;
+        range(
+            "rates.haptic_hz",
+            r.haptic_hz,
+            (100.0..=10_000.0).contains(&r.haptic_hz),
+            "between 100 and 10000 Hz",
+        )?;
+        range(
+            "rates.status_interval_s",
+            r.status_interval_s,
+            (0.05..=3600.0).contains(&r.status_interval_s),
+            "between 0.05 and 3600 s",
+        )?;
+        let p = self.realtime.fifo_priority;
+        range(
+            "realtime.fifo_priority",
+            f64::from(p),
+            (0..=99).contains(&p),
+            "0 (normal scheduling) or 1–99",
+        )?;
+        let o = &self.output;
+        range(
+            "output.max_force_n",
+            o.max_force_n,
+            (0.0..=50.0).contains(&o.max_force_n),
+            "between 0 (the scene's limit) and 50 N",
+        )?;
+        range(
+            "output.rate_limit_n_per_ms",
+            o.rate_limit_n_per_ms,
+            o.rate_limit_n_per_ms > 0.0 && o.rate_limit_n_per_ms <= 50.0,
+            "above 0 and at most 50 N/ms",
+        )?;
+        for (key, value) in [
+            ("output.device_timeout_ms", o.device_timeout_ms),
+            ("output.sim_timeout_ms", o.sim_timeout_ms),
+            ("output.fade_ms", o.fade_ms),
+        ] {
+            range(
+                key,
+                value,
+                value > 0.0 && value <= 10_000.0,
+                "above 0 and at most 10000 ms",
+            )?;
+        }
+        if self.station.is_empty()
+            || !self
+                .station
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            return Err(ConfigError::Range {
+                file: file.to_owned(),
+                key: "station",
+                value: self.station.clone(),
+                expected: "letters, digits, '-' and '_' (it names shared-memory services)",
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn docs_example_is_complete_and_shows_the_defaults() {
+        let doc = include_str!("../../docs/SERVER.md");
+        let start = doc.find("```toml\n").expect("an example") + 8;
+        let end = start + doc[start..].find("```").unwrap();
+        let text = &doc[start..end];
+        let parsed = ServerConfig::from_toml(text, Path::new("docs/SERVER.md")).unwrap();
+        assert_eq!(parsed, ServerConfig::default());
+        // Every key of the example is documented in the table.
+        for line in text.lines() {
+            if let Some((key, _)) = line.split_once('=') {
+                let key = key.trim();
+                assert!(
+                    doc.contains(&format!("| `{key}` |")),
+                    "{key} is not in the table"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_named() {
+        let e =
+            ServerConfig::from_toml("[rates]\nhaptic_hz = 1000\ntypo = 1\n", Path::new("s.toml"))
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("s.toml") && e.contains("typo"), "{e}");
+        let e = ServerConfig::from_toml("[rates]\nhaptic_hz = 5\n", Path::new("s.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("rates.haptic_hz = 5"), "{e}");
+        let e = ServerConfig::from_toml("station = \"a/b\"\n", Path::new("s.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("station"), "{e}");
+    }
+}

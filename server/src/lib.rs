@@ -1,0 +1,10 @@
+//! `scalpel-server`: the station process. It owns the simulation and the 1 kHz haptic loop
+//! (ARCHITECTURE.md): a haptic thread that renders force from the simulation's local force
+//! model through the output stage, and a simulation thread that advances the scene with the
+//! device's poses. Device I/O, render frames and the network endpoint attach to these.
+
+pub mod config;
+pub mod device;
+pub mod output;
+pub mod realtime;
+pub mod station;

@@ -1,0 +1,178 @@
+//! `scalpel-server [CONFIG] [--duration S] [--json]`: runs a station. With no CONFIG it runs
+//! the embedded default: the built-in liver, an in-process scripted device performing the
+//! demo cut, a status line once a second.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+use clap::Parser;
+use scalpel_server::config::{DeviceKind, ServerConfig};
+use scalpel_server::device::ScriptedDevice;
+use scalpel_server::output::OutputLimits;
+use scalpel_server::station::{self, StationParams, StatusLine};
+use scalpel_sim::pipeline::CutScript;
+use scalpel_sim::progress::Silent;
+use scalpel_sim::scene::{self, BuiltScene, MeshSource, SceneSpec};
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "scalpel station server: simulation and 1 kHz haptic loop"
+)]
+struct Args {
+    /// Server configuration (TOML, docs/SERVER.md); none runs the embedded default.
+    config: Option<PathBuf>,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Status lines and the summary as JSON, one object per line.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("scalpel-server: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let config = match &args.config {
+        Some(path) => ServerConfig::load(path)?,
+        None => ServerConfig::default(),
+    };
+    if let Some(d) = args.duration
+        && !(d.is_finite() && d > 0.0)
+    {
+        anyhow::bail!("--duration must be a positive number of seconds, got {d}");
+    }
+    let scene = load_scene(&config.scene)?;
+    let script = match (&config.device.kind, config.device.script.as_str()) {
+        (DeviceKind::Scripted, "") => CutScript::default_for(&scene.model.surface)
+            .context("the scene has no place for the demo cut")?,
+        (DeviceKind::Scripted, path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read cut script {path}"))?;
+            CutScript::from_toml(&text, path)?
+        }
+    };
+    let device = Box::new(ScriptedDevice::new(script, config.device.loop_script));
+    let o = &config.output;
+    let params = StationParams {
+        haptic_hz: config.rates.haptic_hz,
+        fifo_priority: config.realtime.fifo_priority,
+        lock_memory: config.realtime.lock_memory,
+        limits: OutputLimits {
+            max_force_n: if o.max_force_n > 0.0 {
+                o.max_force_n
+            } else {
+                scene.spec.force.max_force_n
+            },
+            rate_limit_n_per_ms: o.rate_limit_n_per_ms,
+            device_timeout_s: o.device_timeout_ms * 1e-3,
+            sim_timeout_s: o.sim_timeout_ms * 1e-3,
+            fade_s: o.fade_ms * 1e-3,
+            passivity: o.passivity,
+        },
+        status_interval_s: config.rates.status_interval_s,
+    };
+    if !args.json {
+        println!(
+            "station {}: scene {} ({} points), scripted device, haptic {} Hz",
+            config.station,
+            scene.spec.name,
+            scene.model.points.len(),
+            params.haptic_hz
+        );
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let on_signal = stop.clone();
+    ctrlc::set_handler(move || on_signal.store(true, Ordering::Relaxed))
+        .context("cannot install the Ctrl-C handler")?;
+    if let Some(d) = args.duration {
+        let timer = stop.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(d));
+            timer.store(true, Ordering::Relaxed);
+        });
+    }
+    let json = args.json;
+    let summary = station::run(&scene, device, &params, stop, |line| {
+        print_status(line, json)
+    })?;
+    if json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        for w in &summary.warnings {
+            println!("warning: {w}");
+        }
+        println!(
+            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms), cut {:.1} mm; SCHED_FIFO {}, memory locked {}",
+            summary.haptic_ticks,
+            summary.deadline_misses,
+            summary.poses_dropped,
+            summary.sim.ticks,
+            summary.sim.late_ticks,
+            summary.sim.max_tick_ms,
+            summary.sim.cut_length_mm,
+            summary.fifo_priority,
+            summary.memory_locked
+        );
+    }
+    Ok(())
+}
+
+fn print_status(line: &StatusLine, json: bool) {
+    if json {
+        if let Ok(s) = serde_json::to_string(line) {
+            println!("{s}");
+        }
+        return;
+    }
+    let h = &line.haptic;
+    println!(
+        "{:7.1} s  haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}  | sim {} ticks, {} points, cut {:.1} mm",
+        line.uptime_s,
+        h.rate_hz,
+        h.jitter_p50_ms,
+        h.jitter_p99_ms,
+        h.jitter_max_ms,
+        h.deadline_misses,
+        h.force_n,
+        if h.watchdog_faded { " (faded)" } else { "" },
+        line.sim.ticks,
+        line.sim.active_points,
+        line.sim.cut_length_mm
+    );
+}
+
+/// A built-in scene name or a scene file; the scene's mesh file (if any) is read here.
+fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
+    let spec = match scene::builtin(name) {
+        Some(spec) => spec,
+        None => {
+            let path = PathBuf::from(name);
+            let text = std::fs::read_to_string(&path).with_context(|| {
+                format!(
+                    "'{name}' is neither a built-in scene ({}) nor a readable scene file",
+                    scene::BUILTIN_SCENES.join(", ")
+                )
+            })?;
+            SceneSpec::from_toml(&text, &path)?
+        }
+    };
+    let bytes = match &spec.mesh.source {
+        MeshSource::File(path) => Some(
+            std::fs::read(path).with_context(|| format!("cannot read mesh {}", path.display()))?,
+        ),
+        MeshSource::Builtin(_) => None,
+    };
+    let mut spec = spec;
+    // A station cuts: the force model and the blade contact are what it renders.
+    spec.features.cutting = true;
+    Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
+}

@@ -1,0 +1,314 @@
+//! The output stage: the last thing between the simulation and the device, run on the haptic
+//! thread after every other input (ARCHITECTURE.md). Whatever comes in — a NaN from a broken
+//! model, a spike, a stale model, a device that stopped talking — what goes out is finite,
+//! at most `max_force_n`, changes by at most the rate limit per tick, does not make the
+//! virtual environment a source of energy (Hannaford–Ryu passivity observer and controller),
+//! and fades to zero when the device or the simulation goes quiet (watchdog).
+//!
+//! Sans-IO: time comes in as arguments, nothing allocates.
+
+use scalpel_sim::math::Vec3;
+
+/// Limits and timings of the output stage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutputLimits {
+    /// Largest force ever sent (N).
+    pub max_force_n: f64,
+    /// Largest change of the force in one millisecond (N).
+    pub rate_limit_n_per_ms: f64,
+    /// No device sample for this long fades the force out (s).
+    pub device_timeout_s: f64,
+    /// No simulation update for this long fades the force out (s).
+    pub sim_timeout_s: f64,
+    /// The fade to zero (and back) takes this long (s).
+    pub fade_s: f64,
+    /// Run the passivity observer and controller.
+    pub passivity: bool,
+}
+
+/// What the stage is given on one tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutputInput {
+    /// Now (s, monotonic).
+    pub now_s: f64,
+    /// The force the coupling asks for (N).
+    pub requested_n: Vec3,
+    /// Device velocity (m/s), from its last two samples.
+    pub velocity_m_per_s: Vec3,
+    /// When the device was last heard from (s); `None` if never.
+    pub device_seen_s: Option<f64>,
+    /// When the simulation last published a force model (s); `None` if never.
+    pub sim_seen_s: Option<f64>,
+}
+
+/// What the stage did on one tick, for counters.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct OutputReport {
+    /// The force sent (N).
+    pub force_n: Vec3,
+    /// The request was not finite and was replaced by zero.
+    pub nan_guarded: bool,
+    /// The request was above the device limit.
+    pub clamped: bool,
+    /// The rate limit cut the change.
+    pub rate_limited: bool,
+    /// Damping the passivity controller added (N·s/m).
+    pub passivity_damping: f64,
+    /// Watchdog gain applied, 1 healthy, 0 faded out.
+    pub watchdog_gain: f64,
+}
+
+/// The output stage's state.
+#[derive(Debug, Clone)]
+pub struct OutputStage {
+    limits: OutputLimits,
+    last_force: Vec3,
+    last_now_s: Option<f64>,
+    /// Energy the virtual environment has absorbed so far (J): the passivity observer.
+    observed_energy_j: f64,
+    gain: f64,
+}
+
+impl OutputStage {
+    /// A stage with `limits`, starting faded in only once the watchdog sees fresh inputs.
+    pub fn new(limits: OutputLimits) -> Self {
+        Self {
+            limits,
+            last_force: Vec3::zeros(),
+            last_now_s: None,
+            observed_energy_j: 0.0,
+            gain: 0.0,
+        }
+    }
+
+    /// The limits.
+    pub fn limits(&self) -> &OutputLimits {
+        &self.limits
+    }
+
+    /// Energy the environment has absorbed so far, as the passivity observer sees it (J).
+    pub fn observed_energy_j(&self) -> f64 {
+        self.observed_energy_j
+    }
+
+    /// One tick: the force to send.
+    pub fn process(&mut self, input: &OutputInput) -> OutputReport {
+        let l = self.limits;
+        let dt = match self.last_now_s {
+            Some(t) if input.now_s > t => (input.now_s - t).min(0.1),
+            _ => 0.001,
+        };
+        self.last_now_s = Some(input.now_s);
+        let mut report = OutputReport::default();
+        let v = if input.velocity_m_per_s.iter().all(|c| c.is_finite()) {
+            input.velocity_m_per_s
+        } else {
+            Vec3::zeros()
+        };
+
+        // NaN guard.
+        let mut f = input.requested_n;
+        if !f.iter().all(|c| c.is_finite()) {
+            f = Vec3::zeros();
+            report.nan_guarded = true;
+        }
+        // Clamp to the device limit (scaled, never distorted in direction).
+        report.clamped |= clamp(&mut f, l.max_force_n);
+        // Passivity (Hannaford & Ryu 2002): the observer (updated below with the force that
+        // was actually sent) holds the energy the environment has absorbed, −∫f·v dt. If it
+        // has given out more than it took in, damp the device just enough to take the
+        // excess back this tick.
+        if l.passivity {
+            let v2 = v.norm_squared();
+            if self.observed_energy_j < 0.0 && v2 > 1e-12 {
+                let alpha = -self.observed_energy_j / (dt * v2);
+                f -= v * alpha;
+                report.passivity_damping = alpha;
+            }
+        }
+        // Watchdog: fade out while the device or the model is stale, back in when fresh.
+        let stale =
+            |seen: Option<f64>, timeout: f64| seen.is_none_or(|t| input.now_s - t > timeout);
+        let healthy = !stale(input.device_seen_s, l.device_timeout_s)
+            && !stale(input.sim_seen_s, l.sim_timeout_s);
+        let rate = dt / l.fade_s.max(1e-6);
+        self.gain = if healthy {
+            (self.gain + rate).min(1.0)
+        } else {
+            (self.gain - rate).max(0.0)
+        };
+        f *= self.gain;
+        report.watchdog_gain = self.gain;
+        // Rate limit, then the device limit again: both hold on what is sent, whatever
+        // the stages before asked for (a spike, the passivity damping, a fade).
+        let step = f - self.last_force;
+        let max_step = l.rate_limit_n_per_ms * dt * 1e3;
+        if step.norm() > max_step {
+            f = self.last_force + step * (max_step / step.norm());
+            report.rate_limited = true;
+        }
+        report.clamped |= clamp(&mut f, l.max_force_n);
+        if !f.iter().all(|c| c.is_finite()) {
+            f = Vec3::zeros();
+            report.nan_guarded = true;
+        }
+        if l.passivity {
+            self.observed_energy_j += -f.dot(&v) * dt;
+        }
+        self.last_force = f;
+        report.force_n = f;
+        report
+    }
+}
+
+/// Scales `f` down to at most `max_n`; returns whether it did.
+fn clamp(f: &mut Vec3, max_n: f64) -> bool {
+    let m = f.norm();
+    if m > max_n {
+        *f *= max_n / m;
+        true
+    } else {
+        false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const LIMITS: OutputLimits = OutputLimits {
+        max_force_n: 3.3,
+        rate_limit_n_per_ms: 0.5,
+        device_timeout_s: 0.005,
+        sim_timeout_s: 0.1,
+        fade_s: 0.05,
+        passivity: true,
+    };
+
+    fn input(t: f64, f: Vec3, v: Vec3) -> OutputInput {
+        OutputInput {
+            now_s: t,
+            requested_n: f,
+            velocity_m_per_s: v,
+            device_seen_s: Some(t),
+            sim_seen_s: Some(t),
+        }
+    }
+
+    /// Runs `ticks` healthy ticks of 1 ms with a constant request; returns the last report.
+    fn settle(stage: &mut OutputStage, f: Vec3, ticks: usize) -> OutputReport {
+        let mut r = OutputReport::default();
+        for k in 0..ticks {
+            r = stage.process(&input(k as f64 * 1e-3, f, Vec3::zeros()));
+        }
+        r
+    }
+
+    #[test]
+    fn nan_becomes_zero_and_the_loop_goes_on() {
+        let mut s = OutputStage::new(LIMITS);
+        settle(&mut s, Vec3::new(1.0, 0.0, 0.0), 200);
+        let r = s.process(&input(0.2, Vec3::new(f64::NAN, 0.0, 0.0), Vec3::zeros()));
+        assert!(r.nan_guarded);
+        assert!(r.force_n.iter().all(|c| c.is_finite()));
+        // Rate-limited towards zero, not a jump.
+        assert!((r.force_n.x - 0.5).abs() < 1e-12, "{:?}", r.force_n);
+    }
+
+    #[test]
+    fn the_rate_limit_shapes_a_step() {
+        let mut s = OutputStage::new(LIMITS);
+        let mut last = 0.0;
+        for k in 0..200 {
+            let r = s.process(&input(
+                k as f64 * 1e-3,
+                Vec3::new(0.0, 0.0, 3.0),
+                Vec3::zeros(),
+            ));
+            assert!(r.force_n.z - last <= 0.5 + 1e-12);
+            last = r.force_n.z;
+        }
+        assert!((last - 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_energy_source_is_damped_to_passivity() {
+        // A "negative damper" environment pushes along the motion: it feeds energy in.
+        let run = |passivity: bool| {
+            let mut s = OutputStage::new(OutputLimits {
+                passivity,
+                ..LIMITS
+            });
+            settle(&mut s, Vec3::zeros(), 100);
+            let v = Vec3::new(0.05, 0.0, 0.0);
+            let mut given = 0.0;
+            for k in 100..600 {
+                let r = s.process(&input(k as f64 * 1e-3, v * 20.0, v));
+                given += r.force_n.dot(&v) * 1e-3;
+            }
+            given
+        };
+        let without = run(false);
+        let with = run(true);
+        assert!(without > 0.02, "the source should give energy: {without}");
+        // The controller takes the excess back within a few ticks (the rate limit spreads
+        // its damping): what is left is a few ticks' worth, not a growing supply.
+        assert!(with < 0.05 * without, "{with} of {without}");
+    }
+
+    #[test]
+    fn silence_fades_the_force_out_and_back() {
+        let mut s = OutputStage::new(LIMITS);
+        let f = Vec3::new(0.0, 2.0, 0.0);
+        settle(&mut s, f, 200);
+        // The device stops talking at 0.2 s.
+        let mut t = 0.2;
+        let mut gone_at = None;
+        while t < 0.4 {
+            let r = s.process(&OutputInput {
+                device_seen_s: Some(0.2),
+                ..input(t, f, Vec3::zeros())
+            });
+            if r.force_n.norm() == 0.0 && gone_at.is_none() {
+                gone_at = Some(t);
+            }
+            t += 1e-3;
+        }
+        let gone = gone_at.expect("the force should fade to zero");
+        // Timeout 5 ms, fade 50 ms.
+        assert!(gone - 0.2 <= 0.005 + 0.05 + 2e-3, "{gone}");
+        // A stalled simulation (no model for 100 ms) fades too.
+        let mut s = OutputStage::new(LIMITS);
+        settle(&mut s, f, 200);
+        let r = (0..300)
+            .map(|k| {
+                let t = 0.2 + k as f64 * 1e-3;
+                s.process(&OutputInput {
+                    sim_seen_s: Some(0.2),
+                    ..input(t, f, Vec3::zeros())
+                })
+            })
+            .last()
+            .unwrap();
+        assert_eq!(r.force_n, Vec3::zeros());
+    }
+
+    proptest! {
+        #[test]
+        fn the_force_sent_is_always_finite_and_bounded(
+            requests in prop::collection::vec((-1e6f64..1e6, -1e6f64..1e6, -1e6f64..1e6, -10.0f64..10.0, any::<bool>()), 1..200)
+        ) {
+            let mut s = OutputStage::new(LIMITS);
+            let mut last = Vec3::zeros();
+            for (k, (x, y, z, v, nan)) in requests.into_iter().enumerate() {
+                let f = if nan { Vec3::new(f64::NAN, y, z) } else { Vec3::new(x, y, z) };
+                let r = s.process(&input(k as f64 * 1e-3, f, Vec3::new(v, 0.0, 0.0)));
+                prop_assert!(r.force_n.iter().all(|c| c.is_finite()));
+                prop_assert!(r.force_n.norm() <= LIMITS.max_force_n + 1e-9);
+                prop_assert!((r.force_n - last).norm() <= LIMITS.rate_limit_n_per_ms + 1e-9);
+                last = r.force_n;
+            }
+        }
+    }
+}

@@ -1,0 +1,87 @@
+//! Real-time set-up of the haptic thread and its clock: SCHED_FIFO and mlockall when the
+//! host permits them (a clear warning when not), and sleeping until an absolute deadline
+//! on CLOCK_MONOTONIC (never a busy spin: with SCHED_FIFO and the kernel's RT throttling a
+//! spinning thread stalls for milliseconds once a second, dependencies.md §9).
+
+// The calls into libc below are the only unsafe code of the server; each is a plain
+// system call with arguments built right before it.
+#![allow(unsafe_code)]
+
+/// What the real-time set-up got.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RealtimeStatus {
+    /// SCHED_FIFO priority in effect (0: normal scheduling).
+    pub fifo_priority: i32,
+    /// Memory locked.
+    pub memory_locked: bool,
+    /// Why something asked for was not granted.
+    pub warnings: Vec<String>,
+}
+
+/// Locks the process's memory (current and future pages).
+pub fn lock_memory() -> Result<(), String> {
+    // SAFETY: mlockall takes flags only and touches no Rust memory.
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!("mlockall: {}", std::io::Error::last_os_error()))
+    }
+}
+
+/// Puts the calling thread under SCHED_FIFO at `priority`.
+pub fn make_thread_fifo(priority: i32) -> Result<(), String> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: pthread_self is the calling thread; `param` lives across the call.
+    let rc = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "SCHED_FIFO {priority}: {}",
+            std::io::Error::from_raw_os_error(rc)
+        ))
+    }
+}
+
+/// Seconds on CLOCK_MONOTONIC.
+pub fn monotonic_s() -> f64 {
+    let t = monotonic();
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+}
+
+fn monotonic() -> libc::timespec {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `t` is a valid timespec for the call to fill.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut t) };
+    t
+}
+
+/// Sleeps until `deadline_s` on CLOCK_MONOTONIC (returns at once if it has passed).
+pub fn sleep_until(deadline_s: f64) {
+    let t = libc::timespec {
+        tv_sec: deadline_s.floor() as libc::time_t,
+        tv_nsec: ((deadline_s - deadline_s.floor()) * 1e9) as libc::c_long,
+    };
+    loop {
+        // SAFETY: `t` is a valid timespec; the remainder pointer may be null with
+        // TIMER_ABSTIME.
+        let rc = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &t,
+                std::ptr::null_mut(),
+            )
+        };
+        // Interrupted by a signal: sleep again to the same absolute deadline.
+        if rc != libc::EINTR {
+            return;
+        }
+    }
+}

@@ -1,0 +1,518 @@
+//! One station: the haptic thread, the simulation thread, and the lock-free hand-offs
+//! between them (ARCHITECTURE.md):
+//!
+//! ```text
+//!  haptic thread, 1 kHz (SCHED_FIFO when permitted, absolute-deadline sleep)
+//!    device pose ─► virtual coupling on the latest local force model ─► output stage
+//!    ─► device force;  pose ─► SPSC ring ─► simulation thread
+//!  simulation thread, 1 kHz of simulated time, paced by the clock
+//!    latest pose ─► Simulation::tick ─► local force model ─► triple buffer ─► haptic thread
+//!                                     ─► status          ─► triple buffer ─► main thread
+//! ```
+//!
+//! The haptic thread neither allocates, locks, logs nor waits on anything but its own
+//! deadline: a slow or stalled simulation only leaves it with an older force model, and the
+//! output stage's watchdog fades the force out if the model stops coming.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+
+use scalpel_sim::cut::ToolPose;
+use scalpel_sim::force::{CutPhase, LocalForceModel};
+use scalpel_sim::math::{Mat3, Vec3};
+use scalpel_sim::pipeline::{Simulation, Unobserved};
+use scalpel_sim::scene::BuiltScene;
+
+use crate::device::HapticDevice;
+use crate::output::{OutputInput, OutputLimits, OutputStage};
+use crate::realtime;
+
+/// Jitter histogram: bins of this width (s) ...
+const JITTER_BIN_S: f64 = 5e-6;
+/// ... this many of them (the last collects everything later).
+const JITTER_BINS: usize = 1000;
+/// Poses in flight from the haptic to the simulation thread.
+const POSE_RING: usize = 256;
+/// Simulated time per simulation tick (s).
+const SIM_TICK_S: f64 = 1e-3;
+
+/// The force model and when it was made, handed from the simulation to the haptic thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ModelUpdate {
+    model: LocalForceModel,
+    /// Simulation ticks so far.
+    tick: u64,
+}
+
+/// The simulation's figures, handed to the main thread.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct SimStatus {
+    /// Simulation ticks so far.
+    pub ticks: u64,
+    /// Blade travel while cutting, summed (mm).
+    pub cut_length_mm: f64,
+    /// The tool force the simulation computed last (N).
+    pub sim_force_n: f64,
+    /// Points integrated in the last tick.
+    pub active_points: usize,
+    /// Longest tick so far (ms of wall time).
+    pub max_tick_ms: f64,
+    /// Ticks that took longer than the simulated time they advance.
+    pub late_ticks: u64,
+}
+
+/// Counters the haptic thread keeps with atomics only; the main thread reads and resets the
+/// windowed ones.
+pub struct HapticCounters {
+    ticks: AtomicU64,
+    misses: AtomicU64,
+    jitter: Vec<AtomicU32>,
+    max_jitter_ns: AtomicU64,
+    force_bits: AtomicU64,
+    nan_guards: AtomicU64,
+    watchdog_faded: AtomicBool,
+    total_ticks: AtomicU64,
+    total_misses: AtomicU64,
+    ring_full: AtomicU64,
+}
+
+impl HapticCounters {
+    fn new() -> Self {
+        Self {
+            ticks: AtomicU64::new(0),
+            misses: AtomicU64::new(0),
+            jitter: (0..JITTER_BINS).map(|_| AtomicU32::new(0)).collect(),
+            max_jitter_ns: AtomicU64::new(0),
+            force_bits: AtomicU64::new(0),
+            nan_guards: AtomicU64::new(0),
+            watchdog_faded: AtomicBool::new(true),
+            total_ticks: AtomicU64::new(0),
+            total_misses: AtomicU64::new(0),
+            ring_full: AtomicU64::new(0),
+        }
+    }
+
+    fn record(&self, jitter_s: f64, missed: bool, force_n: f64, nan: bool, faded: bool) {
+        self.ticks.fetch_add(1, Ordering::Relaxed);
+        self.total_ticks.fetch_add(1, Ordering::Relaxed);
+        if missed {
+            self.misses.fetch_add(1, Ordering::Relaxed);
+            self.total_misses.fetch_add(1, Ordering::Relaxed);
+        }
+        let bin = ((jitter_s / JITTER_BIN_S) as usize).min(JITTER_BINS - 1);
+        self.jitter[bin].fetch_add(1, Ordering::Relaxed);
+        self.max_jitter_ns
+            .fetch_max((jitter_s * 1e9) as u64, Ordering::Relaxed);
+        self.force_bits.store(force_n.to_bits(), Ordering::Relaxed);
+        if nan {
+            self.nan_guards.fetch_add(1, Ordering::Relaxed);
+        }
+        self.watchdog_faded.store(faded, Ordering::Relaxed);
+    }
+
+    /// Takes the window's figures and starts a new window.
+    fn take_window(&self, seconds: f64) -> HapticWindow {
+        let counts: Vec<u32> = self
+            .jitter
+            .iter()
+            .map(|b| b.swap(0, Ordering::Relaxed))
+            .collect();
+        let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+        let quantile = |q: f64| {
+            let want = (q * total as f64).ceil() as u64;
+            let mut seen = 0;
+            for (k, &c) in counts.iter().enumerate() {
+                seen += u64::from(c);
+                if seen >= want.max(1) {
+                    return (k + 1) as f64 * JITTER_BIN_S * 1e3;
+                }
+            }
+            JITTER_BINS as f64 * JITTER_BIN_S * 1e3
+        };
+        let ticks = self.ticks.swap(0, Ordering::Relaxed);
+        HapticWindow {
+            rate_hz: ticks as f64 / seconds,
+            jitter_p50_ms: quantile(0.5),
+            jitter_p99_ms: quantile(0.99),
+            jitter_max_ms: self.max_jitter_ns.swap(0, Ordering::Relaxed) as f64 * 1e-6,
+            deadline_misses: self.misses.swap(0, Ordering::Relaxed),
+            force_n: f64::from_bits(self.force_bits.load(Ordering::Relaxed)),
+            nan_guards: self.nan_guards.load(Ordering::Relaxed),
+            watchdog_faded: self.watchdog_faded.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// One status window of the haptic loop.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HapticWindow {
+    /// Ticks per second.
+    pub rate_hz: f64,
+    /// Wake-up lateness against the deadline, median and p99 (ms; histogram bins of 5 µs).
+    pub jitter_p50_ms: f64,
+    /// See `jitter_p50_ms`.
+    pub jitter_p99_ms: f64,
+    /// Latest wake-up (ms).
+    pub jitter_max_ms: f64,
+    /// Ticks that woke a whole period or more late.
+    pub deadline_misses: u64,
+    /// Force sent on the last tick (N).
+    pub force_n: f64,
+    /// Non-finite requests replaced by zero so far.
+    pub nan_guards: u64,
+    /// The watchdog has the force faded out.
+    pub watchdog_faded: bool,
+}
+
+/// A status line: the haptic window and the simulation's figures.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StatusLine {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// The haptic loop.
+    pub haptic: HapticWindow,
+    /// The simulation.
+    pub sim: SimStatus,
+}
+
+/// What the station did, at the end.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Haptic ticks.
+    pub haptic_ticks: u64,
+    /// Haptic ticks that woke a period or more late.
+    pub deadline_misses: u64,
+    /// Poses dropped because the simulation thread was behind (ring full).
+    pub poses_dropped: u64,
+    /// The simulation's figures.
+    pub sim: SimStatus,
+    /// The real-time set-up in effect.
+    pub fifo_priority: i32,
+    /// Memory locked.
+    pub memory_locked: bool,
+    /// Why some real-time request was not granted.
+    pub warnings: Vec<String>,
+}
+
+/// How to run a station.
+pub struct StationParams {
+    /// Haptic rate (Hz).
+    pub haptic_hz: f64,
+    /// SCHED_FIFO priority for the haptic thread (0: normal).
+    pub fifo_priority: i32,
+    /// Lock memory.
+    pub lock_memory: bool,
+    /// Output stage.
+    pub limits: OutputLimits,
+    /// Status interval (s).
+    pub status_interval_s: f64,
+}
+
+/// Runs a station until `stop` is set, calling `status` every interval (on this thread).
+pub fn run(
+    scene: &BuiltScene,
+    device: Box<dyn HapticDevice>,
+    params: &StationParams,
+    stop: Arc<AtomicBool>,
+    mut status: impl FnMut(&StatusLine),
+) -> anyhow::Result<RunSummary> {
+    let mut warnings = Vec::new();
+    let mut memory_locked = false;
+    if params.lock_memory {
+        match realtime::lock_memory() {
+            Ok(()) => memory_locked = true,
+            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
+        }
+    }
+    let (pose_in, pose_out) = rtrb::RingBuffer::<ToolPose>::new(POSE_RING);
+    let zero_model = ModelUpdate {
+        model: LocalForceModel {
+            f0_n: Vec3::zeros(),
+            x0_m: Vec3::zeros(),
+            stiffness_n_per_m: Mat3::zeros(),
+        },
+        tick: 0,
+    };
+    let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
+    let (status_in, mut status_out) = triple_buffer::triple_buffer(&SimStatus::default());
+    let counters = Arc::new(HapticCounters::new());
+    let (fifo_tx, fifo_rx) = std::sync::mpsc::channel();
+
+    // Built before the threads start: everything the loops use is allocated up front.
+    let sim = Simulation::new(scene);
+    let t0 = realtime::monotonic_s();
+    let sim_thread = spawn_sim(sim, pose_out, model_in, status_in, stop.clone(), t0)?;
+    let haptic_thread = spawn_haptic(
+        device,
+        HapticContext {
+            period_s: 1.0 / params.haptic_hz,
+            fifo_priority: params.fifo_priority,
+            limits: params.limits,
+            t0,
+        },
+        pose_in,
+        model_out,
+        counters.clone(),
+        stop.clone(),
+        fifo_tx,
+    )?;
+    let fifo_priority = match fifo_rx.recv() {
+        Ok(Ok(p)) => p,
+        Ok(Err(e)) => {
+            warnings.push(format!(
+                "{e}: the haptic thread runs with normal scheduling"
+            ));
+            0
+        }
+        Err(_) => 0,
+    };
+
+    let mut next = t0 + params.status_interval_s;
+    let mut window_start = t0;
+    while !stop.load(Ordering::Relaxed) {
+        realtime::sleep_until(next.min(realtime::monotonic_s() + 0.05));
+        let now = realtime::monotonic_s();
+        if now >= next {
+            let line = StatusLine {
+                uptime_s: now - t0,
+                haptic: counters.take_window(now - window_start),
+                sim: *status_out.read(),
+            };
+            status(&line);
+            window_start = now;
+            next += params.status_interval_s;
+        }
+        if haptic_thread.is_finished() || sim_thread.is_finished() {
+            stop.store(true, Ordering::Relaxed);
+        }
+    }
+    let haptic_result = haptic_thread.join();
+    let sim_result = sim_thread.join();
+    if haptic_result.is_err() || sim_result.is_err() {
+        anyhow::bail!("a station thread panicked");
+    }
+    Ok(RunSummary {
+        haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
+        deadline_misses: counters.total_misses.load(Ordering::Relaxed),
+        poses_dropped: counters.ring_full.load(Ordering::Relaxed),
+        sim: *status_out.read(),
+        fifo_priority,
+        memory_locked,
+        warnings,
+    })
+}
+
+#[derive(Clone, Copy)]
+struct HapticContext {
+    period_s: f64,
+    fifo_priority: i32,
+    limits: OutputLimits,
+    t0: f64,
+}
+
+fn spawn_haptic(
+    mut device: Box<dyn HapticDevice>,
+    ctx: HapticContext,
+    mut poses: rtrb::Producer<ToolPose>,
+    mut models: triple_buffer::Output<ModelUpdate>,
+    counters: Arc<HapticCounters>,
+    stop: Arc<AtomicBool>,
+    fifo: std::sync::mpsc::Sender<Result<i32, String>>,
+) -> std::io::Result<JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("haptic".into())
+        .spawn(move || {
+            let granted = if ctx.fifo_priority > 0 {
+                realtime::make_thread_fifo(ctx.fifo_priority).map(|()| ctx.fifo_priority)
+            } else {
+                Ok(0)
+            };
+            let _ = fifo.send(granted);
+            let mut state = HapticState::new(ctx.limits);
+            let mut deadline = ctx.t0;
+            while !stop.load(Ordering::Relaxed) {
+                deadline += ctx.period_s;
+                realtime::sleep_until(deadline);
+                let wall = realtime::monotonic_s();
+                let lateness = (wall - deadline).max(0.0);
+                let missed = lateness >= ctx.period_s;
+                if missed {
+                    // Woke a whole period late: start the schedule again from now rather
+                    // than running the missed ticks back to back.
+                    deadline = wall;
+                }
+                state.tick(
+                    wall - ctx.t0,
+                    lateness,
+                    missed,
+                    device.as_mut(),
+                    &mut poses,
+                    &mut models,
+                    &counters,
+                );
+            }
+        })
+}
+
+/// The haptic loop's state between ticks.
+pub struct HapticState {
+    stage: OutputStage,
+    last_pose: Option<(f64, Vec3)>,
+    device_seen: Option<f64>,
+    sim_seen: Option<f64>,
+    last_model_tick: u64,
+}
+
+impl HapticState {
+    /// A loop that has not ticked yet.
+    pub fn new(limits: OutputLimits) -> Self {
+        Self {
+            stage: OutputStage::new(limits),
+            last_pose: None,
+            device_seen: None,
+            sim_seen: None,
+            last_model_tick: 0,
+        }
+    }
+
+    /// One haptic tick at `now` (s since the start) that woke `lateness` late: device pose
+    /// in, coupling on the latest model, output stage, force out, pose to the simulation.
+    /// No allocation, no lock, no wait (tests/realtime.rs counts allocations).
+    #[allow(clippy::too_many_arguments)]
+    fn tick(
+        &mut self,
+        now: f64,
+        lateness: f64,
+        missed: bool,
+        device: &mut dyn HapticDevice,
+        poses: &mut rtrb::Producer<ToolPose>,
+        models: &mut triple_buffer::Output<ModelUpdate>,
+        counters: &HapticCounters,
+    ) {
+        let mut velocity = Vec3::zeros();
+        let mut x = self.last_pose.map_or(Vec3::zeros(), |(_, x)| x);
+        if let Some(pose) = device.sample(now) {
+            if let Some((t, last_x)) = self.last_pose
+                && now > t
+            {
+                velocity = (pose.tip_m - last_x) / (now - t);
+            }
+            x = pose.tip_m;
+            self.last_pose = Some((now, x));
+            self.device_seen = Some(now);
+            if poses.push(pose).is_err() {
+                counters.ring_full.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let update = *models.read();
+        if update.tick != self.last_model_tick {
+            self.last_model_tick = update.tick;
+            self.sim_seen = Some(now);
+        }
+        let report = self.stage.process(&OutputInput {
+            now_s: now,
+            requested_n: update.model.force_at(x),
+            velocity_m_per_s: velocity,
+            device_seen_s: self.device_seen,
+            sim_seen_s: self.sim_seen,
+        });
+        device.send_force(report.force_n);
+        counters.record(
+            lateness,
+            missed,
+            report.force_n.norm(),
+            report.nan_guarded,
+            report.watchdog_gain == 0.0,
+        );
+    }
+}
+
+/// Drives [`HapticState::tick`] with real hand-offs, for the allocation test: `ticks`
+/// haptic ticks of 1 ms against `device`, with a simulation side that publishes `model`
+/// every tick and drains the poses. Returns the force sent on the last tick.
+pub fn drive_haptic_ticks(
+    device: &mut dyn HapticDevice,
+    limits: OutputLimits,
+    model: LocalForceModel,
+    ticks: usize,
+    mut between: impl FnMut(),
+) -> f64 {
+    let (mut pose_in, mut pose_out) = rtrb::RingBuffer::<ToolPose>::new(POSE_RING);
+    let first = ModelUpdate { model, tick: 0 };
+    let (mut model_in, mut model_out) = triple_buffer::triple_buffer(&first);
+    let counters = HapticCounters::new();
+    let mut state = HapticState::new(limits);
+    let mut force = 0.0;
+    for k in 0..ticks {
+        model_in.write(ModelUpdate {
+            model,
+            tick: k as u64 + 1,
+        });
+        state.tick(
+            k as f64 * 1e-3,
+            0.0,
+            false,
+            device,
+            &mut pose_in,
+            &mut model_out,
+            &counters,
+        );
+        while pose_out.pop().is_ok() {}
+        force = f64::from_bits(counters.force_bits.load(Ordering::Relaxed));
+        between();
+    }
+    force
+}
+
+fn spawn_sim(
+    mut sim: Simulation,
+    mut poses: rtrb::Consumer<ToolPose>,
+    mut models: triple_buffer::Input<ModelUpdate>,
+    mut status: triple_buffer::Input<SimStatus>,
+    stop: Arc<AtomicBool>,
+    t0: f64,
+) -> std::io::Result<JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("simulation".into())
+        .spawn(move || {
+            let mut deadline = t0;
+            let mut figures = SimStatus::default();
+            let mut last_tip: Option<Vec3> = None;
+            let mut pose = None;
+            while !stop.load(Ordering::Relaxed) {
+                deadline += SIM_TICK_S;
+                realtime::sleep_until(deadline);
+                let started = realtime::monotonic_s();
+                if started - deadline > 10.0 * SIM_TICK_S {
+                    // Far behind (a slow scene): pace from now instead of catching up.
+                    deadline = started;
+                }
+                while let Ok(p) = poses.pop() {
+                    pose = Some(p);
+                }
+                sim.set_tool(pose);
+                let report = sim.tick(SIM_TICK_S, &mut Unobserved);
+                let tip = pose.map(|p| p.tip_m);
+                if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, last_tip)
+                    && cut.in_tissue
+                    && cut.force.phase == CutPhase::Cutting
+                    && !cut.withdrawing
+                {
+                    figures.cut_length_mm += (tip - last).norm() * 1e3;
+                }
+                last_tip = tip;
+                let took_ms = (realtime::monotonic_s() - started) * 1e3;
+                figures.ticks += 1;
+                figures.sim_force_n = report.tool_force_n.norm();
+                figures.active_points = report.active_points;
+                figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
+                figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
+                models.write(ModelUpdate {
+                    model: sim.local_force_model(),
+                    tick: figures.ticks,
+                });
+                status.write(figures);
+            }
+        })
+}
