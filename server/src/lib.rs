@@ -5,6 +5,7 @@
 
 pub mod config;
 pub mod device;
+pub mod journal;
 pub mod output;
 pub mod realtime;
 pub mod station;

@@ -10,11 +10,10 @@ use anyhow::Context;
 use clap::Parser;
 use scalpel_server::config::{DeviceKind, ServerConfig};
 use scalpel_server::device::ScriptedDevice;
+use scalpel_server::journal;
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::{self, StationParams, StatusLine};
 use scalpel_sim::pipeline::CutScript;
-use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{self, BuiltScene, MeshSource, SceneSpec};
 
 #[derive(Parser)]
 #[command(
@@ -30,6 +29,9 @@ struct Args {
     /// Status lines and the summary as JSON, one object per line.
     #[arg(long)]
     json: bool,
+    /// Write every input the simulation uses to FILE (replay it with `scalpel replay`).
+    #[arg(long, value_name = "FILE")]
+    journal: Option<PathBuf>,
 }
 
 fn main() {
@@ -50,7 +52,7 @@ fn run() -> anyhow::Result<()> {
     {
         anyhow::bail!("--duration must be a positive number of seconds, got {d}");
     }
-    let scene = load_scene(&config.scene)?;
+    let scene = journal::load_scene(&config.scene)?;
     let script = match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, "") => CutScript::default_for(&scene.model.surface)
             .context("the scene has no place for the demo cut")?,
@@ -101,7 +103,18 @@ fn run() -> anyhow::Result<()> {
         });
     }
     let json = args.json;
-    let summary = station::run(&scene, device, &params, stop, |line| {
+    let journal = match &args.journal {
+        Some(path) => {
+            let mut file = std::io::BufWriter::new(
+                std::fs::File::create(path)
+                    .with_context(|| format!("cannot create journal {}", path.display()))?,
+            );
+            std::io::Write::write_all(&mut file, journal::header(&config.scene).as_bytes())?;
+            Some(file)
+        }
+        None => None,
+    };
+    let summary = station::run(&scene, device, &params, journal, stop, |line| {
         print_status(line, json)
     })?;
     if json {
@@ -111,7 +124,7 @@ fn run() -> anyhow::Result<()> {
             println!("warning: {w}");
         }
         println!(
-            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms), cut {:.1} mm; SCHED_FIFO {}, memory locked {}",
+            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
             summary.haptic_ticks,
             summary.deadline_misses,
             summary.poses_dropped,
@@ -119,6 +132,7 @@ fn run() -> anyhow::Result<()> {
             summary.sim.late_ticks,
             summary.sim.max_tick_ms,
             summary.sim.cut_length_mm,
+            summary.state_hash,
             summary.fifo_priority,
             summary.memory_locked
         );
@@ -148,31 +162,4 @@ fn print_status(line: &StatusLine, json: bool) {
         line.sim.active_points,
         line.sim.cut_length_mm
     );
-}
-
-/// A built-in scene name or a scene file; the scene's mesh file (if any) is read here.
-fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
-    let spec = match scene::builtin(name) {
-        Some(spec) => spec,
-        None => {
-            let path = PathBuf::from(name);
-            let text = std::fs::read_to_string(&path).with_context(|| {
-                format!(
-                    "'{name}' is neither a built-in scene ({}) nor a readable scene file",
-                    scene::BUILTIN_SCENES.join(", ")
-                )
-            })?;
-            SceneSpec::from_toml(&text, &path)?
-        }
-    };
-    let bytes = match &spec.mesh.source {
-        MeshSource::File(path) => Some(
-            std::fs::read(path).with_context(|| format!("cannot read mesh {}", path.display()))?,
-        ),
-        MeshSource::Builtin(_) => None,
-    };
-    let mut spec = spec;
-    // A station cuts: the force model and the blade contact are what it renders.
-    spec.features.cutting = true;
-    Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
 }

@@ -25,6 +25,7 @@ use scalpel_sim::pipeline::{Simulation, Unobserved};
 use scalpel_sim::scene::BuiltScene;
 
 use crate::device::HapticDevice;
+use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputStage};
 use crate::realtime;
 
@@ -35,7 +36,9 @@ const JITTER_BINS: usize = 1000;
 /// Poses in flight from the haptic to the simulation thread.
 const POSE_RING: usize = 256;
 /// Simulated time per simulation tick (s).
-const SIM_TICK_S: f64 = 1e-3;
+pub(crate) const SIM_TICK_S: f64 = 1e-3;
+/// Journal records in flight to the writer thread (a minute at 1 kHz).
+const JOURNAL_RING: usize = 1 << 16;
 
 /// The force model and when it was made, handed from the simulation to the haptic thread.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -187,6 +190,11 @@ pub struct RunSummary {
     pub poses_dropped: u64,
     /// The simulation's figures.
     pub sim: SimStatus,
+    /// The simulation's state hash at the end (see `Simulation::state_hash`).
+    pub state_hash: u64,
+    /// Journal records lost because the writer fell a minute behind (0: the journal is
+    /// complete and replays bit for bit).
+    pub journal_dropped: u64,
     /// The real-time set-up in effect.
     pub fifo_priority: i32,
     /// Memory locked.
@@ -210,10 +218,13 @@ pub struct StationParams {
 }
 
 /// Runs a station until `stop` is set, calling `status` every interval (on this thread).
+/// With `journal` (its header written), every tick's input is appended to it by a writer
+/// thread and the file is closed with the tick count and the final state hash.
 pub fn run(
     scene: &BuiltScene,
     device: Box<dyn HapticDevice>,
     params: &StationParams,
+    journal: Option<std::io::BufWriter<std::fs::File>>,
     stop: Arc<AtomicBool>,
     mut status: impl FnMut(&StatusLine),
 ) -> anyhow::Result<RunSummary> {
@@ -242,7 +253,28 @@ pub fn run(
     // Built before the threads start: everything the loops use is allocated up front.
     let sim = Simulation::new(scene);
     let t0 = realtime::monotonic_s();
-    let sim_thread = spawn_sim(sim, pose_out, model_in, status_in, stop.clone(), t0)?;
+    let journal_dropped = Arc::new(AtomicU64::new(0));
+    let sim_done = Arc::new(AtomicBool::new(false));
+    let (records_in, writer) = match journal {
+        Some(file) => {
+            let (records_in, records_out) = rtrb::RingBuffer::<TickRecord>::new(JOURNAL_RING);
+            let writer = spawn_journal_writer(file, records_out, sim_done.clone())?;
+            (Some(records_in), Some(writer))
+        }
+        None => (None, None),
+    };
+    let sim_thread = spawn_sim(
+        sim,
+        pose_out,
+        model_in,
+        status_in,
+        SimJournal {
+            records: records_in,
+            dropped: journal_dropped.clone(),
+        },
+        stop.clone(),
+        t0,
+    )?;
     let haptic_thread = spawn_haptic(
         device,
         HapticContext {
@@ -289,14 +321,28 @@ pub fn run(
     }
     let haptic_result = haptic_thread.join();
     let sim_result = sim_thread.join();
-    if haptic_result.is_err() || sim_result.is_err() {
+    sim_done.store(true, Ordering::Release);
+    let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
         anyhow::bail!("a station thread panicked");
+    };
+    let sim_status = *status_out.read();
+    if let Some(writer) = writer {
+        let mut file = writer
+            .join()
+            .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??;
+        std::io::Write::write_all(
+            &mut file,
+            journal::footer(sim_status.ticks, state_hash).as_bytes(),
+        )?;
+        std::io::Write::flush(&mut file)?;
     }
     Ok(RunSummary {
         haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
         deadline_misses: counters.total_misses.load(Ordering::Relaxed),
         poses_dropped: counters.ring_full.load(Ordering::Relaxed),
-        sim: *status_out.read(),
+        sim: sim_status,
+        state_hash,
+        journal_dropped: journal_dropped.load(Ordering::Relaxed),
         fifo_priority,
         memory_locked,
         warnings,
@@ -465,14 +511,44 @@ pub fn drive_haptic_ticks(
     force
 }
 
+/// The simulation thread's end of the journal.
+struct SimJournal {
+    records: Option<rtrb::Producer<TickRecord>>,
+    dropped: Arc<AtomicU64>,
+}
+
+/// Writes journal records as they come, until the simulation has stopped and the ring is
+/// empty; hands the file back for the footer.
+fn spawn_journal_writer(
+    mut file: std::io::BufWriter<std::fs::File>,
+    mut records: rtrb::Consumer<TickRecord>,
+    sim_done: Arc<AtomicBool>,
+) -> std::io::Result<JoinHandle<std::io::Result<std::io::BufWriter<std::fs::File>>>> {
+    std::thread::Builder::new()
+        .name("journal".into())
+        .spawn(move || {
+            loop {
+                let done = sim_done.load(Ordering::Acquire);
+                while let Ok(r) = records.pop() {
+                    journal::write_record(&mut file, &r)?;
+                }
+                if done {
+                    return Ok(file);
+                }
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+        })
+}
+
 fn spawn_sim(
     mut sim: Simulation,
     mut poses: rtrb::Consumer<ToolPose>,
     mut models: triple_buffer::Input<ModelUpdate>,
     mut status: triple_buffer::Input<SimStatus>,
+    mut journal: SimJournal,
     stop: Arc<AtomicBool>,
     t0: f64,
-) -> std::io::Result<JoinHandle<()>> {
+) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
         .name("simulation".into())
         .spawn(move || {
@@ -492,6 +568,15 @@ fn spawn_sim(
                     pose = Some(p);
                 }
                 sim.set_tool(pose);
+                if let Some(records) = &mut journal.records {
+                    let record = TickRecord {
+                        tick: figures.ticks + 1,
+                        pose,
+                    };
+                    if records.push(record).is_err() {
+                        journal.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
                 let report = sim.tick(SIM_TICK_S, &mut Unobserved);
                 let tip = pose.map(|p| p.tip_m);
                 if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, last_tip)
@@ -514,5 +599,6 @@ fn spawn_sim(
                 });
                 status.write(figures);
             }
+            sim.state_hash()
         })
 }

@@ -8,9 +8,13 @@ fn server() -> Command {
 }
 
 #[test]
-fn the_embedded_default_runs_the_demo_cut() {
+fn the_embedded_default_runs_the_demo_cut_and_replays_bit_for_bit() {
+    let dir = std::env::temp_dir().join(format!("scalpel-journal-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let journal = dir.join("session.journal");
     let out = server()
-        .args(["--duration", "4", "--json"])
+        .args(["--duration", "4", "--json", "--journal"])
+        .arg(&journal)
         .output()
         .expect("the server starts");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -45,6 +49,16 @@ fn the_embedded_default_runs_the_demo_cut() {
     );
     let last = status.last().unwrap();
     assert!(last["haptic"]["force_n"].as_f64().unwrap() > 0.5, "{last}");
+
+    // The journal replays to the live run's final state, bit for bit.
+    assert_eq!(summary["journal_dropped"].as_u64(), Some(0), "{summary}");
+    let recorded = scalpel_server::journal::read(&journal).unwrap();
+    let live = summary["state_hash"].as_u64().unwrap();
+    assert_eq!(recorded.end, Some((recorded.ticks.len() as u64, live)));
+    assert!(recorded.ticks.iter().any(|t| t.pose.is_some()));
+    let scene = scalpel_server::journal::load_scene(&recorded.scene).unwrap();
+    assert_eq!(scalpel_server::journal::replay(&scene, &recorded), live);
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

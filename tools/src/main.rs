@@ -10,6 +10,7 @@ mod export;
 mod load;
 mod plot;
 mod progress;
+mod replay_cmd;
 mod report;
 mod validate_cmd;
 
@@ -76,6 +77,15 @@ enum Command {
     /// Whole-system benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Replay a station's journal (`scalpel-server --journal FILE`) and print the final
+    /// state hash; exit status 1 if it differs from the live run's.
+    Replay {
+        /// The journal.
+        file: PathBuf,
+        /// Print {scene, ticks, state_hash, live_state_hash, identical} as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -222,6 +232,7 @@ fn main() -> ExitCode {
             mesh_format,
             json,
         } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
+        Command::Replay { file, json } => replay_cmd::run(&file, json),
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
         Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
         Command::Bench(BenchCommand::Table1 { json }) => bench::cutting::table1(json),

@@ -312,6 +312,30 @@ impl Simulation {
         self.time_s
     }
 
+    /// A 64-bit fingerprint of the state (FNV-1a over the exact bits of the time, every
+    /// point's position and velocity, and the surface's vertices and triangles): two runs
+    /// with the same inputs end with the same hash, bit for bit (the journal's replay
+    /// checks this).
+    pub fn state_hash(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |x: u64| {
+            for b in x.to_le_bytes() {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        eat(self.time_s.to_bits());
+        for (p, v) in self.solver.positions().iter().zip(self.solver.velocities()) {
+            p.iter().chain(v.iter()).for_each(|c| eat(c.to_bits()));
+        }
+        for x in &self.surface.mesh.positions {
+            x.iter().for_each(|c| eat(c.to_bits()));
+        }
+        for t in &self.surface.mesh.triangles {
+            t.iter().for_each(|&v| eat(u64::from(v)));
+        }
+        h
+    }
+
     /// The surface as drawn now.
     pub fn surface(&self) -> &TriMesh {
         &self.surface.mesh

@@ -1,0 +1,195 @@
+//! The journal: every input the simulation used, with its tick, so that a session replays
+//! bit for bit (`scalpel replay FILE`). Text, one line per tick, numbers as the hex of their
+//! f64 bits (exact, and readable with any tool):
+//!
+//! ```text
+//! scalpel-journal 1
+//! scene liver
+//! tick 1 -                                   (no tool)
+//! tick 2 <tip x y z> <orientation w i j k>   (seven f64 bit patterns in hex)
+//! ...
+//! end 5000 9f0c2a41d3b87e65                  (ticks, state hash at the end of the run)
+//! ```
+//!
+//! The simulation thread hands each tick's record to a writer thread through an SPSC ring,
+//! so the file's I/O never blocks a tick.
+
+use std::fmt::Write as _;
+use std::io::{BufRead, Write};
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use nalgebra::{Quaternion, UnitQuaternion};
+use scalpel_sim::cut::ToolPose;
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::{Simulation, Unobserved};
+use scalpel_sim::scene::BuiltScene;
+
+/// Format version written on the first line.
+pub const JOURNAL_VERSION: u32 = 1;
+
+/// One tick's input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickRecord {
+    /// Simulation tick (from 1).
+    pub tick: u64,
+    /// The tool pose the tick used.
+    pub pose: Option<ToolPose>,
+}
+
+/// The header line(s) for a session on `scene`.
+pub fn header(scene: &str) -> String {
+    format!("scalpel-journal {JOURNAL_VERSION}\nscene {scene}\n")
+}
+
+/// One tick's line.
+pub fn write_record(out: &mut impl Write, r: &TickRecord) -> std::io::Result<()> {
+    let mut line = String::with_capacity(160);
+    let _ = write!(line, "tick {}", r.tick);
+    match r.pose {
+        None => line.push_str(" -"),
+        Some(p) => {
+            let q = p.orientation.quaternion();
+            for x in [p.tip_m.x, p.tip_m.y, p.tip_m.z, q.w, q.i, q.j, q.k] {
+                let _ = write!(line, " {:016x}", x.to_bits());
+            }
+        }
+    }
+    line.push('\n');
+    out.write_all(line.as_bytes())
+}
+
+/// The closing line.
+pub fn footer(ticks: u64, state_hash: u64) -> String {
+    format!("end {ticks} {state_hash:016x}\n")
+}
+
+/// A journal read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Journal {
+    /// The scene the session ran.
+    pub scene: String,
+    /// Every tick's input, in order.
+    pub ticks: Vec<TickRecord>,
+    /// The live run's tick count and final state hash, when it closed the journal.
+    pub end: Option<(u64, u64)>,
+}
+
+/// Reads a journal; errors name the file and line.
+pub fn read(path: &Path) -> anyhow::Result<Journal> {
+    let file = std::fs::File::open(path)
+        .with_context(|| format!("cannot read journal {}", path.display()))?;
+    let mut lines = std::io::BufReader::new(file).lines().enumerate();
+    let mut next = |what: &str| -> anyhow::Result<(usize, String)> {
+        match lines.next() {
+            Some((n, Ok(l))) => Ok((n + 1, l)),
+            Some((n, Err(e))) => bail!("{}:{}: {e}", path.display(), n + 1),
+            None => bail!("{}: ends before {what}", path.display()),
+        }
+    };
+    let (n, first) = next("the header")?;
+    if first != format!("scalpel-journal {JOURNAL_VERSION}") {
+        bail!(
+            "{}:{n}: not a scalpel journal of version {JOURNAL_VERSION} (starts with {first:?})",
+            path.display()
+        );
+    }
+    let (n, scene) = next("the scene line")?;
+    let scene = scene
+        .strip_prefix("scene ")
+        .with_context(|| format!("{}:{n}: expected 'scene NAME'", path.display()))?
+        .to_string();
+    let mut journal = Journal {
+        scene,
+        ticks: Vec::new(),
+        end: None,
+    };
+    loop {
+        let (n, line) = match next("its end") {
+            Ok(l) => l,
+            // A session killed before it closed the journal still replays what it has.
+            Err(_) => return Ok(journal),
+        };
+        let at = || format!("{}:{n}", path.display());
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        match fields.as_slice() {
+            ["tick", tick, rest @ ..] => {
+                let tick: u64 = tick
+                    .parse()
+                    .with_context(|| format!("{}: bad tick", at()))?;
+                let expected = journal.ticks.len() as u64 + 1;
+                if tick != expected {
+                    bail!("{}: tick {tick} where tick {expected} was expected", at());
+                }
+                let pose = match rest {
+                    ["-"] => None,
+                    bits if bits.len() == 7 => {
+                        let mut v = [0.0; 7];
+                        for (slot, b) in v.iter_mut().zip(bits) {
+                            let raw = u64::from_str_radix(b, 16)
+                                .with_context(|| format!("{}: bad number {b:?}", at()))?;
+                            *slot = f64::from_bits(raw);
+                        }
+                        let q = Quaternion::new(v[3], v[4], v[5], v[6]);
+                        Some(ToolPose {
+                            tip_m: Vec3::new(v[0], v[1], v[2]),
+                            orientation: UnitQuaternion::new_unchecked(q),
+                        })
+                    }
+                    _ => bail!("{}: expected '-' or seven numbers after the tick", at()),
+                };
+                journal.ticks.push(TickRecord { tick, pose });
+            }
+            ["end", ticks, hash] => {
+                let ticks: u64 = ticks
+                    .parse()
+                    .with_context(|| format!("{}: bad count", at()))?;
+                let hash =
+                    u64::from_str_radix(hash, 16).with_context(|| format!("{}: bad hash", at()))?;
+                journal.end = Some((ticks, hash));
+                return Ok(journal);
+            }
+            _ => bail!("{}: expected a 'tick' or 'end' line", at()),
+        }
+    }
+}
+
+/// Plays the journal's inputs through a fresh simulation of `scene`; returns the state hash
+/// at the end.
+pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
+    let mut sim = Simulation::new(scene);
+    for r in &journal.ticks {
+        sim.set_tool(r.pose);
+        sim.tick(crate::station::SIM_TICK_S, &mut Unobserved);
+    }
+    sim.state_hash()
+}
+
+/// A built-in scene name or a scene file, built as a station runs it (cutting on); the
+/// scene's mesh file, if any, is read here.
+pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
+    use scalpel_sim::progress::Silent;
+    use scalpel_sim::scene::{self, MeshSource, SceneSpec};
+    let mut spec = match scene::builtin(name) {
+        Some(spec) => spec,
+        None => {
+            let path = std::path::PathBuf::from(name);
+            let text = std::fs::read_to_string(&path).with_context(|| {
+                format!(
+                    "'{name}' is neither a built-in scene ({}) nor a readable scene file",
+                    scene::BUILTIN_SCENES.join(", ")
+                )
+            })?;
+            SceneSpec::from_toml(&text, &path)?
+        }
+    };
+    let bytes = match &spec.mesh.source {
+        MeshSource::File(path) => Some(
+            std::fs::read(path).with_context(|| format!("cannot read mesh {}", path.display()))?,
+        ),
+        MeshSource::Builtin(_) => None,
+    };
+    // A station cuts: the force model and the blade contact are what it renders.
+    spec.features.cutting = true;
+    Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
+}

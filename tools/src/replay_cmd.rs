@@ -1,0 +1,43 @@
+//! `scalpel replay FILE [--json]`: plays a station journal through a fresh simulation and
+//! compares the final state hash with the live run's, bit for bit.
+
+use std::path::Path;
+
+use anyhow::bail;
+use scalpel_server::journal;
+
+/// Replays `file`.
+pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
+    let recorded = journal::read(file)?;
+    let scene = journal::load_scene(&recorded.scene)?;
+    let hash = journal::replay(&scene, &recorded);
+    let live = recorded.end.map(|(_, h)| h);
+    let identical = live.is_some_and(|h| h == hash);
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "scene": recorded.scene,
+                "ticks": recorded.ticks.len(),
+                "state_hash": format!("{hash:016x}"),
+                "live_state_hash": live.map(|h| format!("{h:016x}")),
+                "identical": identical,
+            })
+        );
+    } else {
+        println!(
+            "replayed {} ticks of {}: state hash {hash:016x}",
+            recorded.ticks.len(),
+            recorded.scene
+        );
+        match live {
+            Some(h) if identical => println!("identical to the live run ({h:016x})"),
+            Some(h) => println!("DIFFERENT from the live run ({h:016x})"),
+            None => println!("the journal was not closed (no live hash to compare)"),
+        }
+    }
+    if live.is_some() && !identical {
+        bail!("the replay's state differs from the live run's");
+    }
+    Ok(())
+}
