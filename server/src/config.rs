@@ -236,18 +236,27 @@ impl ServerConfig {
             o.rate_limit_n_per_ms > 0.0 && o.rate_limit_n_per_ms <= 50.0,
             "above 0 and at most 50 N/ms",
         )?;
-        for (key, value) in [
-            ("output.device_timeout_ms", o.device_timeout_ms),
-            ("output.sim_timeout_ms", o.sim_timeout_ms),
-            ("output.fade_ms", o.fade_ms),
-        ] {
-            range(
-                key,
-                value,
-                value > 0.0 && value <= 10_000.0,
-                "above 0 and at most 10000 ms",
-            )?;
-        }
+        // A timeout shorter than two of the loop's periods would fade the force in and out
+        // between samples.
+        let period_ms = 1e3 / r.haptic_hz;
+        range(
+            "output.device_timeout_ms",
+            o.device_timeout_ms,
+            o.device_timeout_ms >= 2.0 * period_ms && o.device_timeout_ms <= 10_000.0,
+            "at least two haptic periods and at most 10000 ms",
+        )?;
+        range(
+            "output.sim_timeout_ms",
+            o.sim_timeout_ms,
+            (2.0..=10_000.0).contains(&o.sim_timeout_ms),
+            "at least 2 ms (two simulation ticks) and at most 10000 ms",
+        )?;
+        range(
+            "output.fade_ms",
+            o.fade_ms,
+            o.fade_ms > 0.0 && o.fade_ms <= 10_000.0,
+            "above 0 and at most 10000 ms",
+        )?;
         if self.station.is_empty()
             || !self
                 .station

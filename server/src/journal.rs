@@ -75,26 +75,27 @@ pub struct Journal {
     pub end: Option<(u64, u64)>,
 }
 
-/// Reads a journal; errors name the file and line.
+/// Reads a journal; errors name the file and line. A journal whose session was killed reads
+/// up to its last complete line.
 pub fn read(path: &Path) -> anyhow::Result<Journal> {
     let file = std::fs::File::open(path)
         .with_context(|| format!("cannot read journal {}", path.display()))?;
-    let mut lines = std::io::BufReader::new(file).lines().enumerate();
-    let mut next = |what: &str| -> anyhow::Result<(usize, String)> {
+    let mut lines = std::io::BufReader::new(file).lines().enumerate().peekable();
+    let mut next = |what: &str| -> anyhow::Result<(usize, String, bool)> {
         match lines.next() {
-            Some((n, Ok(l))) => Ok((n + 1, l)),
+            Some((n, Ok(l))) => Ok((n + 1, l, lines.peek().is_none())),
             Some((n, Err(e))) => bail!("{}:{}: {e}", path.display(), n + 1),
             None => bail!("{}: ends before {what}", path.display()),
         }
     };
-    let (n, first) = next("the header")?;
+    let (n, first, _) = next("the header")?;
     if first != format!("scalpel-journal {JOURNAL_VERSION}") {
         bail!(
             "{}:{n}: not a scalpel journal of version {JOURNAL_VERSION} (starts with {first:?})",
             path.display()
         );
     }
-    let (n, scene) = next("the scene line")?;
+    let (n, scene, _) = next("the scene line")?;
     let scene = scene
         .strip_prefix("scene ")
         .with_context(|| format!("{}:{n}: expected 'scene NAME'", path.display()))?
@@ -105,11 +106,22 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
         end: None,
     };
     loop {
-        let (n, line) = match next("its end") {
+        let (n, line, last) = match next("its end") {
             Ok(l) => l,
             // A session killed before it closed the journal still replays what it has.
             Err(_) => return Ok(journal),
         };
+        // ... even when the kill cut its last line short.
+        let complete = line.starts_with("end ")
+            || line.ends_with(" -")
+            || (line.split_whitespace().count() == 9
+                && line
+                    .split_whitespace()
+                    .last()
+                    .is_some_and(|b| b.len() == 16));
+        if last && !complete {
+            return Ok(journal);
+        }
         let at = || format!("{}:{n}", path.display());
         let fields: Vec<&str> = line.split_whitespace().collect();
         match fields.as_slice() {
@@ -192,4 +204,57 @@ pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
     // A station cuts: the force model and the blade contact are what it renders.
     spec.features.cutting = true;
     Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_killed_session_reads_up_to_its_last_complete_line() {
+        let dir = std::env::temp_dir().join(format!("scalpel-journal-unit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("cut.journal");
+        let mut text = header("liver").into_bytes();
+        let pose = ToolPose::pointing(Vec3::new(0.01, -0.02, 0.03), Vec3::z());
+        write_record(
+            &mut text,
+            &TickRecord {
+                tick: 1,
+                pose: None,
+            },
+        )
+        .unwrap();
+        write_record(
+            &mut text,
+            &TickRecord {
+                tick: 2,
+                pose: Some(pose),
+            },
+        )
+        .unwrap();
+        let whole = text.len();
+        write_record(
+            &mut text,
+            &TickRecord {
+                tick: 3,
+                pose: Some(pose),
+            },
+        )
+        .unwrap();
+        // Cut in the middle of the last number, as a kill mid-flush would.
+        text.truncate(whole + 40);
+        std::fs::write(&path, &text).unwrap();
+        let j = read(&path).unwrap();
+        assert_eq!(j.ticks.len(), 2);
+        assert_eq!(j.ticks[1].pose, Some(pose));
+        assert_eq!(j.end, None);
+        // A bad line that is not the last is an error naming the line.
+        let mut text = header("liver").into_bytes();
+        text.extend_from_slice(b"tick 1 zz\ntick 2 -\n");
+        std::fs::write(&path, &text).unwrap();
+        let e = read(&path).unwrap_err().to_string();
+        assert!(e.contains("cut.journal:3"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -79,6 +79,7 @@ fn run() -> anyhow::Result<()> {
             sim_timeout_s: o.sim_timeout_ms * 1e-3,
             fade_s: o.fade_ms * 1e-3,
             passivity: o.passivity,
+            period_s: 1.0 / config.rates.haptic_hz,
         },
         status_interval_s: config.rates.status_interval_s,
     };
@@ -96,9 +97,11 @@ fn run() -> anyhow::Result<()> {
     ctrlc::set_handler(move || on_signal.store(true, Ordering::Relaxed))
         .context("cannot install the Ctrl-C handler")?;
     if let Some(d) = args.duration {
+        let d = std::time::Duration::try_from_secs_f64(d)
+            .map_err(|e| anyhow::anyhow!("--duration {d}: {e}"))?;
         let timer = stop.clone();
         std::thread::spawn(move || {
-            std::thread::sleep(std::time::Duration::from_secs_f64(d));
+            std::thread::sleep(d);
             timer.store(true, Ordering::Relaxed);
         });
     }
@@ -109,7 +112,13 @@ fn run() -> anyhow::Result<()> {
                 std::fs::File::create(path)
                     .with_context(|| format!("cannot create journal {}", path.display()))?,
             );
-            std::io::Write::write_all(&mut file, journal::header(&config.scene).as_bytes())?;
+            // A scene file is named by its absolute path, so the journal replays from
+            // anywhere.
+            let scene_name = match scalpel_sim::scene::builtin(&config.scene) {
+                Some(_) => config.scene.clone(),
+                None => std::fs::canonicalize(&config.scene)?.display().to_string(),
+            };
+            std::io::Write::write_all(&mut file, journal::header(&scene_name).as_bytes())?;
             Some(file)
         }
         None => None,

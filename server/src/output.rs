@@ -24,6 +24,24 @@ pub struct OutputLimits {
     pub fade_s: f64,
     /// Run the passivity observer and controller.
     pub passivity: bool,
+    /// The haptic loop's period (s): the rate limit and the fade advance by at most one
+    /// period per tick, however late the tick woke.
+    pub period_s: f64,
+}
+
+impl Default for OutputLimits {
+    /// The configuration's defaults (docs/SERVER.md) with a Geomagic Touch's 3.3 N peak.
+    fn default() -> Self {
+        Self {
+            max_force_n: 3.3,
+            rate_limit_n_per_ms: 0.5,
+            device_timeout_s: 0.005,
+            sim_timeout_s: 0.1,
+            fade_s: 0.05,
+            passivity: true,
+            period_s: 0.001,
+        }
+    }
 }
 
 /// What the stage is given on one tick.
@@ -131,7 +149,10 @@ impl OutputStage {
             |seen: Option<f64>, timeout: f64| seen.is_none_or(|t| input.now_s - t > timeout);
         let healthy = !stale(input.device_seen_s, l.device_timeout_s)
             && !stale(input.sim_seen_s, l.sim_timeout_s);
-        let rate = dt / l.fade_s.max(1e-6);
+        // A late tick does not buy a bigger step: the fade and the rate limit move by at
+        // most one period's worth per tick.
+        let tick_dt = dt.min(l.period_s);
+        let rate = tick_dt / l.fade_s.max(1e-6);
         self.gain = if healthy {
             (self.gain + rate).min(1.0)
         } else {
@@ -142,7 +163,7 @@ impl OutputStage {
         // Rate limit, then the device limit again: both hold on what is sent, whatever
         // the stages before asked for (a spike, the passivity damping, a fade).
         let step = f - self.last_force;
-        let max_step = l.rate_limit_n_per_ms * dt * 1e3;
+        let max_step = l.rate_limit_n_per_ms * tick_dt * 1e3;
         if step.norm() > max_step {
             f = self.last_force + step * (max_step / step.norm());
             report.rate_limited = true;
@@ -177,14 +198,9 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const LIMITS: OutputLimits = OutputLimits {
-        max_force_n: 3.3,
-        rate_limit_n_per_ms: 0.5,
-        device_timeout_s: 0.005,
-        sim_timeout_s: 0.1,
-        fade_s: 0.05,
-        passivity: true,
-    };
+    fn limits() -> OutputLimits {
+        OutputLimits::default()
+    }
 
     fn input(t: f64, f: Vec3, v: Vec3) -> OutputInput {
         OutputInput {
@@ -207,7 +223,7 @@ mod tests {
 
     #[test]
     fn nan_becomes_zero_and_the_loop_goes_on() {
-        let mut s = OutputStage::new(LIMITS);
+        let mut s = OutputStage::new(limits());
         settle(&mut s, Vec3::new(1.0, 0.0, 0.0), 200);
         let r = s.process(&input(0.2, Vec3::new(f64::NAN, 0.0, 0.0), Vec3::zeros()));
         assert!(r.nan_guarded);
@@ -218,7 +234,7 @@ mod tests {
 
     #[test]
     fn the_rate_limit_shapes_a_step() {
-        let mut s = OutputStage::new(LIMITS);
+        let mut s = OutputStage::new(limits());
         let mut last = 0.0;
         for k in 0..200 {
             let r = s.process(&input(
@@ -238,7 +254,7 @@ mod tests {
         let run = |passivity: bool| {
             let mut s = OutputStage::new(OutputLimits {
                 passivity,
-                ..LIMITS
+                ..limits()
             });
             settle(&mut s, Vec3::zeros(), 100);
             let v = Vec3::new(0.05, 0.0, 0.0);
@@ -259,7 +275,7 @@ mod tests {
 
     #[test]
     fn silence_fades_the_force_out_and_back() {
-        let mut s = OutputStage::new(LIMITS);
+        let mut s = OutputStage::new(limits());
         let f = Vec3::new(0.0, 2.0, 0.0);
         settle(&mut s, f, 200);
         // The device stops talking at 0.2 s.
@@ -279,7 +295,7 @@ mod tests {
         // Timeout 5 ms, fade 50 ms.
         assert!(gone - 0.2 <= 0.005 + 0.05 + 2e-3, "{gone}");
         // A stalled simulation (no model for 100 ms) fades too.
-        let mut s = OutputStage::new(LIMITS);
+        let mut s = OutputStage::new(limits());
         settle(&mut s, f, 200);
         let r = (0..300)
             .map(|k| {
@@ -297,16 +313,19 @@ mod tests {
     proptest! {
         #[test]
         fn the_force_sent_is_always_finite_and_bounded(
-            requests in prop::collection::vec((-1e6f64..1e6, -1e6f64..1e6, -1e6f64..1e6, -10.0f64..10.0, any::<bool>()), 1..200)
+            requests in prop::collection::vec((-1e6f64..1e6, -1e6f64..1e6, -1e6f64..1e6, -10.0f64..10.0, any::<bool>(), prop_oneof![Just(0.0), 0.0f64..0.05]), 1..200)
         ) {
-            let mut s = OutputStage::new(LIMITS);
+            let mut s = OutputStage::new(limits());
             let mut last = Vec3::zeros();
-            for (k, (x, y, z, v, nan)) in requests.into_iter().enumerate() {
+            let mut t = 0.0;
+            for (x, y, z, v, nan, late) in requests {
+                // Ticks that wake late (up to 50 ms) still move by one tick's rate limit.
+                t += 1e-3 + late;
                 let f = if nan { Vec3::new(f64::NAN, y, z) } else { Vec3::new(x, y, z) };
-                let r = s.process(&input(k as f64 * 1e-3, f, Vec3::new(v, 0.0, 0.0)));
+                let r = s.process(&input(t, f, Vec3::new(v, 0.0, 0.0)));
                 prop_assert!(r.force_n.iter().all(|c| c.is_finite()));
-                prop_assert!(r.force_n.norm() <= LIMITS.max_force_n + 1e-9);
-                prop_assert!((r.force_n - last).norm() <= LIMITS.rate_limit_n_per_ms + 1e-9);
+                prop_assert!(r.force_n.norm() <= limits().max_force_n + 1e-9);
+                prop_assert!((r.force_n - last).norm() <= limits().rate_limit_n_per_ms + 1e-9);
                 last = r.force_n;
             }
         }

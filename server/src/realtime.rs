@@ -18,10 +18,13 @@ pub struct RealtimeStatus {
     pub warnings: Vec<String>,
 }
 
-/// Locks the process's memory (current and future pages).
+/// Locks the pages the process has now (call it once the threads and their buffers exist).
+/// Not MCL_FUTURE: under a finite RLIMIT_MEMLOCK a later allocation (an incision re-mesh on
+/// the simulation thread) would fail, and a failed allocation aborts the process; the
+/// haptic loop allocates nothing after start-up, so what it touches is locked.
 pub fn lock_memory() -> Result<(), String> {
     // SAFETY: mlockall takes flags only and touches no Rust memory.
-    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT) };
     if rc == 0 {
         Ok(())
     } else {

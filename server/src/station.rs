@@ -230,12 +230,6 @@ pub fn run(
 ) -> anyhow::Result<RunSummary> {
     let mut warnings = Vec::new();
     let mut memory_locked = false;
-    if params.lock_memory {
-        match realtime::lock_memory() {
-            Ok(()) => memory_locked = true,
-            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
-        }
-    }
     let (pose_in, pose_out) = rtrb::RingBuffer::<ToolPose>::new(POSE_RING);
     let zero_model = ModelUpdate {
         model: LocalForceModel {
@@ -289,6 +283,13 @@ pub fn run(
         stop.clone(),
         fifo_tx,
     )?;
+    // Locked once the threads, their stacks and the hand-off buffers exist.
+    if params.lock_memory {
+        match realtime::lock_memory() {
+            Ok(()) => memory_locked = true,
+            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
+        }
+    }
     let fifo_priority = match fifo_rx.recv() {
         Ok(Ok(p)) => p,
         Ok(Err(e)) => {
@@ -322,19 +323,24 @@ pub fn run(
     let haptic_result = haptic_thread.join();
     let sim_result = sim_thread.join();
     sim_done.store(true, Ordering::Release);
-    let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
-        anyhow::bail!("a station thread panicked");
-    };
     let sim_status = *status_out.read();
-    if let Some(writer) = writer {
-        let mut file = writer
-            .join()
-            .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??;
-        std::io::Write::write_all(
-            &mut file,
-            journal::footer(sim_status.ticks, state_hash).as_bytes(),
-        )?;
-        std::io::Write::flush(&mut file)?;
+    // The journal is flushed whatever happened: a session that failed is the one to replay.
+    let mut file = match writer {
+        Some(w) => Some(
+            w.join()
+                .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??,
+        ),
+        None => None,
+    };
+    let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
+        if let Some(f) = &mut file {
+            std::io::Write::flush(f)?;
+        }
+        anyhow::bail!("a station thread panicked (the journal has the inputs up to it)");
+    };
+    if let Some(f) = &mut file {
+        std::io::Write::write_all(f, journal::footer(sim_status.ticks, state_hash).as_bytes())?;
+        std::io::Write::flush(f)?;
     }
     Ok(RunSummary {
         haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
@@ -398,6 +404,17 @@ fn spawn_haptic(
                     &counters,
                 );
             }
+            // Stopping: bring the force down at the rate limit and leave the device at
+            // zero (many devices hold their last command).
+            for _ in 0..10_000 {
+                deadline += ctx.period_s;
+                realtime::sleep_until(deadline);
+                let now = realtime::monotonic_s() - ctx.t0;
+                if state.release(now, device.as_mut()) == Vec3::zeros() {
+                    break;
+                }
+            }
+            device.send_force(Vec3::zeros());
         })
 }
 
@@ -471,6 +488,21 @@ impl HapticState {
             report.nan_guarded,
             report.watchdog_gain == 0.0,
         );
+    }
+}
+
+impl HapticState {
+    /// One tick of winding down: the force requested is zero; returns what was sent.
+    fn release(&mut self, now: f64, device: &mut dyn HapticDevice) -> Vec3 {
+        let report = self.stage.process(&OutputInput {
+            now_s: now,
+            requested_n: Vec3::zeros(),
+            velocity_m_per_s: Vec3::zeros(),
+            device_seen_s: Some(now),
+            sim_seen_s: Some(now),
+        });
+        device.send_force(report.force_n);
+        report.force_n
     }
 }
 

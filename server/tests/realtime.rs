@@ -5,9 +5,10 @@
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
 #![allow(unsafe_code)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+#[path = "../sim/tests/common/counting_alloc.rs"]
+mod counting_alloc;
 
+use counting_alloc::allocations;
 use scalpel_server::device::ScriptedDevice;
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::drive_haptic_ticks;
@@ -17,56 +18,12 @@ use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{build_scene, builtin};
 
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-struct Counting;
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocations() -> u64 {
-    ALLOCATIONS.with(Cell::get)
-}
-
-#[test]
-fn the_counter_counts() {
-    let before = allocations();
-    let v = std::hint::black_box(vec![1u8; 64]);
-    assert!(allocations() > before);
-    drop(v);
-}
-
 #[test]
 fn haptic_ticks_do_not_allocate() {
     let scene = build_scene(&builtin("liver").unwrap(), None, &mut Silent).unwrap();
     let script = CutScript::default_for(&scene.model.surface).unwrap();
     let mut device = ScriptedDevice::new(script, true);
-    let limits = OutputLimits {
-        max_force_n: 3.3,
-        rate_limit_n_per_ms: 0.5,
-        device_timeout_s: 0.005,
-        sim_timeout_s: 0.1,
-        fade_s: 0.05,
-        passivity: true,
-    };
+    let limits = OutputLimits::default();
     // A stiff model pushing up: the coupling, clamp, rate limit and passivity all act.
     let model = LocalForceModel {
         f0_n: Vec3::new(0.0, 0.0, 2.0),

@@ -11,6 +11,15 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
     let recorded = journal::read(file)?;
     let scene = journal::load_scene(&recorded.scene)?;
     let hash = journal::replay(&scene, &recorded);
+    if let Some((ticks, _)) = recorded.end
+        && ticks != recorded.ticks.len() as u64
+    {
+        bail!(
+            "{}: the journal closes with {ticks} ticks but holds {}",
+            file.display(),
+            recorded.ticks.len()
+        );
+    }
     let live = recorded.end.map(|(_, h)| h);
     let identical = live.is_some_and(|h| h == hash);
     if json {

@@ -6,52 +6,15 @@
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
 #![allow(unsafe_code)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+#[path = "common/counting_alloc.rs"]
+mod counting_alloc;
 
+use counting_alloc::allocations;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::model::CoupledModel;
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{Material, build_scene, builtin};
 use scalpel_sim::solver::{Solver, SolverConfig, SolverMode};
-
-thread_local! {
-    /// Allocations made by this thread (the test harness runs tests on several threads).
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-struct Counting;
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocations() -> u64 {
-    ALLOCATIONS.with(Cell::get)
-}
-
-#[test]
-fn the_counter_counts() {
-    let before = allocations();
-    let v = std::hint::black_box(vec![1u8; 64]);
-    assert!(allocations() > before);
-    drop(v);
-}
 
 fn model(name: &str) -> CoupledModel {
     build_scene(&builtin(name).unwrap(), None, &mut Silent)
