@@ -382,7 +382,9 @@ fn spawn_haptic(
             };
             let _ = fifo.send(granted);
             let mut state = HapticState::new(ctx.limits);
-            let mut deadline = ctx.t0;
+            // The schedule starts once this thread runs (spawning and the scheduler change
+            // take a while); the device's clock still counts from the station's start.
+            let mut deadline = realtime::monotonic_s();
             while !stop.load(Ordering::Relaxed) {
                 deadline += ctx.period_s;
                 realtime::sleep_until(deadline);
