@@ -35,7 +35,7 @@ use thiserror::Error;
 
 use crate::geometry::TriMesh;
 use crate::geometry::angle_deg;
-use crate::geometry::predicates::distance_sq_to_segment;
+use crate::geometry::predicates::{distance_sq_to_segment, line_triangle};
 use crate::math::Vec3;
 
 /// What a surface triangle is.
@@ -1213,32 +1213,11 @@ fn first_hit(
             if (0..3).any(|a| thi[a] < lo[a] || tlo[a] > hi[a]) {
                 return None;
             }
-            ray_triangle(origin, dir, &c).filter(|&s| s > 1e-9 && s <= reach)
+            line_triangle(origin, dir, &c)
+                .map(|(s, _)| s)
+                .filter(|&s| s > 1e-9 && s <= reach)
         })
         .min_by(f64::total_cmp)
-}
-
-/// Möller–Trumbore: distance along the ray to the triangle.
-fn ray_triangle(origin: &Vec3, dir: &Vec3, tri: &[Vec3; 3]) -> Option<f64> {
-    let e1 = tri[1] - tri[0];
-    let e2 = tri[2] - tri[0];
-    let h = dir.cross(&e2);
-    let det = e1.dot(&h);
-    if det.abs() < 1e-300 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = origin - tri[0];
-    let u = s.dot(&h) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return None;
-    }
-    let q = s.cross(&e1);
-    let v = dir.dot(&q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    Some(e2.dot(&q) * inv)
 }
 
 #[cfg(test)]

@@ -121,6 +121,31 @@ pub fn distance_sq_to_segment(x: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
     (a + ab * t - x).norm_squared()
 }
 
+/// Where the line `origin + t·dir` meets a triangle (Möller–Trumbore): the parameter t
+/// (any sign, in units of `dir`) and the barycentric coordinates, or `None` if it misses
+/// (boundary included) or runs parallel to it.
+pub fn line_triangle(origin: &Vec3, dir: &Vec3, tri: &[Vec3; 3]) -> Option<(f64, [f64; 3])> {
+    let e1 = tri[1] - tri[0];
+    let e2 = tri[2] - tri[0];
+    let h = dir.cross(&e2);
+    let det = e1.dot(&h);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = origin - tri[0];
+    let u = s.dot(&h) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(&e1);
+    let v = dir.dot(&q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    Some((e2.dot(&q) * inv, [1.0 - u - v, u, v]))
+}
+
 /// The point of the closed triangle nearest to `x` (Ericson, Real-Time Collision Detection
 /// §5.1.5: Voronoi regions of the vertices, edges and face).
 pub fn closest_point_on_triangle(x: &Vec3, tri: &[Vec3; 3]) -> Vec3 {
@@ -171,6 +196,25 @@ pub fn closest_point_on_triangle(x: &Vec3, tri: &[Vec3; 3]) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_line_meets_a_triangle_with_its_parameter_and_barycentrics() {
+        let tri = [
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(2.0, 0.0, 1.0),
+            Vec3::new(0.0, 2.0, 1.0),
+        ];
+        let (t, b) =
+            line_triangle(&Vec3::new(0.5, 0.5, -1.0), &Vec3::new(0.0, 0.0, 4.0), &tri).unwrap();
+        assert!((t - 0.5).abs() < 1e-15);
+        assert!((b[0] - 0.5).abs() < 1e-15 && (b[1] - 0.25).abs() < 1e-15);
+        // Behind the origin: a negative parameter, still a hit of the line.
+        let (t, _) = line_triangle(&Vec3::new(0.5, 0.5, 3.0), &Vec3::z(), &tri).unwrap();
+        assert!((t + 2.0).abs() < 1e-15);
+        // Outside, and parallel.
+        assert!(line_triangle(&Vec3::new(3.0, 3.0, 0.0), &Vec3::z(), &tri).is_none());
+        assert!(line_triangle(&Vec3::zeros(), &Vec3::x(), &tri).is_none());
+    }
 
     fn v(x: f64, y: f64, z: f64) -> Vec3 {
         Vec3::new(x, y, z)

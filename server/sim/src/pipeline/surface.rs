@@ -9,7 +9,7 @@
 use crate::cut::{Blade, FaceKind, Incised, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
-use crate::geometry::predicates::closest_point_on_triangle;
+use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
 use crate::math::{Mat3, Vec3};
 use crate::mls::MlsOperator;
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
@@ -521,28 +521,7 @@ impl CurrentSurface {
 /// Intersection of the segment p→q with a triangle: the parameter along the segment and the
 /// barycentric coordinates, or `None`.
 fn segment_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> Option<(f64, [f64; 3])> {
-    let [a, b, c] = tri;
-    let d = q - p;
-    let e1 = b - a;
-    let e2 = c - a;
-    let h = d.cross(&e2);
-    let det = e1.dot(&h);
-    if det.abs() < 1e-300 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = p - a;
-    let u = s.dot(&h) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return None;
-    }
-    let qv = s.cross(&e1);
-    let v = d.dot(&qv) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    let t = e2.dot(&qv) * inv;
-    (0.0..=1.0).contains(&t).then_some((t, [1.0 - u - v, u, v]))
+    line_triangle(p, &(q - p), tri).filter(|(t, _)| (0.0..=1.0).contains(t))
 }
 
 #[cfg(test)]
