@@ -177,35 +177,6 @@ pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
     sim.state_hash()
 }
 
-/// A built-in scene name or a scene file, built as a station runs it (cutting on); the
-/// scene's mesh file, if any, is read here.
-pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
-    use scalpel_sim::progress::Silent;
-    use scalpel_sim::scene::{self, MeshSource, SceneSpec};
-    let mut spec = match scene::builtin(name) {
-        Some(spec) => spec,
-        None => {
-            let path = std::path::PathBuf::from(name);
-            let text = std::fs::read_to_string(&path).with_context(|| {
-                format!(
-                    "'{name}' is neither a built-in scene ({}) nor a readable scene file",
-                    scene::BUILTIN_SCENES.join(", ")
-                )
-            })?;
-            SceneSpec::from_toml(&text, &path)?
-        }
-    };
-    let bytes = match &spec.mesh.source {
-        MeshSource::File(path) => Some(
-            std::fs::read(path).with_context(|| format!("cannot read mesh {}", path.display()))?,
-        ),
-        MeshSource::Builtin(_) => None,
-    };
-    // A station cuts: the force model and the blade contact are what it renders.
-    spec.features.cutting = true;
-    Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

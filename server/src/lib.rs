@@ -8,4 +8,5 @@ pub mod device;
 pub mod journal;
 pub mod output;
 pub mod realtime;
+pub mod scene_file;
 pub mod station;

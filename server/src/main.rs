@@ -10,9 +10,9 @@ use anyhow::Context;
 use clap::Parser;
 use scalpel_server::config::{DeviceKind, ServerConfig};
 use scalpel_server::device::ScriptedDevice;
-use scalpel_server::journal;
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::{self, StationParams, StatusLine};
+use scalpel_server::{journal, scene_file};
 use scalpel_sim::pipeline::CutScript;
 
 #[derive(Parser)]
@@ -52,7 +52,7 @@ fn run() -> anyhow::Result<()> {
     {
         anyhow::bail!("--duration must be a positive number of seconds, got {d}");
     }
-    let scene = journal::load_scene(&config.scene)?;
+    let scene = scene_file::load_scene(&config.scene)?;
     let script = match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, "") => CutScript::default_for(&scene.model.surface)
             .context("the scene has no place for the demo cut")?,

@@ -61,7 +61,7 @@ fn the_embedded_default_runs_the_demo_cut_and_replays_bit_for_bit() {
     let live = summary["state_hash"].as_u64().unwrap();
     assert_eq!(recorded.end, Some((recorded.ticks.len() as u64, live)));
     assert!(recorded.ticks.iter().any(|t| t.pose.is_some()));
-    let scene = scalpel_server::journal::load_scene(&recorded.scene).unwrap();
+    let scene = scalpel_server::scene_file::load_scene(&recorded.scene).unwrap();
     assert_eq!(scalpel_server::journal::replay(&scene, &recorded), live);
     std::fs::remove_dir_all(&dir).ok();
 }

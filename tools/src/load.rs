@@ -2,14 +2,15 @@
 //! files (the sim does no I/O), build with progress, and time every stage.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use scalpel_server::scene_file::read_mesh_bytes;
 use scalpel_sim::geometry::MeshFormat;
 use scalpel_sim::model::SpacingRule;
 use scalpel_sim::progress::{BuildObserver, BuildStage};
-use scalpel_sim::scene::{self, BuiltScene, MeshSource, SceneSpec};
+use scalpel_sim::scene::{self, BuiltScene, SceneSpec};
 
 use crate::TargetArgs;
 use crate::progress::StageProgress;
@@ -62,31 +63,6 @@ pub fn resolve(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
         spec.sampling.spacing = SpacingRule::TargetPoints(n);
     }
     Ok(spec)
-}
-
-/// Reads the mesh file a scene names (if any), refusing files over the scene's size cap
-/// before reading them.
-pub fn read_mesh_bytes(spec: &SceneSpec) -> anyhow::Result<Option<Vec<u8>>> {
-    let MeshSource::File(path) = &spec.mesh.source else {
-        return Ok(None);
-    };
-    // Check the extension before touching the file, so a wrong one gets the format message.
-    MeshFormat::from_file_name(&path.display().to_string())?;
-    let len = std::fs::metadata(path)
-        .with_context(|| format!("cannot open mesh file {}", path.display()))?
-        .len();
-    if len > spec.mesh.limits.max_file_bytes {
-        bail!(
-            "{}: file is {len} bytes, over the limit of {}; decimate the mesh or raise mesh.max_file_mb",
-            path.display(),
-            spec.mesh.limits.max_file_bytes
-        );
-    }
-    Ok(Some(read(path)?))
-}
-
-fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("cannot read mesh file {}", path.display()))
 }
 
 /// Records when each stage starts.

@@ -4,12 +4,12 @@
 use std::path::Path;
 
 use anyhow::bail;
-use scalpel_server::journal;
+use scalpel_server::{journal, scene_file};
 
 /// Replays `file`.
 pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
     let recorded = journal::read(file)?;
-    let scene = journal::load_scene(&recorded.scene)?;
+    let scene = scene_file::load_scene(&recorded.scene)?;
     let hash = journal::replay(&scene, &recorded);
     if let Some((ticks, _)) = recorded.end
         && ticks != recorded.ticks.len() as u64
