@@ -203,13 +203,7 @@ fn plot_force(run: &CutRun, name: &str, path: &Path) -> anyhow::Result<()> {
 /// Draws the final surface from a camera above the wound, looking across it.
 pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
     let (drawn, kinds) = run.sim.current_surface().drawn();
-    let walls: Vec<Vec3> = drawn
-        .triangles
-        .iter()
-        .zip(&kinds)
-        .filter(|(_, k)| **k == FaceKind::Wall)
-        .flat_map(|(t, _)| t.map(|v| drawn.positions[v as usize]))
-        .collect();
+    let walls = run.sim.current_surface().wall_corners();
     // Aim at the wound, or at the blade's path when the surface was not opened.
     let focus: Vec<Vec3> = if walls.is_empty() {
         run.rows

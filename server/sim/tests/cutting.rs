@@ -185,13 +185,7 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     );
     assert!(kinds.contains(&FaceKind::Wall));
     // The wound is about 60 mm long and 10 mm deep.
-    let walls: Vec<_> = drawn
-        .triangles
-        .iter()
-        .zip(&kinds)
-        .filter(|(_, k)| **k == FaceKind::Wall)
-        .flat_map(|(t, _)| t.map(|v| drawn.positions[v as usize]))
-        .collect();
+    let walls = sim.current_surface().wall_corners();
     let lo = walls
         .iter()
         .fold(Vec3::repeat(f64::INFINITY), |a, b| a.inf(b));

@@ -279,6 +279,19 @@ mod tests {
         }
     }
 
+    /// A model that starts in an existing cut, 10 mm deep (no loading, no rupture).
+    fn cutting_from_the_start(spec: &ForceSpec, ripple: bool) -> CuttingForceModel {
+        let mut m = CuttingForceModel::new(spec, ripple);
+        m.update(
+            0.0,
+            &BladeContact {
+                in_existing_cut: true,
+                ..contact(0.0, 0.01)
+            },
+        );
+        m
+    }
+
     #[test]
     fn eq19_peaks_where_physics_md_says() {
         assert!((eq19(3.17).0 - 42.85).abs() < 0.01);
@@ -324,15 +337,7 @@ mod tests {
     #[test]
     fn steady_cutting_averages_to_toughness_times_depth_plus_friction() {
         let spec = ForceSpec::default();
-        let mut m = CuttingForceModel::new(&spec, true);
-        m.update(
-            0.0,
-            &BladeContact {
-                in_existing_cut: true,
-                withdrawing: false,
-                ..contact(0.0, 0.01)
-            },
-        );
+        let mut m = cutting_from_the_start(&spec, true);
         // 5 mm/s for 10 s at 1 kHz: 25 ripple wavelengths.
         let (mut sum, mut n, mut lo, mut hi) = (0.0, 0, f64::INFINITY, 0.0f64);
         for k in 1..=10_000 {
@@ -353,15 +358,7 @@ mod tests {
     fn ripple_decays_and_can_be_switched_off() {
         let spec = ForceSpec::default();
         let amplitude = |ripple: bool, from: f64| {
-            let mut m = CuttingForceModel::new(&spec, ripple);
-            m.update(
-                0.0,
-                &BladeContact {
-                    in_existing_cut: true,
-                    withdrawing: false,
-                    ..contact(0.0, 0.01)
-                },
-            );
+            let mut m = cutting_from_the_start(&spec, ripple);
             let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
             for k in 1..=6000 {
                 let t = k as f64 * 1e-3;

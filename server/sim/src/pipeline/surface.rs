@@ -420,6 +420,18 @@ impl CurrentSurface {
         TriMesh::new(self.rest.clone(), self.mesh.triangles.clone())
     }
 
+    /// The corners of the wound-wall triangles at their current positions (m), with
+    /// repeats: where the incisions are, for a camera or a test to look at.
+    pub fn wall_corners(&self) -> Vec<Vec3> {
+        self.mesh
+            .triangles
+            .iter()
+            .zip(&self.kinds)
+            .filter(|(_, k)| **k == FaceKind::Wall)
+            .flat_map(|(t, _)| t.map(|v| self.mesh.positions[v as usize]))
+            .collect()
+    }
+
     /// The drawn surface (skin and wound walls, no lids) at the current positions, with the
     /// kind of each triangle.
     pub fn drawn(&self) -> (TriMesh, Vec<FaceKind>) {
