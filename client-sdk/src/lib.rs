@@ -1,7 +1,13 @@
-//! scalpel-client: programs that talk to a scalpel server, and what they share.
+//! scalpel-client: programs that talk to a scalpel station, and what they share.
 //!
-//! For now: the headless CPU renderer (`renderer` feature) used by `scalpel cut` and, later,
-//! by the local viewer. Observer, instructor and mock-device clients follow with the server.
+//! - `render` (feature `renderer`): the headless CPU renderer used by `scalpel cut` and the
+//!   viewer.
+//! - `mock_device` (feature `mock-device`): the scripted haptic device over shared memory.
+//! - `frames` (feature `frames`): reading a station's render frames from shared memory.
 
+#[cfg(feature = "frames")]
+pub mod frames;
+#[cfg(feature = "mock-device")]
+pub mod mock_device;
 #[cfg(feature = "renderer")]
 pub mod render;

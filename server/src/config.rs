@@ -62,11 +62,14 @@ pub struct ServerConfig {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DeviceConfig {
-    /// `scripted`: an in-process device playing a cut script at the haptic rate.
+    /// `scripted`: an in-process device playing a cut script at the haptic rate;
+    /// `shared_memory`: another process (the mock device, a device driver) on the
+    /// station's iceoryx2 device services (docs/PROTOCOL.md).
     pub kind: DeviceKind,
-    /// Cut script (TOML, `scalpel cut --script` format); empty: the scene's demo cut.
+    /// Cut script for `scripted` (TOML, `scalpel cut --script` format); empty: the scene's
+    /// demo cut.
     pub script: String,
-    /// Start the script again when it ends.
+    /// `scripted`: start the script again when it ends.
     pub loop_script: bool,
 }
 
@@ -76,6 +79,8 @@ pub struct DeviceConfig {
 pub enum DeviceKind {
     /// In-process scripted device.
     Scripted,
+    /// A device process over shared memory.
+    SharedMemory,
 }
 
 /// Loop rates.
@@ -86,6 +91,8 @@ pub struct RateConfig {
     pub haptic_hz: f64,
     /// Status line interval (s).
     pub status_interval_s: f64,
+    /// Render frames per second over shared memory (0: none).
+    pub frame_hz: f64,
 }
 
 /// Real-time scheduling.
@@ -144,6 +151,7 @@ impl Default for RateConfig {
         Self {
             haptic_hz: 1000.0,
             status_interval_s: 1.0,
+            frame_hz: 60.0,
         }
     }
 }
@@ -216,6 +224,12 @@ impl ServerConfig {
             (0.05..=3600.0).contains(&r.status_interval_s),
             "between 0.05 and 3600 s",
         )?;
+        range(
+            "rates.frame_hz",
+            r.frame_hz,
+            (0.0..=500.0).contains(&r.frame_hz),
+            "0 (no frames) or up to 500 Hz",
+        )?;
         let p = self.realtime.fifo_priority;
         range(
             "realtime.fifo_priority",
@@ -257,17 +271,12 @@ impl ServerConfig {
             o.fade_ms > 0.0 && o.fade_ms <= 10_000.0,
             "above 0 and at most 10000 ms",
         )?;
-        if self.station.is_empty()
-            || !self
-                .station
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-        {
+        if scalpel_proto::shm::check_station(&self.station).is_err() {
             return Err(ConfigError::Range {
                 file: file.to_owned(),
                 key: "station",
                 value: self.station.clone(),
-                expected: "letters, digits, '-' and '_' (it names shared-memory services)",
+                expected: "1 to 48 letters, digits, '-' and '_' (it names shared-memory services)",
             });
         }
         Ok(())

@@ -1,19 +1,33 @@
 //! Haptic devices as the haptic loop sees them: a pose in, a force out, every tick.
-//! The in-process scripted device plays a cut script against the haptic clock; the
-//! shared-memory device (the mock device over iceoryx2, real devices) comes next.
+//! Two kinds: the in-process scripted device (plays a cut script against the haptic clock)
+//! and the shared-memory device (`shm_device`: the mock device or a real device's driver,
+//! another process, over iceoryx2).
 
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
 
-/// A haptic device.
-pub trait HapticDevice: Send {
+/// What the output stage did to the force, sent along with it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ForceStatus {
+    /// The watchdog is fading the force (device or simulation lost).
+    pub faded: bool,
+    /// The request was not finite and was replaced by zero.
+    pub nan_guarded: bool,
+}
+
+/// A haptic device. Not `Send`: shared-memory ports belong to the thread that made them,
+/// so a device is made on the haptic thread by a [`DeviceFactory`].
+pub trait HapticDevice {
     /// The device's pose now (`now_s` on the haptic clock, from the loop's start), or
     /// `None` if it has nothing new (disconnected, or no sample this tick).
     fn sample(&mut self, now_s: f64) -> Option<ToolPose>;
-    /// The force to render (N).
-    fn send_force(&mut self, force_n: Vec3);
+    /// The force to render (N), finite and within the device's limits.
+    fn send_force(&mut self, force_n: Vec3, status: ForceStatus);
 }
+
+/// Makes the device on the thread that will use it.
+pub type DeviceFactory = Box<dyn FnOnce() -> anyhow::Result<Box<dyn HapticDevice>> + Send>;
 
 /// Plays a cut script at the haptic rate, in process; records the last force sent.
 pub struct ScriptedDevice {
@@ -49,7 +63,7 @@ impl HapticDevice for ScriptedDevice {
         Some(self.script.pose_at(t))
     }
 
-    fn send_force(&mut self, force_n: Vec3) {
+    fn send_force(&mut self, force_n: Vec3, _status: ForceStatus) {
         self.last_force_n = force_n;
     }
 }

@@ -5,8 +5,11 @@
 
 pub mod config;
 pub mod device;
+pub mod device_monitor;
+pub mod frames;
 pub mod journal;
 pub mod output;
 pub mod realtime;
 pub mod scene_file;
+pub mod shm_device;
 pub mod station;

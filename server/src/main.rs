@@ -9,9 +9,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 use clap::Parser;
 use scalpel_server::config::{DeviceKind, ServerConfig};
-use scalpel_server::device::ScriptedDevice;
+use scalpel_server::device::{DeviceFactory, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
-use scalpel_server::station::{self, StationParams, StatusLine};
+use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
+use scalpel_server::station::{self, StationParams, StationReport, StatusLine};
 use scalpel_server::{journal, scene_file};
 use scalpel_sim::pipeline::CutScript;
 
@@ -52,17 +53,31 @@ fn run() -> anyhow::Result<()> {
     {
         anyhow::bail!("--duration must be a positive number of seconds, got {d}");
     }
+    scalpel_proto::shm::quiet_logging();
     let scene = scene_file::load_scene(&config.scene)?;
-    let script = match (&config.device.kind, config.device.script.as_str()) {
-        (DeviceKind::Scripted, "") => CutScript::default_for(&scene.model.surface)
-            .context("the scene has no place for the demo cut")?,
-        (DeviceKind::Scripted, path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read cut script {path}"))?;
-            CutScript::from_toml(&text, path)?
+    let shm_counters = Arc::new(ShmDeviceCounters::default());
+    let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
+        (DeviceKind::Scripted, script) => {
+            let script = if script.is_empty() {
+                CutScript::default_for(&scene.model.surface)
+                    .context("the scene has no place for the demo cut")?
+            } else {
+                CutScript::load(std::path::Path::new(script))?
+            };
+            let looping = config.device.loop_script;
+            Box::new(move || {
+                Ok(Box::new(ScriptedDevice::new(script, looping)) as Box<dyn HapticDevice>)
+            })
+        }
+        (DeviceKind::SharedMemory, _) => {
+            let station = config.station.clone();
+            let counters = shm_counters.clone();
+            Box::new(move || {
+                Ok(Box::new(ShmDevice::open(&station, counters)?) as Box<dyn HapticDevice>)
+            })
         }
     };
-    let device = Box::new(ScriptedDevice::new(script, config.device.loop_script));
+    let shared_memory_device = config.device.kind == DeviceKind::SharedMemory;
     let o = &config.output;
     let params = StationParams {
         haptic_hz: config.rates.haptic_hz,
@@ -82,14 +97,23 @@ fn run() -> anyhow::Result<()> {
             period_s: 1.0 / config.rates.haptic_hz,
         },
         status_interval_s: config.rates.status_interval_s,
+        station: config.station.clone(),
+        frame_hz: config.rates.frame_hz,
+        monitor_device: shared_memory_device,
     };
     if !args.json {
         println!(
-            "station {}: scene {} ({} points), scripted device, haptic {} Hz",
+            "station {}: scene {} ({} points), {} device, haptic {} Hz, frames {} Hz",
             config.station,
             scene.spec.name,
             scene.model.points.len(),
-            params.haptic_hz
+            if shared_memory_device {
+                "shared-memory"
+            } else {
+                "scripted"
+            },
+            params.haptic_hz,
+            params.frame_hz
         );
     }
     let stop = Arc::new(AtomicBool::new(false));
@@ -123,15 +147,12 @@ fn run() -> anyhow::Result<()> {
         }
         None => None,
     };
-    let summary = station::run(&scene, device, &params, journal, stop, |line| {
-        print_status(line, json)
+    let summary = station::run(&scene, device, &params, journal, stop, |report| {
+        print_report(report, json)
     })?;
     if json {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
-        for w in &summary.warnings {
-            println!("warning: {w}");
-        }
         println!(
             "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
             summary.haptic_ticks,
@@ -145,20 +166,36 @@ fn run() -> anyhow::Result<()> {
             summary.fifo_priority,
             summary.memory_locked
         );
+        if shared_memory_device {
+            use std::sync::atomic::Ordering::Relaxed;
+            println!(
+                "device: {} poses used, {} rejected as malformed, {} forces not sent",
+                shm_counters.poses.load(Relaxed),
+                shm_counters.rejected.load(Relaxed),
+                shm_counters.send_failures.load(Relaxed)
+            );
+        }
     }
     Ok(())
 }
 
-fn print_status(line: &StatusLine, json: bool) {
+fn print_report(report: &StationReport, json: bool) {
     if json {
-        if let Ok(s) = serde_json::to_string(line) {
+        if let Ok(s) = serde_json::to_string(report) {
             println!("{s}");
         }
         return;
     }
+    match report {
+        StationReport::Status(line) => print_status(line),
+        StationReport::Event(e) => println!("{:7.1} s  {}", e.uptime_s, e.event),
+    }
+}
+
+fn print_status(line: &StatusLine) {
     let h = &line.haptic;
     println!(
-        "{:7.1} s  haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}  | sim {} ticks, {} points, cut {:.1} mm",
+        "{:7.1} s  haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}{}  | sim {} ticks, {} points, cut {:.1} mm, {} frames",
         line.uptime_s,
         h.rate_hz,
         h.jitter_p50_ms,
@@ -167,8 +204,13 @@ fn print_status(line: &StatusLine, json: bool) {
         h.deadline_misses,
         h.force_n,
         if h.watchdog_faded { " (faded)" } else { "" },
+        match line.device_connected {
+            Some(false) => "  no device",
+            _ => "",
+        },
         line.sim.ticks,
         line.sim.active_points,
-        line.sim.cut_length_mm
+        line.sim.cut_length_mm,
+        line.sim.frames_sent
     );
 }

@@ -24,7 +24,9 @@ use scalpel_sim::math::{Mat3, Vec3};
 use scalpel_sim::pipeline::{Simulation, Unobserved};
 use scalpel_sim::scene::BuiltScene;
 
-use crate::device::HapticDevice;
+use crate::device::{DeviceFactory, ForceStatus, HapticDevice};
+use crate::device_monitor::{DeviceEvent, DeviceMonitor};
+use crate::frames::{FrameInfo, FramePublisher};
 use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputStage};
 use crate::realtime;
@@ -63,6 +65,8 @@ pub struct SimStatus {
     pub max_tick_ms: f64,
     /// Ticks that took longer than the simulated time they advance.
     pub late_ticks: u64,
+    /// Render frames sent over shared memory.
+    pub frames_sent: u64,
 }
 
 /// Counters the haptic thread keeps with atomics only; the main thread reads and resets the
@@ -177,6 +181,29 @@ pub struct StatusLine {
     pub haptic: HapticWindow,
     /// The simulation.
     pub sim: SimStatus,
+    /// A shared-memory device is connected (`None`: the device is in process).
+    pub device_connected: Option<bool>,
+    /// Dead iceoryx2 nodes (killed devices, viewers, servers) cleaned up so far.
+    pub dead_nodes_cleaned: u64,
+}
+
+/// Something that happened at the station, reported as it happens.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StationEvent {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// What happened.
+    pub event: String,
+}
+
+/// What the station reports while it runs.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum StationReport {
+    /// The periodic status line.
+    Status(StatusLine),
+    /// An event.
+    Event(StationEvent),
 }
 
 /// What the station did, at the end.
@@ -215,18 +242,25 @@ pub struct StationParams {
     pub limits: OutputLimits,
     /// Status interval (s).
     pub status_interval_s: f64,
+    /// Station name (names the shared-memory services).
+    pub station: String,
+    /// Render frames per second over shared memory (0: none).
+    pub frame_hz: f64,
+    /// Watch for a shared-memory device coming and going.
+    pub monitor_device: bool,
 }
 
-/// Runs a station until `stop` is set, calling `status` every interval (on this thread).
-/// With `journal` (its header written), every tick's input is appended to it by a writer
-/// thread and the file is closed with the tick count and the final state hash.
+/// Runs a station until `stop` is set, calling `report` with a status line every interval
+/// and with events as they happen (on this thread). The device is made on the haptic
+/// thread. With `journal` (its header written), every tick's input is appended to it by a
+/// writer thread and the file is closed with the tick count and the final state hash.
 pub fn run(
     scene: &BuiltScene,
-    device: Box<dyn HapticDevice>,
+    device: DeviceFactory,
     params: &StationParams,
     journal: Option<std::io::BufWriter<std::fs::File>>,
     stop: Arc<AtomicBool>,
-    mut status: impl FnMut(&StatusLine),
+    mut report: impl FnMut(&StationReport),
 ) -> anyhow::Result<RunSummary> {
     let mut warnings = Vec::new();
     let mut memory_locked = false;
@@ -242,7 +276,18 @@ pub fn run(
     let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
     let (status_in, mut status_out) = triple_buffer::triple_buffer(&SimStatus::default());
     let counters = Arc::new(HapticCounters::new());
-    let (fifo_tx, fifo_rx) = std::sync::mpsc::channel();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let (frames_tx, frames_rx) = std::sync::mpsc::channel();
+    // The monitor also cleans up after any dead node (a killed viewer, a killed server of
+    // this station before this one), so it runs whatever the device.
+    let mut monitor = match DeviceMonitor::open(&params.station) {
+        Ok(m) => Some(m),
+        Err(e) if !params.monitor_device => {
+            warnings.push(format!("{e}: no shared-memory clean-up"));
+            None
+        }
+        Err(e) => return Err(e.into()),
+    };
 
     // Built before the threads start: everything the loops use is allocated up front.
     let sim = Simulation::new(scene);
@@ -266,6 +311,11 @@ pub fn run(
             records: records_in,
             dropped: journal_dropped.clone(),
         },
+        SimFrames {
+            station: params.station.clone(),
+            every_ticks: frame_interval_ticks(params.frame_hz),
+            opened: frames_tx,
+        },
         stop.clone(),
         t0,
     )?;
@@ -281,7 +331,7 @@ pub fn run(
         model_out,
         counters.clone(),
         stop.clone(),
-        fifo_tx,
+        ready_tx,
     )?;
     // Locked once the threads, their stacks and the hand-off buffers exist.
     if params.lock_memory {
@@ -290,29 +340,75 @@ pub fn run(
             Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
         }
     }
-    let fifo_priority = match fifo_rx.recv() {
-        Ok(Ok(p)) => p,
-        Ok(Err(e)) => {
-            warnings.push(format!(
-                "{e}: the haptic thread runs with normal scheduling"
-            ));
-            0
+    let mut fifo_priority = 0;
+    let device_error = match ready_rx.recv() {
+        Ok(ready) => {
+            match ready.fifo {
+                Ok(p) => fifo_priority = p,
+                Err(e) => warnings.push(format!(
+                    "{e}: the haptic thread runs with normal scheduling"
+                )),
+            }
+            ready.device.err()
         }
-        Err(_) => 0,
+        Err(_) => Some("the haptic thread ended before it started".to_string()),
     };
+    if let Some(e) = &device_error {
+        stop.store(true, Ordering::Relaxed);
+        let _ = haptic_thread.join();
+        let _ = sim_thread.join();
+        sim_done.store(true, Ordering::Release);
+        if let Some(w) = writer {
+            let _ = w.join();
+        }
+        anyhow::bail!("cannot open the device: {e}");
+    }
+    if params.frame_hz > 0.0 {
+        match frames_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
+            Err(_) => {}
+        }
+    }
+    for w in &warnings {
+        report(&StationReport::Event(StationEvent {
+            uptime_s: realtime::monotonic_s() - t0,
+            event: format!("warning: {w}"),
+        }));
+    }
 
     let mut next = t0 + params.status_interval_s;
     let mut window_start = t0;
     while !stop.load(Ordering::Relaxed) {
         realtime::sleep_until(next.min(realtime::monotonic_s() + 0.05));
         let now = realtime::monotonic_s();
+        if let Some(m) = &mut monitor
+            && let Some(change) = m.poll()
+            && params.monitor_device
+        {
+            report(&StationReport::Event(StationEvent {
+                uptime_s: now - t0,
+                event: match change {
+                    DeviceEvent::Connected => "device connected".into(),
+                    DeviceEvent::Lost => format!(
+                        "device lost (dead nodes cleaned so far: {}); the force fades to zero",
+                        m.dead_nodes_cleaned()
+                    ),
+                },
+            }));
+        }
         if now >= next {
             let line = StatusLine {
                 uptime_s: now - t0,
                 haptic: counters.take_window(now - window_start),
                 sim: *status_out.read(),
+                device_connected: monitor
+                    .as_ref()
+                    .filter(|_| params.monitor_device)
+                    .map(|m| m.connected()),
+                dead_nodes_cleaned: monitor.as_ref().map_or(0, |m| m.dead_nodes_cleaned()),
             };
-            status(&line);
+            report(&StationReport::Status(line));
             window_start = now;
             next += params.status_interval_s;
         }
@@ -363,14 +459,22 @@ struct HapticContext {
     t0: f64,
 }
 
+/// What the haptic thread reports once it has set itself up.
+struct HapticReady {
+    /// The SCHED_FIFO priority granted, or why not.
+    fifo: Result<i32, String>,
+    /// The device opened, or why not.
+    device: Result<(), String>,
+}
+
 fn spawn_haptic(
-    mut device: Box<dyn HapticDevice>,
+    device: DeviceFactory,
     ctx: HapticContext,
     mut poses: rtrb::Producer<ToolPose>,
     mut models: triple_buffer::Output<ModelUpdate>,
     counters: Arc<HapticCounters>,
     stop: Arc<AtomicBool>,
-    fifo: std::sync::mpsc::Sender<Result<i32, String>>,
+    ready: std::sync::mpsc::Sender<HapticReady>,
 ) -> std::io::Result<JoinHandle<()>> {
     std::thread::Builder::new()
         .name("haptic".into())
@@ -380,7 +484,22 @@ fn spawn_haptic(
             } else {
                 Ok(0)
             };
-            let _ = fifo.send(granted);
+            let mut device = match device() {
+                Ok(d) => {
+                    let _ = ready.send(HapticReady {
+                        fifo: granted,
+                        device: Ok(()),
+                    });
+                    d
+                }
+                Err(e) => {
+                    let _ = ready.send(HapticReady {
+                        fifo: granted,
+                        device: Err(format!("{e:#}")),
+                    });
+                    return;
+                }
+            };
             let mut state = HapticState::new(ctx.limits);
             // The schedule starts once this thread runs (spawning and the scheduler change
             // take a while); the device's clock still counts from the station's start.
@@ -416,7 +535,7 @@ fn spawn_haptic(
                     break;
                 }
             }
-            device.send_force(Vec3::zeros());
+            device.send_force(Vec3::zeros(), ForceStatus::default());
         })
 }
 
@@ -482,7 +601,13 @@ impl HapticState {
             device_seen_s: self.device_seen,
             sim_seen_s: self.sim_seen,
         });
-        device.send_force(report.force_n);
+        device.send_force(
+            report.force_n,
+            ForceStatus {
+                faded: report.watchdog_gain < 1.0,
+                nan_guarded: report.nan_guarded,
+            },
+        );
         counters.record(
             lateness,
             missed,
@@ -503,7 +628,13 @@ impl HapticState {
             device_seen_s: Some(now),
             sim_seen_s: Some(now),
         });
-        device.send_force(report.force_n);
+        device.send_force(
+            report.force_n,
+            ForceStatus {
+                faded: true,
+                nan_guarded: false,
+            },
+        );
         report.force_n
     }
 }
@@ -574,18 +705,47 @@ fn spawn_journal_writer(
         })
 }
 
+/// The simulation thread's render frames.
+struct SimFrames {
+    station: String,
+    /// Send a frame every this many ticks (0: never).
+    every_ticks: u64,
+    /// Told whether the frame services opened.
+    opened: std::sync::mpsc::Sender<Result<(), String>>,
+}
+
+/// Simulation ticks between frames at `frame_hz` (0: no frames).
+fn frame_interval_ticks(frame_hz: f64) -> u64 {
+    if frame_hz > 0.0 {
+        ((1.0 / (frame_hz * SIM_TICK_S)).round() as u64).max(1)
+    } else {
+        0
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 fn spawn_sim(
     mut sim: Simulation,
     mut poses: rtrb::Consumer<ToolPose>,
     mut models: triple_buffer::Input<ModelUpdate>,
     mut status: triple_buffer::Input<SimStatus>,
     mut journal: SimJournal,
+    frames: SimFrames,
     stop: Arc<AtomicBool>,
     t0: f64,
 ) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
         .name("simulation".into())
         .spawn(move || {
+            // Shared-memory ports belong to the thread that opens them.
+            let mut publisher = None;
+            if frames.every_ticks > 0 {
+                let opened = FramePublisher::open(&frames.station, &sim);
+                let _ = frames
+                    .opened
+                    .send(opened.as_ref().map(|_| ()).map_err(|e| e.to_string()));
+                publisher = opened.ok();
+            }
             let mut deadline = t0;
             let mut figures = SimStatus::default();
             let mut last_tip: Option<Vec3> = None;
@@ -627,6 +787,25 @@ fn spawn_sim(
                 figures.active_points = report.active_points;
                 figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
                 figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
+                if let Some(p) = &mut publisher
+                    && figures.ticks % frames.every_ticks == 0
+                {
+                    let info = FrameInfo {
+                        sim_tick: figures.ticks,
+                        tool: pose,
+                        force_n: report.tool_force_n,
+                        cutting: report
+                            .cut
+                            .as_ref()
+                            .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting),
+                        cut_length_mm: figures.cut_length_mm,
+                    };
+                    // A frame that cannot be sent (renderers holding every sample) is
+                    // skipped; the next one is a whole new frame anyway.
+                    if p.publish(&sim, &info).is_ok() {
+                        figures.frames_sent = p.frames();
+                    }
+                }
                 models.write(ModelUpdate {
                     model: sim.local_force_model(),
                     tick: figures.ticks,

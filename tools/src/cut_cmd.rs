@@ -21,11 +21,7 @@ const PALETTE: [[f32; 3]; 2] = [[0.50, 0.14, 0.11], [0.93, 0.62, 0.52]];
 /// The script of a run: a file, or the scene's default stroke.
 pub fn script_for(scene: &BuiltScene, file: Option<&Path>) -> anyhow::Result<CutScript> {
     match file {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read script {}", path.display()))?;
-            Ok(CutScript::from_toml(&text, &path.display().to_string())?)
-        }
+        Some(path) => Ok(CutScript::load(path)?),
         None => Ok(CutScript::default_for(&scene.model.surface)?),
     }
 }

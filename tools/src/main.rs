@@ -8,11 +8,13 @@ mod cut_cmd;
 mod cutrun;
 mod export;
 mod load;
+mod mock_cmd;
 mod plot;
 mod progress;
 mod replay_cmd;
 mod report;
 mod validate_cmd;
+mod view_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -77,6 +79,49 @@ enum Command {
     /// Whole-system benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// The mock haptic device: plays a blade script to a station over shared memory at a
+    /// true 1 kHz and records the forces it receives (docs/PROTOCOL.md).
+    MockDevice {
+        /// Station name (the server's `station`).
+        #[arg(long)]
+        station: String,
+        /// Keyframe script, TOML or CSV (docs/CUTTING.md); default: the scene's demo cut.
+        #[arg(long)]
+        script: Option<PathBuf>,
+        /// Scene whose demo cut to play when there is no script.
+        #[arg(long, default_value = "liver")]
+        scene: String,
+        /// Record the forces received, one CSV row per tick.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Stop after this many seconds (default: when the script ends).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Play the script again and again.
+        #[arg(long = "loop")]
+        looping: bool,
+        /// Samples per second.
+        #[arg(long, default_value_t = 1000.0)]
+        rate_hz: f64,
+        /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Draw a station's live surface from its shared-memory render frames.
+    View {
+        /// Station name (the server's `station`).
+        #[arg(long)]
+        station: String,
+        /// Render headless to this PNG and exit.
+        #[arg(long)]
+        snapshot: PathBuf,
+        /// Frames to receive before the snapshot.
+        #[arg(long, default_value_t = 1)]
+        after: u64,
+        /// Give up after this many seconds without enough frames.
+        #[arg(long, default_value_t = 30.0)]
+        timeout: f64,
+    },
     /// Replay a station's journal (`scalpel-server --journal FILE`) and print the final
     /// state hash; exit status 1 if it differs from the live run's.
     Replay {
@@ -233,6 +278,46 @@ fn main() -> ExitCode {
             json,
         } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
         Command::Replay { file, json } => replay_cmd::run(&file, json),
+        Command::MockDevice {
+            station,
+            script,
+            scene,
+            out,
+            duration,
+            looping,
+            rate_hz,
+            json,
+        } => {
+            if !(rate_hz.is_finite() && (10.0..=10_000.0).contains(&rate_hz)) {
+                eprintln!("error: --rate-hz must be between 10 and 10000, got {rate_hz}");
+                return ExitCode::FAILURE;
+            }
+            if let Some(d) = duration
+                && !(d.is_finite() && d > 0.0)
+            {
+                eprintln!("error: --duration must be a positive number of seconds, got {d}");
+                return ExitCode::FAILURE;
+            }
+            mock_cmd::run(&mock_cmd::MockArgs {
+                station: &station,
+                script: script.as_deref(),
+                scene: &scene,
+                out: out.as_deref(),
+                options: scalpel_client::mock_device::MockOptions {
+                    rate_hz,
+                    duration_s: duration,
+                    looping,
+                    ..Default::default()
+                },
+                json,
+            })
+        }
+        Command::View {
+            station,
+            snapshot,
+            after,
+            timeout,
+        } => view_cmd::snapshot(&station, &snapshot, after, timeout),
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
         Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
         Command::Bench(BenchCommand::Table1 { json }) => bench::cutting::table1(json),

@@ -27,7 +27,7 @@ use crate::solver::{Solver, SolverConfig, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
-pub use script::{CutScript, Keyframe, ScriptError, vertical_extent};
+pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
 

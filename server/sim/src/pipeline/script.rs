@@ -18,7 +18,13 @@
 //! t_s = 3.0
 //! tip_mm = [-30.0, 0.0, 25.0]
 //! ```
-//! A keyframe without `edge` keeps the previous one's.
+//! A keyframe without `edge` keeps the previous one's. The same in CSV (`.csv`):
+//!
+//! ```text
+//! t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z
+//! 0.0,-30.0,0.0,40.0,0.0,0.0,1.0
+//! 3.0,-30.0,0.0,25.0,,,
+//! ```
 
 use serde::Deserialize;
 use thiserror::Error;
@@ -35,6 +41,8 @@ pub const DEFAULT_STROKE_M: f64 = 0.060;
 pub const DEFAULT_DEPTH_M: f64 = 0.010;
 /// Most keyframes a script file may have.
 pub const MAX_KEYFRAMES: usize = 100_000;
+/// The header line of a CSV script.
+pub const CSV_HEADER: &str = "t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z";
 
 /// One keyframe.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -102,6 +110,77 @@ impl CutScript {
             file: file.to_string(),
             message: e.to_string(),
         })?;
+        Self::from_raw(&raw, file)
+    }
+
+    /// Parses a CSV script: a header line `t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z`
+    /// then one keyframe per line; the edge columns may be left empty to keep the previous
+    /// keyframe's. `file` names it in messages.
+    pub fn from_csv(text: &str, file: &str) -> Result<Self, ScriptError> {
+        let parse_error = |line: usize, message: String| ScriptError::Parse {
+            file: file.to_string(),
+            message: format!("line {line}: {message}"),
+        };
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty());
+        let header = lines.next().map(|(_, l)| l.trim()).unwrap_or("");
+        if header != CSV_HEADER {
+            return Err(parse_error(1, format!("the header must be `{CSV_HEADER}`")));
+        }
+        let mut keyframe = Vec::new();
+        for (n, line) in lines {
+            if keyframe.len() > MAX_KEYFRAMES {
+                break;
+            }
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cells.len() != 7 {
+                return Err(parse_error(
+                    n + 1,
+                    format!("7 columns expected, found {}", cells.len()),
+                ));
+            }
+            let number = |k: usize| {
+                cells[k].parse::<f64>().map_err(|_| {
+                    parse_error(
+                        n + 1,
+                        format!("column {}: {:?} is not a number", k + 1, cells[k]),
+                    )
+                })
+            };
+            let edge = if cells[4..].iter().all(|c| c.is_empty()) {
+                None
+            } else {
+                Some([number(4)?, number(5)?, number(6)?])
+            };
+            keyframe.push(RawKeyframe {
+                t_s: number(0)?,
+                tip_mm: [number(1)?, number(2)?, number(3)?],
+                edge,
+            });
+        }
+        Self::from_raw(&RawScript { keyframe }, file)
+    }
+
+    /// Reads a script file: CSV if its name ends in `.csv`, TOML otherwise.
+    pub fn load(path: &std::path::Path) -> Result<Self, ScriptError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ScriptError::Parse {
+            file: file.clone(),
+            message: format!("cannot read: {e}"),
+        })?;
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+        {
+            Self::from_csv(&text, &file)
+        } else {
+            Self::from_toml(&text, &file)
+        }
+    }
+
+    fn from_raw(raw: &RawScript, file: &str) -> Result<Self, ScriptError> {
         let invalid = |index: usize, message: String| ScriptError::Invalid {
             file: file.to_string(),
             index: index + 1,
@@ -331,6 +410,28 @@ mod tests {
         assert!((top - mid.tip_m.z - DEFAULT_DEPTH_M).abs() < 1e-3);
         assert_eq!(s.pose_at(-1.0), s.keyframes[0].pose);
         assert_eq!(s.pose_at(1e9), s.keyframes.last().unwrap().pose);
+    }
+
+    #[test]
+    fn csv_scripts_read_like_toml_ones() {
+        let toml = "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 10]\nedge = [0, 0, 1]\n\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n";
+        let csv = format!("{CSV_HEADER}\n0,0,0,10,0,0,1\n1,0,0,0,,,\n");
+        let a = CutScript::from_toml(toml, "a.toml").unwrap();
+        let b = CutScript::from_csv(&csv, "a.csv").unwrap();
+        assert_eq!(a.keyframes, b.keyframes);
+        for (text, expected) in [
+            ("t,x\n".to_string(), "line 1: the header"),
+            (format!("{CSV_HEADER}\n0,0,0\n"), "line 2: 7 columns"),
+            (format!("{CSV_HEADER}\n0,0,0,x,0,0,1\n"), "line 2: column 4"),
+            (format!("{CSV_HEADER}\n0,0,0,0,0,0,1\n"), "at least 2"),
+            (
+                format!("{CSV_HEADER}\n0,0,0,0,,,\n1,0,0,0,,,\n"),
+                "keyframe 1: the first keyframe needs an edge",
+            ),
+        ] {
+            let e = CutScript::from_csv(&text, "s.csv").unwrap_err().to_string();
+            assert!(e.contains("s.csv") && e.contains(expected), "{e}");
+        }
     }
 
     #[test]

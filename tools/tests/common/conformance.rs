@@ -1,0 +1,161 @@
+//! The device conformance suite: what any haptic device attached to a station must see
+//! when it plays the same short cut. Run against the in-process scripted device and against
+//! the mock device over shared memory (tools/tests/station.rs).
+
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::{CutScript, Keyframe};
+
+/// One device tick as the device saw it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TraceRow {
+    /// Device time (s).
+    pub t_s: f64,
+    /// The force the device had by then (N).
+    pub force_n: [f64; 3],
+    /// The server's haptic tick of that force (consecutive forces differ by at most the
+    /// rate limit per tick between them).
+    pub server_tick: u64,
+}
+
+/// The conformance cut on the liver: from the demo cut's start, down 15 mm into the top
+/// surface at 5 mm/s, 10 mm along it, then 25 mm straight up and out, and held still there.
+pub struct ConformanceCut {
+    /// The script.
+    pub script: CutScript,
+    /// While the blade is deep in the tissue and moving along (s).
+    pub cutting: (f64, f64),
+    /// From here on the blade is out of the tissue (s).
+    pub out_from_s: f64,
+    /// Unit direction of the blade's travel while cutting.
+    pub travel: Vec3,
+}
+
+impl ConformanceCut {
+    /// The cut for the built-in liver.
+    pub fn liver() -> Self {
+        let scene = scalpel_server::scene_file::load_scene("liver").unwrap();
+        let demo = CutScript::default_for(&scene.model.surface).unwrap();
+        let at = |t: f64| demo.pose_at(t);
+        let down = 3.0;
+        let along = down + 2.0;
+        let mut up = at(along);
+        up.tip_m += Vec3::new(0.0, 0.0, 0.025);
+        let script = CutScript {
+            keyframes: vec![
+                Keyframe {
+                    t_s: 0.0,
+                    pose: at(0.0),
+                },
+                Keyframe {
+                    t_s: down,
+                    pose: at(down),
+                },
+                Keyframe {
+                    t_s: along,
+                    pose: at(along),
+                },
+                Keyframe {
+                    t_s: along + 2.0,
+                    pose: up,
+                },
+                Keyframe {
+                    t_s: along + 3.5,
+                    pose: up,
+                },
+            ],
+            description: "conformance cut".into(),
+        };
+        Self {
+            script,
+            cutting: (down + 0.5, along),
+            out_from_s: along + 2.5,
+            travel: (at(along).tip_m - at(down).tip_m).normalize(),
+        }
+    }
+
+    /// The script as a CSV keyframe file (what the mock device reads).
+    pub fn csv(&self) -> String {
+        let mut s = String::from(scalpel_sim::pipeline::CSV_HEADER);
+        s.push('\n');
+        for k in &self.script.keyframes {
+            let p = k.pose.tip_m * 1e3;
+            let e = k.pose.orientation * Vec3::z();
+            s.push_str(&format!(
+                "{},{},{},{},{},{},{}\n",
+                k.t_s, p.x, p.y, p.z, e.x, e.y, e.z
+            ));
+        }
+        s
+    }
+}
+
+/// Checks a device's trace of the conformance cut. `max_force_n` is the station's limit,
+/// `rate_limit_n` the largest change per haptic tick.
+pub fn check(trace: &[TraceRow], cut: &ConformanceCut, max_force_n: f64, rate_limit_n: f64) {
+    let duration = cut.script.duration_s();
+    // Every device tick, at the device's 1 kHz.
+    let expected = (duration * 1000.0) as usize;
+    assert!(
+        trace.len() as f64 >= 0.95 * expected as f64,
+        "{} ticks for {duration} s at 1 kHz",
+        trace.len()
+    );
+    // No gap the output stage's watchdog (5 ms) would have to cover.
+    for w in trace.windows(2) {
+        let dt = w[1].t_s - w[0].t_s;
+        assert!(
+            dt > 0.0 && dt < 0.005,
+            "device ticks {dt} s apart at {}",
+            w[0].t_s
+        );
+    }
+    let magnitude = |f: [f64; 3]| Vec3::from(f).norm();
+    // Always finite and within the limit; never faster than the rate limit.
+    for r in trace {
+        assert!(
+            r.force_n.iter().all(|c| c.is_finite()) && magnitude(r.force_n) <= max_force_n + 1e-9,
+            "force {:?} at {} s",
+            r.force_n,
+            r.t_s
+        );
+    }
+    for w in trace.windows(2) {
+        let ticks = w[1].server_tick.saturating_sub(w[0].server_tick).max(1) as f64;
+        let step = (Vec3::from(w[1].force_n) - Vec3::from(w[0].force_n)).norm();
+        assert!(
+            step <= rate_limit_n * ticks + 1e-9,
+            "force changed {step} N over {ticks} tick(s) at {} s",
+            w[1].t_s
+        );
+    }
+    // The cut is felt, and it resists the blade's travel.
+    let cutting: Vec<&TraceRow> = trace
+        .iter()
+        .filter(|r| (cut.cutting.0..cut.cutting.1).contains(&r.t_s))
+        .collect();
+    let peak = cutting
+        .iter()
+        .map(|r| magnitude(r.force_n))
+        .fold(0.0, f64::max);
+    assert!(peak > 0.5, "the cut was not felt: peak {peak} N");
+    let along = cutting
+        .iter()
+        .map(|r| Vec3::from(r.force_n).dot(&cut.travel))
+        .sum::<f64>()
+        / cutting.len().max(1) as f64;
+    assert!(
+        along < -0.1,
+        "the force does not resist the cut: mean {along} N along the travel"
+    );
+    // Out of the tissue: nothing.
+    let after: Vec<&TraceRow> = trace.iter().filter(|r| r.t_s >= cut.out_from_s).collect();
+    assert!(!after.is_empty(), "the trace ends before the blade is out");
+    for r in after {
+        assert!(
+            magnitude(r.force_n) < 0.05,
+            "force {:?} at {} s with the blade out of the tissue",
+            r.force_n,
+            r.t_s
+        );
+    }
+}

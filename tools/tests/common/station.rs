@@ -1,0 +1,142 @@
+//! Real processes for the station tests: the server (`scalpel-server`), the mock device and
+//! the viewer (`scalpel`), with their output read line by line as it comes.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+/// The `scalpel` binary.
+pub fn scalpel() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_scalpel"))
+}
+
+/// The `scalpel-server` binary, built beside `scalpel` by `cargo test --workspace`.
+pub fn server_binary() -> PathBuf {
+    let path = Path::new(env!("CARGO_BIN_EXE_scalpel")).with_file_name("scalpel-server");
+    assert!(
+        path.exists(),
+        "{} is missing: run the tests with `cargo test --workspace` (or `cargo build -p scalpel-server` first)",
+        path.display()
+    );
+    path
+}
+
+/// A station name no other test (or earlier run) uses.
+pub fn unique_station(what: &str) -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
+    format!("t-{what}-{}-{nanos}", std::process::id())
+}
+
+/// A scratch directory for one test.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("scalpel-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A running process whose stdout lines arrive on a channel.
+pub struct Running {
+    /// The process.
+    pub child: Child,
+    lines: Receiver<String>,
+    /// Every line read so far.
+    pub seen: Vec<String>,
+}
+
+impl Running {
+    /// Starts `command` with stdout piped.
+    pub fn start(mut command: Command) -> Self {
+        let mut child = command
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("the process starts");
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Self {
+            child,
+            lines: rx,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Reads lines until one satisfies `want` (returned), or `timeout` passes (panics with
+    /// everything seen).
+    pub fn wait_for(&mut self, timeout: Duration, mut want: impl FnMut(&str) -> bool) -> String {
+        let end = Instant::now() + timeout;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) => {
+                    self.seen.push(line.clone());
+                    if want(&line) {
+                        return line;
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
+                    panic!(
+                        "waited {timeout:?} in vain; output so far:\n{}",
+                        self.seen.join("\n")
+                    )
+                }
+            }
+        }
+    }
+
+    /// Kills the process with SIGKILL (no clean-up of any kind on its side).
+    pub fn kill_9(&mut self) {
+        self.child.kill().expect("SIGKILL");
+        self.child.wait().unwrap();
+    }
+
+    /// Waits for the process to end and returns the rest of its output.
+    pub fn finish(mut self) -> (std::process::ExitStatus, Vec<String>) {
+        let status = self.child.wait().unwrap();
+        while let Ok(line) = self.lines.recv_timeout(Duration::from_secs(5)) {
+            self.seen.push(line);
+        }
+        (status, std::mem::take(&mut self.seen))
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts a server at `station` with a shared-memory device, JSON status every 0.25 s.
+pub fn start_server(station: &str, dir: &Path, duration_s: f64) -> Running {
+    let config = dir.join(format!("{station}.toml"));
+    std::fs::write(
+        &config,
+        format!(
+            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 0.25\n"
+        ),
+    )
+    .unwrap();
+    let mut command = Command::new(server_binary());
+    command
+        .arg(&config)
+        .args(["--json", "--duration", &duration_s.to_string()]);
+    Running::start(command)
+}
+
+/// A JSON line as a value (`Null` if it is not JSON).
+pub fn json(line: &str) -> serde_json::Value {
+    serde_json::from_str(line).unwrap_or(serde_json::Value::Null)
+}

@@ -1,0 +1,317 @@
+//! A station with real processes: the server, the mock device over shared memory, the
+//! viewer. The device conformance suite runs against the in-process scripted device and
+//! the mock device; kill -9 of the device, the viewer and the server mid-run.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use common::conformance::{self, ConformanceCut, TraceRow};
+use common::station::{self, Running, json, scalpel, start_server, unique_station};
+use scalpel_server::device::{DeviceFactory, ForceStatus, HapticDevice, ScriptedDevice};
+use scalpel_server::output::OutputLimits;
+use scalpel_server::station::{StationParams, run};
+use scalpel_sim::cut::ToolPose;
+use scalpel_sim::math::Vec3;
+
+/// The liver's force limit (scene default) and the output stage's rate limit per tick.
+const MAX_FORCE_N: f64 = 3.3;
+const RATE_LIMIT_N: f64 = 0.5;
+
+/// The scripted device, recording what it is sent.
+struct Recording {
+    device: ScriptedDevice,
+    now_s: f64,
+    sampled: bool,
+    ticks: u64,
+    trace: Arc<Mutex<Vec<TraceRow>>>,
+}
+
+impl HapticDevice for Recording {
+    fn sample(&mut self, now_s: f64) -> Option<ToolPose> {
+        self.now_s = now_s;
+        self.sampled = true;
+        self.device.sample(now_s)
+    }
+
+    fn send_force(&mut self, force_n: Vec3, status: ForceStatus) {
+        self.device.send_force(force_n, status);
+        self.ticks += 1;
+        // The wind-down after the stop sends without sampling: not part of the cut.
+        if !std::mem::take(&mut self.sampled) {
+            return;
+        }
+        self.trace.lock().unwrap().push(TraceRow {
+            t_s: self.now_s,
+            force_n: force_n.into(),
+            server_tick: self.ticks,
+        });
+    }
+}
+
+#[test]
+fn conformance_of_the_in_process_scripted_device() {
+    let _serial = one_at_a_time();
+    let cut = ConformanceCut::liver();
+    let scene = scalpel_server::scene_file::load_scene("liver").unwrap();
+    let trace = Arc::new(Mutex::new(Vec::with_capacity(20_000)));
+    let script = cut.script.clone();
+    let recorder = trace.clone();
+    let factory: DeviceFactory = Box::new(move || {
+        Ok(Box::new(Recording {
+            device: ScriptedDevice::new(script, false),
+            now_s: 0.0,
+            sampled: false,
+            ticks: 0,
+            trace: recorder,
+        }) as Box<dyn HapticDevice>)
+    });
+    let params = StationParams {
+        haptic_hz: 1000.0,
+        fifo_priority: 80,
+        lock_memory: false,
+        limits: OutputLimits {
+            max_force_n: MAX_FORCE_N,
+            rate_limit_n_per_ms: RATE_LIMIT_N,
+            ..OutputLimits::default()
+        },
+        status_interval_s: 0.5,
+        station: unique_station("inproc"),
+        frame_hz: 0.0,
+        monitor_device: false,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let timer = stop.clone();
+    let duration = cut.script.duration_s();
+    std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs_f64(duration + 0.01));
+        timer.store(true, std::sync::atomic::Ordering::Relaxed);
+    });
+    let summary = run(&scene, factory, &params, None, stop, |_| {}).unwrap();
+    assert!(summary.haptic_ticks > 0);
+    let trace = trace.lock().unwrap();
+    conformance::check(&trace, &cut, MAX_FORCE_N, RATE_LIMIT_N);
+}
+
+/// Runs the mock device on `script` at `station`, recording to `out`.
+fn start_mock(station: &str, script: &std::path::Path, out: &std::path::Path) -> Running {
+    let mut command = scalpel();
+    command
+        .args(["mock-device", "--station", station, "--json", "--script"])
+        .arg(script)
+        .arg("--out")
+        .arg(out);
+    Running::start(command)
+}
+
+fn read_trace(csv: &std::path::Path) -> Vec<TraceRow> {
+    let text = std::fs::read_to_string(csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some(FORCE_CSV_HEADER),
+        "the recording's header"
+    );
+    lines
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            TraceRow {
+                t_s: c[0],
+                force_n: [c[5], c[6], c[7]],
+                server_tick: c[9] as u64,
+            }
+        })
+        .collect()
+}
+
+/// The mock device's recording header (tools/src/mock_cmd.rs).
+const FORCE_CSV_HEADER: &str = "t_s,seq,tip_x_mm,tip_y_mm,tip_z_mm,fx_n,fy_n,fz_n,force_flags,server_tick,pose_seq,lateness_ms";
+
+/// Nodes of `station` named `role.station`, alive or dead.
+fn nodes_named(station: &str, role: &str) -> usize {
+    let name = format!("{role}.{station}");
+    scalpel_proto::shm::station_nodes(station)
+        .unwrap()
+        .iter()
+        .filter(|n| n.name == name)
+        .count()
+}
+
+/// The tests of this file start servers with simulations; on two cores, one at a time.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+#[test]
+fn conformance_of_the_mock_device_over_shared_memory() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("conformance");
+    let name = unique_station("mock");
+    let cut = ConformanceCut::liver();
+    let script = dir.join("cut.csv");
+    std::fs::write(&script, cut.csv()).unwrap();
+    let forces = dir.join("forces.csv");
+    let mut server = start_server(&name, &dir, 60.0);
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let mock = start_mock(&name, &script, &forces);
+    let (status, out) = mock.finish();
+    assert!(status.success(), "{out:?}");
+    let summary = json(out.last().unwrap());
+    assert_eq!(summary["forces_rejected"], 0, "{summary}");
+    assert!(
+        summary["forces_received"].as_u64().unwrap() > 8000,
+        "{summary}"
+    );
+    server.wait_for(Duration::from_secs(5), |l| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("device lost"))
+    });
+    let trace = read_trace(&forces);
+    // The server answers from its first tick after the device's first pose; the first
+    // rows carry no force yet.
+    conformance::check(&trace, &cut, MAX_FORCE_N, RATE_LIMIT_N);
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_killed_device_fades_the_force_and_a_restarted_one_reconnects() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("killdevice");
+    let name = unique_station("kill");
+    // The demo cut, looped: the blade is in the tissue from about 1 s.
+    let forces = dir.join("forces.csv");
+    let mut server = start_server(&name, &dir, 120.0);
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let mut command = scalpel();
+    command
+        .args(["mock-device", "--station", &name, "--loop", "--out"])
+        .arg(&forces);
+    let mut mock = Running::start(command);
+    server.wait_for(Duration::from_secs(10), |l| {
+        json(l)["event"] == "device connected"
+    });
+    // Wait until the device feels the cut.
+    server.wait_for(Duration::from_secs(20), |l| {
+        json(l)["haptic"]["force_n"]
+            .as_f64()
+            .is_some_and(|f| f > 0.5)
+    });
+    mock.kill_9();
+    let killed = std::time::Instant::now();
+    server.wait_for(Duration::from_secs(5), |l| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("device lost"))
+    });
+    // The dead node is cleaned within 1 s (its publisher goes only with the clean-up), and
+    // the force is faded to zero.
+    assert!(
+        killed.elapsed() < Duration::from_secs(1),
+        "lost after {:?}",
+        killed.elapsed()
+    );
+    assert_eq!(nodes_named(&name, "scalpel-mock-device"), 0);
+    let line = server.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some());
+    let line = json(&line);
+    assert_eq!(line["haptic"]["force_n"], 0.0, "{line}");
+    assert_eq!(line["haptic"]["watchdog_faded"], true, "{line}");
+    // The server keeps ticking at 1 kHz with nobody attached.
+    let line = json(&server.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+    assert!(
+        line["haptic"]["rate_hz"].as_f64().unwrap() > 900.0,
+        "{line}"
+    );
+    // A restarted device is taken as a new connection and feels the cut again.
+    let mut command = scalpel();
+    command.args([
+        "mock-device",
+        "--station",
+        &name,
+        "--loop",
+        "--duration",
+        "20",
+    ]);
+    let _mock = Running::start(command);
+    server.wait_for(Duration::from_secs(10), |l| {
+        json(l)["event"] == "device connected"
+    });
+    server.wait_for(Duration::from_secs(20), |l| {
+        json(l)["haptic"]["force_n"]
+            .as_f64()
+            .is_some_and(|f| f > 0.5)
+    });
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_station() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("killserver");
+    let name = unique_station("srv");
+    let mut server = start_server(&name, &dir, 120.0);
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    // A viewer attached and killed mid-wait (it waits for a million frames).
+    let png = dir.join("never.png");
+    let mut command = scalpel();
+    command
+        .args([
+            "view",
+            "--station",
+            &name,
+            "--after",
+            "1000000",
+            "--snapshot",
+        ])
+        .arg(&png);
+    let mut viewer = Running::start(command);
+    let attached = std::time::Instant::now();
+    while nodes_named(&name, "scalpel-viewer") == 0 {
+        assert!(
+            attached.elapsed() < Duration::from_secs(10),
+            "the viewer never attached"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    viewer.kill_9();
+    let killed = std::time::Instant::now();
+    while nodes_named(&name, "scalpel-viewer") > 0 {
+        assert!(
+            killed.elapsed() < Duration::from_secs(1),
+            "the dead viewer's node is still there after 1 s"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let line = json(&server.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+    assert!(
+        line["haptic"]["rate_hz"].as_f64().unwrap() > 900.0,
+        "{line}"
+    );
+    // The server itself killed: its shared memory stays behind; a new server on the same
+    // station cleans it up and runs, and a viewer gets its frames.
+    server.kill_9();
+    let mut again = start_server(&name, &dir, 120.0);
+    again.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let png = dir.join("view.png");
+    let out = scalpel()
+        .args(["view", "--station", &name, "--after", "3", "--snapshot"])
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("vertices") && png.exists(), "{stdout}");
+    again.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
