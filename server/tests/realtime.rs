@@ -49,3 +49,78 @@ fn haptic_ticks_do_not_allocate() {
         ticks - warm_up
     );
 }
+
+/// The same with the shared-memory device. Receiving poses over iceoryx2 does not
+/// allocate; sending the force does, exactly once per tick: iceoryx2 0.10's
+/// `Publisher::loan_uninit` boxes a small reference-counted chunk state for every sample
+/// (publisher.rs:757 → chunk_mut_shared_state.rs:102; found with a trapping allocator
+/// under gdb). That is an upstream property of the library's loan path, not of ours; this
+/// test pins it at exactly one per tick so that any other allocation on the path fails it.
+/// The device process's side (publishing poses, draining forces) runs between the ticks;
+/// its allocations are not the haptic thread's and are left out of the count.
+#[test]
+fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
+    use scalpel_proto::shm::{self, DevicePose, LAYOUT_VERSION};
+    use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
+    use std::sync::Arc;
+
+    shm::quiet_logging();
+    let station = format!("t-alloc-{}", std::process::id());
+    let counters = Arc::new(ShmDeviceCounters::default());
+    let mut device = ShmDevice::open(&station, counters.clone()).unwrap();
+    let node = shm::node("test-device", &station).unwrap();
+    let poses = shm::pose_service(&node, &station)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let forces = shm::force_service(&node, &station)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let model = LocalForceModel {
+        f0_n: Vec3::new(0.0, 0.0, 2.0),
+        x0_m: Vec3::zeros(),
+        stiffness_n_per_m: Mat3::identity() * -500.0,
+    };
+    let warm_up = 10;
+    let ticks = 3000;
+    let (mut k, mut start, mut excluded, mut received) = (0, 0, 0, 0u64);
+    let force = drive_haptic_ticks(&mut device, OutputLimits::default(), model, ticks, || {
+        let before = allocations();
+        k += 1;
+        let sample = DevicePose {
+            layout_version: LAYOUT_VERSION,
+            seq: k as u64,
+            tip_m: [0.0, 0.0, -0.001 * (k % 7) as f64],
+            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+            ..DevicePose::default()
+        };
+        poses.send_copy(sample).unwrap();
+        while let Ok(Some(_)) = forces.receive() {
+            received += 1;
+        }
+        if k == warm_up {
+            start = allocations();
+            excluded = 0;
+        } else {
+            excluded += allocations() - before;
+        }
+    });
+    let during = allocations() - start - excluded;
+    use std::sync::atomic::Ordering::Relaxed;
+    assert!(force.is_finite() && force > 0.0 && force <= 3.3, "{force}");
+    assert!(counters.poses.load(Relaxed) as usize >= ticks - 1);
+    assert_eq!(counters.send_failures.load(Relaxed), 0);
+    assert!(
+        received as usize >= ticks - 10,
+        "{received} forces received"
+    );
+    assert_eq!(
+        during,
+        (ticks - warm_up) as u64,
+        "{during} allocations in {} haptic ticks over shared memory (iceoryx2's loan: one per tick)",
+        ticks - warm_up
+    );
+}

@@ -9,7 +9,9 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::conformance::{self, ConformanceCut, TraceRow};
-use common::station::{self, Running, json, scalpel, start_server, unique_station};
+use common::station::{
+    self, Running, json, scalpel, start_server, start_server_with, unique_station,
+};
 use scalpel_server::device::{DeviceFactory, ForceStatus, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::{StationParams, run};
@@ -313,5 +315,59 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("vertices") && png.exists(), "{stdout}");
     again.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A non-Rust renderer reads a frame from the running server with the iceoryx2 Python
+/// wheel of the same release, from docs/PROTOCOL.md alone (tools/tests/python/). Needs
+/// `pip install -r tools/tests/python/requirements.txt`; `.ci/run` does that in a venv and
+/// names its interpreter in SCALPEL_PYTHON.
+#[test]
+#[ignore = "needs the iceoryx2 Python wheel; .ci/run installs it and runs this"]
+fn python_reads_a_frame_from_the_running_server() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("python");
+    let name = unique_station("py");
+    let mut server = start_server_with(&name, &dir, 60.0, "scripted");
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/read_frame.py");
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .args([name.as_str(), "20"])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frame = json(stdout.trim());
+    let nv = frame["n_vertices"].as_u64().unwrap();
+    let nt = frame["n_triangles"].as_u64().unwrap();
+    assert!(
+        nv > 200 && frame["max_index"].as_u64().unwrap() < nv,
+        "{frame}"
+    );
+    // Uncut, the liver is a closed genus-0 surface: T = 2V − 4 (the demo cut opens it
+    // later; a cut surface has its walls as well).
+    assert!(
+        nt == 2 * nv - 4 || frame["wound_triangles"].as_u64().unwrap() > 0,
+        "{frame}"
+    );
+    assert_eq!(frame["unit_normals"], true, "{frame}");
+    // The liver's 250 × 150 × 50 mm box, centred.
+    let bbox = &frame["bbox_mm"];
+    for (axis, half) in [(0, 125.0), (1, 75.0), (2, 25.0)] {
+        let lo = bbox[0][axis].as_f64().unwrap();
+        let hi = bbox[1][axis].as_f64().unwrap();
+        assert!(
+            (lo + half).abs() < 5.0 && (hi - half).abs() < 5.0,
+            "{frame}"
+        );
+    }
+    server.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -121,11 +121,16 @@ impl Drop for Running {
 
 /// Starts a server at `station` with a shared-memory device, JSON status every 0.25 s.
 pub fn start_server(station: &str, dir: &Path, duration_s: f64) -> Running {
+    start_server_with(station, dir, duration_s, "shared_memory")
+}
+
+/// Starts a server at `station` with a device of `kind`, JSON status every 0.25 s.
+pub fn start_server_with(station: &str, dir: &Path, duration_s: f64, kind: &str) -> Running {
     let config = dir.join(format!("{station}.toml"));
     std::fs::write(
         &config,
         format!(
-            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 0.25\n"
+            "station = \"{station}\"\n[device]\nkind = \"{kind}\"\n[rates]\nstatus_interval_s = 0.25\n"
         ),
     )
     .unwrap();
