@@ -77,6 +77,27 @@ pub struct MockSummary {
     pub fifo_priority: u8,
     /// Achieved rate (poses per second of wall time).
     pub rate_hz: f64,
+    /// Pose-to-force lag as the device feels it, median: at tick k the newest force answers
+    /// pose k − lag (in device ticks; 1 = the force for the pose sent one tick earlier).
+    pub lag_p50_ticks: u64,
+    /// The same, 99th percentile.
+    pub lag_p99_ticks: u64,
+}
+
+/// Lags counted up to this many ticks (the last bin collects the rest).
+const LAG_BINS: usize = 64;
+
+fn quantile(counts: &[u64; LAG_BINS], q: f64) -> u64 {
+    let total: u64 = counts.iter().sum();
+    let want = ((q * total as f64).ceil() as u64).max(1);
+    let mut seen = 0;
+    for (lag, &c) in counts.iter().enumerate() {
+        seen += c;
+        if seen >= want {
+            return lag as u64;
+        }
+    }
+    0
 }
 
 /// A mock device attached to a station's device services.
@@ -126,6 +147,7 @@ impl MockDevice {
             script.duration_s()
         });
         let mut tick = MockTick::default();
+        let mut lags = [0u64; LAG_BINS];
         let t0 = Instant::now();
         let mut k: u64 = 0;
         while !stop.load(Ordering::Relaxed) {
@@ -174,6 +196,9 @@ impl MockDevice {
                 tick.server_tick = f.tick;
                 tick.pose_seq = f.pose_seq;
             }
+            if tick.pose_seq > 0 {
+                lags[((k - tick.pose_seq.min(k)) as usize).min(LAG_BINS - 1)] += 1;
+            }
             tick.t_s = t;
             tick.seq = k;
             tick.tip_m = sample.tip_m;
@@ -183,6 +208,8 @@ impl MockDevice {
             on_tick(&tick);
         }
         summary.rate_hz = summary.ticks as f64 / t0.elapsed().as_secs_f64().max(1e-9);
+        summary.lag_p50_ticks = quantile(&lags, 0.5);
+        summary.lag_p99_ticks = quantile(&lags, 0.99);
         Ok(summary)
     }
 }

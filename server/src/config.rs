@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 /// A rejected configuration: which file and what is wrong.
@@ -41,7 +41,7 @@ pub enum ConfigError {
 }
 
 /// The whole configuration.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServerConfig {
     /// Station name (names the shared-memory services of this station).
@@ -59,7 +59,7 @@ pub struct ServerConfig {
 }
 
 /// The haptic device.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DeviceConfig {
     /// `scripted`: an in-process device playing a cut script at the haptic rate;
@@ -74,7 +74,7 @@ pub struct DeviceConfig {
 }
 
 /// Device kinds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DeviceKind {
     /// In-process scripted device.
@@ -84,7 +84,7 @@ pub enum DeviceKind {
 }
 
 /// Loop rates.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RateConfig {
     /// Haptic loop rate (Hz).
@@ -96,7 +96,7 @@ pub struct RateConfig {
 }
 
 /// Real-time scheduling.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RealtimeConfig {
     /// SCHED_FIFO priority for the haptic thread (1–99); 0 keeps the normal scheduler.
@@ -106,7 +106,7 @@ pub struct RealtimeConfig {
 }
 
 /// Output stage limits.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// Largest force sent (N); 0 uses the scene's `force.max_force_n`.
@@ -179,6 +179,11 @@ impl Default for OutputConfig {
 }
 
 impl ServerConfig {
+    /// The configuration as TOML (what the journal records).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_else(|e| format!("# not serialisable: {e}\n"))
+    }
+
     /// Reads and checks a configuration file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
@@ -305,6 +310,18 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn the_configuration_round_trips_through_toml() {
+        let mut config = ServerConfig::default();
+        config.device.kind = DeviceKind::SharedMemory;
+        config.rates.frame_hz = 30.0;
+        let text = config.to_toml();
+        assert_eq!(
+            ServerConfig::from_toml(&text, Path::new("x")).unwrap(),
+            config
+        );
     }
 
     #[test]

@@ -5,6 +5,9 @@
 //! ```text
 //! scalpel-journal 1
 //! scene liver
+//! config station = "station-1"               (the server's effective configuration, TOML,
+//! config [device]                             one line per line; the simulation does not
+//! ...                                         read it, a reader of the journal does)
 //! tick 1 -                                   (no tool)
 //! tick 2 <tip x y z> <orientation w i j k>   (seven f64 bit patterns in hex)
 //! ...
@@ -37,9 +40,13 @@ pub struct TickRecord {
     pub pose: Option<ToolPose>,
 }
 
-/// The header line(s) for a session on `scene`.
-pub fn header(scene: &str) -> String {
-    format!("scalpel-journal {JOURNAL_VERSION}\nscene {scene}\n")
+/// The header lines for a session on `scene` with the server configuration `config` (TOML).
+pub fn header(scene: &str, config: &str) -> String {
+    let mut s = format!("scalpel-journal {JOURNAL_VERSION}\nscene {scene}\n");
+    for line in config.lines() {
+        let _ = writeln!(s, "config {line}");
+    }
+    s
 }
 
 /// One tick's line.
@@ -69,6 +76,8 @@ pub fn footer(ticks: u64, state_hash: u64) -> String {
 pub struct Journal {
     /// The scene the session ran.
     pub scene: String,
+    /// The server's configuration (TOML), as journaled.
+    pub config: String,
     /// Every tick's input, in order.
     pub ticks: Vec<TickRecord>,
     /// The live run's tick count and final state hash, when it closed the journal.
@@ -102,6 +111,7 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
         .to_string();
     let mut journal = Journal {
         scene,
+        config: String::new(),
         ticks: Vec::new(),
         end: None,
     };
@@ -111,6 +121,14 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
             // A session killed before it closed the journal still replays what it has.
             Err(_) => return Ok(journal),
         };
+        if let Some(c) = line
+            .strip_prefix("config ")
+            .or((line == "config").then_some(""))
+        {
+            journal.config.push_str(c);
+            journal.config.push('\n');
+            continue;
+        }
         // ... even when the kill cut its last line short.
         let complete = line.starts_with("end ")
             || line.ends_with(" -")
@@ -186,7 +204,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("scalpel-journal-unit-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("cut.journal");
-        let mut text = header("liver").into_bytes();
+        let mut text = header("liver", "station = \"a\"\n\n[device]\n").into_bytes();
         let pose = ToolPose::pointing(Vec3::new(0.01, -0.02, 0.03), Vec3::z());
         write_record(
             &mut text,
@@ -219,13 +237,14 @@ mod tests {
         let j = read(&path).unwrap();
         assert_eq!(j.ticks.len(), 2);
         assert_eq!(j.ticks[1].pose, Some(pose));
+        assert_eq!(j.config, "station = \"a\"\n\n[device]\n");
         assert_eq!(j.end, None);
         // A bad line that is not the last is an error naming the line.
-        let mut text = header("liver").into_bytes();
+        let mut text = header("liver", "station = \"a\"\n\n[device]\n").into_bytes();
         text.extend_from_slice(b"tick 1 zz\ntick 2 -\n");
         std::fs::write(&path, &text).unwrap();
         let e = read(&path).unwrap_err().to_string();
-        assert!(e.contains("cut.journal:3"), "{e}");
+        assert!(e.contains("cut.journal:6"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

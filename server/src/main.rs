@@ -142,7 +142,10 @@ fn run() -> anyhow::Result<()> {
                 Some(_) => config.scene.clone(),
                 None => std::fs::canonicalize(&config.scene)?.display().to_string(),
             };
-            std::io::Write::write_all(&mut file, journal::header(&scene_name).as_bytes())?;
+            std::io::Write::write_all(
+                &mut file,
+                journal::header(&scene_name, &config.to_toml()).as_bytes(),
+            )?;
             Some(file)
         }
         None => None,

@@ -107,20 +107,24 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Draw a station's live surface from its shared-memory render frames.
+    /// Draw a station's live surface from its shared-memory render frames, in a window
+    /// (arrow keys turn, +/- zoom, Esc quits) or headless into a PNG.
     View {
         /// Station name (the server's `station`).
         #[arg(long)]
         station: String,
-        /// Render headless to this PNG and exit.
+        /// Render headless to this PNG and exit (default: a live window).
         #[arg(long)]
-        snapshot: PathBuf,
+        snapshot: Option<PathBuf>,
         /// Frames to receive before the snapshot.
         #[arg(long, default_value_t = 1)]
         after: u64,
         /// Give up after this many seconds without enough frames.
         #[arg(long, default_value_t = 30.0)]
         timeout: f64,
+        /// Window mode: close after drawing this many frames.
+        #[arg(long)]
+        exit_after: Option<u64>,
     },
     /// Replay a station's journal (`scalpel-server --journal FILE`) and print the final
     /// state hash; exit status 1 if it differs from the live run's.
@@ -317,7 +321,11 @@ fn main() -> ExitCode {
             snapshot,
             after,
             timeout,
-        } => view_cmd::snapshot(&station, &snapshot, after, timeout),
+            exit_after,
+        } => match snapshot {
+            Some(out) => view_cmd::snapshot(&station, &out, after, timeout),
+            None => view_cmd::window(&station, exit_after),
+        },
         Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
         Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
         Command::Bench(BenchCommand::Table1 { json }) => bench::cutting::table1(json),

@@ -107,17 +107,21 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
                 "forces_rejected": summary.forces_rejected,
                 "max_force_n": summary.max_force_n,
                 "fifo_priority": summary.fifo_priority,
+                "lag_p50_ticks": summary.lag_p50_ticks,
+                "lag_p99_ticks": summary.lag_p99_ticks,
             })
         );
     } else {
         println!(
-            "sent {} poses at {:.1} Hz ({} woke a period late), received {} forces ({} rejected), largest {:.3} N; SCHED_FIFO {}",
+            "sent {} poses at {:.1} Hz ({} woke a period late), received {} forces ({} rejected), largest {:.3} N; pose-to-force lag p50 {} p99 {} ticks; SCHED_FIFO {}",
             summary.ticks,
             summary.rate_hz,
             summary.late_ticks,
             summary.forces_received,
             summary.forces_rejected,
             summary.max_force_n,
+            summary.lag_p50_ticks,
+            summary.lag_p99_ticks,
             summary.fifo_priority
         );
     }

@@ -27,6 +27,7 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
             "{}",
             serde_json::json!({
                 "scene": recorded.scene,
+                "config": recorded.config,
                 "ticks": recorded.ticks.len(),
                 "state_hash": format!("{hash:016x}"),
                 "live_state_hash": live.map(|h| format!("{h:016x}")),

@@ -1,7 +1,8 @@
-//! `scalpel view --station S --snapshot out.png [--after N]`: attaches to a station's render
-//! frames over shared memory and draws the live surface — wound walls in their own colour,
-//! the blade, and the force on it as an arrow — with the headless CPU renderer of
-//! `scalpel cut`.
+//! `scalpel view --station S [--snapshot out.png [--after N]]`: attaches to a station's
+//! render frames over shared memory and draws the live surface — wound walls in their own
+//! colour, the blade, and the force on it as an arrow — with the CPU renderer of
+//! `scalpel cut`: in a window (minifb; arrow keys turn the camera, +/- zoom, Esc quits), or
+//! headless into a PNG.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -40,7 +41,7 @@ pub fn snapshot(station: &str, out: &Path, after: u64, timeout_s: f64) -> anyhow
         }
     }
     let frame = newest.context("no frame")?;
-    let image = draw(&frame)?;
+    let image = draw(&frame, &Orbit::default(), &RenderOptions::default())?;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot write {}", out.display()))?;
     image.write_png(std::io::BufWriter::new(file))?;
@@ -66,8 +67,108 @@ fn norm(v: [f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
+/// Where the camera is, around the surface's centre.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Orbit {
+    /// Degrees about +z.
+    pub azimuth_deg: f64,
+    /// Degrees above the horizontal.
+    pub elevation_deg: f64,
+    /// Distance as a multiple of the fitted one.
+    pub zoom: f64,
+}
+
+impl Default for Orbit {
+    fn default() -> Self {
+        Self {
+            azimuth_deg: -60.0,
+            elevation_deg: 35.0,
+            zoom: 1.0,
+        }
+    }
+}
+
+/// Live view in a window until it is closed (or Esc), or until `exit_after` frames are
+/// drawn.
+pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
+    use minifb::{Key, KeyRepeat, Window, WindowOptions};
+    scalpel_proto::shm::quiet_logging();
+    let mut reader = FrameReader::open(station)?;
+    let options = RenderOptions {
+        width: 960,
+        height: 720,
+        supersample: 1,
+        ..RenderOptions::default()
+    };
+    let (w, h) = (options.width as usize, options.height as usize);
+    let mut window = Window::new(
+        &format!("scalpel · station {station}"),
+        w,
+        h,
+        WindowOptions::default(),
+    )
+    .map_err(|e| {
+        anyhow::anyhow!(
+            "cannot open a window ({e}); with no display, render headless with --snapshot out.png"
+        )
+    })?;
+    window.set_target_fps(60);
+    let mut pixels = vec![0u32; w * h];
+    let mut orbit = Orbit::default();
+    let mut last: Option<Frame> = None;
+    let mut drawn = 0u64;
+    let started = Instant::now();
+    while window.is_open()
+        && !window.is_key_down(Key::Escape)
+        && exit_after.is_none_or(|n| drawn < n)
+    {
+        let mut moved = false;
+        for key in window.get_keys_pressed(KeyRepeat::Yes) {
+            moved = true;
+            match key {
+                Key::Left => orbit.azimuth_deg -= 5.0,
+                Key::Right => orbit.azimuth_deg += 5.0,
+                Key::Up => orbit.elevation_deg = (orbit.elevation_deg + 5.0).min(89.0),
+                Key::Down => orbit.elevation_deg = (orbit.elevation_deg - 5.0).max(-89.0),
+                Key::Equal | Key::NumPadPlus => orbit.zoom = (orbit.zoom / 1.1).max(0.05),
+                Key::Minus | Key::NumPadMinus => orbit.zoom = (orbit.zoom * 1.1).min(20.0),
+                _ => moved = false,
+            }
+        }
+        if let Some(frame) = reader.wait(Duration::from_millis(10))? {
+            last = Some(frame);
+            moved = true;
+        }
+        if moved && let Some(frame) = &last {
+            let image = draw(frame, &orbit, &options)?;
+            drawn += 1;
+            for (p, c) in pixels.iter_mut().zip(image.rgba.chunks_exact(4)) {
+                *p = u32::from(c[0]) << 16 | u32::from(c[1]) << 8 | u32::from(c[2]);
+            }
+            window.set_title(&format!(
+                "scalpel · station {station} · frame {} · {:.2} N · cut {:.1} mm",
+                frame.header.frame,
+                norm(frame.header.force_n.map(f64::from)),
+                frame.header.cut_length_mm
+            ));
+        }
+        window.update_with_buffer(&pixels, w, h)?;
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    println!(
+        "drew {drawn} frames in {seconds:.1} s ({:.1} per second), last frame {}",
+        drawn as f64 / seconds.max(1e-9),
+        last.map_or(0, |f| f.header.frame)
+    );
+    Ok(())
+}
+
 /// The frame's surface with the blade and the force arrow added as extra triangles.
-fn draw(frame: &Frame) -> anyhow::Result<scalpel_client::render::Image> {
+fn draw(
+    frame: &Frame,
+    orbit: &Orbit,
+    options: &RenderOptions,
+) -> anyhow::Result<scalpel_client::render::Image> {
     let mut positions: Vec<[f64; 3]> = frame.positions.iter().map(|p| p.map(f64::from)).collect();
     let mut triangles = frame.triangles.clone();
     let mut materials = frame.materials.clone();
@@ -147,8 +248,14 @@ fn draw(frame: &Frame) -> anyhow::Result<scalpel_client::render::Image> {
     let centre = [0, 1, 2].map(|i| 0.5 * (lo[i] + hi[i]));
     let extent = norm([0, 1, 2].map(|i| hi[i] - lo[i])).max(0.02);
     let fov = 40.0;
-    let distance = 0.65 * extent / (0.5 * f64::to_radians(fov)).tan();
-    let camera = Camera::orbit(centre, distance, 35.0, -60.0, fov);
+    let distance = orbit.zoom * 0.65 * extent / (0.5 * f64::to_radians(fov)).tan();
+    let camera = Camera::orbit(
+        centre,
+        distance,
+        orbit.elevation_deg,
+        orbit.azimuth_deg,
+        fov,
+    );
     Ok(render(
         &SurfaceView {
             positions: &positions,
@@ -157,7 +264,7 @@ fn draw(frame: &Frame) -> anyhow::Result<scalpel_client::render::Image> {
         },
         &PALETTE,
         &camera,
-        &RenderOptions::default(),
+        options,
     )?)
 }
 

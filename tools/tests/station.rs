@@ -371,3 +371,28 @@ fn python_reads_a_frame_from_the_running_server() {
     server.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The viewer's window mode draws live frames (under a virtual X server: `xvfb-run`, which
+/// `.ci/run` installs).
+#[test]
+#[ignore = "needs xvfb-run; .ci/run installs it and runs this"]
+fn xvfb_the_viewer_window_draws_live_frames() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("window");
+    let name = unique_station("win");
+    let mut server = start_server_with(&name, &dir, 60.0, "scripted");
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let out = std::process::Command::new("xvfb-run")
+        .args(["-a", env!("CARGO_BIN_EXE_scalpel")])
+        .args(["view", "--station", &name, "--exit-after", "30"])
+        .output()
+        .expect("xvfb-run");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && stdout.contains("drew 30 frames"),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
