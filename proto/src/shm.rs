@@ -35,7 +35,8 @@ pub const DEVICE_BUFFER: usize = 4;
 pub const FRAME_MAX_SUBSCRIBERS: usize = 8;
 /// Frame service: frames a renderer holds before the oldest is overwritten.
 pub const FRAME_BUFFER: usize = 2;
-/// Frame service: frames a renderer gets on attaching (the latest).
+/// Frame service: frames a renderer is handed when the publisher next sends after it
+/// attached (the last one sent).
 pub const FRAME_HISTORY: usize = 1;
 /// Frame events: listeners at once.
 pub const FRAME_MAX_LISTENERS: usize = 8;

@@ -1,9 +1,10 @@
 //! Render frames over shared memory: the simulation thread writes the current surface
 //! straight into a loaned shared-memory sample (no intermediate copy of the vertex data),
 //! sends it on `scalpel/<station>/render/frames` and announces it on `.../render/events`
-//! (docs/PROTOCOL.md). Renderers attach and detach at any time; a new one gets the latest
-//! frame at once (history 1). The sample is a byte slice whose shared memory grows in
-//! powers of two, so cuts that add vertices never hit a fixed capacity.
+//! (docs/PROTOCOL.md). Renderers attach and detach at any time; a new one is connected by
+//! the next send (within one frame period) and handed the last frame too (history 1). The
+//! sample is a byte slice whose shared memory grows in powers of two, so cuts that add
+//! vertices never hit a fixed capacity (tests/frames.rs starts it with room for 10).
 
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -42,9 +43,25 @@ impl FramePublisher {
     /// Opens (or creates) the station's render services, sized for `sim`'s surface four
     /// times over before the shared memory has to grow.
     pub fn open(station: &str, sim: &Simulation) -> Result<Self, shm::ShmError> {
-        let node = shm::node("scalpel-server.frames", station)?;
         let surface = &sim.current_surface().mesh;
-        let room = FrameLayout::new(4 * surface.positions.len(), 4 * surface.triangles.len());
+        Self::open_with_room(
+            station,
+            sim,
+            4 * surface.positions.len(),
+            4 * surface.triangles.len(),
+        )
+    }
+
+    /// Opens the render services with shared memory for a surface of `vertices` and
+    /// `triangles` at first (it grows when a frame needs more).
+    pub fn open_with_room(
+        station: &str,
+        sim: &Simulation,
+        vertices: usize,
+        triangles: usize,
+    ) -> Result<Self, shm::ShmError> {
+        let node = shm::node("scalpel-server.frames", station)?;
+        let room = FrameLayout::new(vertices, triangles);
         let publisher = shm::frame_service(&node, station)?
             .publisher_builder()
             .initial_max_slice_len(room.len)
