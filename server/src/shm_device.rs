@@ -1,13 +1,20 @@
 //! The shared-memory device: poses from another process (the mock device, a real device's
 //! driver) on `scalpel/<station>/device/pose`, forces back on `.../device/force`
-//! (docs/PROTOCOL.md). Lives on the haptic thread: receiving and sending are lock-free
-//! shared-memory operations that neither allocate nor wait.
+//! (docs/PROTOCOL.md). Lives on the haptic thread. Receiving a pose is a lock-free
+//! shared-memory read that neither allocates nor waits. Sending is not allocation-free in
+//! iceoryx2 0.10 (every `loan` boxes a small reference-counted chunk state), so the haptic
+//! thread hands the force to its own **force-out thread** through an SPSC ring and wakes it
+//! (a futex wake, no wait); that thread, which inherits the haptic thread's SCHED_FIFO,
+//! loans and sends. The force reaches the device tens of microseconds after the tick,
+//! well inside the device's next millisecond.
 //!
 //! A sample that is not of this layout version, not finite, out of the workspace or with a
 //! degenerate orientation is dropped and counted; the haptic loop only ever sees good poses.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
 
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -33,11 +40,17 @@ pub struct ShmDeviceCounters {
     pub send_failures: AtomicU64,
 }
 
+/// Forces in flight from the haptic thread to the force-out thread.
+const FORCE_RING: usize = 64;
+
 /// The device end of a station's device services.
 pub struct ShmDevice {
     // The node owns the ports' shared memory; it is dropped last.
     poses: Subscriber<ipc::Service, DevicePose, ()>,
-    forces: Publisher<ipc::Service, DeviceForce, ()>,
+    forces: rtrb::Producer<DeviceForce>,
+    sender: std::thread::Thread,
+    sender_handle: Option<JoinHandle<()>>,
+    stop: Arc<AtomicBool>,
     tick: u64,
     last_seq: u64,
     counters: Arc<ShmDeviceCounters>,
@@ -45,25 +58,102 @@ pub struct ShmDevice {
 }
 
 impl ShmDevice {
-    /// Opens (or creates) the station's device services.
+    /// Opens (or creates) the station's device services and starts the force-out thread.
     pub fn open(station: &str, counters: Arc<ShmDeviceCounters>) -> Result<Self, shm::ShmError> {
         let node = shm::node("scalpel-server.haptic", station)?;
         let poses = shm::pose_service(&node, station)?
             .subscriber_builder()
             .create()
             .map_err(|e| shm::iceoryx("subscribing to poses of station", station, e))?;
-        let forces = shm::force_service(&node, station)?
-            .publisher_builder()
-            .create()
-            .map_err(|e| shm::iceoryx("publishing forces of station", station, e))?;
+        let (forces, queued) = rtrb::RingBuffer::new(FORCE_RING);
+        let stop = Arc::new(AtomicBool::new(false));
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let sender_handle = {
+            let station = station.to_string();
+            let stop = stop.clone();
+            let counters = counters.clone();
+            std::thread::Builder::new()
+                .name("force-out".into())
+                .spawn(move || send_forces(&station, queued, &stop, &counters, ready_tx))
+                .map_err(|e| shm::iceoryx("starting the force-out thread of", "", e))?
+        };
+        match ready_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(e),
+            Err(_) => {
+                return Err(shm::iceoryx(
+                    "starting the force-out thread of",
+                    station,
+                    "it ended early",
+                ));
+            }
+        }
         Ok(Self {
             poses,
             forces,
+            sender: sender_handle.thread().clone(),
+            sender_handle: Some(sender_handle),
+            stop,
             tick: 0,
             last_seq: 0,
             counters,
             _node: node,
         })
+    }
+}
+
+impl Drop for ShmDevice {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        self.sender.unpark();
+        if let Some(h) = self.sender_handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// The force-out thread: opens the force publisher (ports belong to their thread), reports
+/// whether that worked, then sends what the haptic thread queues, woken per tick.
+fn send_forces(
+    station: &str,
+    mut queued: rtrb::Consumer<DeviceForce>,
+    stop: &AtomicBool,
+    counters: &ShmDeviceCounters,
+    ready: std::sync::mpsc::Sender<Result<(), shm::ShmError>>,
+) {
+    let opened = shm::node("scalpel-server.force-out", station).and_then(|node| {
+        let publisher = shm::force_service(&node, station)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| shm::iceoryx("publishing forces of station", station, e))?;
+        Ok((node, publisher))
+    });
+    let (_node, publisher): (Node<ipc::Service>, Publisher<ipc::Service, DeviceForce, ()>) =
+        match opened {
+            Ok(p) => {
+                let _ = ready.send(Ok(()));
+                p
+            }
+            Err(e) => {
+                let _ = ready.send(Err(e));
+                return;
+            }
+        };
+    loop {
+        // Woken by every force queued; the timeout only bounds how late a stop is seen.
+        std::thread::park_timeout(Duration::from_millis(50));
+        while let Ok(message) = queued.pop() {
+            let sent = match publisher.loan_uninit() {
+                Ok(sample) => sample.write_payload(message).send().is_ok(),
+                Err(_) => false,
+            };
+            if !sent {
+                counters.send_failures.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        if stop.load(Ordering::Acquire) {
+            return;
+        }
     }
 }
 
@@ -121,12 +211,11 @@ impl HapticDevice for ShmDevice {
             pose_seq: self.last_seq,
             force_n: force_n.into(),
         };
-        let sent = match self.forces.loan_uninit() {
-            Ok(sample) => sample.write_payload(message).send().is_ok(),
-            Err(_) => false,
-        };
-        if !sent {
+        if self.forces.push(message).is_err() {
+            // The force-out thread is 64 ticks behind: this force is lost, the next one
+            // supersedes it anyway.
             self.counters.send_failures.fetch_add(1, Ordering::Relaxed);
         }
+        self.sender.unpark();
     }
 }

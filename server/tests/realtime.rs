@@ -50,14 +50,11 @@ fn haptic_ticks_do_not_allocate() {
     );
 }
 
-/// The same with the shared-memory device. Receiving poses over iceoryx2 does not
-/// allocate; sending the force does, exactly once per tick: iceoryx2 0.10's
-/// `Publisher::loan_uninit` boxes a small reference-counted chunk state for every sample
-/// (publisher.rs:757 → chunk_mut_shared_state.rs:102; found with a trapping allocator
-/// under gdb). That is an upstream property of the library's loan path, not of ours; this
-/// test pins it at exactly one per tick so that any other allocation on the path fails it.
-/// The device process's side (publishing poses, draining forces) runs between the ticks;
-/// its allocations are not the haptic thread's and are left out of the count.
+/// The same with the shared-memory device: receiving poses over iceoryx2 and handing the
+/// force to the force-out thread do not allocate (iceoryx2's `loan` does, once per sample:
+/// that is why the loan is on the force-out thread). The device process's side (publishing
+/// poses, draining forces) runs between the ticks; its allocations are not the haptic
+/// thread's and are left out of the count.
 #[test]
 fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
     use scalpel_proto::shm::{self, DevicePose, LAYOUT_VERSION};
@@ -98,8 +95,18 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
             ..DevicePose::default()
         };
         poses.send_copy(sample).unwrap();
-        while let Ok(Some(_)) = forces.receive() {
-            received += 1;
+        // As a device at 1 kHz would: the force of this tick arrives from the force-out
+        // thread within a fraction of a millisecond.
+        let asked = std::time::Instant::now();
+        let mut got = false;
+        while !got && asked.elapsed() < std::time::Duration::from_millis(100) {
+            while let Ok(Some(f)) = forces.receive() {
+                received += 1;
+                got |= f.tick as usize >= k;
+            }
+            if !got {
+                std::thread::sleep(std::time::Duration::from_micros(20));
+            }
         }
         if k == warm_up {
             start = allocations();
@@ -119,8 +126,8 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
     );
     assert_eq!(
         during,
-        (ticks - warm_up) as u64,
-        "{during} allocations in {} haptic ticks over shared memory (iceoryx2's loan: one per tick)",
+        0,
+        "{during} allocations in {} haptic ticks over shared memory",
         ticks - warm_up
     );
 }
