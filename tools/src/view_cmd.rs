@@ -118,6 +118,8 @@ pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
     let mut last: Option<Frame> = None;
     let mut drawn = 0u64;
     let started = Instant::now();
+    let mut last_frame_at = Instant::now();
+    let mut offline_shown = false;
     while window.is_open()
         && !window.is_key_down(Key::Escape)
         && exit_after.is_none_or(|n| drawn < n)
@@ -137,7 +139,19 @@ pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
         }
         if let Some(frame) = reader.wait(Duration::from_millis(10))? {
             last = Some(frame);
+            last_frame_at = Instant::now();
+            offline_shown = false;
             moved = true;
+        }
+        // A server that stopped (or was killed) sends nothing: say so, keep the last
+        // picture, and pick up the frames of a restarted server on the same station.
+        let silent = last_frame_at.elapsed();
+        if silent > Duration::from_secs(1) && !offline_shown {
+            window.set_title(&format!(
+                "scalpel · station {station} · no frames for {:.0} s: server offline?",
+                silent.as_secs_f64()
+            ));
+            offline_shown = true;
         }
         if moved && let Some(frame) = &last {
             let image = draw(frame, &orbit, &options)?;

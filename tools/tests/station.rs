@@ -296,10 +296,23 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
         "{line}"
     );
     // The server itself killed: its shared memory stays behind; a new server on the same
-    // station cleans it up and runs, and a viewer gets its frames.
+    // station cleans it up and runs. A viewer attached across the kill picks up the new
+    // server's frames (it wants 150: the first server dies before sending them all).
+    let across = dir.join("across.png");
+    let mut command = scalpel();
+    command
+        .args(["view", "--station", &name, "--after", "150", "--snapshot"])
+        .arg(&across);
+    let survivor = Running::start(command);
+    while nodes_named(&name, "scalpel-viewer") == 0 {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
     server.kill_9();
     let mut again = start_server(&name, &dir, 120.0);
     again.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let (status, out) = survivor.finish();
+    assert!(status.success() && across.exists(), "{out:?}");
     let png = dir.join("view.png");
     let out = scalpel()
         .args(["view", "--station", &name, "--after", "3", "--snapshot"])
