@@ -1,0 +1,354 @@
+//! The QUIC wire protocol between a station server and its remote clients (observers and
+//! instructors): message types, serde-encoded by [`crate::codec`] (bincode 2, standard
+//! configuration, length-prefixed frames with a size limit). docs/PROTOCOL.md describes
+//! the streams and the byte layout; `tests` pin the bytes of every message kind.
+//!
+//! Streams of one connection:
+//! - **control** (bidirectional, opened by the client): `Hello` → `Welcome` (or `Refused`),
+//!   then the client's `Subscribe` / `Command`s and the server's `Ack`s and `Faults`.
+//! - **telemetry** (unidirectional, opened by the server after `Welcome`): `Metrics` at
+//!   10 Hz and `Event`s as they happen.
+//! - **frames** (one unidirectional stream per frame, opened by the server): one
+//!   `ObserverFrame` each; a frame still in flight when the next is due makes the server
+//!   skip the new one (latest wins, nothing queues).
+
+use serde::{Deserialize, Serialize};
+
+/// Protocol version; `Hello` and `Welcome` carry it and a mismatch is refused.
+pub const PROTOCOL_VERSION: u16 = 1;
+/// TLS application protocol (ALPN).
+pub const ALPN: &[u8] = b"scalpel/1";
+/// Longest free text a client may send (client names).
+pub const MAX_TEXT: usize = 256;
+
+/// What a client is allowed to do; it comes from its certificate, never from the client.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Role {
+    /// Receives frames, metrics and events.
+    Observer,
+    /// An observer that may also schedule and clear faults.
+    Instructor,
+}
+
+/// Client → server on the control stream.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum ClientMessage {
+    /// The first message.
+    Hello {
+        /// [`PROTOCOL_VERSION`] of the client.
+        protocol_version: u16,
+        /// A name for logs (at most [`MAX_TEXT`] bytes).
+        client: String,
+    },
+    /// Frames per second wanted (0 = none; the server caps it).
+    Subscribe {
+        /// Frames per second.
+        frame_hz: f32,
+    },
+    /// An instructor command.
+    Command(Command),
+}
+
+/// An instructor command, numbered: the server refuses a `seq` not above the last one it
+/// accepted from this identity (replays and reordering).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Command {
+    /// Sequence number, increasing per identity.
+    pub seq: u64,
+    /// What to do.
+    pub action: Action,
+}
+
+/// What an instructor asks for.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Action {
+    /// Schedule a fault.
+    Schedule(FaultSpec),
+    /// Clear one fault (by id) or all (`None`).
+    Clear {
+        /// The fault's id, from its `Ack`.
+        id: Option<u64>,
+    },
+    /// List the scheduled and active faults.
+    List,
+}
+
+/// A fault to schedule.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FaultSpec {
+    /// The fault.
+    pub fault: Fault,
+    /// When it starts.
+    pub start: Start,
+    /// How long it lasts (ms; 0 = until cleared).
+    pub duration_ms: u32,
+}
+
+/// When a fault starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Start {
+    /// At once.
+    Now,
+    /// At this simulation tick.
+    AtTick(u64),
+}
+
+/// The fault vocabulary (ARCHITECTURE.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum Fault {
+    /// No device samples reach the haptic loop.
+    DeviceDropout,
+    /// Device samples arrive this late.
+    DeviceLatency {
+        /// Added latency (ms).
+        ms: f32,
+    },
+    /// Gaussian noise on the device position.
+    PoseNoise {
+        /// Standard deviation (mm).
+        sigma_mm: f32,
+    },
+    /// A force spike requested of the output stage (which still limits it).
+    ForceSpike {
+        /// Spike magnitude (N).
+        newtons: f32,
+    },
+    /// The device's force saturates lower than its limit.
+    ForceSaturation {
+        /// Saturation (N).
+        max_n: f32,
+    },
+    /// Tissue stiffness scaled, ramped in and out.
+    TissueStiffness {
+        /// Factor on Young's modulus.
+        factor: f32,
+        /// Ramp time (ms).
+        ramp_ms: u32,
+    },
+    /// The simulation stops ticking.
+    SimStall,
+    /// The simulation runs slower than real time.
+    SimSlowdown {
+        /// Wall time per simulated time.
+        factor: f32,
+    },
+    /// Render frames stop changing.
+    RendererFreeze,
+    /// Observers get no frames or metrics.
+    ObserverStreamLoss,
+}
+
+/// Server → client.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum ServerMessage {
+    /// The handshake's answer.
+    Welcome {
+        /// [`PROTOCOL_VERSION`] of the server.
+        protocol_version: u16,
+        /// The station.
+        station: String,
+        /// The scene.
+        scene: String,
+        /// What the client may do (from its certificate).
+        role: Role,
+        /// The client's identity (its certificate's common name).
+        identity: String,
+    },
+    /// The connection is refused; the server closes it.
+    Refused {
+        /// Why.
+        reason: String,
+    },
+    /// The answer to a `Command`.
+    Ack {
+        /// The command's `seq`.
+        seq: u64,
+        /// What happened.
+        outcome: Outcome,
+    },
+    /// Scheduled and active faults (answer to `List`).
+    Faults {
+        /// The faults.
+        faults: Vec<ScheduledFault>,
+    },
+    /// Station figures, 10 Hz.
+    Metrics(Metrics),
+    /// Something happened.
+    Event(Event),
+    /// A frame of the surface (on its own stream).
+    Frame(ObserverFrame),
+}
+
+/// What became of a command.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Outcome {
+    /// Scheduled, with this id.
+    Scheduled {
+        /// The fault's id.
+        id: u64,
+    },
+    /// Cleared this many faults.
+    Cleared {
+        /// How many.
+        count: u32,
+    },
+    /// The list follows in a `Faults` message.
+    Listed,
+    /// Refused.
+    Rejected {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A fault as the server holds it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScheduledFault {
+    /// Its id.
+    pub id: u64,
+    /// What was asked.
+    pub spec: FaultSpec,
+    /// Who asked (certificate common name).
+    pub by: String,
+    /// It is in effect now.
+    pub active: bool,
+}
+
+/// Station figures.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Metrics {
+    /// Simulation ticks so far.
+    pub sim_tick: u64,
+    /// Server uptime (s).
+    pub uptime_s: f64,
+    /// Haptic ticks per second over the last status window.
+    pub haptic_rate_hz: f32,
+    /// Haptic wake-up lateness p99 over the last window (ms).
+    pub jitter_p99_ms: f32,
+    /// Deadline misses so far.
+    pub deadline_misses: u64,
+    /// Force sent to the device (N).
+    pub force_n: f32,
+    /// The watchdog has the force faded.
+    pub faded: bool,
+    /// Blade travel while cutting (mm).
+    pub cut_length_mm: f32,
+    /// Points integrated in the last tick.
+    pub active_points: u32,
+    /// A device is connected (always true for an in-process device).
+    pub device_connected: bool,
+}
+
+/// Something that happened at the station.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Event {
+    /// Simulation tick when it was seen.
+    pub sim_tick: u64,
+    /// Server uptime (s).
+    pub uptime_s: f64,
+    /// What kind.
+    pub kind: EventKind,
+    /// Details for people.
+    pub detail: String,
+}
+
+/// Kinds of events.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum EventKind {
+    /// The blade started cutting.
+    CutStarted,
+    /// The tissue ruptured under the blade.
+    Rupture,
+    /// A device connected.
+    DeviceConnected,
+    /// The device was lost.
+    DeviceLost,
+    /// A fault took effect.
+    FaultApplied,
+    /// A fault ended.
+    FaultCleared,
+    /// Anything else worth a line (warnings).
+    Notice,
+}
+
+/// A surface frame for an observer: positions quantized to 16 bits over the frame's box.
+/// A keyframe carries the topology and absolute positions; the frames after it carry
+/// positions as differences from the keyframe (small numbers, which the varint encoding
+/// stores in one or two bytes) until the next keyframe. An observer that (re)connects or
+/// lost a frame starts from a keyframe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObserverFrame {
+    /// Frame counter of this observer's stream, from 1.
+    pub frame: u64,
+    /// The keyframe this frame is relative to (itself, for a keyframe).
+    pub keyframe: u64,
+    /// Simulation tick.
+    pub sim_tick: u64,
+    /// Triangles and their materials: present in keyframes only.
+    pub topology: Option<Topology>,
+    /// Quantization origin (m), the keyframe's.
+    pub origin_m: [f32; 3],
+    /// Quantization step (m), the keyframe's.
+    pub step_m: f32,
+    /// Keyframe: quantized positions; other frames: differences from the keyframe's.
+    pub positions: Vec<[i16; 3]>,
+    /// The tool, when present.
+    pub tool: Option<ToolState>,
+}
+
+/// Triangles of a keyframe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Topology {
+    /// Vertex indices.
+    pub triangles: Vec<[u32; 3]>,
+    /// Material per triangle (0 surface, 1 wound wall).
+    pub materials: Vec<u8>,
+}
+
+/// The tool in a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ToolState {
+    /// Blade tip (m).
+    pub tip_m: [f32; 3],
+    /// Orientation (x, y, z, w).
+    pub orientation_xyzw: [f32; 4],
+    /// Force on the tool (N).
+    pub force_n: [f32; 3],
+}
+
+/// Quantizes `positions` (m) to 16 bits over their box: returns the origin, the step and
+/// the codes. Decoding is `origin + step · (code + 32768)`.
+pub fn quantize(positions: &[[f32; 3]]) -> ([f32; 3], f32, Vec<[i16; 3]>) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in positions {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    if positions.is_empty() {
+        return ([0.0; 3], 1e-6, Vec::new());
+    }
+    let extent = (0..3).map(|c| hi[c] - lo[c]).fold(0.0f32, f32::max);
+    // A little room, so that a frame after the keyframe that moved outwards still fits.
+    let margin = 0.25 * extent.max(1e-3);
+    let origin = lo.map(|l| l - margin);
+    let step = (extent + 2.0 * margin) / 65535.0;
+    let codes = positions
+        .iter()
+        .map(|p| [0, 1, 2].map(|c| quantize_one(p[c], origin[c], step)))
+        .collect();
+    (origin, step, codes)
+}
+
+/// The code of one coordinate (saturating at the ends of the range).
+pub fn quantize_one(x: f32, origin: f32, step: f32) -> i16 {
+    let q = ((x - origin) / step).round() - 32768.0;
+    q.clamp(-32768.0, 32767.0) as i16
+}
+
+/// The coordinate of a code.
+pub fn dequantize_one(code: i16, origin: f32, step: f32) -> f32 {
+    origin + step * (f32::from(code) + 32768.0)
+}
