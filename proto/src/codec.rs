@@ -342,7 +342,7 @@ mod tests {
             .unwrap();
         assert_eq!(got, ClientMessage::Subscribe { frame_hz: 30.0 });
         // A frame announcing more than the limit is refused before its payload is read.
-        tokio::io::AsyncWriteExt::write_all(&mut a, &(CLIENT_LIMIT as u32 + 1).to_le_bytes())
+        AsyncWriteExt::write_all(&mut a, &(CLIENT_LIMIT as u32 + 1).to_le_bytes())
             .await
             .unwrap();
         assert!(matches!(
@@ -358,9 +358,7 @@ mod tests {
                 .is_none()
         );
         let (mut a, mut b) = tokio::io::duplex(64);
-        tokio::io::AsyncWriteExt::write_all(&mut a, &[5, 0])
-            .await
-            .unwrap();
+        AsyncWriteExt::write_all(&mut a, &[5, 0]).await.unwrap();
         drop(a);
         assert!(
             read_frame::<ClientMessage, CLIENT_LIMIT>(&mut b)
