@@ -107,6 +107,11 @@ pub struct FrameHeader {
     pub sim_tick: u64,
     /// Server's monotonic clock when the frame was written (ns).
     pub server_time_ns: u64,
+    /// The device's sample counter of the tool pose shown (0: none).
+    pub pose_seq: u64,
+    /// When the server's haptic thread took that pose (CLOCK_MONOTONIC, ns; 0: none):
+    /// a renderer on the same machine gets its pose-to-screen latency from it.
+    pub pose_received_ns: u64,
     /// Surface vertices.
     pub n_vertices: u32,
     /// Surface triangles.
@@ -419,7 +424,7 @@ mod tests {
         // docs/PROTOCOL.md gives these sizes; a change here is a protocol change.
         assert_eq!(size_of::<DevicePose>(), 80);
         assert_eq!(size_of::<DeviceForce>(), 48);
-        assert_eq!(size_of::<FrameHeader>(), 104);
+        assert_eq!(size_of::<FrameHeader>(), 120);
         assert_eq!(align_of::<DevicePose>(), 8);
         assert_eq!(align_of::<FrameHeader>(), 8);
     }

@@ -117,8 +117,10 @@ pub struct OutputConfig {
     pub device_timeout_ms: f64,
     /// No simulation update for this long fades the force out (ms).
     pub sim_timeout_ms: f64,
-    /// Length of the fade (ms).
-    pub fade_ms: f64,
+    /// Length of the fade out (ms).
+    pub fade_out_ms: f64,
+    /// Length of the fade back in (ms).
+    pub fade_in_ms: f64,
     /// Hannaford–Ryu passivity observer and controller.
     pub passivity: bool,
 }
@@ -172,7 +174,8 @@ impl Default for OutputConfig {
             rate_limit_n_per_ms: 0.5,
             device_timeout_ms: 5.0,
             sim_timeout_ms: 100.0,
-            fade_ms: 50.0,
+            fade_out_ms: 5.0,
+            fade_in_ms: 50.0,
             passivity: true,
         }
     }
@@ -271,9 +274,15 @@ impl ServerConfig {
             "at least 2 ms (two simulation ticks) and at most 10000 ms",
         )?;
         range(
-            "output.fade_ms",
-            o.fade_ms,
-            o.fade_ms > 0.0 && o.fade_ms <= 10_000.0,
+            "output.fade_out_ms",
+            o.fade_out_ms,
+            o.fade_out_ms > 0.0 && o.fade_out_ms <= 1000.0,
+            "above 0 and at most 1000 ms",
+        )?;
+        range(
+            "output.fade_in_ms",
+            o.fade_in_ms,
+            o.fade_in_ms > 0.0 && o.fade_in_ms <= 10_000.0,
             "above 0 and at most 10000 ms",
         )?;
         if scalpel_proto::shm::check_station(&self.station).is_err() {

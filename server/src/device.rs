@@ -16,12 +16,24 @@ pub struct ForceStatus {
     pub nan_guarded: bool,
 }
 
+/// One sample of a device.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceSample {
+    /// The tool pose.
+    pub pose: ToolPose,
+    /// The device's sample counter.
+    pub seq: u64,
+    /// When the device took it, on the device's clock (s); velocities are taken on this
+    /// clock, so that a sample that travelled late does not look like a fast move.
+    pub device_time_s: f64,
+}
+
 /// A haptic device. Not `Send`: shared-memory ports belong to the thread that made them,
 /// so a device is made on the haptic thread by a [`DeviceFactory`].
 pub trait HapticDevice {
-    /// The device's pose now (`now_s` on the haptic clock, from the loop's start), or
+    /// The device's newest sample (`now_s` on the haptic clock, from the loop's start), or
     /// `None` if it has nothing new (disconnected, or no sample this tick).
-    fn sample(&mut self, now_s: f64) -> Option<ToolPose>;
+    fn sample(&mut self, now_s: f64) -> Option<DeviceSample>;
     /// The force to render (N), finite and within the device's limits.
     fn send_force(&mut self, force_n: Vec3, status: ForceStatus);
 }
@@ -34,6 +46,7 @@ pub struct ScriptedDevice {
     script: CutScript,
     looping: bool,
     last_force_n: Vec3,
+    seq: u64,
 }
 
 impl ScriptedDevice {
@@ -43,6 +56,7 @@ impl ScriptedDevice {
             script,
             looping,
             last_force_n: Vec3::zeros(),
+            seq: 0,
         }
     }
 
@@ -53,14 +67,19 @@ impl ScriptedDevice {
 }
 
 impl HapticDevice for ScriptedDevice {
-    fn sample(&mut self, now_s: f64) -> Option<ToolPose> {
+    fn sample(&mut self, now_s: f64) -> Option<DeviceSample> {
         let duration = self.script.duration_s();
         let t = if self.looping && duration > 0.0 {
             now_s.rem_euclid(duration)
         } else {
             now_s
         };
-        Some(self.script.pose_at(t))
+        self.seq += 1;
+        Some(DeviceSample {
+            pose: self.script.pose_at(t),
+            seq: self.seq,
+            device_time_s: now_s,
+        })
     }
 
     fn send_force(&mut self, force_n: Vec3, _status: ForceStatus) {

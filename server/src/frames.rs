@@ -21,6 +21,10 @@ pub struct FrameInfo {
     pub sim_tick: u64,
     /// The tool, if the device has reported one.
     pub tool: Option<ToolPose>,
+    /// The device's sample counter of that pose (0: none).
+    pub pose_seq: u64,
+    /// When the haptic thread took that pose (CLOCK_MONOTONIC, ns; 0: none).
+    pub pose_received_ns: u64,
     /// The simulation's force on the tool (N).
     pub force_n: Vec3,
     /// The blade is cutting.
@@ -116,6 +120,8 @@ impl FramePublisher {
             frame: self.frame,
             sim_tick: info.sim_tick,
             server_time_ns: (crate::realtime::monotonic_s() * 1e9) as u64,
+            pose_seq: info.pose_seq,
+            pose_received_ns: info.pose_received_ns,
             blade_length_m: self.blade_length_m as f32,
             force_n: info.force_n.map(|c| c as f32).into(),
             cut_length_mm: info.cut_length_mm as f32,

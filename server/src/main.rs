@@ -92,27 +92,32 @@ fn run() -> anyhow::Result<()> {
             rate_limit_n_per_ms: o.rate_limit_n_per_ms,
             device_timeout_s: o.device_timeout_ms * 1e-3,
             sim_timeout_s: o.sim_timeout_ms * 1e-3,
-            fade_s: o.fade_ms * 1e-3,
+            fade_out_s: o.fade_out_ms * 1e-3,
+            fade_in_s: o.fade_in_ms * 1e-3,
             passivity: o.passivity,
             period_s: 1.0 / config.rates.haptic_hz,
         },
         status_interval_s: config.rates.status_interval_s,
         station: config.station.clone(),
-        frame_hz: config.rates.frame_hz,
+        frame_hz: if scene.spec.features.frames {
+            config.rates.frame_hz
+        } else {
+            0.0
+        },
         monitor_device: shared_memory_device,
+        haptics: scene.spec.features.haptics,
     };
     if !args.json {
         println!(
-            "station {}: scene {} ({} points), {} device, haptic {} Hz, frames {} Hz",
+            "station {}: scene {} ({} points), {}, frames {} Hz",
             config.station,
             scene.spec.name,
             scene.model.points.len(),
-            if shared_memory_device {
-                "shared-memory"
-            } else {
-                "scripted"
+            match (params.haptics, shared_memory_device) {
+                (false, _) => "no haptics".to_string(),
+                (true, true) => format!("shared-memory device, haptic {} Hz", params.haptic_hz),
+                (true, false) => format!("scripted device, haptic {} Hz", params.haptic_hz),
             },
-            params.haptic_hz,
             params.frame_hz
         );
     }
@@ -196,21 +201,26 @@ fn print_report(report: &StationReport, json: bool) {
 }
 
 fn print_status(line: &StatusLine) {
-    let h = &line.haptic;
+    let haptic = match &line.haptic {
+        Some(h) => format!(
+            "haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}{}",
+            h.rate_hz,
+            h.jitter_p50_ms,
+            h.jitter_p99_ms,
+            h.jitter_max_ms,
+            h.deadline_misses,
+            h.force_n,
+            if h.watchdog_faded { " (faded)" } else { "" },
+            match line.device_connected {
+                Some(false) => "  no device",
+                _ => "",
+            }
+        ),
+        None => "no haptics".to_string(),
+    };
     println!(
-        "{:7.1} s  haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}{}  | sim {} ticks, {} points, cut {:.1} mm, {} frames",
+        "{:7.1} s  {haptic}  | sim {} ticks, {} points, cut {:.1} mm, {} frames",
         line.uptime_s,
-        h.rate_hz,
-        h.jitter_p50_ms,
-        h.jitter_p99_ms,
-        h.jitter_max_ms,
-        h.deadline_misses,
-        h.force_n,
-        if h.watchdog_faded { " (faded)" } else { "" },
-        match line.device_connected {
-            Some(false) => "  no device",
-            _ => "",
-        },
         line.sim.ticks,
         line.sim.active_points,
         line.sim.cut_length_mm,

@@ -20,8 +20,12 @@ pub struct OutputLimits {
     pub device_timeout_s: f64,
     /// No simulation update for this long fades the force out (s).
     pub sim_timeout_s: f64,
-    /// The fade to zero (and back) takes this long (s).
-    pub fade_s: f64,
+    /// The fade to zero takes this long (s): short, so that the force is gone within
+    /// about 10 ms of the last sample (reliability.md, row 4).
+    pub fade_out_s: f64,
+    /// The fade back in takes this long (s): long, so that a returning device is not
+    /// jolted.
+    pub fade_in_s: f64,
     /// Run the passivity observer and controller.
     pub passivity: bool,
     /// The haptic loop's period (s): the rate limit and the fade advance by at most one
@@ -37,7 +41,8 @@ impl Default for OutputLimits {
             rate_limit_n_per_ms: 0.5,
             device_timeout_s: 0.005,
             sim_timeout_s: 0.1,
-            fade_s: 0.05,
+            fade_out_s: 0.005,
+            fade_in_s: 0.05,
             passivity: true,
             period_s: 0.001,
         }
@@ -152,11 +157,10 @@ impl OutputStage {
         // A late tick does not buy a bigger step: the fade and the rate limit move by at
         // most one period's worth per tick.
         let tick_dt = dt.min(l.period_s);
-        let rate = tick_dt / l.fade_s.max(1e-6);
         self.gain = if healthy {
-            (self.gain + rate).min(1.0)
+            (self.gain + tick_dt / l.fade_in_s.max(1e-6)).min(1.0)
         } else {
-            (self.gain - rate).max(0.0)
+            (self.gain - tick_dt / l.fade_out_s.max(1e-6)).max(0.0)
         };
         f *= self.gain;
         report.watchdog_gain = self.gain;
@@ -292,8 +296,9 @@ mod tests {
             t += 1e-3;
         }
         let gone = gone_at.expect("the force should fade to zero");
-        // Timeout 5 ms, fade 50 ms.
-        assert!(gone - 0.2 <= 0.005 + 0.05 + 2e-3, "{gone}");
+        // Timeout 5 ms, fade 5 ms (2 N is under what the rate limit moves in 5 ms): gone
+        // within 10 ms of the last sample.
+        assert!(gone - 0.2 <= 0.010 + 1e-3, "{gone}");
         // A stalled simulation (no model for 100 ms) fades too.
         let mut s = OutputStage::new(limits());
         settle(&mut s, f, 200);

@@ -24,7 +24,7 @@ use scalpel_proto::shm::{self, DeviceForce, DevicePose, LAYOUT_VERSION};
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
 
-use crate::device::{ForceStatus, HapticDevice};
+use crate::device::{DeviceSample, ForceStatus, HapticDevice};
 
 /// Tip positions farther than this from the scene origin are not a device's (m).
 const WORKSPACE_RADIUS_M: f64 = 10.0;
@@ -38,6 +38,8 @@ pub struct ShmDeviceCounters {
     pub rejected: AtomicU64,
     /// Forces that could not be sent (no shared memory left: a subscriber holds samples).
     pub send_failures: AtomicU64,
+    /// Receiving poses failed (the connection to the device broke).
+    pub receive_errors: AtomicU64,
 }
 
 /// Forces in flight from the haptic thread to the force-out thread.
@@ -142,6 +144,8 @@ fn send_forces(
     loop {
         // Woken by every force queued; the timeout only bounds how late a stop is seen.
         std::thread::park_timeout(Duration::from_millis(50));
+        // Read before draining: a force queued before the stop (the final zero) is sent.
+        let stopping = stop.load(Ordering::Acquire);
         while let Ok(message) = queued.pop() {
             let sent = match publisher.loan_uninit() {
                 Ok(sample) => sample.write_payload(message).send().is_ok(),
@@ -151,7 +155,7 @@ fn send_forces(
                 counters.send_failures.fetch_add(1, Ordering::Relaxed);
             }
         }
-        if stop.load(Ordering::Acquire) {
+        if stopping {
             return;
         }
     }
@@ -178,19 +182,32 @@ pub fn pose_of(sample: &DevicePose) -> Option<ToolPose> {
 }
 
 impl HapticDevice for ShmDevice {
-    fn sample(&mut self, _now_s: f64) -> Option<ToolPose> {
+    fn sample(&mut self, _now_s: f64) -> Option<DeviceSample> {
         let mut latest = None;
         // Drain: only the newest pose matters, older ones are already history.
-        while let Ok(Some(sample)) = self.poses.receive() {
-            let payload = *sample.payload();
-            match pose_of(&payload) {
-                Some(pose) => {
-                    latest = Some(pose);
-                    self.last_seq = payload.seq;
-                    self.counters.poses.fetch_add(1, Ordering::Relaxed);
+        loop {
+            match self.poses.receive() {
+                Ok(Some(sample)) => {
+                    let payload = *sample.payload();
+                    match pose_of(&payload) {
+                        Some(pose) => {
+                            latest = Some(DeviceSample {
+                                pose,
+                                seq: payload.seq,
+                                device_time_s: payload.device_time_ns as f64 * 1e-9,
+                            });
+                            self.last_seq = payload.seq;
+                            self.counters.poses.fetch_add(1, Ordering::Relaxed);
+                        }
+                        None => {
+                            self.counters.rejected.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
                 }
-                None => {
-                    self.counters.rejected.fetch_add(1, Ordering::Relaxed);
+                Ok(None) => break,
+                Err(_) => {
+                    self.counters.receive_errors.fetch_add(1, Ordering::Relaxed);
+                    break;
                 }
             }
         }

@@ -39,6 +39,26 @@ const JITTER_BINS: usize = 1000;
 const POSE_RING: usize = 256;
 /// Simulated time per simulation tick (s).
 pub(crate) const SIM_TICK_S: f64 = 1e-3;
+/// The simulation thread ticks this long after the haptic thread on the same 1 ms grid,
+/// so that it takes the pose the haptic thread has just read (and the frame it sends
+/// shows it) instead of one up to a millisecond old.
+const SIM_PHASE_S: f64 = 1e-4;
+
+/// A pose on its way from the haptic to the simulation thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct PoseIn {
+    /// The pose.
+    pub pose: ToolPose,
+    /// The device's sample counter.
+    pub seq: u64,
+    /// When the haptic thread took it (CLOCK_MONOTONIC, ns).
+    pub received_ns: u64,
+}
+
+/// The first point of the grid `origin + k·period` at or after `now`.
+fn next_on_grid(origin: f64, period: f64, now: f64) -> f64 {
+    origin + period * ((now - origin) / period).ceil().max(0.0)
+}
 /// Journal records in flight to the writer thread (a minute at 1 kHz).
 const JOURNAL_RING: usize = 1 << 16;
 
@@ -67,6 +87,9 @@ pub struct SimStatus {
     pub late_ticks: u64,
     /// Render frames sent over shared memory.
     pub frames_sent: u64,
+    /// Render frames that could not be sent (no shared memory free: renderers hold
+    /// every sample).
+    pub frames_failed: u64,
 }
 
 /// Counters the haptic thread keeps with atomics only; the main thread reads and resets the
@@ -127,6 +150,9 @@ impl HapticCounters {
             .collect();
         let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
         let quantile = |q: f64| {
+            if total == 0 {
+                return 0.0;
+            }
             let want = (q * total as f64).ceil() as u64;
             let mut seen = 0;
             for (k, &c) in counts.iter().enumerate() {
@@ -177,8 +203,8 @@ pub struct HapticWindow {
 pub struct StatusLine {
     /// Seconds since the start.
     pub uptime_s: f64,
-    /// The haptic loop.
-    pub haptic: HapticWindow,
+    /// The haptic loop (`None` when the scene has no haptics).
+    pub haptic: Option<HapticWindow>,
     /// The simulation.
     pub sim: SimStatus,
     /// A shared-memory device is connected (`None`: the device is in process).
@@ -248,6 +274,9 @@ pub struct StationParams {
     pub frame_hz: f64,
     /// Watch for a shared-memory device coming and going.
     pub monitor_device: bool,
+    /// Run the haptic thread (the scene's `haptics` feature); without it the simulation
+    /// runs with no tool.
+    pub haptics: bool,
 }
 
 /// Runs a station until `stop` is set, calling `report` with a status line every interval
@@ -264,7 +293,7 @@ pub fn run(
 ) -> anyhow::Result<RunSummary> {
     let mut warnings = Vec::new();
     let mut memory_locked = false;
-    let (pose_in, pose_out) = rtrb::RingBuffer::<ToolPose>::new(POSE_RING);
+    let (pose_in, pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
     let zero_model = ModelUpdate {
         model: LocalForceModel {
             f0_n: Vec3::zeros(),
@@ -278,6 +307,22 @@ pub fn run(
     let counters = Arc::new(HapticCounters::new());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (frames_tx, frames_rx) = std::sync::mpsc::channel();
+    // One server per station: the services are the station's.
+    match scalpel_proto::shm::station_nodes(&params.station) {
+        Ok(nodes) => {
+            if let Some(n) = nodes
+                .iter()
+                .find(|n| n.alive && n.name.starts_with("scalpel-server."))
+            {
+                anyhow::bail!(
+                    "station {} already has a running server (its node {} is alive): stop it, or give this one another `station` name",
+                    params.station,
+                    n.name
+                );
+            }
+        }
+        Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
+    }
     // The monitor also cleans up after any dead node (a killed viewer, a killed server of
     // this station before this one), so it runs whatever the device.
     let mut monitor = match DeviceMonitor::open(&params.station) {
@@ -319,30 +364,29 @@ pub fn run(
         stop.clone(),
         t0,
     )?;
-    let haptic_thread = spawn_haptic(
-        device,
-        HapticContext {
-            period_s: 1.0 / params.haptic_hz,
-            fifo_priority: params.fifo_priority,
-            limits: params.limits,
-            t0,
-        },
-        pose_in,
-        model_out,
-        counters.clone(),
-        stop.clone(),
-        ready_tx,
-    )?;
-    // Locked once the threads, their stacks and the hand-off buffers exist.
-    if params.lock_memory {
-        match realtime::lock_memory() {
-            Ok(()) => memory_locked = true,
-            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
-        }
-    }
+    let haptic_thread = if params.haptics {
+        Some(spawn_haptic(
+            device,
+            HapticContext {
+                period_s: 1.0 / params.haptic_hz,
+                fifo_priority: params.fifo_priority,
+                limits: params.limits,
+                t0,
+            },
+            pose_in,
+            model_out,
+            counters.clone(),
+            stop.clone(),
+            ready_tx,
+        )?)
+    } else {
+        drop((device, pose_in, model_out, ready_tx));
+        None
+    };
     let mut fifo_priority = 0;
-    let device_error = match ready_rx.recv() {
-        Ok(ready) => {
+    let device_error = match (&haptic_thread, ready_rx.recv()) {
+        (None, _) => None,
+        (Some(_), Ok(ready)) => {
             match ready.fifo {
                 Ok(p) => fifo_priority = p,
                 Err(e) => warnings.push(format!(
@@ -351,11 +395,29 @@ pub fn run(
             }
             ready.device.err()
         }
-        Err(_) => Some("the haptic thread ended before it started".to_string()),
+        (Some(_), Err(_)) => Some("the haptic thread ended before it started".to_string()),
     };
+    let mut frames_running = false;
+    if params.frame_hz > 0.0 {
+        match frames_rx.recv() {
+            Ok(Ok(())) => frames_running = true,
+            Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
+            Err(_) => {}
+        }
+    }
+    // Locked once the threads, their stacks, the device's and the frames' shared memory
+    // and the hand-off buffers exist.
+    if params.lock_memory && device_error.is_none() {
+        match realtime::lock_memory() {
+            Ok(()) => memory_locked = true,
+            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
+        }
+    }
     if let Some(e) = &device_error {
         stop.store(true, Ordering::Relaxed);
-        let _ = haptic_thread.join();
+        if let Some(h) = haptic_thread {
+            let _ = h.join();
+        }
         let _ = sim_thread.join();
         sim_done.store(true, Ordering::Release);
         if let Some(w) = writer {
@@ -363,13 +425,44 @@ pub fn run(
         }
         anyhow::bail!("cannot open the device: {e}");
     }
-    if params.frame_hz > 0.0 {
-        match frames_rx.recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
-            Err(_) => {}
-        }
+    let mut running = vec!["simulation thread".to_string()];
+    let mut off = Vec::new();
+    if haptic_thread.is_some() {
+        running.push(format!(
+            "haptic thread {} Hz ({}, memory {})",
+            params.haptic_hz,
+            if fifo_priority > 0 {
+                format!("SCHED_FIFO {fifo_priority}")
+            } else {
+                "normal scheduling".into()
+            },
+            if memory_locked {
+                "locked"
+            } else {
+                "not locked"
+            }
+        ));
+        running.push(if params.monitor_device {
+            "shared-memory device with its force-out thread".into()
+        } else {
+            "in-process scripted device".into()
+        });
+    } else {
+        off.push("haptic thread (the scene has no haptics)".to_string());
     }
+    if frames_running {
+        running.push(format!("render frames {} Hz", params.frame_hz));
+    } else {
+        off.push("render frames".into());
+    }
+    if monitor.is_some() {
+        running.push("shared-memory monitor".into());
+    }
+    off.push("network endpoint (not in this build yet)".into());
+    report(&StationReport::Event(StationEvent {
+        uptime_s: realtime::monotonic_s() - t0,
+        event: format!("runs: {}; off: {}", running.join(", "), off.join(", ")),
+    }));
     for w in &warnings {
         report(&StationReport::Event(StationEvent {
             uptime_s: realtime::monotonic_s() - t0,
@@ -400,7 +493,9 @@ pub fn run(
         if now >= next {
             let line = StatusLine {
                 uptime_s: now - t0,
-                haptic: counters.take_window(now - window_start),
+                haptic: params
+                    .haptics
+                    .then(|| counters.take_window(now - window_start)),
                 sim: *status_out.read(),
                 device_connected: monitor
                     .as_ref()
@@ -412,11 +507,14 @@ pub fn run(
             window_start = now;
             next += params.status_interval_s;
         }
-        if haptic_thread.is_finished() || sim_thread.is_finished() {
+        if haptic_thread.as_ref().is_some_and(|h| h.is_finished()) || sim_thread.is_finished() {
             stop.store(true, Ordering::Relaxed);
         }
     }
-    let haptic_result = haptic_thread.join();
+    let haptic_result = match haptic_thread {
+        Some(h) => h.join(),
+        None => Ok(()),
+    };
     let sim_result = sim_thread.join();
     sim_done.store(true, Ordering::Release);
     let sim_status = *status_out.read();
@@ -470,7 +568,7 @@ struct HapticReady {
 fn spawn_haptic(
     device: DeviceFactory,
     ctx: HapticContext,
-    mut poses: rtrb::Producer<ToolPose>,
+    mut poses: rtrb::Producer<PoseIn>,
     mut models: triple_buffer::Output<ModelUpdate>,
     counters: Arc<HapticCounters>,
     stop: Arc<AtomicBool>,
@@ -503,7 +601,9 @@ fn spawn_haptic(
             let mut state = HapticState::new(ctx.limits);
             // The schedule starts once this thread runs (spawning and the scheduler change
             // take a while); the device's clock still counts from the station's start.
-            let mut deadline = realtime::monotonic_s();
+            // On the station's 1 ms grid (the simulation ticks just after it).
+            let mut deadline =
+                next_on_grid(ctx.t0, ctx.period_s, realtime::monotonic_s()) - ctx.period_s;
             while !stop.load(Ordering::Relaxed) {
                 deadline += ctx.period_s;
                 realtime::sleep_until(deadline);
@@ -511,9 +611,9 @@ fn spawn_haptic(
                 let lateness = (wall - deadline).max(0.0);
                 let missed = lateness >= ctx.period_s;
                 if missed {
-                    // Woke a whole period late: start the schedule again from now rather
-                    // than running the missed ticks back to back.
-                    deadline = wall;
+                    // Woke a whole period late: go on from the grid point now rather than
+                    // running the missed ticks back to back.
+                    deadline = next_on_grid(ctx.t0, ctx.period_s, wall) - ctx.period_s;
                 }
                 state.tick(
                     wall - ctx.t0,
@@ -542,7 +642,10 @@ fn spawn_haptic(
 /// The haptic loop's state between ticks.
 pub struct HapticState {
     stage: OutputStage,
+    /// Device time (s) and position of the last sample.
     last_pose: Option<(f64, Vec3)>,
+    /// Device velocity from its last two samples, held between samples.
+    velocity: Vec3,
     device_seen: Option<f64>,
     sim_seen: Option<f64>,
     last_model_tick: u64,
@@ -554,6 +657,7 @@ impl HapticState {
         Self {
             stage: OutputStage::new(limits),
             last_pose: None,
+            velocity: Vec3::zeros(),
             device_seen: None,
             sim_seen: None,
             last_model_tick: 0,
@@ -570,25 +674,40 @@ impl HapticState {
         lateness: f64,
         missed: bool,
         device: &mut dyn HapticDevice,
-        poses: &mut rtrb::Producer<ToolPose>,
+        poses: &mut rtrb::Producer<PoseIn>,
         models: &mut triple_buffer::Output<ModelUpdate>,
         counters: &HapticCounters,
     ) {
-        let mut velocity = Vec3::zeros();
         let mut x = self.last_pose.map_or(Vec3::zeros(), |(_, x)| x);
-        if let Some(pose) = device.sample(now) {
-            if let Some((t, last_x)) = self.last_pose
-                && now > t
-            {
-                velocity = (pose.tip_m - last_x) / (now - t);
-            }
-            x = pose.tip_m;
-            self.last_pose = Some((now, x));
+        if let Some(sample) = device.sample(now) {
+            // Velocity on the device's clock: a device and this loop both at 1 kHz drift in
+            // phase, so some ticks get no sample and some two; the receive times would
+            // make that look like stops and jumps.
+            self.velocity = match self.last_pose {
+                Some((t, last_x)) if sample.device_time_s > t => {
+                    (sample.pose.tip_m - last_x) / (sample.device_time_s - t)
+                }
+                _ => Vec3::zeros(),
+            };
+            x = sample.pose.tip_m;
+            self.last_pose = Some((sample.device_time_s, x));
             self.device_seen = Some(now);
-            if poses.push(pose).is_err() {
+            let received_ns = (realtime::monotonic_s() * 1e9) as u64;
+            if poses
+                .push(PoseIn {
+                    pose: sample.pose,
+                    seq: sample.seq,
+                    received_ns,
+                })
+                .is_err()
+            {
                 counters.ring_full.fetch_add(1, Ordering::Relaxed);
             }
+        } else if self.device_seen.is_none_or(|t| now - t > 0.005) {
+            // Silent device: no motion to feed the passivity observer.
+            self.velocity = Vec3::zeros();
         }
+        let velocity = self.velocity;
         let update = *models.read();
         if update.tick != self.last_model_tick {
             self.last_model_tick = update.tick;
@@ -649,7 +768,7 @@ pub fn drive_haptic_ticks(
     ticks: usize,
     mut between: impl FnMut(),
 ) -> f64 {
-    let (mut pose_in, mut pose_out) = rtrb::RingBuffer::<ToolPose>::new(POSE_RING);
+    let (mut pose_in, mut pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
     let first = ModelUpdate { model, tick: 0 };
     let (mut model_in, mut model_out) = triple_buffer::triple_buffer(&first);
     let counters = HapticCounters::new();
@@ -705,6 +824,13 @@ fn spawn_journal_writer(
         })
 }
 
+/// What the frame sent before a tick reports of the tick before it.
+#[derive(Debug, Clone, Copy, Default)]
+struct LastTick {
+    force_n: Vec3,
+    cutting: bool,
+}
+
 /// The simulation thread's render frames.
 struct SimFrames {
     station: String,
@@ -726,7 +852,7 @@ fn frame_interval_ticks(frame_hz: f64) -> u64 {
 #[allow(clippy::too_many_arguments)]
 fn spawn_sim(
     mut sim: Simulation,
-    mut poses: rtrb::Consumer<ToolPose>,
+    mut poses: rtrb::Consumer<PoseIn>,
     mut models: triple_buffer::Input<ModelUpdate>,
     mut status: triple_buffer::Input<SimStatus>,
     mut journal: SimJournal,
@@ -746,66 +872,81 @@ fn spawn_sim(
                     .send(opened.as_ref().map(|_| ()).map_err(|e| e.to_string()));
                 publisher = opened.ok();
             }
-            let mut deadline = t0;
+            // On the station's 1 ms grid, just after the haptic thread.
+            let mut deadline =
+                next_on_grid(t0, SIM_TICK_S, realtime::monotonic_s()) + SIM_PHASE_S - SIM_TICK_S;
             let mut figures = SimStatus::default();
             let mut last_tip: Option<Vec3> = None;
-            let mut pose = None;
+            let mut pose: Option<PoseIn> = None;
+            let mut last = LastTick::default();
             while !stop.load(Ordering::Relaxed) {
                 deadline += SIM_TICK_S;
                 realtime::sleep_until(deadline);
                 let started = realtime::monotonic_s();
                 if started - deadline > 10.0 * SIM_TICK_S {
-                    // Far behind (a slow scene): pace from now instead of catching up.
-                    deadline = started;
+                    // Far behind (a slow scene): go on from the grid rather than catching
+                    // up.
+                    deadline = next_on_grid(t0, SIM_TICK_S, started) + SIM_PHASE_S - SIM_TICK_S;
                 }
                 while let Ok(p) = poses.pop() {
                     pose = Some(p);
                 }
-                sim.set_tool(pose);
+                let tool = pose.map(|p| p.pose);
+                // The frame goes out first: it shows the pose just taken, on the surface
+                // of the last tick (a tick of cutting takes a few hundred microseconds
+                // that the frame need not wait for).
+                if let Some(p) = &mut publisher
+                    && (figures.ticks + 1) % frames.every_ticks == 0
+                {
+                    let info = FrameInfo {
+                        sim_tick: figures.ticks,
+                        tool,
+                        pose_seq: pose.map_or(0, |p| p.seq),
+                        pose_received_ns: pose.map_or(0, |p| p.received_ns),
+                        force_n: last.force_n,
+                        cutting: last.cutting,
+                        cut_length_mm: figures.cut_length_mm,
+                    };
+                    // A frame that cannot be sent (renderers holding every sample) is
+                    // skipped and counted; the next one is a whole new frame anyway.
+                    match p.publish(&sim, &info) {
+                        Ok(()) => figures.frames_sent = p.frames(),
+                        Err(_) => figures.frames_failed += 1,
+                    }
+                }
+                sim.set_tool(tool);
                 if let Some(records) = &mut journal.records {
                     let record = TickRecord {
                         tick: figures.ticks + 1,
-                        pose,
+                        pose: tool,
                     };
                     if records.push(record).is_err() {
                         journal.dropped.fetch_add(1, Ordering::Relaxed);
                     }
                 }
                 let report = sim.tick(SIM_TICK_S, &mut Unobserved);
-                let tip = pose.map(|p| p.tip_m);
+                let tip = tool.map(|p| p.tip_m);
+                let cutting = report
+                    .cut
+                    .as_ref()
+                    .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting);
                 if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, last_tip)
-                    && cut.in_tissue
-                    && cut.force.phase == CutPhase::Cutting
+                    && cutting
                     && !cut.withdrawing
                 {
                     figures.cut_length_mm += (tip - last).norm() * 1e3;
                 }
                 last_tip = tip;
+                last = LastTick {
+                    force_n: report.tool_force_n,
+                    cutting,
+                };
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
                 figures.ticks += 1;
                 figures.sim_force_n = report.tool_force_n.norm();
                 figures.active_points = report.active_points;
                 figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
                 figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
-                if let Some(p) = &mut publisher
-                    && figures.ticks % frames.every_ticks == 0
-                {
-                    let info = FrameInfo {
-                        sim_tick: figures.ticks,
-                        tool: pose,
-                        force_n: report.tool_force_n,
-                        cutting: report
-                            .cut
-                            .as_ref()
-                            .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting),
-                        cut_length_mm: figures.cut_length_mm,
-                    };
-                    // A frame that cannot be sent (renderers holding every sample) is
-                    // skipped; the next one is a whole new frame anyway.
-                    if p.publish(&sim, &info).is_ok() {
-                        figures.frames_sent = p.frames();
-                    }
-                }
                 models.write(ModelUpdate {
                     model: sim.local_force_model(),
                     tick: figures.ticks,

@@ -29,6 +29,8 @@ fn frames_arrive_whole_and_grow_past_their_first_room() {
                 &FrameInfo {
                     sim_tick: k,
                     tool: Some(tool),
+                    pose_seq: k,
+                    pose_received_ns: 1000 * k,
                     force_n: Vec3::new(0.0, 0.0, 1.5),
                     cutting: false,
                     cut_length_mm: 0.0,
@@ -42,6 +44,8 @@ fn frames_arrive_whole_and_grow_past_their_first_room() {
         .expect("a frame");
     assert_eq!(frame.header.frame, 3, "the newest frame");
     assert_eq!(frame.header.sim_tick, 3);
+    assert_eq!(frame.header.pose_seq, 3);
+    assert_eq!(frame.header.pose_received_ns, 3000);
     assert_eq!(frame.positions.len(), surface.positions.len());
     assert_eq!(frame.triangles.len(), surface.triangles.len());
     for (got, want) in frame.positions.iter().zip(&surface.positions) {
@@ -67,6 +71,8 @@ fn frames_arrive_whole_and_grow_past_their_first_room() {
     let info = FrameInfo {
         sim_tick: 4,
         tool: None,
+        pose_seq: 0,
+        pose_received_ns: 0,
         force_n: Vec3::zeros(),
         cutting: false,
         cut_length_mm: 0.0,

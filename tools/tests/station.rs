@@ -12,10 +12,11 @@ use common::conformance::{self, ConformanceCut, TraceRow};
 use common::station::{
     self, Running, json, scalpel, start_server, start_server_with, unique_station,
 };
-use scalpel_server::device::{DeviceFactory, ForceStatus, HapticDevice, ScriptedDevice};
+use scalpel_server::device::{
+    DeviceFactory, DeviceSample, ForceStatus, HapticDevice, ScriptedDevice,
+};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::{StationParams, run};
-use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
 
 /// The liver's force limit (scene default) and the output stage's rate limit per tick.
@@ -32,7 +33,7 @@ struct Recording {
 }
 
 impl HapticDevice for Recording {
-    fn sample(&mut self, now_s: f64) -> Option<ToolPose> {
+    fn sample(&mut self, now_s: f64) -> Option<DeviceSample> {
         self.now_s = now_s;
         self.sampled = true;
         self.device.sample(now_s)
@@ -83,6 +84,7 @@ fn conformance_of_the_in_process_scripted_device() {
         station: unique_station("inproc"),
         frame_hz: 0.0,
         monitor_device: false,
+        haptics: true,
     };
     let stop = Arc::new(AtomicBool::new(false));
     let timer = stop.clone();
@@ -407,5 +409,72 @@ fn xvfb_the_viewer_window_draws_live_frames() {
         String::from_utf8_lossy(&out.stderr)
     );
     server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Two stations side by side on one machine, isolated by name: each server sees only its
+/// own device, and a second server on a taken station name is refused.
+#[test]
+fn stations_run_side_by_side_isolated_by_name() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("twostations");
+    let a = unique_station("a");
+    let b = unique_station("b");
+    let mut server_a = start_server(&a, &dir, 120.0);
+    let mut server_b = start_server(&b, &dir, 120.0);
+    server_a.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    server_b.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    // A device for station a only.
+    let mut command = scalpel();
+    command.args(["mock-device", "--station", &a, "--loop", "--duration", "60"]);
+    let mut mock_a = Running::start(command);
+    server_a.wait_for(Duration::from_secs(10), |l| {
+        json(l)["event"] == "device connected"
+    });
+    // Station b has seen no device all along.
+    let line =
+        json(&server_b.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+    assert_eq!(line["device_connected"], false, "{line}");
+    assert!(
+        !server_b
+            .seen
+            .iter()
+            .any(|l| json(l)["event"] == "device connected"),
+        "station b saw station a's device"
+    );
+    // Its own device next; then station a's device dies, and only station a notices.
+    let mut command = scalpel();
+    command.args(["mock-device", "--station", &b, "--loop", "--duration", "60"]);
+    let _mock_b = Running::start(command);
+    server_b.wait_for(Duration::from_secs(10), |l| {
+        json(l)["event"] == "device connected"
+    });
+    mock_a.kill_9();
+    server_a.wait_for(Duration::from_secs(5), |l| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("device lost"))
+    });
+    let line =
+        json(&server_b.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+    assert_eq!(line["device_connected"], true, "{line}");
+    assert!(
+        !server_b.seen.iter().any(|l| json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("device lost"))),
+        "station b lost a device it never had"
+    );
+    // A second server on a taken station name is refused, and says why.
+    let config = dir.join(format!("{a}.toml"));
+    let out = std::process::Command::new(station::server_binary())
+        .arg(&config)
+        .args(["--duration", "5"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("already has a running server"), "{stderr}");
+    server_a.kill_9();
+    server_b.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }

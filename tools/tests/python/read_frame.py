@@ -14,7 +14,7 @@ import iceoryx2 as iox2
 
 
 class FrameHeader(ctypes.Structure):
-    """docs/PROTOCOL.md, "Render frames": the user header, 104 bytes, alignment 8."""
+    """docs/PROTOCOL.md, "Render frames": the user header, 120 bytes, alignment 8."""
 
     _fields_ = [
         ("layout_version", ctypes.c_uint32),
@@ -22,6 +22,8 @@ class FrameHeader(ctypes.Structure):
         ("frame", ctypes.c_uint64),
         ("sim_tick", ctypes.c_uint64),
         ("server_time_ns", ctypes.c_uint64),
+        ("pose_seq", ctypes.c_uint64),
+        ("pose_received_ns", ctypes.c_uint64),
         ("n_vertices", ctypes.c_uint32),
         ("n_triangles", ctypes.c_uint32),
         ("positions_offset", ctypes.c_uint32),
@@ -43,7 +45,7 @@ class FrameHeader(ctypes.Structure):
 def main() -> int:
     station = sys.argv[1]
     timeout_s = float(sys.argv[2]) if len(sys.argv) > 2 else 20.0
-    assert ctypes.sizeof(FrameHeader) == 104 and ctypes.alignment(FrameHeader) == 8
+    assert ctypes.sizeof(FrameHeader) == 120 and ctypes.alignment(FrameHeader) == 8
 
     iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
     node = (
