@@ -23,6 +23,10 @@ pub struct Frame {
     pub triangles: Vec<[u32; 3]>,
     /// Material of each triangle (`shm::MATERIAL_*`).
     pub materials: Vec<u8>,
+    /// When this reader took the frame from shared memory (CLOCK_MONOTONIC, ns; 0 for a
+    /// frame decoded from bytes): with the header's `pose_received_ns`, the frame's
+    /// pose-to-renderer latency.
+    pub received_ns: u64,
 }
 
 impl Frame {
@@ -64,8 +68,15 @@ impl Frame {
             normals: f32s(layout.normals, layout.n_vertices),
             triangles,
             materials: bytes[layout.materials..layout.materials + layout.n_triangles].to_vec(),
+            received_ns: 0,
         })
     }
+}
+
+/// CLOCK_MONOTONIC now (ns), the clock the server stamps frames with.
+pub fn monotonic_ns() -> u64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
 }
 
 /// A renderer's attachment to a station's frames.
@@ -100,7 +111,10 @@ impl FrameReader {
         loop {
             match self.frames.receive() {
                 Ok(Some(sample)) => {
-                    newest = Some(Frame::decode(sample.user_header(), sample.payload())?)
+                    let received_ns = monotonic_ns();
+                    let mut frame = Frame::decode(sample.user_header(), sample.payload())?;
+                    frame.received_ns = received_ns;
+                    newest = Some(frame);
                 }
                 Ok(None) => return Ok(newest),
                 Err(e) => return Err(shm::iceoryx("receiving", "a frame", e)),

@@ -3,8 +3,18 @@
 //!
 //! "True 1 kHz": sample k is sent at t0 + k·period on the monotonic clock, sleeping to each
 //! absolute deadline (never spinning), under SCHED_FIFO when the host permits it. The pose
-//! of sample k is the script at exactly k·period, so a run is the same trajectory however
-//! late a wake-up was; late wake-ups are counted, not hidden.
+//! of sample k is the script at exactly k·period; a wake-up a whole period late skips the
+//! missed samples (a device does not send a backlog in a burst) and is counted.
+//!
+//! Its clock and the server's haptic loop both run at 1 kHz from unrelated origins, so a
+//! pose could wait anything up to a millisecond for the haptic tick that takes it. The
+//! mock therefore locks its phase once forces flow: from when the answers to its poses
+//! arrive it finds the server's tick and moves its own schedule to send each pose
+//! [`PHASE_LEAD_S`] before it (once, after [`PHASE_LOCK_AFTER`] samples).
+//!
+//! Like a real device it does not hold a force the server stopped sending: the force it
+//! renders (and records) is the newest received, or zero once none has come for
+//! [`DEVICE_WATCHDOG_S`].
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -14,6 +24,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use scalpel_proto::shm::{self, DeviceForce, DevicePose, LAYOUT_VERSION, ShmError};
 use scalpel_sim::pipeline::CutScript;
+
+/// The mock sends its pose this long before the server's haptic tick (s).
+pub const PHASE_LEAD_S: f64 = 2e-4;
+/// Samples after which the phase is locked (forces have been flowing for a while).
+pub const PHASE_LOCK_AFTER: u64 = 300;
+
+/// Send times kept for the latency (samples).
+const POSE_TIMES: usize = 256;
+
+/// No force for this long and the device renders zero (s).
+pub const DEVICE_WATCHDOG_S: f64 = 0.010;
+
+pub use crate::frames::monotonic_ns;
 
 /// How to run the mock device.
 #[derive(Debug, Clone)]
@@ -26,6 +49,8 @@ pub struct MockOptions {
     pub looping: bool,
     /// SCHED_FIFO priority to ask for (0: normal scheduling).
     pub fifo_priority: u8,
+    /// Lock the sending phase to just before the server's haptic tick.
+    pub phase_lock: bool,
 }
 
 impl Default for MockOptions {
@@ -35,6 +60,7 @@ impl Default for MockOptions {
             duration_s: None,
             looping: false,
             fifo_priority: 70,
+            phase_lock: true,
         }
     }
 }
@@ -48,8 +74,11 @@ pub struct MockTick {
     pub seq: u64,
     /// Blade tip sent (m).
     pub tip_m: [f64; 3],
-    /// The newest force received by now (N); zero before the first.
+    /// The force the device renders (N): the newest received, or zero before the first
+    /// and once none has come for [`DEVICE_WATCHDOG_S`].
     pub force_n: [f64; 3],
+    /// Age of the newest force received (s; infinite before the first).
+    pub force_age_s: f64,
     /// Its flags (`shm::FORCE_*`).
     pub force_flags: u32,
     /// The server's haptic tick of that force (0: none yet).
@@ -58,15 +87,23 @@ pub struct MockTick {
     pub pose_seq: u64,
     /// Wake-up lateness of this tick (s).
     pub lateness_s: f64,
+    /// Pose-to-force latency of the newest pose the server answered this tick (s).
+    pub latency_s: Option<f64>,
 }
 
 /// What a run did.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct MockSummary {
     /// Poses sent.
     pub ticks: u64,
     /// Ticks that woke a whole period or more late.
     pub late_ticks: u64,
+    /// Samples skipped because of those late wake-ups.
+    pub skipped: u64,
+    /// Receiving forces failed.
+    pub receive_errors: u64,
+    /// Ticks whose force was older than the device watchdog (rendered as zero).
+    pub stale_ticks: u64,
     /// Forces received.
     pub forces_received: u64,
     /// Forces dropped: not of this layout version, or not finite.
@@ -82,6 +119,35 @@ pub struct MockSummary {
     pub lag_p50_ticks: u64,
     /// The same, 99th percentile.
     pub lag_p99_ticks: u64,
+    /// Pose-to-force latencies (s): from the device stamping a pose to the server sending
+    /// the first force computed with it (iceoryx2's delivery adds microseconds).
+    pub latencies_s: Vec<f64>,
+    /// How far the phase lock moved the schedule (s), if it did.
+    pub phase_shift_s: Option<f64>,
+}
+
+/// The median of phases on a circle of circumference `period`: the median of the phases
+/// unrolled from the middle of their widest gap.
+fn circular_median(phases: &[f64], period: f64) -> f64 {
+    let mut p: Vec<f64> = phases.iter().map(|x| x.rem_euclid(period)).collect();
+    p.sort_by(f64::total_cmp);
+    let n = p.len();
+    // The widest gap between neighbours (the last to the first wraps).
+    let (mut cut, mut widest) = (0, p[0] + period - p[n - 1]);
+    for i in 1..n {
+        if p[i] - p[i - 1] > widest {
+            widest = p[i] - p[i - 1];
+            cut = i;
+        }
+    }
+    let mut unrolled: Vec<f64> = (0..n)
+        .map(|j| {
+            let x = p[(cut + j) % n];
+            if (cut + j) >= n { x + period } else { x }
+        })
+        .collect();
+    unrolled.sort_by(f64::total_cmp);
+    unrolled[n / 2].rem_euclid(period)
 }
 
 /// Lags counted up to this many ticks (the last bin collects the rest).
@@ -148,7 +214,14 @@ impl MockDevice {
         });
         let mut tick = MockTick::default();
         let mut lags = [0u64; LAG_BINS];
-        let t0 = Instant::now();
+        let mut newest: Option<(DeviceForce, Instant)> = None;
+        let mut t0 = Instant::now();
+        let t0_ns = monotonic_ns();
+        // Arrival phases (s into the mock's period) of new forces, for the phase lock.
+        let mut arrivals: Vec<f64> = Vec::with_capacity(PHASE_LOCK_AFTER as usize);
+        let mut last_force_tick = 0;
+        let mut pose_times = [(0u64, 0u64); POSE_TIMES];
+        let mut last_answered = 0;
         let mut k: u64 = 0;
         while !stop.load(Ordering::Relaxed) {
             let t = k as f64 * period;
@@ -163,6 +236,14 @@ impl MockDevice {
             let lateness = Instant::now()
                 .saturating_duration_since(deadline)
                 .as_secs_f64();
+            if lateness >= period {
+                // A whole period late: go on from now, skipping the missed samples.
+                summary.late_ticks += 1;
+                let behind = (lateness / period).floor() as u64;
+                summary.skipped += behind;
+                k += behind;
+                continue;
+            }
             let script_t = if options.looping && script.duration_s() > 0.0 {
                 t.rem_euclid(script.duration_s())
             } else {
@@ -175,26 +256,68 @@ impl MockDevice {
                 layout_version: LAYOUT_VERSION,
                 flags: 0,
                 seq: k,
-                device_time_ns: t0.elapsed().as_nanos() as u64,
+                device_time_ns: monotonic_ns(),
                 tip_m: pose.tip_m.into(),
                 orientation_xyzw: [q.x, q.y, q.z, q.w],
             };
+            pose_times[(k % POSE_TIMES as u64) as usize] = (k, sample.device_time_ns);
             self.poses
                 .send_copy(sample)
                 .map_err(|e| shm::iceoryx("sending a pose to", "the station", e))?;
-            while let Ok(Some(received)) = self.forces.receive() {
-                let f = *received.payload();
-                if f.layout_version != LAYOUT_VERSION || f.force_n.iter().any(|c| !c.is_finite()) {
-                    summary.forces_rejected += 1;
-                    continue;
+            self.drain_forces(&mut summary, &mut newest);
+            // Pose-to-force latency from the timestamps: the server stamps when it sent the
+            // force that first used a pose (no need to sit and watch for it).
+            tick.latency_s = None;
+            if let Some((f, _)) = newest
+                && f.pose_seq > last_answered
+            {
+                last_answered = f.pose_seq;
+                let (seq, sent_ns) = pose_times[(f.pose_seq % POSE_TIMES as u64) as usize];
+                if seq == f.pose_seq && f.sent_time_ns >= sent_ns {
+                    tick.latency_s = Some((f.sent_time_ns - sent_ns) as f64 * 1e-9);
                 }
-                summary.forces_received += 1;
-                let magnitude = f.force_n.iter().map(|c| c * c).sum::<f64>().sqrt();
-                summary.max_force_n = summary.max_force_n.max(magnitude);
-                tick.force_n = f.force_n;
-                tick.force_flags = f.flags;
-                tick.server_tick = f.tick;
-                tick.pose_seq = f.pose_seq;
+            }
+            // Latencies count once the phase is locked (before, they measure where the
+            // two clocks happened to start).
+            if let Some(l) = tick.latency_s
+                && (k > PHASE_LOCK_AFTER || !options.phase_lock)
+            {
+                summary.latencies_s.push(l);
+            }
+            if let Some((f, _)) = newest
+                && f.tick != last_force_tick
+            {
+                last_force_tick = f.tick;
+                if k > PHASE_LOCK_AFTER / 2 && k <= PHASE_LOCK_AFTER && f.tick_time_ns > t0_ns {
+                    let since = (f.tick_time_ns - t0_ns) as f64 * 1e-9;
+                    arrivals.push(since.rem_euclid(period));
+                }
+            }
+            if k == PHASE_LOCK_AFTER && options.phase_lock && arrivals.len() > 10 {
+                // The server's ticks land at a steady phase of our period (a circular
+                // median: phases wrap at the period).
+                let phase = circular_median(&arrivals, period);
+                let shift = (phase - PHASE_LEAD_S).rem_euclid(period);
+                t0 += Duration::from_secs_f64(shift);
+                summary.phase_shift_s = Some(shift);
+            }
+            match newest {
+                Some((f, at)) => {
+                    tick.force_age_s = at.elapsed().as_secs_f64();
+                    tick.force_flags = f.flags;
+                    tick.server_tick = f.tick;
+                    tick.pose_seq = f.pose_seq;
+                    if tick.force_age_s <= DEVICE_WATCHDOG_S {
+                        tick.force_n = f.force_n;
+                    } else {
+                        tick.force_n = [0.0; 3];
+                        summary.stale_ticks += 1;
+                    }
+                }
+                None => {
+                    tick.force_age_s = f64::INFINITY;
+                    tick.force_n = [0.0; 3];
+                }
             }
             if tick.pose_seq > 0 {
                 lags[((k - tick.pose_seq.min(k)) as usize).min(LAG_BINS - 1)] += 1;
@@ -204,7 +327,6 @@ impl MockDevice {
             tick.tip_m = sample.tip_m;
             tick.lateness_s = lateness;
             summary.ticks += 1;
-            summary.late_ticks += u64::from(lateness >= period);
             on_tick(&tick);
         }
         summary.rate_hz = summary.ticks as f64 / t0.elapsed().as_secs_f64().max(1e-9);
@@ -214,8 +336,41 @@ impl MockDevice {
     }
 }
 
-/// Asks for SCHED_FIFO; returns the priority granted (0: not permitted, normal scheduling).
-fn make_fifo(priority: u8) -> u8 {
+impl MockDevice {
+    /// Takes every force waiting; keeps the newest good one with when it arrived.
+    fn drain_forces(
+        &mut self,
+        summary: &mut MockSummary,
+        newest: &mut Option<(DeviceForce, Instant)>,
+    ) {
+        loop {
+            match self.forces.receive() {
+                Ok(Some(received)) => {
+                    let f = *received.payload();
+                    if f.layout_version != LAYOUT_VERSION
+                        || f.force_n.iter().any(|c| !c.is_finite())
+                    {
+                        summary.forces_rejected += 1;
+                        continue;
+                    }
+                    summary.forces_received += 1;
+                    let magnitude = f.force_n.iter().map(|c| c * c).sum::<f64>().sqrt();
+                    summary.max_force_n = summary.max_force_n.max(magnitude);
+                    *newest = Some((f, Instant::now()));
+                }
+                Ok(None) => return,
+                Err(_) => {
+                    summary.receive_errors += 1;
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// Asks for SCHED_FIFO for the calling thread; returns the priority granted (0: not
+/// permitted, normal scheduling).
+pub fn make_fifo(priority: u8) -> u8 {
     use thread_priority::{
         RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
         set_thread_priority_and_policy, thread_native_id,

@@ -81,6 +81,13 @@ pub struct DeviceForce {
     pub tick: u64,
     /// `seq` of the last pose the server used (0: none yet).
     pub pose_seq: u64,
+    /// The server's CLOCK_MONOTONIC at the haptic tick that computed this force (ns): a
+    /// device can put its own sampling just before the server's ticks.
+    pub tick_time_ns: u64,
+    /// The server's CLOCK_MONOTONIC just before it sent this sample (ns): with the pose's
+    /// `device_time_ns`, a device on the machine gets its pose-to-force latency without
+    /// having to watch for the answer.
+    pub sent_time_ns: u64,
     /// Force on the user's hand in the scene's frame (N), after the output stage: finite,
     /// at most the station's F_max, rate-limited.
     pub force_n: [f64; 3],
@@ -423,7 +430,7 @@ mod tests {
     fn layouts_have_the_documented_sizes() {
         // docs/PROTOCOL.md gives these sizes; a change here is a protocol change.
         assert_eq!(size_of::<DevicePose>(), 80);
-        assert_eq!(size_of::<DeviceForce>(), 48);
+        assert_eq!(size_of::<DeviceForce>(), 64);
         assert_eq!(size_of::<FrameHeader>(), 120);
         assert_eq!(align_of::<DevicePose>(), 8);
         assert_eq!(align_of::<FrameHeader>(), 8);

@@ -101,6 +101,9 @@ pub struct RateConfig {
 pub struct RealtimeConfig {
     /// SCHED_FIFO priority for the haptic thread (1–99); 0 keeps the normal scheduler.
     pub fifo_priority: i32,
+    /// SCHED_FIFO priority for the simulation thread (below the haptic thread's); 0 keeps
+    /// the normal scheduler.
+    pub sim_fifo_priority: i32,
     /// Lock the process's memory (mlockall) so the haptic loop never waits on a page fault.
     pub lock_memory: bool,
 }
@@ -162,6 +165,7 @@ impl Default for RealtimeConfig {
     fn default() -> Self {
         Self {
             fifo_priority: 80,
+            sim_fifo_priority: 60,
             lock_memory: true,
         }
     }
@@ -244,6 +248,13 @@ impl ServerConfig {
             f64::from(p),
             (0..=99).contains(&p),
             "0 (normal scheduling) or 1–99",
+        )?;
+        let q = self.realtime.sim_fifo_priority;
+        range(
+            "realtime.sim_fifo_priority",
+            f64::from(q),
+            (0..=99).contains(&q) && (q == 0 || p == 0 || q < p),
+            "0 (normal scheduling) or 1–99, below realtime.fifo_priority",
         )?;
         let o = &self.output;
         range(

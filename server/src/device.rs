@@ -14,6 +14,8 @@ pub struct ForceStatus {
     pub faded: bool,
     /// The request was not finite and was replaced by zero.
     pub nan_guarded: bool,
+    /// CLOCK_MONOTONIC at the haptic tick (ns).
+    pub tick_time_ns: u64,
 }
 
 /// One sample of a device.

@@ -82,6 +82,7 @@ fn run() -> anyhow::Result<()> {
     let params = StationParams {
         haptic_hz: config.rates.haptic_hz,
         fifo_priority: config.realtime.fifo_priority,
+        sim_fifo_priority: config.realtime.sim_fifo_priority,
         lock_memory: config.realtime.lock_memory,
         limits: OutputLimits {
             max_force_n: if o.max_force_n > 0.0 {

@@ -146,7 +146,8 @@ fn send_forces(
         std::thread::park_timeout(Duration::from_millis(50));
         // Read before draining: a force queued before the stop (the final zero) is sent.
         let stopping = stop.load(Ordering::Acquire);
-        while let Ok(message) = queued.pop() {
+        while let Ok(mut message) = queued.pop() {
+            message.sent_time_ns = (crate::realtime::monotonic_s() * 1e9) as u64;
             let sent = match publisher.loan_uninit() {
                 Ok(sample) => sample.write_payload(message).send().is_ok(),
                 Err(_) => false,
@@ -226,6 +227,8 @@ impl HapticDevice for ShmDevice {
                 },
             tick: self.tick,
             pose_seq: self.last_seq,
+            tick_time_ns: status.tick_time_ns,
+            sent_time_ns: 0,
             force_n: force_n.into(),
         };
         if self.forces.push(message).is_err() {

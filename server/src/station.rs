@@ -164,10 +164,17 @@ impl HapticCounters {
             JITTER_BINS as f64 * JITTER_BIN_S * 1e3
         };
         let ticks = self.ticks.swap(0, Ordering::Relaxed);
+        let over_0_1_ms: u64 = counts[(1e-4 / JITTER_BIN_S).round() as usize..]
+            .iter()
+            .map(|&c| u64::from(c))
+            .sum();
         HapticWindow {
+            ticks,
+            ticks_late_over_0_1_ms: over_0_1_ms,
             rate_hz: ticks as f64 / seconds,
             jitter_p50_ms: quantile(0.5),
             jitter_p99_ms: quantile(0.99),
+            jitter_p999_ms: quantile(0.999),
             jitter_max_ms: self.max_jitter_ns.swap(0, Ordering::Relaxed) as f64 * 1e-6,
             deadline_misses: self.misses.swap(0, Ordering::Relaxed),
             force_n: f64::from_bits(self.force_bits.load(Ordering::Relaxed)),
@@ -180,12 +187,18 @@ impl HapticCounters {
 /// One status window of the haptic loop.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct HapticWindow {
+    /// Ticks in the window.
+    pub ticks: u64,
+    /// Ticks that woke 0.1 ms or more late (with `ticks`, the fraction for a p99.9 target).
+    pub ticks_late_over_0_1_ms: u64,
     /// Ticks per second.
     pub rate_hz: f64,
     /// Wake-up lateness against the deadline, median and p99 (ms; histogram bins of 5 µs).
     pub jitter_p50_ms: f64,
     /// See `jitter_p50_ms`.
     pub jitter_p99_ms: f64,
+    /// See `jitter_p50_ms` (p99.9: one tick in a thousand is later than this).
+    pub jitter_p999_ms: f64,
     /// Latest wake-up (ms).
     pub jitter_max_ms: f64,
     /// Ticks that woke a whole period or more late.
@@ -262,6 +275,8 @@ pub struct StationParams {
     pub haptic_hz: f64,
     /// SCHED_FIFO priority for the haptic thread (0: normal).
     pub fifo_priority: i32,
+    /// SCHED_FIFO priority for the simulation thread (0: normal).
+    pub sim_fifo_priority: i32,
     /// Lock memory.
     pub lock_memory: bool,
     /// Output stage.
@@ -363,6 +378,7 @@ pub fn run(
         },
         stop.clone(),
         t0,
+        params.sim_fifo_priority,
     )?;
     let haptic_thread = if params.haptics {
         Some(spawn_haptic(
@@ -678,6 +694,7 @@ impl HapticState {
         models: &mut triple_buffer::Output<ModelUpdate>,
         counters: &HapticCounters,
     ) {
+        let tick_wall_s = realtime::monotonic_s();
         let mut x = self.last_pose.map_or(Vec3::zeros(), |(_, x)| x);
         if let Some(sample) = device.sample(now) {
             // Velocity on the device's clock: a device and this loop both at 1 kHz drift in
@@ -692,7 +709,7 @@ impl HapticState {
             x = sample.pose.tip_m;
             self.last_pose = Some((sample.device_time_s, x));
             self.device_seen = Some(now);
-            let received_ns = (realtime::monotonic_s() * 1e9) as u64;
+            let received_ns = (tick_wall_s * 1e9) as u64;
             if poses
                 .push(PoseIn {
                     pose: sample.pose,
@@ -725,6 +742,7 @@ impl HapticState {
             ForceStatus {
                 faded: report.watchdog_gain < 1.0,
                 nan_guarded: report.nan_guarded,
+                tick_time_ns: (tick_wall_s * 1e9) as u64,
             },
         );
         counters.record(
@@ -752,6 +770,7 @@ impl HapticState {
             ForceStatus {
                 faded: true,
                 nan_guarded: false,
+                tick_time_ns: (realtime::monotonic_s() * 1e9) as u64,
             },
         );
         report.force_n
@@ -859,10 +878,16 @@ fn spawn_sim(
     frames: SimFrames,
     stop: Arc<AtomicBool>,
     t0: f64,
+    sim_fifo_priority: i32,
 ) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
         .name("simulation".into())
         .spawn(move || {
+            if sim_fifo_priority > 0 {
+                // Refused is not fatal: the simulation then runs with normal scheduling
+                // (reported by the status line's late ticks).
+                let _ = realtime::make_thread_fifo(sim_fifo_priority);
+            }
             // Shared-memory ports belong to the thread that opens them.
             let mut publisher = None;
             if frames.every_ticks > 0 {

@@ -191,6 +191,20 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The station's real-time loop with the release server, the mock device and frame
+    /// subscribers: haptic jitter and deadline misses, pose → force at the device and
+    /// pose → frame at a subscriber, with no viewers and then with several.
+    Loop {
+        /// Seconds per phase.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Viewers in the second phase.
+        #[arg(long, default_value_t = 4)]
+        viewers: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Build every built-in scene several times and report build times.
     Scenes {
         /// Builds per scene.
@@ -333,6 +347,11 @@ fn main() -> ExitCode {
             bench::cutting::scaling(&points, json)
         }
         Command::Bench(BenchCommand::Idle { ticks, json }) => bench::cutting::idle(ticks, json),
+        Command::Bench(BenchCommand::Loop {
+            seconds,
+            viewers,
+            json,
+        }) => bench::loop_bench::run(seconds, viewers, json),
         Command::Bench(BenchCommand::Accuracy {
             out,
             min_across,

@@ -12,7 +12,7 @@ use scalpel_client::mock_device::{MockDevice, MockOptions, MockTick};
 use scalpel_sim::pipeline::CutScript;
 
 /// Header of the force recording.
-pub const FORCE_CSV_HEADER: &str = "t_s,seq,tip_x_mm,tip_y_mm,tip_z_mm,fx_n,fy_n,fz_n,force_flags,server_tick,pose_seq,lateness_ms";
+pub const FORCE_CSV_HEADER: &str = "t_s,seq,tip_x_mm,tip_y_mm,tip_z_mm,fx_n,fy_n,fz_n,force_age_ms,force_flags,server_tick,pose_seq,lateness_ms,latency_ms";
 
 /// What to run.
 pub struct MockArgs<'a> {
@@ -72,7 +72,7 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
             && write_error.is_none()
             && let Err(e) = writeln!(
                 w,
-                "{:.3},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{},{},{},{:.4}",
+                "{:.3},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.3},{},{},{},{:.4},{}",
                 t.t_s,
                 t.seq,
                 t.tip_m[0] * 1e3,
@@ -81,10 +81,13 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
                 t.force_n[0],
                 t.force_n[1],
                 t.force_n[2],
+                t.force_age_s.min(1e6) * 1e3,
                 t.force_flags,
                 t.server_tick,
                 t.pose_seq,
-                t.lateness_s * 1e3
+                t.lateness_s * 1e3,
+                t.latency_s
+                    .map_or(String::new(), |l| format!("{:.4}", l * 1e3))
             )
         {
             write_error = Some(e);
@@ -96,6 +99,7 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
     if let Some(w) = &mut out {
         w.flush()?;
     }
+    let latency = quantiles_ms(&summary.latencies_s);
     if args.json {
         println!(
             "{}",
@@ -109,6 +113,10 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
                 "fifo_priority": summary.fifo_priority,
                 "lag_p50_ticks": summary.lag_p50_ticks,
                 "lag_p99_ticks": summary.lag_p99_ticks,
+                "skipped": summary.skipped,
+                "stale_ticks": summary.stale_ticks,
+                "receive_errors": summary.receive_errors,
+                "latency_ms": latency.map(|(p50, p99, max)| serde_json::json!({"p50": p50, "p99": p99, "max": max})),
             })
         );
     } else {
@@ -124,6 +132,26 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
             summary.lag_p99_ticks,
             summary.fifo_priority
         );
+        if summary.late_ticks + summary.stale_ticks + summary.receive_errors > 0 {
+            println!(
+                "late wake-ups {} (skipped {} samples), ticks with a stale force {}, receive errors {}",
+                summary.late_ticks, summary.skipped, summary.stale_ticks, summary.receive_errors
+            );
+        }
+        if let Some((p50, p99, max)) = latency {
+            println!("pose-to-force latency: p50 {p50:.3} ms, p99 {p99:.3} ms, max {max:.3} ms");
+        }
     }
     Ok(())
+}
+
+/// Median, 99th percentile and largest of `samples` (s), in ms.
+pub fn quantiles_ms(samples: &[f64]) -> Option<(f64, f64, f64)> {
+    if samples.is_empty() {
+        return None;
+    }
+    let mut v = samples.to_vec();
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] * 1e3;
+    Some((at(0.5), at(0.99), v[v.len() - 1] * 1e3))
 }

@@ -178,7 +178,7 @@ pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
 }
 
 /// The frame's surface with the blade and the force arrow added as extra triangles.
-fn draw(
+pub fn draw(
     frame: &Frame,
     orbit: &Orbit,
     options: &RenderOptions,

@@ -74,6 +74,7 @@ fn conformance_of_the_in_process_scripted_device() {
     let params = StationParams {
         haptic_hz: 1000.0,
         fifo_priority: 80,
+        sim_fifo_priority: 60,
         lock_memory: false,
         limits: OutputLimits {
             max_force_n: MAX_FORCE_N,
@@ -120,18 +121,23 @@ fn read_trace(csv: &std::path::Path) -> Vec<TraceRow> {
     );
     lines
         .map(|l| {
-            let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            let c: Vec<f64> = l
+                .split(',')
+                .map(|x| x.parse().unwrap_or(f64::NAN))
+                .collect();
+            // The row's time is the script time of the sample; the device woke
+            // `lateness_ms` after it.
             TraceRow {
-                t_s: c[0],
+                t_s: c[0] + c[12] * 1e-3,
                 force_n: [c[5], c[6], c[7]],
-                server_tick: c[9] as u64,
+                server_tick: c[10] as u64,
             }
         })
         .collect()
 }
 
 /// The mock device's recording header (tools/src/mock_cmd.rs).
-const FORCE_CSV_HEADER: &str = "t_s,seq,tip_x_mm,tip_y_mm,tip_z_mm,fx_n,fy_n,fz_n,force_flags,server_tick,pose_seq,lateness_ms";
+const FORCE_CSV_HEADER: &str = "t_s,seq,tip_x_mm,tip_y_mm,tip_z_mm,fx_n,fy_n,fz_n,force_age_ms,force_flags,server_tick,pose_seq,lateness_ms,latency_ms";
 
 /// Nodes of `station` named `role.station`, alive or dead.
 fn nodes_named(station: &str, role: &str) -> usize {

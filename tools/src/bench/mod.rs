@@ -2,6 +2,7 @@
 
 pub mod accuracy;
 pub mod cutting;
+pub mod loop_bench;
 pub mod stability;
 
 use scalpel_sim::scene::{self, BUILTIN_SCENES};
