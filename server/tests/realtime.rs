@@ -131,3 +131,48 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
         ticks - warm_up
     );
 }
+
+/// What a device (re)connecting costs the haptic thread: iceoryx2 maps the new publisher's
+/// segment in the first receive after it appears, which allocates (37 times with 0.10.0);
+/// every receive after that is allocation-free again. A reconnect is an event, not the
+/// steady state; this pins both halves.
+#[test]
+fn a_reconnecting_device_costs_one_receive_of_allocations_then_none() {
+    use scalpel_proto::shm::{self, DevicePose, LAYOUT_VERSION};
+    use scalpel_server::device::HapticDevice;
+    use scalpel_server::shm_device::ShmDevice;
+
+    shm::quiet_logging();
+    let station = format!("t-reconnect-{}", std::process::id());
+    let mut device = ShmDevice::open(&station, Default::default()).unwrap();
+    for round in 0..3 {
+        let node = shm::node(&format!("test-device-{round}"), &station).unwrap();
+        let poses = shm::pose_service(&node, &station)
+            .unwrap()
+            .publisher_builder()
+            .create()
+            .unwrap();
+        let mut counts = Vec::new();
+        for k in 0..50 {
+            let sample = DevicePose {
+                layout_version: LAYOUT_VERSION,
+                seq: k,
+                orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+                ..DevicePose::default()
+            };
+            poses.send_copy(sample).unwrap();
+            let before = allocations();
+            assert!(device.sample(0.0).is_some());
+            counts.push(allocations() - before);
+        }
+        assert!(
+            counts[0] > 0 && counts[0] < 100,
+            "round {round}: the connecting receive made {} allocations",
+            counts[0]
+        );
+        assert!(
+            counts[1..].iter().all(|&c| c == 0),
+            "round {round}: {counts:?}"
+        );
+    }
+}

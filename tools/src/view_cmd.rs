@@ -120,6 +120,7 @@ pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
     let started = Instant::now();
     let mut last_frame_at = Instant::now();
     let mut offline_shown = false;
+    let mut last_check = Instant::now();
     while window.is_open()
         && !window.is_key_down(Key::Escape)
         && exit_after.is_none_or(|n| drawn < n)
@@ -143,15 +144,30 @@ pub fn window(station: &str, exit_after: Option<u64>) -> anyhow::Result<()> {
             offline_shown = false;
             moved = true;
         }
-        // A server that stopped (or was killed) sends nothing: say so, keep the last
-        // picture, and pick up the frames of a restarted server on the same station.
+        // A server that stopped (or was killed) sends nothing: after 0.1 s of silence look
+        // whether its frame publisher is alive (iceoryx2 node liveness), say so, keep the
+        // last picture, and pick up the frames of a restarted server on the station.
         let silent = last_frame_at.elapsed();
-        if silent > Duration::from_secs(1) && !offline_shown {
-            window.set_title(&format!(
-                "scalpel · station {station} · no frames for {:.0} s: server offline?",
-                silent.as_secs_f64()
-            ));
-            offline_shown = true;
+        if silent > Duration::from_millis(100)
+            && !offline_shown
+            && last_check.elapsed() > Duration::from_millis(100)
+        {
+            last_check = Instant::now();
+            let publisher = format!("scalpel-server.frames.{station}");
+            let alive = scalpel_proto::shm::station_nodes(station)
+                .map(|nodes| nodes.iter().any(|n| n.alive && n.name == publisher))
+                .unwrap_or(false);
+            if !alive || silent > Duration::from_secs(1) {
+                window.set_title(&format!(
+                    "scalpel · station {station} · {}",
+                    if alive {
+                        "no frames: frames off or the simulation stalled"
+                    } else {
+                        "server offline"
+                    }
+                ));
+                offline_shown = true;
+            }
         }
         if moved && let Some(frame) = &last {
             let image = draw(frame, &orbit, &options)?;

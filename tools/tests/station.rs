@@ -267,42 +267,53 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
     let name = unique_station("srv");
     let mut server = start_server(&name, &dir, 120.0);
     server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
-    // A viewer attached and killed mid-wait (it waits for a million frames).
-    let png = dir.join("never.png");
-    let mut command = scalpel();
-    command
-        .args([
-            "view",
-            "--station",
-            &name,
-            "--after",
-            "1000000",
-            "--snapshot",
-        ])
-        .arg(&png);
-    let mut viewer = Running::start(command);
-    let attached = std::time::Instant::now();
-    while nodes_named(&name, "scalpel-viewer") == 0 {
-        assert!(
-            attached.elapsed() < Duration::from_secs(10),
-            "the viewer never attached"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    viewer.kill_9();
-    let killed = std::time::Instant::now();
-    while nodes_named(&name, "scalpel-viewer") > 0 {
-        assert!(
-            killed.elapsed() < Duration::from_secs(1),
-            "the dead viewer's node is still there after 1 s"
-        );
-        std::thread::sleep(Duration::from_millis(20));
+    // Viewers attached and killed mid-wait (each waits for a million frames), five times
+    // over: each dead node is cleaned within a second, the server keeps ticking without a
+    // deadline miss, and a new viewer still gets frames.
+    for round in 0..5 {
+        let png = dir.join("never.png");
+        let mut command = scalpel();
+        command
+            .args([
+                "view",
+                "--station",
+                &name,
+                "--after",
+                "1000000",
+                "--snapshot",
+            ])
+            .arg(&png);
+        let mut viewer = Running::start(command);
+        let attached = std::time::Instant::now();
+        while nodes_named(&name, "scalpel-viewer") == 0 {
+            assert!(
+                attached.elapsed() < Duration::from_secs(10),
+                "round {round}: the viewer never attached"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        viewer.kill_9();
+        let killed = std::time::Instant::now();
+        while nodes_named(&name, "scalpel-viewer") > 0 {
+            assert!(
+                killed.elapsed() < Duration::from_secs(1),
+                "round {round}: the dead viewer's node is still there after 1 s"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
     let line = json(&server.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
     assert!(
         line["haptic"]["rate_hz"].as_f64().unwrap() > 900.0,
         "{line}"
     );
+    let out = scalpel()
+        .args(["view", "--station", &name, "--after", "3", "--snapshot"])
+        .arg(dir.join("after-kills.png"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // The server itself killed: its shared memory stays behind; a new server on the same
     // station cleans it up and runs. A viewer attached across the kill picks up the new
     // server's frames (it wants 150: the first server dies before sending them all).
@@ -317,8 +328,18 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
     }
     std::thread::sleep(Duration::from_millis(500));
     server.kill_9();
+    // Its nodes stay behind, dead, until someone cleans up ...
+    let dead = scalpel_proto::shm::station_nodes(&name)
+        .unwrap()
+        .into_iter()
+        .filter(|n| n.name.starts_with("scalpel-server.") && !n.alive)
+        .count();
+    assert!(dead >= 3, "{dead} dead server nodes");
+    // ... which the new server on the station does as it starts.
     let mut again = start_server(&name, &dir, 120.0);
     again.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let left = scalpel_proto::shm::station_nodes(&name).unwrap();
+    assert!(left.iter().all(|n| n.alive), "stale nodes left: {left:?}");
     let (status, out) = survivor.finish();
     assert!(status.success() && across.exists(), "{out:?}");
     let png = dir.join("view.png");
