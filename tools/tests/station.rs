@@ -313,7 +313,11 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
         .arg(dir.join("after-kills.png"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // The server itself killed: its shared memory stays behind; a new server on the same
     // station cleans it up and runs. A viewer attached across the kill picks up the new
     // server's frames (it wants 150: the first server dies before sending them all).
