@@ -89,7 +89,12 @@ pub struct FrameReader {
 impl FrameReader {
     /// Attaches to `station`'s frames (the server need not run yet).
     pub fn open(station: &str) -> Result<Self, ShmError> {
-        let node = shm::node("scalpel-viewer", station)?;
+        Self::open_as("scalpel-viewer", station)
+    }
+
+    /// Attaches as `role` (the node's name is `role.station`).
+    pub fn open_as(role: &str, station: &str) -> Result<Self, ShmError> {
+        let node = shm::node(role, station)?;
         let frames = shm::frame_service(&node, station)?
             .subscriber_builder()
             .create()

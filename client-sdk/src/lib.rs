@@ -4,10 +4,13 @@
 //!   viewer.
 //! - `mock_device` (feature `mock-device`): the scripted haptic device over shared memory.
 //! - `frames` (feature `frames`): reading a station's render frames from shared memory.
+//! - `remote` (feature `remote`): async `Observer` and `Instructor` over QUIC.
 
 #[cfg(feature = "frames")]
 pub mod frames;
 #[cfg(feature = "mock-device")]
 pub mod mock_device;
+#[cfg(feature = "remote")]
+pub mod remote;
 #[cfg(feature = "renderer")]
 pub mod render;

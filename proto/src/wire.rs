@@ -352,3 +352,85 @@ pub fn quantize_one(x: f32, origin: f32, step: f32) -> i16 {
 pub fn dequantize_one(code: i16, origin: f32, step: f32) -> f32 {
     origin + step * (f32::from(code) + 32768.0)
 }
+
+/// A frame as an observer reconstructs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedFrame {
+    /// Frame counter.
+    pub frame: u64,
+    /// Simulation tick.
+    pub sim_tick: u64,
+    /// Vertex positions (m), within half a quantization step.
+    pub positions: Vec<[f32; 3]>,
+    /// Triangles and materials (of the keyframe).
+    pub topology: Topology,
+    /// The tool.
+    pub tool: Option<ToolState>,
+}
+
+/// An observer's side of the frame stream: keeps the last keyframe and rebuilds every
+/// frame from it.
+#[derive(Debug, Default)]
+pub struct FrameDecoder {
+    key: Option<Keyframe>,
+}
+
+/// The keyframe a decoder holds.
+#[derive(Debug)]
+struct Keyframe {
+    frame: u64,
+    origin: [f32; 3],
+    step: f32,
+    codes: Vec<[i16; 3]>,
+    topology: Topology,
+}
+
+impl FrameDecoder {
+    /// A decoder that has no keyframe yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Decodes `frame`; `None` for a difference frame whose keyframe this decoder does not
+    /// have (it arrived late or was skipped: the next keyframe puts it right).
+    pub fn decode(&mut self, frame: &ObserverFrame) -> Option<DecodedFrame> {
+        if let Some(topology) = &frame.topology {
+            if frame.keyframe != frame.frame {
+                return None;
+            }
+            self.key = Some(Keyframe {
+                frame: frame.frame,
+                origin: frame.origin_m,
+                step: frame.step_m,
+                codes: frame.positions.clone(),
+                topology: topology.clone(),
+            });
+        }
+        let key = self.key.as_ref()?;
+        let (origin, step, codes, topology) = (&key.origin, &key.step, &key.codes, &key.topology);
+        if key.frame != frame.keyframe || codes.len() != frame.positions.len() {
+            return None;
+        }
+        let positions = if frame.topology.is_some() {
+            codes
+                .iter()
+                .map(|q| [0, 1, 2].map(|c| dequantize_one(q[c], origin[c], *step)))
+                .collect()
+        } else {
+            codes
+                .iter()
+                .zip(&frame.positions)
+                .map(|(k, d)| {
+                    [0, 1, 2].map(|c| dequantize_one(k[c].wrapping_add(d[c]), origin[c], *step))
+                })
+                .collect()
+        };
+        Some(DecodedFrame {
+            frame: frame.frame,
+            sim_tick: frame.sim_tick,
+            positions,
+            topology: topology.clone(),
+            tool: frame.tool,
+        })
+    }
+}

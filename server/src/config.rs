@@ -56,6 +56,38 @@ pub struct ServerConfig {
     pub realtime: RealtimeConfig,
     /// The output stage.
     pub output: OutputConfig,
+    /// The QUIC endpoint for remote observers and instructors.
+    pub network: NetworkConfig,
+}
+
+/// The QUIC endpoint.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// Address and port to listen on (e.g. `0.0.0.0:4433`); empty: no endpoint. It runs
+    /// only for a scene with the `observers` feature.
+    pub listen: String,
+    /// Folder of the lab's certificates (`scalpel certs init`): `ca.pem`, `server.pem`,
+    /// `server.key`.
+    pub certs: String,
+    /// Frames per second to an observer, at most.
+    pub frame_hz: f64,
+    /// Connections at once.
+    pub max_connections: u32,
+    /// Connections at once from one address.
+    pub max_per_address: u32,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        Self {
+            listen: String::new(),
+            certs: String::new(),
+            frame_hz: 30.0,
+            max_connections: 48,
+            max_per_address: 16,
+        }
+    }
 }
 
 /// The haptic device.
@@ -137,6 +169,7 @@ impl Default for ServerConfig {
             rates: RateConfig::default(),
             realtime: RealtimeConfig::default(),
             output: OutputConfig::default(),
+            network: NetworkConfig::default(),
         }
     }
 }
@@ -296,6 +329,43 @@ impl ServerConfig {
             o.fade_in_ms > 0.0 && o.fade_in_ms <= 10_000.0,
             "above 0 and at most 10000 ms",
         )?;
+        let n = &self.network;
+        range(
+            "network.frame_hz",
+            n.frame_hz,
+            n.frame_hz > 0.0 && n.frame_hz <= 120.0,
+            "above 0 and at most 120 Hz",
+        )?;
+        range(
+            "network.max_connections",
+            f64::from(n.max_connections),
+            (1..=1024).contains(&n.max_connections),
+            "1 to 1024",
+        )?;
+        range(
+            "network.max_per_address",
+            f64::from(n.max_per_address),
+            (1..=1024).contains(&n.max_per_address),
+            "1 to 1024",
+        )?;
+        if !n.listen.is_empty() {
+            if n.listen.parse::<std::net::SocketAddr>().is_err() {
+                return Err(ConfigError::Range {
+                    file: file.to_owned(),
+                    key: "network.listen",
+                    value: n.listen.clone(),
+                    expected: "an address and port, like 127.0.0.1:4433 or [::]:4433",
+                });
+            }
+            if n.certs.is_empty() {
+                return Err(ConfigError::Range {
+                    file: file.to_owned(),
+                    key: "network.certs",
+                    value: String::new(),
+                    expected: "the lab's certificate folder (scalpel certs init --dir DIR)",
+                });
+            }
+        }
         if scalpel_proto::shm::check_station(&self.station).is_err() {
             return Err(ConfigError::Range {
                 file: file.to_owned(),

@@ -8,6 +8,7 @@ pub mod device;
 pub mod device_monitor;
 pub mod frames;
 pub mod journal;
+pub mod net;
 pub mod output;
 pub mod realtime;
 pub mod scene_file;

@@ -107,6 +107,7 @@ fn run() -> anyhow::Result<()> {
         },
         monitor_device: shared_memory_device,
         haptics: scene.spec.features.haptics,
+        network: network_params(&config, &scene)?,
     };
     if !args.json {
         println!(
@@ -227,4 +228,34 @@ fn print_status(line: &StatusLine) {
         line.sim.cut_length_mm,
         line.sim.frames_sent
     );
+}
+
+/// The QUIC endpoint's parameters: only with `network.listen` set and a scene that has the
+/// `observers` feature.
+fn network_params(
+    config: &ServerConfig,
+    scene: &scalpel_sim::scene::BuiltScene,
+) -> anyhow::Result<Option<scalpel_server::net::NetworkParams>> {
+    let n = &config.network;
+    if n.listen.is_empty() {
+        return Ok(None);
+    }
+    if !scene.spec.features.observers {
+        eprintln!(
+            "scalpel-server: network.listen is set but scene {} has no `observers` feature: no endpoint",
+            scene.spec.name
+        );
+        return Ok(None);
+    }
+    let certs = PathBuf::from(&n.certs);
+    scalpel_server::net::check_certs(&certs)?;
+    Ok(Some(scalpel_server::net::NetworkParams {
+        listen: n.listen.parse().context("network.listen")?,
+        certs,
+        frame_hz: n.frame_hz,
+        max_connections: n.max_connections as usize,
+        max_per_address: n.max_per_address as usize,
+        station: config.station.clone(),
+        scene: scene.spec.name.clone(),
+    }))
 }

@@ -30,6 +30,7 @@ use crate::frames::{FrameInfo, FramePublisher};
 use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputStage};
 use crate::realtime;
+use scalpel_proto::wire::{Event, EventKind, Metrics};
 
 /// Jitter histogram: bins of this width (s) ...
 const JITTER_BIN_S: f64 = 5e-6;
@@ -90,6 +91,10 @@ pub struct SimStatus {
     /// Render frames that could not be sent (no shared memory free: renderers hold
     /// every sample).
     pub frames_failed: u64,
+    /// Times the blade entered the tissue.
+    pub entries: u64,
+    /// Times the tissue ruptured under the blade (cutting began).
+    pub ruptures: u64,
 }
 
 /// Counters the haptic thread keeps with atomics only; the main thread reads and resets the
@@ -292,6 +297,8 @@ pub struct StationParams {
     /// Run the haptic thread (the scene's `haptics` feature); without it the simulation
     /// runs with no tool.
     pub haptics: bool,
+    /// The QUIC endpoint for remote observers and instructors, if any.
+    pub network: Option<crate::net::NetworkParams>,
 }
 
 /// Runs a station until `stop` is set, calling `report` with a status line every interval
@@ -338,6 +345,11 @@ pub fn run(
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
     }
+    // The network endpoint first: if it cannot listen, nothing else has started yet.
+    let network = match &params.network {
+        Some(n) => Some(crate::net::start(n.clone())?),
+        None => None,
+    };
     // The monitor also cleans up after any dead node (a killed viewer, a killed server of
     // this station before this one), so it runs whatever the device.
     let mut monitor = match DeviceMonitor::open(&params.station) {
@@ -474,10 +486,21 @@ pub fn run(
     if monitor.is_some() {
         running.push("shared-memory monitor".into());
     }
-    off.push("network endpoint (not in this build yet)".into());
+    match &network {
+        Some(n) => running.push(format!("network endpoint on {}", n.local_addr)),
+        None => off.push("network endpoint (no observers)".into()),
+    }
     report(&StationReport::Event(StationEvent {
         uptime_s: realtime::monotonic_s() - t0,
-        event: format!("runs: {}; off: {}", running.join(", "), off.join(", ")),
+        event: format!(
+            "runs: {}; off: {}",
+            running.join(", "),
+            if off.is_empty() {
+                "nothing".to_string()
+            } else {
+                off.join(", ")
+            }
+        ),
     }));
     for w in &warnings {
         report(&StationReport::Event(StationEvent {
@@ -488,23 +511,43 @@ pub fn run(
 
     let mut next = t0 + params.status_interval_s;
     let mut window_start = t0;
+    let mut remote = RemoteFeed::default();
     while !stop.load(Ordering::Relaxed) {
         realtime::sleep_until(next.min(realtime::monotonic_s() + 0.05));
         let now = realtime::monotonic_s();
+        let sim_now = *status_out.read();
         if let Some(m) = &mut monitor
             && let Some(change) = m.poll()
             && params.monitor_device
         {
-            report(&StationReport::Event(StationEvent {
-                uptime_s: now - t0,
-                event: match change {
-                    DeviceEvent::Connected => "device connected".into(),
-                    DeviceEvent::Lost => format!(
+            let (kind, text) = match change {
+                DeviceEvent::Connected => (EventKind::DeviceConnected, "device connected".into()),
+                DeviceEvent::Lost => (
+                    EventKind::DeviceLost,
+                    format!(
                         "device lost (dead nodes cleaned so far: {}); the force fades to zero",
                         m.dead_nodes_cleaned()
                     ),
-                },
+                ),
+            };
+            remote.event(&network, &sim_now, now - t0, kind, &text);
+            report(&StationReport::Event(StationEvent {
+                uptime_s: now - t0,
+                event: text,
             }));
+        }
+        if let Some(n) = &network {
+            remote.publish(
+                n,
+                &sim_now,
+                now - t0,
+                &counters,
+                monitor
+                    .as_ref()
+                    .filter(|_| params.monitor_device)
+                    .is_none_or(|m| m.connected())
+                    && params.haptics,
+            );
         }
         if now >= next {
             let line = StatusLine {
@@ -519,6 +562,9 @@ pub fn run(
                     .map(|m| m.connected()),
                 dead_nodes_cleaned: monitor.as_ref().map_or(0, |m| m.dead_nodes_cleaned()),
             };
+            if let Some(h) = &line.haptic {
+                remote.window = Some(*h);
+            }
             report(&StationReport::Status(line));
             window_start = now;
             next += params.status_interval_s;
@@ -531,6 +577,9 @@ pub fn run(
         Some(h) => h.join(),
         None => Ok(()),
     };
+    if let Some(n) = network {
+        n.stop();
+    }
     let sim_result = sim_thread.join();
     sim_done.store(true, Ordering::Release);
     let sim_status = *status_out.read();
@@ -843,11 +892,90 @@ fn spawn_journal_writer(
         })
 }
 
+/// What the main thread tells remote observers: metrics at 10 Hz, and events (its own and
+/// the simulation's, from its counters).
+#[derive(Default)]
+struct RemoteFeed {
+    /// The last haptic status window (rate, jitter).
+    window: Option<HapticWindow>,
+    last_publish: f64,
+    entries: u64,
+    ruptures: u64,
+}
+
+impl RemoteFeed {
+    fn event(
+        &self,
+        network: &Option<crate::net::Network>,
+        sim: &SimStatus,
+        uptime_s: f64,
+        kind: EventKind,
+        detail: &str,
+    ) {
+        if let Some(n) = network {
+            // No observer connected is not an error.
+            let _ = n.feeds.events.send(Event {
+                sim_tick: sim.ticks,
+                uptime_s,
+                kind,
+                detail: detail.to_string(),
+            });
+        }
+    }
+
+    fn publish(
+        &mut self,
+        network: &crate::net::Network,
+        sim: &SimStatus,
+        uptime_s: f64,
+        counters: &HapticCounters,
+        device_connected: bool,
+    ) {
+        if sim.entries > self.entries {
+            self.entries = sim.entries;
+            let _ = network.feeds.events.send(Event {
+                sim_tick: sim.ticks,
+                uptime_s,
+                kind: EventKind::CutStarted,
+                detail: "the blade entered the tissue".into(),
+            });
+        }
+        if sim.ruptures > self.ruptures {
+            self.ruptures = sim.ruptures;
+            let _ = network.feeds.events.send(Event {
+                sim_tick: sim.ticks,
+                uptime_s,
+                kind: EventKind::Rupture,
+                detail: format!("rupture: cutting, {:.1} N on the tool", sim.sim_force_n),
+            });
+        }
+        if uptime_s - self.last_publish < 0.1 {
+            return;
+        }
+        self.last_publish = uptime_s;
+        let w = self.window;
+        let metrics = Metrics {
+            sim_tick: sim.ticks,
+            uptime_s,
+            haptic_rate_hz: w.map_or(0.0, |w| w.rate_hz as f32),
+            jitter_p99_ms: w.map_or(0.0, |w| w.jitter_p99_ms as f32),
+            deadline_misses: counters.total_misses.load(Ordering::Relaxed),
+            force_n: f64::from_bits(counters.force_bits.load(Ordering::Relaxed)) as f32,
+            faded: counters.watchdog_faded.load(Ordering::Relaxed),
+            cut_length_mm: sim.cut_length_mm as f32,
+            active_points: sim.active_points as u32,
+            device_connected,
+        };
+        let _ = network.feeds.metrics.send(metrics);
+    }
+}
+
 /// What the frame sent before a tick reports of the tick before it.
 #[derive(Debug, Clone, Copy, Default)]
 struct LastTick {
     force_n: Vec3,
     cutting: bool,
+    in_tissue: bool,
 }
 
 /// The simulation thread's render frames.
@@ -961,10 +1089,14 @@ fn spawn_sim(
                 {
                     figures.cut_length_mm += (tip - last).norm() * 1e3;
                 }
+                let in_tissue = report.cut.as_ref().is_some_and(|c| c.in_tissue);
+                figures.entries += u64::from(in_tissue && !last.in_tissue);
+                figures.ruptures += u64::from(cutting && !last.cutting);
                 last_tip = tip;
                 last = LastTick {
                     force_n: report.tool_force_n,
                     cutting,
+                    in_tissue,
                 };
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
                 figures.ticks += 1;

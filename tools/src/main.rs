@@ -4,11 +4,13 @@
 //! form for scripts; errors go to stderr with a non-zero exit status.
 
 mod bench;
+mod certs_cmd;
 mod cut_cmd;
 mod cutrun;
 mod export;
 mod load;
 mod mock_cmd;
+mod observe_cmd;
 mod plot;
 mod progress;
 mod replay_cmd;
@@ -79,6 +81,33 @@ enum Command {
     /// Whole-system benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// A lab's certificates for the QUIC endpoint (mutual TLS; the role is in the client
+    /// certificate).
+    #[command(subcommand)]
+    Certs(CertsCommand),
+    /// Observe a station remotely over QUIC: figures once a second, events, frames.
+    Observe {
+        /// The server's address (HOST:PORT).
+        addr: String,
+        /// The lab's certificate folder (`scalpel certs`).
+        #[arg(long)]
+        certs: PathBuf,
+        /// This client's certificate name (NAME.pem, NAME.key in the folder).
+        #[arg(long)]
+        name: String,
+        /// The name in the server's certificate.
+        #[arg(long, default_value = "localhost")]
+        server_name: String,
+        /// Ask for frames (30 per second) too.
+        #[arg(long)]
+        frames: bool,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// One JSON object per update.
+        #[arg(long)]
+        json: bool,
+    },
     /// The mock haptic device: plays a blade script to a station over shared memory at a
     /// true 1 kHz and records the forces it receives (docs/PROTOCOL.md).
     MockDevice {
@@ -134,6 +163,31 @@ enum Command {
         /// Print {scene, ticks, state_hash, live_state_hash, identical} as JSON.
         #[arg(long)]
         json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum CertsCommand {
+    /// Make a lab CA and the server's certificate (for localhost and each --host).
+    Init {
+        /// Folder for the files (created; must not hold a CA already).
+        #[arg(long)]
+        dir: PathBuf,
+        /// Another name or address the server is reached by.
+        #[arg(long)]
+        host: Vec<String>,
+    },
+    /// Issue a client certificate signed by the lab CA.
+    Issue {
+        /// The lab's certificate folder.
+        #[arg(long)]
+        dir: PathBuf,
+        /// What the client may do.
+        #[arg(long, value_parser = ["observer", "instructor"])]
+        role: String,
+        /// Who it is (names the files NAME.pem and NAME.key).
+        #[arg(long)]
+        name: String,
     },
 }
 
@@ -296,6 +350,27 @@ fn main() -> ExitCode {
             json,
         } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
         Command::Replay { file, json } => replay_cmd::run(&file, json),
+        Command::Certs(CertsCommand::Init { dir, host }) => certs_cmd::init(&dir, &host),
+        Command::Observe {
+            addr,
+            certs,
+            name,
+            server_name,
+            frames,
+            seconds,
+            json,
+        } => observe_cmd::run(&observe_cmd::ObserveArgs {
+            addr: &addr,
+            server_name: &server_name,
+            certs: &certs,
+            name: &name,
+            frames,
+            seconds,
+            json,
+        }),
+        Command::Certs(CertsCommand::Issue { dir, role, name }) => {
+            certs_cmd::issue(&dir, &role, &name).map(|_| ())
+        }
         Command::MockDevice {
             station,
             script,

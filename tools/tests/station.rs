@@ -86,6 +86,7 @@ fn conformance_of_the_in_process_scripted_device() {
         frame_hz: 0.0,
         monitor_device: false,
         haptics: true,
+        network: None,
     };
     let stop = Arc::new(AtomicBool::new(false));
     let timer = stop.clone();

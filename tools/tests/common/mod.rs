@@ -1,3 +1,4 @@
+#![allow(dead_code)] // each test binary uses its part of the helpers
 //! Helpers shared by the integration tests.
 
 pub mod conformance;

@@ -1,0 +1,284 @@
+//! One remote client's connection: the handshake on the control stream, then telemetry
+//! (metrics at 10 Hz and events) on one server-opened stream, frames on a stream each, and
+//! the client's requests on the control stream. A malformed or oversized message closes
+//! this connection only, with a code and a reason.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use rustls::pki_types::CertificateDer;
+use scalpel_proto::codec::{CLIENT_LIMIT, SERVER_LIMIT, read_frame, write_frame};
+use scalpel_proto::wire::{
+    Action, ClientMessage, Event, EventKind, MAX_TEXT, Metrics, Outcome, PROTOCOL_VERSION, Role,
+    ServerMessage,
+};
+use tokio::sync::{broadcast, watch};
+
+use super::frames::{FrameEncoder, SourceFrame};
+use super::tls;
+
+/// Connection close codes (QUIC application error codes).
+pub mod close {
+    /// Normal close.
+    pub const DONE: u32 = 0;
+    /// A malformed, oversized or unexpected message.
+    pub const PROTOCOL: u32 = 1;
+    /// The certificate carries no role.
+    pub const FORBIDDEN: u32 = 2;
+    /// Another protocol version.
+    pub const VERSION: u32 = 3;
+    /// The server is stopping.
+    pub const STOPPING: u32 = 4;
+}
+
+/// Time allowed for the TLS handshake, and then for the `Hello`.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Metrics interval.
+const METRICS_PERIOD: Duration = Duration::from_millis(100);
+
+/// What a session needs from the endpoint.
+pub struct SessionContext {
+    /// Station name.
+    pub station: String,
+    /// Scene name.
+    pub scene: String,
+    /// Most frames per second an observer may ask for.
+    pub frame_hz_max: f64,
+    /// Latest metrics.
+    pub metrics: watch::Receiver<Metrics>,
+    /// Events.
+    pub events: broadcast::Receiver<Event>,
+    /// Latest frame.
+    pub frames: watch::Receiver<Option<Arc<SourceFrame>>>,
+    /// Server stopping.
+    pub stop: watch::Receiver<bool>,
+}
+
+/// Why a session ended early.
+#[derive(Debug)]
+struct Closed(u32, String);
+
+/// Runs one connection to its end.
+pub async fn run(incoming: quinn::Incoming, mut ctx: SessionContext) {
+    let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
+        Ok(Ok(c)) => c,
+        // Refused by TLS (no or a foreign certificate), or too slow: nothing to say.
+        _ => return,
+    };
+    let result = serve(&conn, &mut ctx).await;
+    let (code, reason) = match result {
+        Ok(()) => (close::DONE, String::from("bye")),
+        Err(Closed(code, reason)) => (code, reason),
+    };
+    conn.close(code.into(), reason.as_bytes());
+}
+
+fn identity(conn: &quinn::Connection) -> Option<(Role, String)> {
+    let certs = conn
+        .peer_identity()?
+        .downcast::<Vec<CertificateDer<'static>>>()
+        .ok()?;
+    tls::identity(certs.first()?)
+}
+
+async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(), Closed> {
+    let Some((role, name)) = identity(conn) else {
+        return Err(Closed(
+            close::FORBIDDEN,
+            "the client certificate names no role (observer or instructor)".into(),
+        ));
+    };
+    let (mut send, mut recv) = tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi())
+        .await
+        .map_err(|_| Closed(close::PROTOCOL, "no control stream".into()))?
+        .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
+    let hello = tokio::time::timeout(
+        HANDSHAKE_TIMEOUT,
+        read_frame::<ClientMessage, CLIENT_LIMIT>(&mut recv),
+    )
+    .await
+    .map_err(|_| Closed(close::PROTOCOL, "no Hello".into()))?
+    .map_err(|e| Closed(close::PROTOCOL, format!("Hello: {e}")))?;
+    match hello {
+        Some(ClientMessage::Hello {
+            protocol_version,
+            client,
+        }) if client.len() <= MAX_TEXT => {
+            if protocol_version != PROTOCOL_VERSION {
+                let reason = format!(
+                    "protocol version {protocol_version}; this server speaks {PROTOCOL_VERSION}"
+                );
+                let _ = write_frame::<_, SERVER_LIMIT>(
+                    &mut send,
+                    &ServerMessage::Refused {
+                        reason: reason.clone(),
+                    },
+                )
+                .await;
+                return Err(Closed(close::VERSION, reason));
+            }
+        }
+        _ => {
+            return Err(Closed(
+                close::PROTOCOL,
+                "the first message must be a Hello".into(),
+            ));
+        }
+    }
+    write_frame::<_, SERVER_LIMIT>(
+        &mut send,
+        &ServerMessage::Welcome {
+            protocol_version: PROTOCOL_VERSION,
+            station: ctx.station.clone(),
+            scene: ctx.scene.clone(),
+            role,
+            identity: name.clone(),
+        },
+    )
+    .await
+    .map_err(|e| Closed(close::PROTOCOL, format!("Welcome: {e}")))?;
+
+    let (frame_hz_tx, frame_hz_rx) = watch::channel(0.0f64);
+    let telemetry = telemetry(conn, ctx.metrics.clone(), ctx.events.resubscribe());
+    let frames = frames(conn, ctx.frames.clone(), frame_hz_rx);
+    let control = control(&mut send, &mut recv, role, ctx.frame_hz_max, frame_hz_tx);
+    let mut stop = ctx.stop.clone();
+    tokio::select! {
+        r = control => r,
+        r = telemetry => r,
+        r = frames => r,
+        _ = stop.changed() => Err(Closed(close::STOPPING, "server stopping".into())),
+        _ = conn.closed() => Ok(()),
+    }
+}
+
+/// The client's requests, answered in order.
+async fn control(
+    send: &mut quinn::SendStream,
+    recv: &mut quinn::RecvStream,
+    role: Role,
+    frame_hz_max: f64,
+    frame_hz: watch::Sender<f64>,
+) -> Result<(), Closed> {
+    loop {
+        let message = read_frame::<ClientMessage, CLIENT_LIMIT>(recv)
+            .await
+            .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
+        let reply = match message {
+            None => return Ok(()),
+            Some(ClientMessage::Subscribe { frame_hz: hz }) => {
+                if !hz.is_finite() || hz < 0.0 {
+                    return Err(Closed(
+                        close::PROTOCOL,
+                        format!("Subscribe: frame_hz {hz} is not a rate"),
+                    ));
+                }
+                let _ = frame_hz.send(f64::from(hz).min(frame_hz_max));
+                continue;
+            }
+            Some(ClientMessage::Command(command)) => ServerMessage::Ack {
+                seq: command.seq,
+                outcome: Outcome::Rejected {
+                    reason: match (role, command.action) {
+                        (Role::Observer, _) => "an observer certificate may not instruct".into(),
+                        (Role::Instructor, Action::List) => {
+                            "fault injection is not in this build yet: nothing scheduled".into()
+                        }
+                        (Role::Instructor, _) => "fault injection is not in this build yet".into(),
+                    },
+                },
+            },
+            Some(ClientMessage::Hello { .. }) => {
+                return Err(Closed(close::PROTOCOL, "a second Hello".into()));
+            }
+        };
+        write_frame::<_, SERVER_LIMIT>(send, &reply)
+            .await
+            .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
+    }
+}
+
+/// Metrics at 10 Hz and events as they come, on one stream.
+async fn telemetry(
+    conn: &quinn::Connection,
+    metrics: watch::Receiver<Metrics>,
+    mut events: broadcast::Receiver<Event>,
+) -> Result<(), Closed> {
+    let mut stream = conn
+        .open_uni()
+        .await
+        .map_err(|e| Closed(close::PROTOCOL, format!("telemetry stream: {e}")))?;
+    let mut tick = tokio::time::interval(METRICS_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        let message = tokio::select! {
+            _ = tick.tick() => ServerMessage::Metrics(*metrics.borrow()),
+            e = events.recv() => match e {
+                Ok(e) => ServerMessage::Event(e),
+                Err(broadcast::error::RecvError::Lagged(n)) => ServerMessage::Event(Event {
+                    sim_tick: metrics.borrow().sim_tick,
+                    uptime_s: metrics.borrow().uptime_s,
+                    kind: EventKind::Notice,
+                    detail: format!("{n} events skipped (this observer was slow)"),
+                }),
+                Err(broadcast::error::RecvError::Closed) => return Ok(()),
+            },
+        };
+        write_frame::<_, SERVER_LIMIT>(&mut stream, &message)
+            .await
+            .map_err(|e| Closed(close::PROTOCOL, format!("telemetry stream: {e}")))?;
+    }
+}
+
+/// Frames at the observer's rate, a stream each; a frame still in flight when the next is
+/// due makes the server skip the new one (latest wins: nothing queues for a slow observer).
+async fn frames(
+    conn: &quinn::Connection,
+    mut source: watch::Receiver<Option<Arc<SourceFrame>>>,
+    mut frame_hz: watch::Receiver<f64>,
+) -> Result<(), Closed> {
+    let mut encoder = FrameEncoder::new();
+    let mut in_flight: Option<(tokio::task::JoinHandle<bool>, bool)> = None;
+    let mut next_due = tokio::time::Instant::now();
+    loop {
+        tokio::select! {
+            r = source.changed() => if r.is_err() { return Ok(()) },
+            r = frame_hz.changed() => if r.is_err() { return Ok(()) } else { continue },
+        }
+        let hz = *frame_hz.borrow();
+        let now = tokio::time::Instant::now();
+        if hz <= 0.0 || now < next_due {
+            continue;
+        }
+        if let Some((task, _)) = &in_flight
+            && !task.is_finished()
+        {
+            continue;
+        }
+        if let Some((task, keyframe)) = in_flight.take() {
+            let delivered = task.await.unwrap_or(false);
+            if !delivered && keyframe {
+                encoder.reset();
+            }
+        }
+        let Some(frame) = source.borrow_and_update().clone() else {
+            continue;
+        };
+        next_due = now + Duration::from_secs_f64(1.0 / hz);
+        let message = encoder.encode(&frame);
+        let keyframe = message.topology.is_some();
+        let conn = conn.clone();
+        in_flight = Some((
+            tokio::spawn(async move {
+                let Ok(mut stream) = conn.open_uni().await else {
+                    return false;
+                };
+                write_frame::<_, SERVER_LIMIT>(&mut stream, &ServerMessage::Frame(message))
+                    .await
+                    .is_ok()
+                    && stream.finish().is_ok()
+            }),
+            keyframe,
+        ));
+    }
+}

@@ -1,0 +1,128 @@
+//! `scalpel observe ADDR --certs DIR --name NAME [--frames] [--seconds S] [--json]`: a
+//! remote observer in the terminal — a line of figures a second, events as they happen,
+//! and how many frames arrived (docs/PROTOCOL.md, "Remote clients").
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use scalpel_client::remote::{Credentials, Observer, Update};
+
+/// What to observe and how.
+pub struct ObserveArgs<'a> {
+    /// Server address.
+    pub addr: &'a str,
+    /// Name in the server's certificate.
+    pub server_name: &'a str,
+    /// The lab's certificate folder.
+    pub certs: &'a Path,
+    /// This observer's certificate name.
+    pub name: &'a str,
+    /// Ask for frames.
+    pub frames: bool,
+    /// Stop after this long.
+    pub seconds: Option<f64>,
+    /// JSON lines.
+    pub json: bool,
+}
+
+/// Runs the observer.
+pub fn run(args: &ObserveArgs<'_>) -> anyhow::Result<()> {
+    let addr = std::net::ToSocketAddrs::to_socket_addrs(args.addr)
+        .with_context(|| format!("{}: not an address (HOST:PORT)", args.addr))?
+        .next()
+        .with_context(|| format!("{}: no address", args.addr))?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(observe(args, addr))
+}
+
+async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::Result<()> {
+    let credentials = Credentials::from_dir(args.certs, args.name);
+    let mut observer = Observer::connect(addr, args.server_name, &credentials, args.name)
+        .await
+        .with_context(|| format!("cannot observe {}", args.addr))?;
+    let w = observer.0.welcome().clone();
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({"welcome": {"station": w.station, "scene": w.scene, "role": format!("{:?}", w.role), "identity": w.identity}})
+        );
+    } else {
+        println!(
+            "observing station {} (scene {}) as {} ({:?})",
+            w.station, w.scene, w.identity, w.role
+        );
+    }
+    if args.frames {
+        observer.0.subscribe(30.0).await?;
+    }
+    let started = Instant::now();
+    let end = args.seconds.map(|s| started + Duration::from_secs_f64(s));
+    let mut frames = 0u64;
+    let mut last_line = Instant::now() - Duration::from_secs(1);
+    loop {
+        let left = end.map(|e| e.saturating_duration_since(Instant::now()));
+        if left == Some(Duration::ZERO) {
+            break;
+        }
+        let update = match left {
+            Some(l) => match tokio::time::timeout(l, observer.0.next()).await {
+                Ok(u) => u,
+                Err(_) => break,
+            },
+            None => observer.0.next().await,
+        };
+        let Some(update) = update else {
+            println!("connection closed: {}", observer.0.closed().await);
+            break;
+        };
+        match update {
+            Update::Metrics(m) => {
+                if args.json {
+                    println!("{}", serde_json::json!({ "metrics": m }));
+                } else if last_line.elapsed() >= Duration::from_secs(1) {
+                    last_line = Instant::now();
+                    println!(
+                        "{:7.1} s  tick {}  haptic {:6.1} Hz  jitter p99 {:.3} ms  misses {}  force {:.2} N{}  cut {:.1} mm  {} points{}  frames {}",
+                        m.uptime_s,
+                        m.sim_tick,
+                        m.haptic_rate_hz,
+                        m.jitter_p99_ms,
+                        m.deadline_misses,
+                        m.force_n,
+                        if m.faded { " (faded)" } else { "" },
+                        m.cut_length_mm,
+                        m.active_points,
+                        if m.device_connected {
+                            ""
+                        } else {
+                            "  no device"
+                        },
+                        frames
+                    );
+                }
+            }
+            Update::Event(e) => {
+                if args.json {
+                    println!("{}", serde_json::json!({ "event": e }));
+                } else {
+                    println!("{:7.1} s  event {:?}: {}", e.uptime_s, e.kind, e.detail);
+                }
+            }
+            Update::Frame(f) => {
+                frames += 1;
+                if args.json {
+                    let wound = f.topology.materials.iter().filter(|&&m| m == 1).count();
+                    println!(
+                        "{}",
+                        serde_json::json!({"frame": {"frame": f.frame, "sim_tick": f.sim_tick, "vertices": f.positions.len(), "triangles": f.topology.triangles.len(), "wound_triangles": wound, "tool": f.tool.is_some()}})
+                    );
+                }
+            }
+        }
+    }
+    observer.0.close();
+    Ok(())
+}
