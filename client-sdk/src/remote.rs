@@ -169,6 +169,17 @@ pub struct Session {
 }
 
 impl Session {
+    /// Connects with `credentials` (see [`Session::connect`]).
+    pub async fn connect_with(
+        addr: SocketAddr,
+        server_name: &str,
+        credentials: &Credentials,
+        client: &str,
+    ) -> Result<Self, ClientError> {
+        let config = client_config(Some(credentials), &credentials.ca)?;
+        Self::connect(addr, server_name, config, client).await
+    }
+
     /// Connects, authenticates and says hello. `server_name` must be a name in the server's
     /// certificate (`localhost` for one made by `scalpel certs init`).
     pub async fn connect(
@@ -365,9 +376,8 @@ impl Observer {
         credentials: &Credentials,
         client: &str,
     ) -> Result<Self, ClientError> {
-        let config = client_config(Some(credentials), &credentials.ca)?;
         Ok(Self(
-            Session::connect(addr, server_name, config, client).await?,
+            Session::connect_with(addr, server_name, credentials, client).await?,
         ))
     }
 }
@@ -383,8 +393,7 @@ impl Instructor {
         credentials: &Credentials,
         client: &str,
     ) -> Result<Self, ClientError> {
-        let config = client_config(Some(credentials), &credentials.ca)?;
-        let session = Session::connect(addr, server_name, config, client).await?;
+        let session = Session::connect_with(addr, server_name, credentials, client).await?;
         if session.welcome.role != Role::Instructor {
             return Err(ClientError::Refused(format!(
                 "{} is an observer certificate",

@@ -931,23 +931,25 @@ impl RemoteFeed {
         counters: &HapticCounters,
         device_connected: bool,
     ) {
-        if sim.entries > self.entries {
-            self.entries = sim.entries;
+        let send = |kind, detail: String| {
+            // No observer connected is not an error.
             let _ = network.feeds.events.send(Event {
                 sim_tick: sim.ticks,
                 uptime_s,
-                kind: EventKind::CutStarted,
-                detail: "the blade entered the tissue".into(),
+                kind,
+                detail,
             });
+        };
+        if sim.entries > self.entries {
+            self.entries = sim.entries;
+            send(EventKind::CutStarted, "the blade entered the tissue".into());
         }
         if sim.ruptures > self.ruptures {
             self.ruptures = sim.ruptures;
-            let _ = network.feeds.events.send(Event {
-                sim_tick: sim.ticks,
-                uptime_s,
-                kind: EventKind::Rupture,
-                detail: format!("rupture: cutting, {:.1} N on the tool", sim.sim_force_n),
-            });
+            send(
+                EventKind::Rupture,
+                format!("rupture: cutting, {:.1} N on the tool", sim.sim_force_n),
+            );
         }
         if uptime_s - self.last_publish < 0.1 {
             return;

@@ -150,6 +150,16 @@ fn nodes_named(station: &str, role: &str) -> usize {
         .count()
 }
 
+/// A running server with the in-process scripted device on a station of its own, once it
+/// reports; its scratch folder and station name.
+fn scripted_station(label: &str) -> (std::path::PathBuf, String, Running) {
+    let dir = station::scratch(label);
+    let name = unique_station(label);
+    let mut server = start_server_with(&name, &dir, 60.0, "scripted");
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    (dir, name, server)
+}
+
 /// The tests of this file start servers with simulations; on two cores, one at a time.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
@@ -373,10 +383,7 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
 #[ignore = "needs the iceoryx2 Python wheel; .ci/run installs it and runs this"]
 fn python_reads_a_frame_from_the_running_server() {
     let _serial = one_at_a_time();
-    let dir = station::scratch("python");
-    let name = unique_station("py");
-    let mut server = start_server_with(&name, &dir, 60.0, "scripted");
-    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let (dir, name, mut server) = scripted_station("py");
     let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
     let script =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/read_frame.py");
@@ -425,10 +432,7 @@ fn python_reads_a_frame_from_the_running_server() {
 #[ignore = "needs xvfb-run; .ci/run installs it and runs this"]
 fn xvfb_the_viewer_window_draws_live_frames() {
     let _serial = one_at_a_time();
-    let dir = station::scratch("window");
-    let name = unique_station("win");
-    let mut server = start_server_with(&name, &dir, 60.0, "scripted");
-    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let (dir, name, mut server) = scripted_station("win");
     let out = std::process::Command::new("xvfb-run")
         .args(["-a", env!("CARGO_BIN_EXE_scalpel")])
         .args(["view", "--station", &name, "--exit-after", "30"])

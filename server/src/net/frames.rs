@@ -192,11 +192,9 @@ mod tests {
                 "frame {k}: keyframe only at the start, a second later and on the cut"
             );
             sizes.push(
-                scalpel_proto::codec::encode::<_, { scalpel_proto::codec::SERVER_LIMIT }>(
-                    &message,
-                )
-                .unwrap()
-                .len(),
+                scalpel_proto::codec::encode::<_, { scalpel_proto::codec::SERVER_LIMIT }>(&message)
+                    .unwrap()
+                    .len(),
             );
             let decoded = decoder.decode(&message).expect("decodes");
             assert_eq!(decoded.topology.triangles, triangles);
