@@ -198,7 +198,7 @@ impl Default for RealtimeConfig {
     fn default() -> Self {
         Self {
             fifo_priority: 80,
-            sim_fifo_priority: 60,
+            sim_fifo_priority: 0,
             lock_memory: true,
         }
     }

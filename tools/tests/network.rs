@@ -199,3 +199,57 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     server.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A third-party QUIC stack (Python aioquic, which `.ci/run` installs in its venv) completes
+/// the handshake with a lab certificate and decodes a Welcome, a Metrics and a keyframe
+/// with nothing but docs/PROTOCOL.md (tools/tests/python/quic_observer.py).
+#[test]
+#[ignore = "needs aioquic; .ci/run installs it and runs this"]
+fn python_aioquic_observes_a_station() {
+    let dir = station::scratch("aioquic");
+    make_certs(&dir);
+    let name = unique_station("aq");
+    let (mut server, addr) = start(&dir, &name);
+    let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/quic_observer.py");
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .args([
+            addr.ip().to_string(),
+            addr.port().to_string(),
+            dir.display().to_string(),
+            "obs1".into(),
+            "20".into(),
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let found = json(stdout.trim());
+    assert_eq!(found["welcome"]["station"], name.as_str(), "{found}");
+    assert_eq!(found["welcome"]["role"], "Observer");
+    assert!(
+        found["metrics"]["sim_tick"].as_u64().unwrap() > 0,
+        "{found}"
+    );
+    let frame = &found["frame"];
+    let vertices = frame["vertices"].as_u64().unwrap();
+    assert!(
+        vertices > 200 && frame["max_index"].as_u64().unwrap() < vertices,
+        "{found}"
+    );
+    for (axis, half) in [(0, 125.0), (1, 75.0), (2, 25.0)] {
+        let lo = frame["bbox_mm"][0][axis].as_f64().unwrap();
+        let hi = frame["bbox_mm"][1][axis].as_f64().unwrap();
+        assert!(
+            (lo + half).abs() < 5.0 && (hi - half).abs() < 5.0,
+            "{found}"
+        );
+    }
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}

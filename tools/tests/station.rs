@@ -74,7 +74,7 @@ fn conformance_of_the_in_process_scripted_device() {
     let params = StationParams {
         haptic_hz: 1000.0,
         fifo_priority: 80,
-        sim_fifo_priority: 60,
+        sim_fifo_priority: 0,
         lock_memory: false,
         limits: OutputLimits {
             max_force_n: MAX_FORCE_N,

@@ -1,6 +1,7 @@
 //! `scalpel bench loop [--seconds S] [--viewers N] [--json]`: the station's real-time loop as
 //! a device and renderers see it. Starts the release server (`scalpel-server`, beside this
-//! binary) on a station of its own with a shared-memory device, plays the demo cut with the
+//! binary) on a station of its own with a shared-memory device (and the simulation thread at
+//! SCHED_FIFO 60: the liver's ticks keep well inside 1 ms in release), plays the demo cut with the
 //! mock device (phase-locked, measuring pose → force at the device), and attaches a
 //! measuring frame subscriber (pose → frame received). Two phases of S seconds: no viewers,
 //! then N viewers that receive, decode and render every frame (the CPU renderer at
@@ -116,7 +117,7 @@ pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
     std::fs::write(
         &config,
         format!(
-            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n"
+            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[realtime]\nsim_fifo_priority = 60\n"
         ),
     )?;
     let total = 2.0 * seconds + 4.0;
