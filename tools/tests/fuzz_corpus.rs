@@ -11,7 +11,8 @@ use std::path::Path;
 #[test]
 fn every_corpus_input_decodes_or_is_refused() {
     let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus");
-    let targets: [(&str, fn(&[u8])); 5] = [
+    type Decoder = fn(&[u8]);
+    let targets: [(&str, Decoder); 5] = [
         ("client_message", fuzz_inputs::client_message),
         ("server_message", fuzz_inputs::server_message),
         ("shm_frame", fuzz_inputs::shm_frame),
