@@ -479,8 +479,13 @@ impl SectionReader<'_, '_> {
                     format!("section declares {n} cells but its data ends early"),
                 ));
             };
+            // A cell size is a count of the values after it: anything else (negative,
+            // fractional, NaN, or so large that `k + 1 + len` would overflow — found by
+            // fuzzing) is an error, not an index.
+            let fits =
+                len.is_finite() && len >= 0.0 && len.fract() == 0.0 && len <= flat.len() as f64;
             let len = len as usize;
-            if k + 1 + len > flat.len() {
+            if !fits || k + 1 + len > flat.len() {
                 return Err(self.ctx.parse(
                     Some(line),
                     format!("cell {} runs past the section's {size} values", out.len()),
