@@ -212,7 +212,15 @@ async fn telemetry(
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
         let message = tokio::select! {
-            _ = tick.tick() => ServerMessage::Metrics(*metrics.borrow()),
+            _ = tick.tick() => {
+                let m = *metrics.borrow();
+                // Nothing to report before the station's first figures (a client that
+                // connects in its first tenth of a second).
+                if m.uptime_s <= 0.0 {
+                    continue;
+                }
+                ServerMessage::Metrics(m)
+            }
             e = events.recv() => match e {
                 Ok(e) => ServerMessage::Event(e),
                 Err(broadcast::error::RecvError::Lagged(n)) => ServerMessage::Event(Event {
