@@ -210,26 +210,16 @@ fn python_aioquic_observes_a_station() {
     make_certs(&dir);
     let name = unique_station("aq");
     let (mut server, addr) = start(&dir, &name);
-    let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/quic_observer.py");
-    let out = std::process::Command::new(&python)
-        .arg(&script)
-        .args([
+    let found = station::run_python(
+        "quic_observer.py",
+        &[
             addr.ip().to_string(),
             addr.port().to_string(),
             dir.display().to_string(),
             "obs1".into(),
             "20".into(),
-        ])
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
+        ],
     );
-    let found = json(stdout.trim());
     assert_eq!(found["welcome"]["station"], name.as_str(), "{found}");
     assert_eq!(found["welcome"]["role"], "Observer");
     assert!(

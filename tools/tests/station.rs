@@ -384,21 +384,7 @@ fn a_killed_viewer_is_cleaned_up_and_a_killed_server_restarts_on_the_same_statio
 fn python_reads_a_frame_from_the_running_server() {
     let _serial = one_at_a_time();
     let (dir, name, mut server) = scripted_station("py");
-    let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/read_frame.py");
-    let out = std::process::Command::new(&python)
-        .arg(&script)
-        .args([name.as_str(), "20"])
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let frame = json(stdout.trim());
+    let frame = station::run_python("read_frame.py", &[name.clone(), "20".into()]);
     let nv = frame["n_vertices"].as_u64().unwrap();
     let nt = frame["n_triangles"].as_u64().unwrap();
     assert!(

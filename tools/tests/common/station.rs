@@ -145,3 +145,25 @@ pub fn start_server_with(station: &str, dir: &Path, duration_s: f64, kind: &str)
 pub fn json(line: &str) -> serde_json::Value {
     serde_json::from_str(line).unwrap_or(serde_json::Value::Null)
 }
+
+/// Runs `tools/tests/python/<script>` with `args` on the interpreter named by
+/// SCALPEL_PYTHON (`.ci/run`'s venv; `python3` otherwise) and returns the one JSON object
+/// it prints; fails the test with its output if it fails.
+pub fn run_python(script: &str, args: &[String]) -> serde_json::Value {
+    let python = std::env::var("SCALPEL_PYTHON").unwrap_or_else(|_| "python3".into());
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/python")
+        .join(script);
+    let out = Command::new(&python)
+        .arg(&path)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{script}: {stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    json(stdout.trim())
+}
