@@ -89,7 +89,9 @@ pub struct FaultSpec {
 pub enum Start {
     /// At once.
     Now,
-    /// At this simulation tick.
+    /// At this station tick: the station's 1 ms clock since the server started
+    /// ([`Metrics::station_tick`]). It keeps counting while the simulation stalls or slows
+    /// down, so a fault's start and end never wait on another fault.
     AtTick(u64),
 }
 
@@ -136,6 +138,77 @@ pub enum Fault {
     RendererFreeze,
     /// Observers get no frames or metrics.
     ObserverStreamLoss,
+}
+
+/// Longest a fault may be scheduled ahead or last (ms): an hour.
+pub const MAX_FAULT_MS: u64 = 3_600_000;
+
+impl Fault {
+    /// Every kind, with parameters at their example values (documentation, CLI, tests).
+    pub const EXAMPLES: [Fault; 10] = [
+        Fault::DeviceDropout,
+        Fault::DeviceLatency { ms: 50.0 },
+        Fault::PoseNoise { sigma_mm: 1.0 },
+        Fault::ForceSpike { newtons: 10.0 },
+        Fault::ForceSaturation { max_n: 1.0 },
+        Fault::TissueStiffness {
+            factor: 2.0,
+            ramp_ms: 200,
+        },
+        Fault::SimStall,
+        Fault::SimSlowdown { factor: 4.0 },
+        Fault::RendererFreeze,
+        Fault::ObserverStreamLoss,
+    ];
+
+    /// The kind's name, as the CLI and the docs spell it.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Fault::DeviceDropout => "device-dropout",
+            Fault::DeviceLatency { .. } => "device-latency",
+            Fault::PoseNoise { .. } => "pose-noise",
+            Fault::ForceSpike { .. } => "force-spike",
+            Fault::ForceSaturation { .. } => "force-saturation",
+            Fault::TissueStiffness { .. } => "tissue-stiffness",
+            Fault::SimStall => "sim-stall",
+            Fault::SimSlowdown { .. } => "sim-slowdown",
+            Fault::RendererFreeze => "renderer-freeze",
+            Fault::ObserverStreamLoss => "observer-stream-loss",
+        }
+    }
+
+    /// Checks the parameters: finite and within the ranges docs/PROTOCOL.md gives. The
+    /// error says which parameter and what is allowed.
+    pub fn check(&self) -> Result<(), String> {
+        let within = |name: &str, v: f32, lo: f32, hi: f32| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!(
+                    "{}: {name} {v} is outside {lo}..={hi}",
+                    self.kind()
+                ))
+            }
+        };
+        match *self {
+            Fault::DeviceLatency { ms } => within("ms", ms, 0.0, 1000.0),
+            Fault::PoseNoise { sigma_mm } => within("sigma_mm", sigma_mm, 0.0, 20.0),
+            Fault::ForceSpike { newtons } => within("newtons", newtons, 0.0, 1000.0),
+            Fault::ForceSaturation { max_n } => within("max_n", max_n, 0.0, 1000.0),
+            Fault::TissueStiffness { factor, ramp_ms } => {
+                within("factor", factor, 0.1, 10.0)?;
+                if u64::from(ramp_ms) > 60_000 {
+                    return Err(format!("tissue-stiffness: ramp_ms {ramp_ms} is over 60000"));
+                }
+                Ok(())
+            }
+            Fault::SimSlowdown { factor } => within("factor", factor, 1.0, 100.0),
+            Fault::DeviceDropout
+            | Fault::SimStall
+            | Fault::RendererFreeze
+            | Fault::ObserverStreamLoss => Ok(()),
+        }
+    }
 }
 
 /// Server → client.
@@ -219,6 +292,8 @@ pub struct ScheduledFault {
 pub struct Metrics {
     /// Simulation ticks so far.
     pub sim_tick: u64,
+    /// The station clock (ms since the server started); faults are scheduled on it.
+    pub station_tick: u64,
     /// Server uptime (s).
     pub uptime_s: f64,
     /// Haptic ticks per second over the last status window.

@@ -10,12 +10,17 @@
 //! ...                                         read it, a reader of the journal does)
 //! tick 1 -                                   (no tool)
 //! tick 2 <tip x y z> <orientation w i j k>   (seven f64 bit patterns in hex)
-//! ...
+//! command {"station_tick":2,"sim_tick":1,"by":"ann","seq":1,"action":...,"outcome":...}
+//! stiffness 3 4000000000000000               (factor from tick 3 on, an instructor's fault)
+//! tick 3 ...
 //! end 5000 9f0c2a41d3b87e65                  (ticks, state hash at the end of the run)
 //! ```
 //!
 //! The simulation thread hands each tick's record to a writer thread through an SPSC ring,
-//! so the file's I/O never blocks a tick.
+//! so the file's I/O never blocks a tick. Instructor commands come from the main thread
+//! (JSON: who sent what, when, and what became of it); the faults' effects on the
+//! simulation are in the records themselves — the poses as the simulation got them
+//! (delayed, noisy, dropped) and the stiffness lines — so a replay needs nothing else.
 
 use std::fmt::Write as _;
 use std::io::{BufRead, Write};
@@ -38,6 +43,8 @@ pub struct TickRecord {
     pub tick: u64,
     /// The tool pose the tick used.
     pub pose: Option<ToolPose>,
+    /// A new tissue stiffness factor (an instructor's fault), set before the tick.
+    pub stiffness: Option<f64>,
 }
 
 /// The header lines for a session on `scene` with the server configuration `config` (TOML).
@@ -49,9 +56,12 @@ pub fn header(scene: &str, config: &str) -> String {
     s
 }
 
-/// One tick's line.
+/// One tick's line (after its stiffness line, if the factor changed).
 pub fn write_record(out: &mut impl Write, r: &TickRecord) -> std::io::Result<()> {
-    let mut line = String::with_capacity(160);
+    let mut line = String::with_capacity(200);
+    if let Some(k) = r.stiffness {
+        let _ = writeln!(line, "stiffness {} {:016x}", r.tick, k.to_bits());
+    }
     let _ = write!(line, "tick {}", r.tick);
     match r.pose {
         None => line.push_str(" -"),
@@ -64,6 +74,11 @@ pub fn write_record(out: &mut impl Write, r: &TickRecord) -> std::io::Result<()>
     }
     line.push('\n');
     out.write_all(line.as_bytes())
+}
+
+/// An instructor command's line: `record` is a JSON object (no newlines in it).
+pub fn command_line(record: &serde_json::Value) -> String {
+    format!("command {record}\n")
 }
 
 /// The closing line.
@@ -80,6 +95,8 @@ pub struct Journal {
     pub config: String,
     /// Every tick's input, in order.
     pub ticks: Vec<TickRecord>,
+    /// Instructor commands (JSON objects), in the order the server took them.
+    pub commands: Vec<serde_json::Value>,
     /// The live run's tick count and final state hash, when it closed the journal.
     pub end: Option<(u64, u64)>,
 }
@@ -113,8 +130,10 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
         scene,
         config: String::new(),
         ticks: Vec::new(),
+        commands: Vec::new(),
         end: None,
     };
+    let mut stiffness: Option<(u64, f64)> = None;
     loop {
         let (n, line, last) = match next("its end") {
             Ok(l) => l,
@@ -130,19 +149,34 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
             continue;
         }
         // ... even when the kill cut its last line short.
+        let fields: Vec<&str> = line.split_whitespace().collect();
         let complete = line.starts_with("end ")
             || line.ends_with(" -")
-            || (line.split_whitespace().count() == 9
-                && line
-                    .split_whitespace()
-                    .last()
-                    .is_some_and(|b| b.len() == 16));
+            || (line.starts_with("command ") && line.ends_with('}'))
+            || (matches!(fields.len(), 3 | 9) && fields.last().is_some_and(|b| b.len() == 16));
         if last && !complete {
             return Ok(journal);
         }
         let at = || format!("{}:{n}", path.display());
-        let fields: Vec<&str> = line.split_whitespace().collect();
+        if let Some(json) = line.strip_prefix("command ") {
+            let command = serde_json::from_str(json)
+                .with_context(|| format!("{}: the command is not JSON", at()))?;
+            journal.commands.push(command);
+            continue;
+        }
         match fields.as_slice() {
+            ["stiffness", tick, bits] => {
+                let tick: u64 = tick
+                    .parse()
+                    .with_context(|| format!("{}: bad tick", at()))?;
+                let raw = u64::from_str_radix(bits, 16)
+                    .with_context(|| format!("{}: bad number {bits:?}", at()))?;
+                let k = f64::from_bits(raw);
+                if !(k.is_finite() && k > 0.0) {
+                    bail!("{}: stiffness factor {k} is not a positive number", at());
+                }
+                stiffness = Some((tick, k));
+            }
             ["tick", tick, rest @ ..] => {
                 let tick: u64 = tick
                     .parse()
@@ -168,7 +202,18 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
                     }
                     _ => bail!("{}: expected '-' or seven numbers after the tick", at()),
                 };
-                journal.ticks.push(TickRecord { tick, pose });
+                let stiffness = match stiffness.take() {
+                    Some((t, k)) if t == tick => Some(k),
+                    Some((t, _)) => {
+                        bail!("{}: a stiffness line for tick {t} before tick {tick}", at())
+                    }
+                    None => None,
+                };
+                journal.ticks.push(TickRecord {
+                    tick,
+                    pose,
+                    stiffness,
+                });
             }
             ["end", ticks, hash] => {
                 let ticks: u64 = ticks
@@ -179,7 +224,10 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
                 journal.end = Some((ticks, hash));
                 return Ok(journal);
             }
-            _ => bail!("{}: expected a 'tick' or 'end' line", at()),
+            _ => bail!(
+                "{}: expected a 'tick', 'stiffness', 'command' or 'end' line",
+                at()
+            ),
         }
     }
 }
@@ -189,6 +237,9 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
 pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
     let mut sim = Simulation::new(scene);
     for r in &journal.ticks {
+        if let Some(k) = r.stiffness {
+            sim.set_stiffness_factor(k);
+        }
         sim.set_tool(r.pose);
         sim.tick(crate::station::SIM_TICK_S, &mut Unobserved);
     }
@@ -211,6 +262,7 @@ mod tests {
             &TickRecord {
                 tick: 1,
                 pose: None,
+                stiffness: None,
             },
         )
         .unwrap();
@@ -219,15 +271,20 @@ mod tests {
             &TickRecord {
                 tick: 2,
                 pose: Some(pose),
+                stiffness: Some(1.5),
             },
         )
         .unwrap();
+        text.extend_from_slice(
+            command_line(&serde_json::json!({"by": "ann", "seq": 1})).as_bytes(),
+        );
         let whole = text.len();
         write_record(
             &mut text,
             &TickRecord {
                 tick: 3,
                 pose: Some(pose),
+                stiffness: None,
             },
         )
         .unwrap();
@@ -237,6 +294,8 @@ mod tests {
         let j = read(&path).unwrap();
         assert_eq!(j.ticks.len(), 2);
         assert_eq!(j.ticks[1].pose, Some(pose));
+        assert_eq!(j.ticks[1].stiffness, Some(1.5));
+        assert_eq!(j.commands, vec![serde_json::json!({"by": "ann", "seq": 1})]);
         assert_eq!(j.config, "station = \"a\"\n\n[device]\n");
         assert_eq!(j.end, None);
         // A bad line that is not the last is an error naming the line.

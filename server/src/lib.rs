@@ -6,6 +6,7 @@
 pub mod config;
 pub mod device;
 pub mod device_monitor;
+pub mod faults;
 pub mod frames;
 pub mod journal;
 pub mod net;

@@ -62,6 +62,9 @@ pub struct OutputInput {
     pub device_seen_s: Option<f64>,
     /// When the simulation last published a force model (s); `None` if never.
     pub sim_seen_s: Option<f64>,
+    /// A cap below the device limit (N; infinite: none), e.g. a force-saturation fault.
+    /// It can only lower the limit.
+    pub cap_n: f64,
 }
 
 /// What the stage did on one tick, for counters.
@@ -117,6 +120,12 @@ impl OutputStage {
     /// One tick: the force to send.
     pub fn process(&mut self, input: &OutputInput) -> OutputReport {
         let l = self.limits;
+        // NaN compares false: a NaN cap leaves the device limit.
+        let max_n = if input.cap_n < l.max_force_n {
+            input.cap_n.max(0.0)
+        } else {
+            l.max_force_n
+        };
         let dt = match self.last_now_s {
             Some(t) if input.now_s > t => (input.now_s - t).min(0.1),
             _ => 0.001,
@@ -136,7 +145,7 @@ impl OutputStage {
             report.nan_guarded = true;
         }
         // Clamp to the device limit (scaled, never distorted in direction).
-        report.clamped |= clamp(&mut f, l.max_force_n);
+        report.clamped |= clamp(&mut f, max_n);
         // Passivity (Hannaford & Ryu 2002): the observer (updated below with the force that
         // was actually sent) holds the energy the environment has absorbed, −∫f·v dt. If it
         // has given out more than it took in, damp the device just enough to take the
@@ -172,7 +181,7 @@ impl OutputStage {
             f = self.last_force + step * (max_step / step.norm());
             report.rate_limited = true;
         }
-        report.clamped |= clamp(&mut f, l.max_force_n);
+        report.clamped |= clamp(&mut f, max_n);
         if !f.iter().all(|c| c.is_finite()) {
             f = Vec3::zeros();
             report.nan_guarded = true;
@@ -213,6 +222,7 @@ mod tests {
             velocity_m_per_s: v,
             device_seen_s: Some(t),
             sim_seen_s: Some(t),
+            cap_n: f64::INFINITY,
         }
     }
 
@@ -313,6 +323,34 @@ mod tests {
             .last()
             .unwrap();
         assert_eq!(r.force_n, Vec3::zeros());
+    }
+
+    #[test]
+    fn a_cap_lowers_the_limit_and_never_raises_it() {
+        let mut s = OutputStage::new(limits());
+        let f = Vec3::new(0.0, 0.0, 100.0);
+        settle(&mut s, f, 200);
+        let capped = |s: &mut OutputStage, t: f64, cap: f64| {
+            s.process(&OutputInput {
+                cap_n: cap,
+                ..input(t, f, Vec3::zeros())
+            })
+        };
+        // Down to the cap at the rate limit, then held there.
+        let r = (0..50)
+            .map(|k| capped(&mut s, 0.2 + k as f64 * 1e-3, 1.0))
+            .last()
+            .unwrap();
+        assert!((r.force_n.norm() - 1.0).abs() < 1e-12, "{:?}", r.force_n);
+        for cap in [1e9, f64::NAN, f64::INFINITY] {
+            let r = (0..100)
+                .map(|k| capped(&mut s, 0.3 + k as f64 * 1e-3, cap))
+                .last()
+                .unwrap();
+            assert!(r.force_n.norm() <= limits().max_force_n + 1e-12);
+        }
+        let r = capped(&mut s, 0.5, -3.0);
+        assert!(r.force_n.norm() < limits().max_force_n);
     }
 
     proptest! {

@@ -54,7 +54,6 @@ pub struct ShmDevice {
     sender_handle: Option<JoinHandle<()>>,
     stop: Arc<AtomicBool>,
     tick: u64,
-    last_seq: u64,
     counters: Arc<ShmDeviceCounters>,
     _node: Node<ipc::Service>,
 }
@@ -97,7 +96,6 @@ impl ShmDevice {
             sender_handle: Some(sender_handle),
             stop,
             tick: 0,
-            last_seq: 0,
             counters,
             _node: node,
         })
@@ -197,7 +195,6 @@ impl HapticDevice for ShmDevice {
                                 seq: payload.seq,
                                 device_time_s: payload.device_time_ns as f64 * 1e-9,
                             });
-                            self.last_seq = payload.seq;
                             self.counters.poses.fetch_add(1, Ordering::Relaxed);
                         }
                         None => {
@@ -226,7 +223,7 @@ impl HapticDevice for ShmDevice {
                     0
                 },
             tick: self.tick,
-            pose_seq: self.last_seq,
+            pose_seq: status.pose_seq,
             tick_time_ns: status.tick_time_ns,
             sent_time_ns: 0,
             force_n: force_n.into(),

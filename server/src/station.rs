@@ -24,8 +24,9 @@ use scalpel_sim::math::{Mat3, Vec3};
 use scalpel_sim::pipeline::{Simulation, Unobserved};
 use scalpel_sim::scene::BuiltScene;
 
-use crate::device::{DeviceFactory, ForceStatus, HapticDevice};
+use crate::device::{DeviceFactory, DeviceSample, ForceStatus, HapticDevice};
 use crate::device_monitor::{DeviceEvent, DeviceMonitor};
+use crate::faults::{FaultBook, FaultTable, HapticEffects, Transition};
 use crate::frames::{FrameInfo, FramePublisher};
 use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputStage};
@@ -60,6 +61,16 @@ pub(crate) struct PoseIn {
 fn next_on_grid(origin: f64, period: f64, now: f64) -> f64 {
     origin + period * ((now - origin) / period).ceil().max(0.0)
 }
+/// The station clock's tick at `now_s` seconds since the start (1 ms ticks; faults are
+/// scheduled on it). The threads wake on the tick's grid point or just after it, and the
+/// nanosecond of slack keeps one that the float sum puts a hair early on its own tick.
+pub fn station_tick(now_s: f64) -> u64 {
+    ((now_s + 1e-9) * 1e3).max(0.0) as u64
+}
+
+/// Device samples a latency fault can hold back (a second at 1 kHz, and room).
+const DELAY_LINE: usize = 2048;
+
 /// Journal records in flight to the writer thread (a minute at 1 kHz).
 const JOURNAL_RING: usize = 1 << 16;
 
@@ -72,7 +83,7 @@ struct ModelUpdate {
 }
 
 /// The simulation's figures, handed to the main thread.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SimStatus {
     /// Simulation ticks so far.
     pub ticks: u64,
@@ -95,6 +106,26 @@ pub struct SimStatus {
     pub entries: u64,
     /// Times the tissue ruptured under the blade (cutting began).
     pub ruptures: u64,
+    /// Factor on the tissue's stiffness in effect (1: the scene's; an instructor's fault).
+    pub stiffness_factor: f64,
+}
+
+impl Default for SimStatus {
+    fn default() -> Self {
+        Self {
+            ticks: 0,
+            cut_length_mm: 0.0,
+            sim_force_n: 0.0,
+            active_points: 0,
+            max_tick_ms: 0.0,
+            late_ticks: 0,
+            frames_sent: 0,
+            frames_failed: 0,
+            entries: 0,
+            ruptures: 0,
+            stiffness_factor: 1.0,
+        }
+    }
 }
 
 /// Counters the haptic thread keeps with atomics only; the main thread reads and resets the
@@ -326,6 +357,10 @@ pub fn run(
     };
     let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
     let (status_in, mut status_out) = triple_buffer::triple_buffer(&SimStatus::default());
+    // The instructor's faults, one table per real-time thread.
+    let (mut faults_to_haptic, faults_haptic) =
+        triple_buffer::triple_buffer(&FaultTable::default());
+    let (mut faults_to_sim, faults_sim) = triple_buffer::triple_buffer(&FaultTable::default());
     let counters = Arc::new(HapticCounters::new());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (frames_tx, frames_rx) = std::sync::mpsc::channel();
@@ -366,10 +401,11 @@ pub fn run(
     let t0 = realtime::monotonic_s();
     let journal_dropped = Arc::new(AtomicU64::new(0));
     let sim_done = Arc::new(AtomicBool::new(false));
+    let (commands_journal, commands_out) = std::sync::mpsc::channel::<String>();
     let (records_in, writer) = match journal {
         Some(file) => {
             let (records_in, records_out) = rtrb::RingBuffer::<TickRecord>::new(JOURNAL_RING);
-            let writer = spawn_journal_writer(file, records_out, sim_done.clone())?;
+            let writer = spawn_journal_writer(file, records_out, commands_out, sim_done.clone())?;
             (Some(records_in), Some(writer))
         }
         None => (None, None),
@@ -379,6 +415,7 @@ pub fn run(
         pose_out,
         model_in,
         status_in,
+        faults_sim,
         SimJournal {
             records: records_in,
             dropped: journal_dropped.clone(),
@@ -403,12 +440,13 @@ pub fn run(
             },
             pose_in,
             model_out,
+            faults_haptic,
             counters.clone(),
             stop.clone(),
             ready_tx,
         )?)
     } else {
-        drop((device, pose_in, model_out, ready_tx));
+        drop((device, pose_in, model_out, faults_haptic, ready_tx));
         None
     };
     let mut fifo_priority = 0;
@@ -512,10 +550,68 @@ pub fn run(
     let mut next = t0 + params.status_interval_s;
     let mut window_start = t0;
     let mut remote = RemoteFeed::default();
+    let mut book = FaultBook::new();
+    let mut stream_lost = false;
     while !stop.load(Ordering::Relaxed) {
-        realtime::sleep_until(next.min(realtime::monotonic_s() + 0.05));
+        // Every 10 ms: instructors' commands are answered within that.
+        realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
         let now = realtime::monotonic_s();
         let sim_now = *status_out.read();
+        let tick = station_tick(now - t0);
+        let mut table_changed = false;
+        if let Some(n) = &network {
+            while let Ok(request) = n.commands.try_recv() {
+                let (outcome, listed) = book.command(&request.by, &request.command, tick);
+                table_changed |= matches!(
+                    outcome,
+                    scalpel_proto::wire::Outcome::Scheduled { .. }
+                        | scalpel_proto::wire::Outcome::Cleared { .. }
+                );
+                let record = serde_json::json!({
+                    "station_tick": tick,
+                    "sim_tick": sim_now.ticks,
+                    "by": request.by,
+                    "seq": request.command.seq,
+                    "action": request.command.action,
+                    "outcome": outcome,
+                });
+                // No journal: nobody reads the channel, and that is fine.
+                let _ = commands_journal.send(journal::command_line(&record));
+                report(&StationReport::Event(StationEvent {
+                    uptime_s: now - t0,
+                    event: format!(
+                        "instructor {}: command {} {:?} -> {:?}",
+                        request.by, request.command.seq, request.command.action, outcome
+                    ),
+                }));
+                // The session may have gone: its answer has nowhere to go.
+                let _ = request.reply.send((outcome, listed));
+            }
+        }
+        for transition in book.advance(tick) {
+            table_changed = true;
+            let (kind, text) = match transition {
+                Transition::Applied(t) => (EventKind::FaultApplied, format!("{t}: applied")),
+                Transition::Ended(t) => (EventKind::FaultCleared, t),
+            };
+            remote.event(&network, &sim_now, now - t0, kind, &text);
+            report(&StationReport::Event(StationEvent {
+                uptime_s: now - t0,
+                event: text,
+            }));
+        }
+        if table_changed {
+            let table = book.table();
+            faults_to_haptic.write(table);
+            faults_to_sim.write(table);
+        }
+        if let Some(n) = &network {
+            let lost = book.table().stream_lost(tick);
+            if lost != stream_lost {
+                stream_lost = lost;
+                n.feeds.stream_lost.send_replace(lost);
+            }
+        }
         if let Some(m) = &mut monitor
             && let Some(change) = m.poll()
             && params.monitor_device
@@ -630,11 +726,13 @@ struct HapticReady {
     device: Result<(), String>,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn spawn_haptic(
     device: DeviceFactory,
     ctx: HapticContext,
     mut poses: rtrb::Producer<PoseIn>,
     mut models: triple_buffer::Output<ModelUpdate>,
+    mut faults: triple_buffer::Output<FaultTable>,
     counters: Arc<HapticCounters>,
     stop: Arc<AtomicBool>,
     ready: std::sync::mpsc::Sender<HapticReady>,
@@ -687,6 +785,7 @@ fn spawn_haptic(
                     device.as_mut(),
                     &mut poses,
                     &mut models,
+                    &mut faults,
                     &counters,
                 );
             }
@@ -714,6 +813,14 @@ pub struct HapticState {
     device_seen: Option<f64>,
     sim_seen: Option<f64>,
     last_model_tick: u64,
+    /// Device samples held back by a latency fault, with the time each arrived (capacity
+    /// reserved up front: pushing never allocates).
+    delay: std::collections::VecDeque<(f64, DeviceSample)>,
+    /// `seq` of the sample the force is computed from.
+    used_seq: u64,
+    /// The noise fault's generator (seeded: a run's noise is the journal's to replay,
+    /// since the poses the simulation used are journaled after the noise).
+    rng: rand_pcg::Pcg32,
 }
 
 impl HapticState {
@@ -726,12 +833,54 @@ impl HapticState {
             device_seen: None,
             sim_seen: None,
             last_model_tick: 0,
+            delay: std::collections::VecDeque::with_capacity(DELAY_LINE),
+            used_seq: 0,
+            rng: rand_pcg::Pcg32::new(0x05ca_19e1, 0x0da7_a5e7),
         }
     }
 
+    /// The device's sample for this tick, through the faults: dropped while the device
+    /// drops out, held back by a latency, or passed on.
+    fn faulted_sample(
+        &mut self,
+        now: f64,
+        arrived: Option<DeviceSample>,
+        effects: &HapticEffects,
+    ) -> Option<DeviceSample> {
+        if let Some(s) = arrived
+            && !effects.dropout
+        {
+            if self.delay.len() == DELAY_LINE {
+                self.delay.pop_front();
+            }
+            self.delay.push_back((now, s));
+        }
+        let mut delivered = None;
+        while let Some(&(arrived_at, s)) = self.delay.front() {
+            if now - arrived_at + 1e-9 < effects.latency_s {
+                break;
+            }
+            delivered = Some(s);
+            self.delay.pop_front();
+        }
+        delivered
+    }
+
+    /// A Gaussian offset with `sigma` per axis (Box–Muller on the seeded generator).
+    fn noise(&mut self, sigma: f64) -> Vec3 {
+        use rand_pcg::rand_core::Rng;
+        let mut uniform = || (self.rng.next_u32() as f64 + 0.5) / 4_294_967_296.0;
+        let mut gauss = || {
+            let (u, v) = (uniform(), uniform());
+            (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+        };
+        Vec3::new(gauss(), gauss(), gauss()) * sigma
+    }
+
     /// One haptic tick at `now` (s since the start) that woke `lateness` late: device pose
-    /// in, coupling on the latest model, output stage, force out, pose to the simulation.
-    /// No allocation, no lock, no wait (tests/realtime.rs counts allocations).
+    /// in (through the instructor's faults), coupling on the latest model, output stage,
+    /// force out, pose to the simulation. No allocation, no lock, no wait
+    /// (tests/realtime.rs counts allocations).
     #[allow(clippy::too_many_arguments)]
     fn tick(
         &mut self,
@@ -741,11 +890,14 @@ impl HapticState {
         device: &mut dyn HapticDevice,
         poses: &mut rtrb::Producer<PoseIn>,
         models: &mut triple_buffer::Output<ModelUpdate>,
+        faults: &mut triple_buffer::Output<FaultTable>,
         counters: &HapticCounters,
     ) {
         let tick_wall_s = realtime::monotonic_s();
+        let effects = faults.read().haptic(station_tick(now));
         let mut x = self.last_pose.map_or(Vec3::zeros(), |(_, x)| x);
-        if let Some(sample) = device.sample(now) {
+        let arrived = device.sample(now);
+        if let Some(mut sample) = self.faulted_sample(now, arrived, &effects) {
             // Velocity on the device's clock: a device and this loop both at 1 kHz drift in
             // phase, so some ticks get no sample and some two; the receive times would
             // make that look like stops and jumps.
@@ -758,6 +910,13 @@ impl HapticState {
             x = sample.pose.tip_m;
             self.last_pose = Some((sample.device_time_s, x));
             self.device_seen = Some(now);
+            self.used_seq = sample.seq;
+            if effects.noise_sigma_m > 0.0 {
+                // On what the coupling and the simulation see, not on the velocity (a
+                // millimetre of noise a millisecond would read as metres a second).
+                sample.pose.tip_m += self.noise(effects.noise_sigma_m);
+                x = sample.pose.tip_m;
+            }
             let received_ns = (tick_wall_s * 1e9) as u64;
             if poses
                 .push(PoseIn {
@@ -779,12 +938,20 @@ impl HapticState {
             self.last_model_tick = update.tick;
             self.sim_seen = Some(now);
         }
+        let mut requested = update.model.force_at(x);
+        if effects.spike_n != 0.0 {
+            // Along the force there is (or up, out of the tissue): the output stage limits
+            // it like any other request.
+            let along = requested.try_normalize(1e-9).unwrap_or_else(Vec3::z);
+            requested += along * effects.spike_n;
+        }
         let report = self.stage.process(&OutputInput {
             now_s: now,
-            requested_n: update.model.force_at(x),
+            requested_n: requested,
             velocity_m_per_s: velocity,
             device_seen_s: self.device_seen,
             sim_seen_s: self.sim_seen,
+            cap_n: effects.cap_n,
         });
         device.send_force(
             report.force_n,
@@ -792,6 +959,7 @@ impl HapticState {
                 faded: report.watchdog_gain < 1.0,
                 nan_guarded: report.nan_guarded,
                 tick_time_ns: (tick_wall_s * 1e9) as u64,
+                pose_seq: self.used_seq,
             },
         );
         counters.record(
@@ -813,6 +981,7 @@ impl HapticState {
             velocity_m_per_s: Vec3::zeros(),
             device_seen_s: Some(now),
             sim_seen_s: Some(now),
+            cap_n: f64::INFINITY,
         });
         device.send_force(
             report.force_n,
@@ -820,6 +989,7 @@ impl HapticState {
                 faded: true,
                 nan_guarded: false,
                 tick_time_ns: (realtime::monotonic_s() * 1e9) as u64,
+                pose_seq: self.used_seq,
             },
         );
         report.force_n
@@ -828,17 +998,20 @@ impl HapticState {
 
 /// Drives [`HapticState::tick`] with real hand-offs, for the allocation test: `ticks`
 /// haptic ticks of 1 ms against `device`, with a simulation side that publishes `model`
-/// every tick and drains the poses. Returns the force sent on the last tick.
+/// every tick and drains the poses, under the instructor's `faults`. Returns the force
+/// sent on the last tick.
 pub fn drive_haptic_ticks(
     device: &mut dyn HapticDevice,
     limits: OutputLimits,
     model: LocalForceModel,
+    faults: FaultTable,
     ticks: usize,
     mut between: impl FnMut(),
 ) -> f64 {
     let (mut pose_in, mut pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
     let first = ModelUpdate { model, tick: 0 };
     let (mut model_in, mut model_out) = triple_buffer::triple_buffer(&first);
+    let (_faults_in, mut faults_out) = triple_buffer::triple_buffer(&faults);
     let counters = HapticCounters::new();
     let mut state = HapticState::new(limits);
     let mut force = 0.0;
@@ -854,6 +1027,7 @@ pub fn drive_haptic_ticks(
             device,
             &mut pose_in,
             &mut model_out,
+            &mut faults_out,
             &counters,
         );
         while pose_out.pop().is_ok() {}
@@ -874,6 +1048,7 @@ struct SimJournal {
 fn spawn_journal_writer(
     mut file: std::io::BufWriter<std::fs::File>,
     mut records: rtrb::Consumer<TickRecord>,
+    commands: std::sync::mpsc::Receiver<String>,
     sim_done: Arc<AtomicBool>,
 ) -> std::io::Result<JoinHandle<std::io::Result<std::io::BufWriter<std::fs::File>>>> {
     std::thread::Builder::new()
@@ -881,6 +1056,9 @@ fn spawn_journal_writer(
         .spawn(move || {
             loop {
                 let done = sim_done.load(Ordering::Acquire);
+                while let Ok(line) = commands.try_recv() {
+                    std::io::Write::write_all(&mut file, line.as_bytes())?;
+                }
                 while let Ok(r) = records.pop() {
                     journal::write_record(&mut file, &r)?;
                 }
@@ -903,6 +1081,22 @@ struct RemoteFeed {
     ruptures: u64,
 }
 
+/// Sends an event to the observers (none connected is not an error).
+fn send_event(
+    network: &crate::net::Network,
+    sim: &SimStatus,
+    uptime_s: f64,
+    kind: EventKind,
+    detail: String,
+) {
+    let _ = network.feeds.events.send(Event {
+        sim_tick: sim.ticks,
+        uptime_s,
+        kind,
+        detail,
+    });
+}
+
 impl RemoteFeed {
     fn event(
         &self,
@@ -913,13 +1107,7 @@ impl RemoteFeed {
         detail: &str,
     ) {
         if let Some(n) = network {
-            // No observer connected is not an error.
-            let _ = n.feeds.events.send(Event {
-                sim_tick: sim.ticks,
-                uptime_s,
-                kind,
-                detail: detail.to_string(),
-            });
+            send_event(n, sim, uptime_s, kind, detail.to_string());
         }
     }
 
@@ -931,15 +1119,7 @@ impl RemoteFeed {
         counters: &HapticCounters,
         device_connected: bool,
     ) {
-        let send = |kind, detail: String| {
-            // No observer connected is not an error.
-            let _ = network.feeds.events.send(Event {
-                sim_tick: sim.ticks,
-                uptime_s,
-                kind,
-                detail,
-            });
-        };
+        let send = |kind, detail: String| send_event(network, sim, uptime_s, kind, detail);
         if sim.entries > self.entries {
             self.entries = sim.entries;
             send(EventKind::CutStarted, "the blade entered the tissue".into());
@@ -958,6 +1138,7 @@ impl RemoteFeed {
         let w = self.window;
         let metrics = Metrics {
             sim_tick: sim.ticks,
+            station_tick: station_tick(uptime_s),
             uptime_s,
             haptic_rate_hz: w.map_or(0.0, |w| w.rate_hz as f32),
             jitter_p99_ms: w.map_or(0.0, |w| w.jitter_p99_ms as f32),
@@ -1004,6 +1185,7 @@ fn spawn_sim(
     mut poses: rtrb::Consumer<PoseIn>,
     mut models: triple_buffer::Input<ModelUpdate>,
     mut status: triple_buffer::Input<SimStatus>,
+    mut faults: triple_buffer::Output<FaultTable>,
     mut journal: SimJournal,
     frames: SimFrames,
     stop: Arc<AtomicBool>,
@@ -1034,6 +1216,10 @@ fn spawn_sim(
             let mut last_tip: Option<Vec3> = None;
             let mut pose: Option<PoseIn> = None;
             let mut last = LastTick::default();
+            // Simulated ticks owed to a slowed-down simulation (1 per wall tick at real
+            // time), and the stiffness factor in effect and last asked for.
+            let mut credit = 0.0;
+            let (mut stiffness, mut stiffness_asked) = (1.0, 1.0);
             while !stop.load(Ordering::Relaxed) {
                 deadline += SIM_TICK_S;
                 realtime::sleep_until(deadline);
@@ -1046,12 +1232,35 @@ fn spawn_sim(
                 while let Ok(p) = poses.pop() {
                     pose = Some(p);
                 }
+                let effects = faults.read().sim(station_tick(started - t0));
+                if effects.stall {
+                    // No tick, no frame, no new force model: the haptic watchdog fades
+                    // the force out after its timeout.
+                    continue;
+                }
+                credit = (credit + 1.0 / effects.slowdown).min(1.0);
+                if credit < 1.0 - 1e-9 {
+                    continue;
+                }
+                credit = 0.0;
+                let stiffness_change = crate::faults::stiffness_to_apply(
+                    stiffness,
+                    effects.stiffness,
+                    stiffness_asked,
+                );
+                stiffness_asked = effects.stiffness;
+                if let Some(k) = stiffness_change {
+                    sim.set_stiffness_factor(k);
+                    stiffness = k;
+                    figures.stiffness_factor = k;
+                }
                 let tool = pose.map(|p| p.pose);
                 // The frame goes out first: it shows the pose just taken, on the surface
                 // of the last tick (a tick of cutting takes a few hundred microseconds
                 // that the frame need not wait for).
                 if let Some(p) = &mut publisher
                     && (figures.ticks + 1) % frames.every_ticks == 0
+                    && !effects.renderer_freeze
                 {
                     let info = FrameInfo {
                         sim_tick: figures.ticks,
@@ -1074,6 +1283,7 @@ fn spawn_sim(
                     let record = TickRecord {
                         tick: figures.ticks + 1,
                         pose: tool,
+                        stiffness: stiffness_change,
                     };
                     if records.push(record).is_err() {
                         journal.dropped.fetch_add(1, Ordering::Relaxed);

@@ -9,7 +9,9 @@
 mod counting_alloc;
 
 use counting_alloc::allocations;
+use scalpel_proto::wire::{Action, Command, Fault, FaultSpec, Outcome, Start};
 use scalpel_server::device::ScriptedDevice;
+use scalpel_server::faults::{FaultBook, FaultTable};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::station::drive_haptic_ticks;
 use scalpel_sim::force::LocalForceModel;
@@ -30,11 +32,34 @@ fn haptic_ticks_do_not_allocate() {
         x0_m: Vec3::zeros(),
         stiffness_n_per_m: Mat3::identity() * -500.0,
     };
+    // The instructor's faults that act on the haptic thread, over parts of the run: the
+    // delay line, the noise generator, the spike and the cap run allocation-free too.
+    let mut book = FaultBook::new();
+    let faults = [
+        (Fault::DeviceLatency { ms: 20.0 }, 1000, 2000),
+        (Fault::PoseNoise { sigma_mm: 1.0 }, 1000, 3000),
+        (Fault::ForceSpike { newtons: 50.0 }, 2000, 500),
+        (Fault::ForceSaturation { max_n: 0.5 }, 2500, 500),
+        (Fault::DeviceDropout, 3500, 100),
+    ];
+    for (seq, (fault, at, ms)) in faults.into_iter().enumerate() {
+        let spec = FaultSpec {
+            fault,
+            start: Start::AtTick(at),
+            duration_ms: ms,
+        };
+        let command = Command {
+            seq: seq as u64 + 1,
+            action: Action::Schedule(spec),
+        };
+        let (outcome, _) = book.command("test", &command, 0);
+        assert!(matches!(outcome, Outcome::Scheduled { .. }), "{outcome:?}");
+    }
     let warm_up = 10;
     let ticks = 5000;
     let mut k = 0;
     let mut start = 0;
-    let force = drive_haptic_ticks(&mut device, limits, model, ticks, || {
+    let force = drive_haptic_ticks(&mut device, limits, model, book.table(), ticks, || {
         k += 1;
         if k == warm_up {
             start = allocations();
@@ -84,37 +109,44 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
     let warm_up = 10;
     let ticks = 3000;
     let (mut k, mut start, mut excluded, mut received) = (0, 0, 0, 0u64);
-    let force = drive_haptic_ticks(&mut device, OutputLimits::default(), model, ticks, || {
-        let before = allocations();
-        k += 1;
-        let sample = DevicePose {
-            layout_version: LAYOUT_VERSION,
-            seq: k as u64,
-            tip_m: [0.0, 0.0, -0.001 * (k % 7) as f64],
-            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
-            ..DevicePose::default()
-        };
-        poses.send_copy(sample).unwrap();
-        // As a device at 1 kHz would: the force of this tick arrives from the force-out
-        // thread within a fraction of a millisecond.
-        let asked = std::time::Instant::now();
-        let mut got = false;
-        while !got && asked.elapsed() < std::time::Duration::from_millis(100) {
-            while let Ok(Some(f)) = forces.receive() {
-                received += 1;
-                got |= f.tick as usize >= k;
+    let force = drive_haptic_ticks(
+        &mut device,
+        OutputLimits::default(),
+        model,
+        FaultTable::default(),
+        ticks,
+        || {
+            let before = allocations();
+            k += 1;
+            let sample = DevicePose {
+                layout_version: LAYOUT_VERSION,
+                seq: k as u64,
+                tip_m: [0.0, 0.0, -0.001 * (k % 7) as f64],
+                orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+                ..DevicePose::default()
+            };
+            poses.send_copy(sample).unwrap();
+            // As a device at 1 kHz would: the force of this tick arrives from the force-out
+            // thread within a fraction of a millisecond.
+            let asked = std::time::Instant::now();
+            let mut got = false;
+            while !got && asked.elapsed() < std::time::Duration::from_millis(100) {
+                while let Ok(Some(f)) = forces.receive() {
+                    received += 1;
+                    got |= f.tick as usize >= k;
+                }
+                if !got {
+                    std::thread::sleep(std::time::Duration::from_micros(20));
+                }
             }
-            if !got {
-                std::thread::sleep(std::time::Duration::from_micros(20));
+            if k == warm_up {
+                start = allocations();
+                excluded = 0;
+            } else {
+                excluded += allocations() - before;
             }
-        }
-        if k == warm_up {
-            start = allocations();
-            excluded = 0;
-        } else {
-            excluded += allocations() - before;
-        }
-    });
+        },
+    );
     let during = allocations() - start - excluded;
     use std::sync::atomic::Ordering::Relaxed;
     assert!(force.is_finite() && force > 0.0 && force <= 3.3, "{force}");

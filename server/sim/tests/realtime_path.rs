@@ -25,11 +25,16 @@ fn model(name: &str) -> CoupledModel {
 /// A solver on `model` with a deterministic perturbation, a clamped face and a load, so
 /// every part of the step (forces, constraints, loads) is exercised.
 fn prepared(model: &CoupledModel, mode: SolverMode) -> Solver {
+    prepared_with(model, mode, &Material::LIVER)
+}
+
+/// [`prepared`] with another material.
+fn prepared_with(model: &CoupledModel, mode: SolverMode, material: &Material) -> Solver {
     let config = SolverConfig {
         mode,
         ..SolverConfig::default()
     };
-    let mut solver = Solver::for_model(model, &Material::LIVER, config);
+    let mut solver = Solver::for_model(model, material, config);
     let p: Vec<Vec3> = model
         .points
         .rest
@@ -253,4 +258,39 @@ fn cutting_ticks_without_topology_change_do_not_allocate() {
         "the cut should have grown: {seen:?}"
     );
     assert_eq!(seen.plain_allocations, 0, "{seen:?}");
+}
+
+/// An instructor's tissue-stiffness fault changes E on a running solver: it must then step
+/// like a solver built with that E (constants, preconditioner and time step re-derived),
+/// and the change itself must not allocate.
+#[test]
+fn changing_youngs_modulus_matches_a_solver_built_with_it_and_does_not_allocate() {
+    let m = model("liver");
+    let stiffer = Material {
+        youngs_modulus_pa: Material::LIVER.youngs_modulus_pa * 2.5,
+        ..Material::LIVER
+    };
+    for mode in [SolverMode::Explicit, SolverMode::QuasiStatic] {
+        let mut changed = prepared_with(&m, mode, &Material::LIVER);
+        let before = allocations();
+        changed.set_youngs_modulus(stiffer.youngs_modulus_pa);
+        assert_eq!(allocations() - before, 0, "{mode:?}");
+        let mut built = prepared_with(&m, mode, &stiffer);
+        let rest = prepared_with(&m, mode, &Material::LIVER);
+        for _ in 0..5 {
+            changed.step(1e-3);
+            built.step(1e-3);
+        }
+        let gap = |a: &Solver, b: &Solver| {
+            a.positions()
+                .iter()
+                .zip(b.positions())
+                .map(|(x, y)| (x - y).norm())
+                .fold(0.0, f64::max)
+        };
+        let moved = gap(&built, &rest);
+        let error = gap(&changed, &built);
+        assert!(moved > 1e-7, "{mode:?}: the solver should move ({moved})");
+        assert!(error <= 1e-9 * moved, "{mode:?}: {error} against {moved}");
+    }
 }

@@ -52,6 +52,22 @@ pub struct NetworkFeeds {
     pub metrics: watch::Sender<Metrics>,
     /// Events.
     pub events: broadcast::Sender<Event>,
+    /// An observer-stream-loss fault is in effect: no frames, no metrics.
+    pub stream_lost: watch::Sender<bool>,
+}
+
+/// An instructor's command on its way to the station's fault book (main thread), and
+/// where its answer goes.
+pub struct CommandRequest {
+    /// The instructor (certificate common name).
+    pub by: String,
+    /// The command.
+    pub command: scalpel_proto::wire::Command,
+    /// The outcome, and the fault list for `List`.
+    pub reply: tokio::sync::oneshot::Sender<(
+        scalpel_proto::wire::Outcome,
+        Option<Vec<scalpel_proto::wire::ScheduledFault>>,
+    )>,
 }
 
 /// The running endpoint.
@@ -60,6 +76,8 @@ pub struct Network {
     pub local_addr: SocketAddr,
     /// Feeds for the station to fill.
     pub feeds: NetworkFeeds,
+    /// Instructors' commands, for the station to answer.
+    pub commands: std::sync::mpsc::Receiver<CommandRequest>,
     stop: watch::Sender<bool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -106,6 +124,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
     let tls = tls::server_config(&params.certs)?;
     let (metrics_tx, metrics_rx) = watch::channel(Metrics {
         sim_tick: 0,
+        station_tick: 0,
         uptime_s: 0.0,
         haptic_rate_hz: 0.0,
         jitter_p99_ms: 0.0,
@@ -117,6 +136,8 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
         device_connected: false,
     });
     let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
+    let (lost_tx, lost_rx) = watch::channel(false);
+    let (commands_tx, commands_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = watch::channel(false);
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let events = events_tx.clone();
@@ -149,7 +170,14 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
                     frames_tx,
                     stop_rx.clone(),
                 );
-                accept_loop(&endpoint, &params, metrics_rx, events, frames_rx, stop_rx).await;
+                let feeds = SessionFeeds {
+                    metrics: metrics_rx,
+                    events,
+                    frames: frames_rx,
+                    stream_lost: lost_rx,
+                    commands: commands_tx,
+                };
+                accept_loop(&endpoint, &params, feeds, stop_rx).await;
                 endpoint.close(0u32.into(), b"server stopping");
                 endpoint.wait_idle().await;
                 let _ = reader.join();
@@ -164,7 +192,9 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
         feeds: NetworkFeeds {
             metrics: metrics_tx,
             events: events_tx,
+            stream_lost: lost_tx,
         },
+        commands: commands_rx,
         stop: stop_tx,
         thread: Some(thread),
     })
@@ -197,12 +227,19 @@ fn endpoint(params: &NetworkParams, tls: rustls::ServerConfig) -> anyhow::Result
         .with_context(|| format!("cannot listen on {}", params.listen))
 }
 
-async fn accept_loop(
-    endpoint: &quinn::Endpoint,
-    params: &NetworkParams,
+/// The endpoint's ends of the station's feeds, cloned into every session.
+struct SessionFeeds {
     metrics: watch::Receiver<Metrics>,
     events: broadcast::Sender<Event>,
     frames: watch::Receiver<Option<Arc<SourceFrame>>>,
+    stream_lost: watch::Receiver<bool>,
+    commands: std::sync::mpsc::Sender<CommandRequest>,
+}
+
+async fn accept_loop(
+    endpoint: &quinn::Endpoint,
+    params: &NetworkParams,
+    feeds: SessionFeeds,
     mut stop: watch::Receiver<bool>,
 ) {
     let counts = AddressCounts::default();
@@ -224,9 +261,11 @@ async fn accept_loop(
             station: params.station.clone(),
             scene: params.scene.clone(),
             frame_hz_max: params.frame_hz,
-            metrics: metrics.clone(),
-            events: events.subscribe(),
-            frames: frames.clone(),
+            metrics: feeds.metrics.clone(),
+            events: feeds.events.subscribe(),
+            frames: feeds.frames.clone(),
+            stream_lost: feeds.stream_lost.clone(),
+            commands: feeds.commands.clone(),
             stop: stop.clone(),
         };
         let counts = counts.clone();

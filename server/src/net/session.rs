@@ -9,7 +9,7 @@ use std::time::Duration;
 use rustls::pki_types::CertificateDer;
 use scalpel_proto::codec::{CLIENT_LIMIT, SERVER_LIMIT, read_frame, write_frame};
 use scalpel_proto::wire::{
-    Action, ClientMessage, Event, EventKind, MAX_TEXT, Metrics, Outcome, PROTOCOL_VERSION, Role,
+    ClientMessage, Command, Event, EventKind, MAX_TEXT, Metrics, Outcome, PROTOCOL_VERSION, Role,
     ServerMessage,
 };
 use tokio::sync::{broadcast, watch};
@@ -50,6 +50,10 @@ pub struct SessionContext {
     pub events: broadcast::Receiver<Event>,
     /// Latest frame.
     pub frames: watch::Receiver<Option<Arc<SourceFrame>>>,
+    /// An observer-stream-loss fault is in effect.
+    pub stream_lost: watch::Receiver<bool>,
+    /// Instructors' commands to the station.
+    pub commands: std::sync::mpsc::Sender<super::CommandRequest>,
     /// Server stopping.
     pub stop: watch::Receiver<bool>,
 }
@@ -139,9 +143,24 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
     .map_err(|e| Closed(close::PROTOCOL, format!("Welcome: {e}")))?;
 
     let (frame_hz_tx, frame_hz_rx) = watch::channel(0.0f64);
-    let telemetry = telemetry(conn, ctx.metrics.clone(), ctx.events.resubscribe());
-    let frames = frames(conn, ctx.frames.clone(), frame_hz_rx);
-    let control = control(&mut send, &mut recv, role, ctx.frame_hz_max, frame_hz_tx);
+    let telemetry = telemetry(
+        conn,
+        ctx.metrics.clone(),
+        ctx.events.resubscribe(),
+        ctx.stream_lost.clone(),
+    );
+    let frames = frames(
+        conn,
+        ctx.frames.clone(),
+        frame_hz_rx,
+        ctx.stream_lost.clone(),
+    );
+    let who = Instructing {
+        role,
+        name: name.clone(),
+        commands: ctx.commands.clone(),
+    };
+    let control = control(&mut send, &mut recv, &who, ctx.frame_hz_max, frame_hz_tx);
     let mut stop = ctx.stop.clone();
     tokio::select! {
         r = control => r,
@@ -152,11 +171,58 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
     }
 }
 
+/// Who sends commands on this connection, and where they go.
+struct Instructing {
+    role: Role,
+    name: String,
+    commands: std::sync::mpsc::Sender<super::CommandRequest>,
+}
+
+/// Time the station has to answer a command (its main thread takes them every 10 ms).
+const COMMAND_TIMEOUT: Duration = Duration::from_secs(2);
+
+impl Instructing {
+    /// The station's answer to `command`: the Ack, and the fault list for `List`.
+    async fn carry_out(&self, command: Command) -> Vec<ServerMessage> {
+        let seq = command.seq;
+        let rejected = |reason: &str| {
+            vec![ServerMessage::Ack {
+                seq,
+                outcome: Outcome::Rejected {
+                    reason: reason.into(),
+                },
+            }]
+        };
+        if self.role != Role::Instructor {
+            return rejected("an observer certificate may not instruct");
+        }
+        let (reply, answer) = tokio::sync::oneshot::channel();
+        let request = super::CommandRequest {
+            by: self.name.clone(),
+            command,
+            reply,
+        };
+        if self.commands.send(request).is_err() {
+            return rejected("the station is stopping");
+        }
+        match tokio::time::timeout(COMMAND_TIMEOUT, answer).await {
+            Ok(Ok((outcome, listed))) => {
+                let mut out = vec![ServerMessage::Ack { seq, outcome }];
+                if let Some(faults) = listed {
+                    out.push(ServerMessage::Faults { faults });
+                }
+                out
+            }
+            _ => rejected("the station did not answer in time"),
+        }
+    }
+}
+
 /// The client's requests, answered in order.
 async fn control(
     send: &mut quinn::SendStream,
     recv: &mut quinn::RecvStream,
-    role: Role,
+    who: &Instructing,
     frame_hz_max: f64,
     frame_hz: watch::Sender<f64>,
 ) -> Result<(), Closed> {
@@ -164,7 +230,7 @@ async fn control(
         let message = read_frame::<ClientMessage, CLIENT_LIMIT>(recv)
             .await
             .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
-        let reply = match message {
+        let replies = match message {
             None => return Ok(()),
             Some(ClientMessage::Subscribe { frame_hz: hz }) => {
                 if !hz.is_finite() || hz < 0.0 {
@@ -176,33 +242,26 @@ async fn control(
                 let _ = frame_hz.send(f64::from(hz).min(frame_hz_max));
                 continue;
             }
-            Some(ClientMessage::Command(command)) => ServerMessage::Ack {
-                seq: command.seq,
-                outcome: Outcome::Rejected {
-                    reason: match (role, command.action) {
-                        (Role::Observer, _) => "an observer certificate may not instruct".into(),
-                        (Role::Instructor, Action::List) => {
-                            "fault injection is not in this build yet: nothing scheduled".into()
-                        }
-                        (Role::Instructor, _) => "fault injection is not in this build yet".into(),
-                    },
-                },
-            },
+            Some(ClientMessage::Command(command)) => who.carry_out(command).await,
             Some(ClientMessage::Hello { .. }) => {
                 return Err(Closed(close::PROTOCOL, "a second Hello".into()));
             }
         };
-        write_frame::<_, SERVER_LIMIT>(send, &reply)
-            .await
-            .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
+        for reply in &replies {
+            write_frame::<_, SERVER_LIMIT>(send, reply)
+                .await
+                .map_err(|e| Closed(close::PROTOCOL, format!("control stream: {e}")))?;
+        }
     }
 }
 
-/// Metrics at 10 Hz and events as they come, on one stream.
+/// Metrics at 10 Hz and events as they come, on one stream (no metrics while an
+/// observer-stream-loss fault is in effect; events still go out).
 async fn telemetry(
     conn: &quinn::Connection,
     metrics: watch::Receiver<Metrics>,
     mut events: broadcast::Receiver<Event>,
+    stream_lost: watch::Receiver<bool>,
 ) -> Result<(), Closed> {
     let mut stream = conn
         .open_uni()
@@ -216,7 +275,7 @@ async fn telemetry(
                 let m = *metrics.borrow();
                 // Nothing to report before the station's first figures (a client that
                 // connects in its first tenth of a second).
-                if m.uptime_s <= 0.0 {
+                if m.uptime_s <= 0.0 || *stream_lost.borrow() {
                     continue;
                 }
                 ServerMessage::Metrics(m)
@@ -244,6 +303,7 @@ async fn frames(
     conn: &quinn::Connection,
     mut source: watch::Receiver<Option<Arc<SourceFrame>>>,
     mut frame_hz: watch::Receiver<f64>,
+    stream_lost: watch::Receiver<bool>,
 ) -> Result<(), Closed> {
     let mut encoder = FrameEncoder::new();
     let mut in_flight: Option<(tokio::task::JoinHandle<bool>, bool)> = None;
@@ -252,6 +312,11 @@ async fn frames(
         tokio::select! {
             r = source.changed() => if r.is_err() { return Ok(()) },
             r = frame_hz.changed() => if r.is_err() { return Ok(()) } else { continue },
+        }
+        if *stream_lost.borrow() {
+            // Lost: nothing goes out, and the stream starts again from a keyframe.
+            encoder.reset();
+            continue;
         }
         let hz = *frame_hz.borrow();
         let now = tokio::time::Instant::now();

@@ -101,6 +101,7 @@ def decode_server(payload: bytes) -> dict:
         out = {
             "metrics": {
                 "sim_tick": r.u(),
+                "station_tick": r.u(),
                 "uptime_s": r.f64(),
                 "haptic_rate_hz": r.f32(),
                 "jitter_p99_ms": r.f32(),

@@ -133,6 +133,9 @@ pub struct CuttingForceModel {
     /// (and back up when it cuts forward again), so the force eases between the two regimes
     /// instead of dropping by J_c·d in one tick.
     engagement: f64,
+    /// Factor on the tissue's stiffness (1: the scene's): scales the loading curve and the
+    /// friction (the blade's faces press on stiffer walls), not the fracture toughness.
+    stiffness: f64,
 }
 
 /// Travel over which the fracture term fades in and out (m).
@@ -149,7 +152,13 @@ impl CuttingForceModel {
             rupture_s: 0.0,
             travel_m: 0.0,
             engagement: 0.0,
+            stiffness: 1.0,
         }
+    }
+
+    /// Scales the tissue's stiffness (an instructor's fault); 1 is the scene's.
+    pub fn set_stiffness_factor(&mut self, factor: f64) {
+        self.stiffness = factor;
     }
 
     /// Current regime.
@@ -161,7 +170,7 @@ impl CuttingForceModel {
     pub fn loading_force(&self, x: f64) -> (f64, f64) {
         let scale = EQ19_PEAK_X / (self.spec.rupture_displacement_m * 1e3);
         let (f, df) = eq19(x.max(0.0) * 1e3 * scale);
-        let to_newtons = self.spec.rupture_force_n / EQ19_PEAK_F;
+        let to_newtons = self.stiffness * self.spec.rupture_force_n / EQ19_PEAK_F;
         // d/dx_m = d/dx_mm · 1000 · scale.
         (f * to_newtons, df * to_newtons * 1e3 * scale)
     }
@@ -169,7 +178,9 @@ impl CuttingForceModel {
     /// Friction on a blade `depth_m` deep (N): proportional to the rubbing area, up to
     /// `friction_n` at `friction_depth_m`.
     pub fn friction(&self, depth_m: f64) -> f64 {
-        self.spec.friction_n * (depth_m.max(0.0) / self.spec.friction_depth_m).min(1.0)
+        self.stiffness
+            * self.spec.friction_n
+            * (depth_m.max(0.0) / self.spec.friction_depth_m).min(1.0)
     }
 
     /// The mean cutting force at depth `depth_m` (N): J_c·d, as far as the blade carries

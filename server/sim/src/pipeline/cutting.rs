@@ -220,7 +220,12 @@ impl CuttingStage {
         }
     }
 
-    /// Radius of the affected region (m).
+    /// Scales the tissue's stiffness in the force model (1: the scene's).
+    pub fn set_stiffness_factor(&mut self, factor: f64) {
+        self.force.set_stiffness_factor(factor);
+    }
+
+    /// Radius of the cutting-affected region around the blade (m).
     pub fn affected_radius(&self) -> f64 {
         self.r_aff
     }

@@ -154,6 +154,17 @@ impl Simulation {
         }
     }
 
+    /// Scales the tissue's stiffness to `factor` times the scene's (an instructor's fault):
+    /// the solver's Young's modulus (its stable step is re-derived) and the force model's
+    /// loading curve and friction. Re-derives constants: call it on a change, not per tick.
+    pub fn set_stiffness_factor(&mut self, factor: f64) {
+        self.solver
+            .set_youngs_modulus(self.spec.material.youngs_modulus_pa * factor);
+        if let Some(stage) = &mut self.cutting {
+            stage.set_stiffness_factor(factor);
+        }
+    }
+
     /// The tool's pose for the next tick; `None` takes the tool away.
     pub fn set_tool(&mut self, pose: Option<ToolPose>) {
         self.tool = pose;

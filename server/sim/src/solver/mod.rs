@@ -465,9 +465,16 @@ impl Solver {
     /// tissue-stiffness fault; the time step is recomputed before the next tick.
     pub fn set_youngs_modulus(&mut self, e: f64) {
         let nu = self.poisson_ratio();
+        let ratio = e / self.params.youngs_modulus_pa;
         self.params.lame = Lame::from_young_poisson(e, nu);
         self.params.youngs_modulus_pa = e;
-        self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
+        // The diagonal is linear in E at a fixed ν (the wave modulus and the hourglass
+        // stiffness both are): scaled in place, no allocation on the simulation thread.
+        if ratio.is_finite() && ratio > 0.0 {
+            self.precond.iter_mut().for_each(|d| *d *= ratio);
+        } else {
+            self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
+        }
         self.dt_crit = None;
         self.invalidate_projective();
     }
