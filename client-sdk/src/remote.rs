@@ -6,6 +6,7 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Duration;
 
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer};
@@ -128,7 +129,7 @@ pub fn client_config(
         .map_err(|e| ClientError::Setup(e.to_string()))?;
     let mut config = quinn::ClientConfig::new(Arc::new(crypto));
     let mut transport = quinn::TransportConfig::default();
-    transport.keep_alive_interval(Some(std::time::Duration::from_secs(1)));
+    transport.keep_alive_interval(Some(Duration::from_secs(1)));
     config.transport_config(Arc::new(transport));
     Ok(config)
 }
@@ -159,7 +160,7 @@ pub enum Update {
 
 /// A connection to a station, shared by [`Observer`] and [`Instructor`].
 pub struct Session {
-    _endpoint: quinn::Endpoint,
+    endpoint: quinn::Endpoint,
     connection: quinn::Connection,
     send: quinn::SendStream,
     recv: quinn::RecvStream,
@@ -243,13 +244,18 @@ impl Session {
         let (tx, updates) = mpsc::channel(UPDATE_QUEUE);
         tokio::spawn(receive_streams(connection.clone(), tx));
         Ok(Self {
-            _endpoint: endpoint,
+            endpoint,
             connection,
             send,
             recv,
             updates,
             welcome,
-            next_seq: 1,
+            // The server refuses a seq not above the last it took from this identity, over
+            // every connection: starting at the clock (µs since 1970) keeps a client that
+            // reconnects, or a second CLI run, above its earlier commands.
+            next_seq: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(1, |d| d.as_micros() as u64),
         })
     }
 
@@ -323,6 +329,14 @@ impl Session {
     /// Closes the connection.
     pub fn close(&self) {
         self.connection.close(0u32.into(), b"bye");
+    }
+
+    /// Closes the connection and waits (a second at most) until the server has been told:
+    /// a short-lived client (one CLI command) that just exits leaves the server holding
+    /// its connection slot until the idle timeout.
+    pub async fn close_and_wait(&self) {
+        self.close();
+        let _ = tokio::time::timeout(Duration::from_secs(1), self.endpoint.wait_idle()).await;
     }
 }
 

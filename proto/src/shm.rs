@@ -77,7 +77,8 @@ pub struct DeviceForce {
     pub layout_version: u32,
     /// [`FORCE_FADED`], [`FORCE_NAN_GUARDED`].
     pub flags: u32,
-    /// The server's haptic tick.
+    /// The server's haptic tick, on the station clock (ms since the server started: the
+    /// clock instructors schedule faults on). It increases from one force to the next.
     pub tick: u64,
     /// `seq` of the last pose the server used (0: none yet).
     pub pose_seq: u64,

@@ -16,6 +16,9 @@ pub struct ForceStatus {
     pub nan_guarded: bool,
     /// CLOCK_MONOTONIC at the haptic tick (ns).
     pub tick_time_ns: u64,
+    /// The haptic tick on the station clock (ms since the server started; instructors
+    /// schedule faults on it).
+    pub station_tick: u64,
     /// `seq` of the device sample the force was computed from (0: none yet); behind the
     /// device's latest when a latency fault holds samples back.
     pub pose_seq: u64,

@@ -181,7 +181,9 @@ impl OutputStage {
             f = self.last_force + step * (max_step / step.norm());
             report.rate_limited = true;
         }
-        report.clamped |= clamp(&mut f, max_n);
+        // The device limit only: a cap that a fault lowers suddenly is reached at the rate
+        // limit (the request was capped above), never by a jump.
+        report.clamped |= clamp(&mut f, l.max_force_n);
         if !f.iter().all(|c| c.is_finite()) {
             f = Vec3::zeros();
             report.nan_guarded = true;
@@ -336,8 +338,14 @@ mod tests {
                 ..input(t, f, Vec3::zeros())
             })
         };
-        // Down to the cap at the rate limit, then held there.
-        let r = (0..50)
+        // Down to the cap at the rate limit (no jump), then held there.
+        let first = capped(&mut s, 0.2, 1.0);
+        let max = limits().max_force_n;
+        assert!(
+            (first.force_n.norm() - (max - 0.5)).abs() < 1e-12,
+            "{first:?}"
+        );
+        let r = (1..50)
             .map(|k| capped(&mut s, 0.2 + k as f64 * 1e-3, 1.0))
             .last()
             .unwrap();

@@ -53,7 +53,6 @@ pub struct ShmDevice {
     sender: std::thread::Thread,
     sender_handle: Option<JoinHandle<()>>,
     stop: Arc<AtomicBool>,
-    tick: u64,
     counters: Arc<ShmDeviceCounters>,
     _node: Node<ipc::Service>,
 }
@@ -95,7 +94,6 @@ impl ShmDevice {
             sender: sender_handle.thread().clone(),
             sender_handle: Some(sender_handle),
             stop,
-            tick: 0,
             counters,
             _node: node,
         })
@@ -213,7 +211,6 @@ impl HapticDevice for ShmDevice {
     }
 
     fn send_force(&mut self, force_n: Vec3, status: ForceStatus) {
-        self.tick += 1;
         let message = DeviceForce {
             layout_version: LAYOUT_VERSION,
             flags: if status.faded { shm::FORCE_FADED } else { 0 }
@@ -222,7 +219,7 @@ impl HapticDevice for ShmDevice {
                 } else {
                     0
                 },
-            tick: self.tick,
+            tick: status.station_tick,
             pose_seq: status.pose_seq,
             tick_time_ns: status.tick_time_ns,
             sent_time_ns: 0,

@@ -540,6 +540,15 @@ pub fn run(
             }
         ),
     }));
+    // Instructors schedule on the station clock; a tool on this machine that logs
+    // CLOCK_MONOTONIC (a device trace, a renderer) lines up with it through this.
+    report(&StationReport::Event(StationEvent {
+        uptime_s: realtime::monotonic_s() - t0,
+        event: format!(
+            "clock: station tick 0 is CLOCK_MONOTONIC {} ns",
+            (t0 * 1e9).round() as u64
+        ),
+    }));
     for w in &warnings {
         report(&StationReport::Event(StationEvent {
             uptime_s: realtime::monotonic_s() - t0,
@@ -959,6 +968,7 @@ impl HapticState {
                 faded: report.watchdog_gain < 1.0,
                 nan_guarded: report.nan_guarded,
                 tick_time_ns: (tick_wall_s * 1e9) as u64,
+                station_tick: station_tick(now),
                 pose_seq: self.used_seq,
             },
         );
@@ -989,6 +999,7 @@ impl HapticState {
                 faded: true,
                 nan_guarded: false,
                 tick_time_ns: (realtime::monotonic_s() * 1e9) as u64,
+                station_tick: station_tick(now),
                 pose_seq: self.used_seq,
             },
         );

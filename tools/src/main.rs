@@ -8,6 +8,7 @@ mod certs_cmd;
 mod cut_cmd;
 mod cutrun;
 mod export;
+mod instruct_cmd;
 mod load;
 mod mock_cmd;
 mod observe_cmd;
@@ -108,6 +109,26 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Instruct a station over QUIC (an instructor certificate): schedule a fault, list
+    /// the faults, clear them (docs/PROTOCOL.md, "Faults").
+    Instruct {
+        /// The server's address (HOST:PORT).
+        addr: String,
+        /// The lab's certificate folder (`scalpel certs`).
+        #[arg(long)]
+        certs: PathBuf,
+        /// This instructor's certificate name (NAME.pem, NAME.key in the folder).
+        #[arg(long)]
+        name: String,
+        /// The name in the server's certificate.
+        #[arg(long, default_value = "localhost")]
+        server_name: String,
+        /// The answer as JSON.
+        #[arg(long)]
+        json: bool,
+        #[command(subcommand)]
+        what: InstructCommand,
+    },
     /// The mock haptic device: plays a blade script to a station over shared memory at a
     /// true 1 kHz and records the forces it receives (docs/PROTOCOL.md).
     MockDevice {
@@ -163,6 +184,48 @@ enum Command {
         /// Print {scene, ticks, state_hash, live_state_hash, identical} as JSON.
         #[arg(long)]
         json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum InstructCommand {
+    /// Schedule a fault: device-dropout, device-latency --ms, pose-noise --sigma-mm,
+    /// force-spike --newtons, force-saturation --max-n, tissue-stiffness --factor
+    /// [--ramp-ms], sim-stall, sim-slowdown --factor, renderer-freeze, observer-stream-loss.
+    Fault {
+        /// The kind.
+        kind: String,
+        /// Added device latency (ms, 0–1000).
+        #[arg(long)]
+        ms: Option<f32>,
+        /// Noise on the device position, standard deviation (mm, 0–20).
+        #[arg(long)]
+        sigma_mm: Option<f32>,
+        /// Spike magnitude (N, 0–1000; the output stage still limits the force).
+        #[arg(long)]
+        newtons: Option<f32>,
+        /// Force cap (N).
+        #[arg(long)]
+        max_n: Option<f32>,
+        /// Stiffness factor (0.1–10) or slowdown factor (1–100).
+        #[arg(long)]
+        factor: Option<f32>,
+        /// Stiffness ramp in and out (ms, default 200).
+        #[arg(long)]
+        ramp_ms: Option<u32>,
+        /// Start at this station tick (ms since the server started; default: now).
+        #[arg(long)]
+        at: Option<u64>,
+        /// How long (ms; 0: until cleared).
+        #[arg(long, default_value_t = 0)]
+        duration_ms: u32,
+    },
+    /// List the scheduled and active faults.
+    List,
+    /// Clear one fault, or all without an id.
+    Clear {
+        /// The fault's id (from `fault` or `list`).
+        id: Option<u64>,
     },
 }
 
@@ -368,6 +431,49 @@ fn main() -> ExitCode {
             seconds,
             json,
         }),
+        Command::Instruct {
+            addr,
+            certs,
+            name,
+            server_name,
+            json,
+            what,
+        } => instruct_cmd::run(
+            &instruct_cmd::InstructArgs {
+                addr: &addr,
+                server_name: &server_name,
+                certs: &certs,
+                name: &name,
+                json,
+            },
+            match what {
+                InstructCommand::Fault {
+                    kind,
+                    ms,
+                    sigma_mm,
+                    newtons,
+                    max_n,
+                    factor,
+                    ramp_ms,
+                    at,
+                    duration_ms,
+                } => instruct_cmd::Request::Fault {
+                    kind,
+                    params: instruct_cmd::FaultParams {
+                        ms,
+                        sigma_mm,
+                        newtons,
+                        max_n,
+                        factor,
+                        ramp_ms,
+                    },
+                    at,
+                    duration_ms,
+                },
+                InstructCommand::List => instruct_cmd::Request::List,
+                InstructCommand::Clear { id } => instruct_cmd::Request::Clear(id),
+            },
+        ),
         Command::Certs(CertsCommand::Issue { dir, role, name }) => {
             certs_cmd::issue(&dir, &role, &name).map(|_| ())
         }

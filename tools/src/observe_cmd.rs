@@ -123,6 +123,6 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
             }
         }
     }
-    observer.0.close();
+    observer.0.close_and_wait().await;
     Ok(())
 }

@@ -1,5 +1,7 @@
 //! `scalpel replay FILE [--json]`: plays a station journal through a fresh simulation and
-//! compares the final state hash with the live run's, bit for bit.
+//! compares the final state hash with the live run's, bit for bit. Instructor commands in
+//! the journal are listed with who sent them; their effects on the simulation (the poses it
+//! got, the stiffness changes) are in the tick records, so the replay reproduces them.
 
 use std::path::Path;
 
@@ -29,12 +31,20 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
                 "scene": recorded.scene,
                 "config": recorded.config,
                 "ticks": recorded.ticks.len(),
+                "commands": recorded.commands,
+                "stiffness_changes": recorded.ticks.iter().filter(|t| t.stiffness.is_some()).count(),
                 "state_hash": format!("{hash:016x}"),
                 "live_state_hash": live.map(|h| format!("{h:016x}")),
                 "identical": identical,
             })
         );
     } else {
+        for c in &recorded.commands {
+            println!(
+                "command at station tick {} (simulation tick {}) by {}: {} -> {}",
+                c["station_tick"], c["sim_tick"], c["by"], c["action"], c["outcome"]
+            );
+        }
         println!(
             "replayed {} ticks of {}: state hash {hash:016x}",
             recorded.ticks.len(),

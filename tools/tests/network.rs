@@ -34,8 +34,14 @@ fn make_certs(dir: &Path) {
     }
 }
 
-/// Starts a server with the QUIC endpoint on a free port; returns it and the address.
+/// Starts a server with the QUIC endpoint on a free port (and the in-process scripted
+/// device); returns it and the address.
 fn start(dir: &Path, station: &str) -> (Running, SocketAddr) {
+    start_with(dir, station, "")
+}
+
+/// [`start`] with more configuration (TOML sections).
+fn start_with(dir: &Path, station: &str, more: &str) -> (Running, SocketAddr) {
     let scene = dir.join("observed.toml");
     std::fs::write(
         &scene,
@@ -46,7 +52,7 @@ fn start(dir: &Path, station: &str) -> (Running, SocketAddr) {
     std::fs::write(
         &config,
         format!(
-            "station = \"{station}\"\nscene = \"{}\"\n[rates]\nstatus_interval_s = 0.25\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\n",
+            "station = \"{station}\"\nscene = \"{}\"\n[rates]\nstatus_interval_s = 0.25\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\n{more}",
             scene.display(),
             dir.display()
         ),
@@ -240,6 +246,442 @@ fn python_aioquic_observes_a_station() {
             "{found}"
         );
     }
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// What the test saw of one fault window, on the station clock (ms).
+#[derive(Debug, Clone, Copy)]
+struct Window {
+    start: u64,
+    end: u64,
+}
+
+/// A row of the mock device's recording.
+#[derive(Debug, Clone, Copy)]
+struct ForceRow {
+    seq: u64,
+    force_n: f64,
+    faded: bool,
+    /// The station tick of the force.
+    tick: u64,
+    pose_seq: u64,
+}
+
+fn read_forces(csv: &Path) -> Vec<ForceRow> {
+    let text = std::fs::read_to_string(csv).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let c: Vec<f64> = l
+                .split(',')
+                .map(|x| x.parse().unwrap_or(f64::NAN))
+                .collect();
+            ForceRow {
+                seq: c[1] as u64,
+                force_n: (c[5] * c[5] + c[6] * c[6] + c[7] * c[7]).sqrt(),
+                faded: (c[9] as u32) & 1 == 1,
+                tick: c[10] as u64,
+                pose_seq: c[11] as u64,
+            }
+        })
+        .filter(|r| r.tick > 0)
+        .collect()
+}
+
+/// What one observer received, stamped with the station tick it arrived at.
+#[derive(Debug, Default)]
+struct Seen {
+    /// (arrival tick, metrics).
+    metrics: Vec<(u64, scalpel_proto::wire::Metrics)>,
+    /// (arrival tick, tool tip y in mm).
+    frames: Vec<(u64, Option<f64>)>,
+    events: Vec<scalpel_proto::wire::Event>,
+}
+
+/// The whole set-up of the issue, with real processes: a server with the QUIC endpoint and a
+/// shared-memory device, the mock device cutting, two viewers, eight observers and an
+/// instructor (the `scalpel instruct` CLI). The instructor schedules every fault of the
+/// vocabulary at its own station tick; each has the effect docs/PROTOCOL.md ("Faults")
+/// documents, as seen by the mock device, the observers and a renderer, and the output
+/// stage's limits hold throughout.
+#[test]
+fn every_fault_has_its_documented_effect_and_the_limits_hold() {
+    use scalpel_proto::wire::EventKind;
+    let dir = station::scratch("faults");
+    make_certs(&dir);
+    let name = unique_station("flt");
+    let (mut server, addr) = start_with(&dir, &name, "[device]\nkind = \"shared_memory\"\n");
+    let clock = server.wait_for(Duration::from_secs(10), |l| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("clock:"))
+    });
+    let origin_ns: u64 = json(&clock)["event"]
+        .as_str()
+        .unwrap()
+        .split("CLOCK_MONOTONIC ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    let station_now =
+        move || scalpel_client::frames::monotonic_ns().saturating_sub(origin_ns) / 1_000_000;
+
+    // The device: the scene's demo cut, recorded.
+    let forces_csv = dir.join("forces.csv");
+    let mut mock = scalpel();
+    mock.args([
+        "mock-device",
+        "--station",
+        &name,
+        "--duration",
+        "19",
+        "--out",
+    ])
+    .arg(&forces_csv);
+    let mock = Running::start(mock);
+    server.wait_for(Duration::from_secs(20), |l| {
+        json(l)["event"] == "device connected"
+    });
+    // Two viewers, headless, attached all along.
+    let viewers: Vec<Running> = (0..2)
+        .map(|k| {
+            let mut v = scalpel();
+            v.args([
+                "view",
+                "--station",
+                &name,
+                "--after",
+                "700",
+                "--timeout",
+                "60",
+            ])
+            .arg("--snapshot")
+            .arg(dir.join(format!("viewer{k}.png")));
+            Running::start(v)
+        })
+        .collect();
+    // A renderer of the test's own, to see exactly when frames stop and start.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let renderer = {
+        let (name, stop) = (name.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let mut reader = scalpel_client::frames::FrameReader::open(&name).unwrap();
+            let mut arrivals = Vec::new();
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if let Ok(Some(_)) = reader.wait(Duration::from_millis(50)) {
+                    arrivals.push(station_now());
+                }
+            }
+            arrivals
+        })
+    };
+
+    // Eight observers, frames at 30 Hz, on a thread of their own.
+    let seen: Vec<std::sync::Arc<std::sync::Mutex<Seen>>> = (0..8)
+        .map(|_| std::sync::Arc::new(std::sync::Mutex::new(Seen::default())))
+        .collect();
+    let observing = {
+        let (seen, stop, dir) = (seen.clone(), stop.clone(), dir.clone());
+        std::thread::spawn(move || {
+            let runtime = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .unwrap();
+            runtime.block_on(async move {
+                for (k, log) in seen.into_iter().enumerate() {
+                    let who = if k % 2 == 0 { "obs1" } else { "obs2" };
+                    let mut o = Observer::connect(
+                        addr,
+                        "localhost",
+                        &Credentials::from_dir(&dir, who),
+                        who,
+                    )
+                    .await
+                    .unwrap();
+                    o.0.subscribe(30.0).await.unwrap();
+                    tokio::spawn(async move {
+                        while let Some(u) = o.0.next().await {
+                            let at = station_now();
+                            let mut s = log.lock().unwrap();
+                            match u {
+                                Update::Metrics(m) => s.metrics.push((at, m)),
+                                Update::Frame(f) => s
+                                    .frames
+                                    .push((at, f.tool.map(|t| f64::from(t.tip_m[1]) * 1e3))),
+                                Update::Event(e) => s.events.push(e),
+                            }
+                        }
+                    });
+                }
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
+            });
+        })
+    };
+    // Wait for steady cutting (the demo cut ruptures about a second after entry).
+    let steady = || {
+        let s = seen[0].lock().unwrap();
+        s.metrics.len() > 10
+            && s.metrics[s.metrics.len() - 10..]
+                .iter()
+                .all(|(_, m)| m.force_n > 1.0 && m.cut_length_mm > 2.0)
+    };
+    let waited = std::time::Instant::now();
+    while !steady() {
+        assert!(waited.elapsed() < Duration::from_secs(20), "no steady cut");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+
+    // The instructor schedules the vocabulary, one window each, with the CLI.
+    let t = station_now() + 2500;
+    let plan: [(&[&str], u64, u64); 10] = [
+        (
+            &["tissue-stiffness", "--factor", "3", "--ramp-ms", "100"],
+            0,
+            700,
+        ),
+        (&["force-spike", "--newtons", "100"], 1000, 400),
+        (&["force-saturation", "--max-n", "1"], 1700, 400),
+        (&["device-latency", "--ms", "50"], 2400, 500),
+        (&["pose-noise", "--sigma-mm", "2"], 3200, 500),
+        (&["device-dropout"], 4000, 400),
+        (&["sim-stall"], 4700, 400),
+        (&["sim-slowdown", "--factor", "4"], 5400, 800),
+        (&["renderer-freeze"], 6500, 400),
+        (&["observer-stream-loss"], 7200, 400),
+    ];
+    let mut windows = Vec::new();
+    for (args, offset, ms) in plan {
+        let out = scalpel()
+            .args(["instruct", &addr.to_string(), "--certs"])
+            .arg(&dir)
+            .args(["--name", "ann", "fault"])
+            .args(args)
+            .args(["--at", &(t + offset).to_string()])
+            .args(["--duration-ms", &ms.to_string()])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success() && text.starts_with("scheduled: fault"),
+            "{args:?}: {text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        windows.push(Window {
+            start: t + offset,
+            end: t + offset + ms,
+        });
+    }
+    assert!(
+        station_now() < t,
+        "scheduling took too long to test the first window"
+    );
+    let listed = scalpel()
+        .args(["instruct", &addr.to_string(), "--certs"])
+        .arg(&dir)
+        .args(["--name", "ann", "--json", "list"])
+        .output()
+        .unwrap();
+    let listed = json(String::from_utf8_lossy(&listed.stdout).trim());
+    assert_eq!(
+        listed["faults"].as_array().map(Vec::len),
+        Some(10),
+        "{listed}"
+    );
+    assert!(
+        listed["faults"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|f| f["by"] == "ann")
+    );
+    // Until the last window has been over for a while.
+    while station_now() < t + 8100 {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let frames_rendered = renderer.join().unwrap();
+    observing.join().unwrap();
+    let (status, _) = mock.finish();
+    assert!(status.success(), "the mock device failed");
+    for v in viewers {
+        let (status, lines) = v.finish();
+        assert!(status.success(), "a viewer failed: {lines:?}");
+    }
+    for k in 0..2 {
+        assert!(dir.join(format!("viewer{k}.png")).is_file());
+    }
+    let forces = read_forces(&forces_csv);
+    let w = |k: usize| windows[k];
+    let rows = |from: u64, to: u64| forces.iter().filter(move |r| (from..to).contains(&r.tick));
+    let mean = |from: u64, to: u64| {
+        let v: Vec<f64> = rows(from, to).map(|r| r.force_n).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+
+    // The output stage's limits hold over the whole run, every fault included (to the
+    // recording's five decimals).
+    const CSV: f64 = 1e-4;
+    for pair in forces.windows(2) {
+        let (a, b) = (pair[0], pair[1]);
+        assert!(b.force_n <= 3.3 + CSV, "{b:?}");
+        let step = (b.force_n - a.force_n).abs();
+        let ticks = b.tick.saturating_sub(a.tick).max(1) as f64;
+        assert!(step <= 0.5 * ticks + CSV, "{a:?} -> {b:?}");
+    }
+    let baseline = mean(t - 500, t);
+    assert!(
+        baseline > 1.0,
+        "cutting force before the faults: {baseline} N"
+    );
+
+    // Tissue stiffness ×3: the blade rubs on stiffer walls, the force rises.
+    let stiff = mean(w(0).start + 150, w(0).end);
+    assert!(
+        stiff > baseline * 1.15,
+        "stiffness ×3: {stiff} N against {baseline} N"
+    );
+    // Force spike of 100 N: the device gets F_max, no more (checked above), rate-limited.
+    let peak = rows(w(1).start, w(1).end)
+        .map(|r| r.force_n)
+        .fold(0.0, f64::max);
+    assert!(peak > 3.2, "the spike should reach F_max: {peak} N");
+    // Saturation at 1 N: after the rate-limited descent, at most 1 N.
+    let sat = rows(w(2).start + 20, w(2).end)
+        .map(|r| r.force_n)
+        .fold(0.0, f64::max);
+    assert!(sat <= 1.0 + CSV, "saturated at 1 N: {sat} N");
+    // Latency of 50 ms: the force answers a pose 50 samples old.
+    let lag = |from: u64, to: u64| {
+        let mut v: Vec<u64> = rows(from, to)
+            .map(|r| r.seq.saturating_sub(r.pose_seq))
+            .collect();
+        v.sort_unstable();
+        v[v.len() / 2]
+    };
+    assert!(
+        (45..=56).contains(&lag(w(3).start + 80, w(3).end)),
+        "{}",
+        lag(w(3).start + 80, w(3).end)
+    );
+    assert!(lag(t - 500, t) <= 3, "{}", lag(t - 500, t));
+    // Dropout: the force fades to zero within the watchdog's 5 ms and its 5 ms fade.
+    assert!(rows(w(5).start + 15, w(5).end).all(|r| r.faded && r.force_n == 0.0));
+    // Stall: no new force model; the watchdog fades the force after its 100 ms.
+    assert!(rows(w(6).start + 120, w(6).end).all(|r| r.faded && r.force_n == 0.0));
+    // And it all came back after the last window.
+    assert!(
+        mean(t + 7800, t + 8100) > 0.5,
+        "force after the faults: {}",
+        mean(t + 7800, t + 8100)
+    );
+
+    for (k, log) in seen.iter().enumerate() {
+        let s = log.lock().unwrap();
+        let metrics_in = |from: u64, to: u64| {
+            s.metrics
+                .iter()
+                .filter(move |(at, _)| (from..to).contains(at))
+        };
+        let frames_in = |from: u64, to: u64| {
+            s.frames
+                .iter()
+                .filter(move |(at, _)| (from..to).contains(at))
+        };
+        // Every fault announced, applied and ended.
+        let applied = s
+            .events
+            .iter()
+            .filter(|e| e.kind == EventKind::FaultApplied)
+            .count();
+        let ended = s
+            .events
+            .iter()
+            .filter(|e| e.kind == EventKind::FaultCleared)
+            .count();
+        assert_eq!((applied, ended), (10, 10), "observer {k}: {:?}", s.events);
+        // Pose noise of 2 mm: the tool in the frames shakes across the stroke.
+        let spread = |from: u64, to: u64| {
+            let y: Vec<f64> = frames_in(from, to).filter_map(|(_, y)| *y).collect();
+            let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
+            (y.iter().map(|v| (v - m).powi(2)).sum::<f64>() / y.len().max(1) as f64).sqrt()
+        };
+        assert!(
+            spread(w(4).start + 50, w(4).end) > 1.0,
+            "observer {k}: noise {}",
+            spread(w(4).start + 50, w(4).end)
+        );
+        assert!(
+            spread(t - 500, t) < 0.2,
+            "observer {k}: {}",
+            spread(t - 500, t)
+        );
+        // Stall: the simulation tick stands still.
+        let ticks: Vec<u64> = metrics_in(w(6).start + 50, w(6).end)
+            .map(|(_, m)| m.sim_tick)
+            .collect();
+        assert!(
+            ticks.len() >= 2 && ticks.last().unwrap() - ticks[0] <= 1,
+            "observer {k}: {ticks:?}"
+        );
+        // Slowdown ×4: a quarter of the ticks.
+        let during: Vec<(u64, u64)> = metrics_in(w(7).start + 50, w(7).end)
+            .map(|(_, m)| (m.station_tick, m.sim_tick))
+            .collect();
+        let (first, last) = (during[0], during[during.len() - 1]);
+        let rate = (last.1 - first.1) as f64 / (last.0 - first.0) as f64;
+        assert!(
+            (0.18..0.33).contains(&rate),
+            "observer {k}: {rate} simulated ms per ms"
+        );
+        // Renderer freeze: no frames reach the observers either (they come from the same
+        // shared memory).
+        assert_eq!(
+            frames_in(w(8).start + 100, w(8).end).count(),
+            0,
+            "observer {k}"
+        );
+        // Stream loss: no metrics, no frames; both back after it.
+        assert_eq!(
+            metrics_in(w(9).start + 30, w(9).end).count(),
+            0,
+            "observer {k}"
+        );
+        assert_eq!(
+            frames_in(w(9).start + 60, w(9).end).count(),
+            0,
+            "observer {k}"
+        );
+        assert!(
+            metrics_in(w(9).end + 100, w(9).end + 800).count() >= 4,
+            "observer {k}"
+        );
+        assert!(
+            frames_in(w(9).end + 100, w(9).end + 800).count() >= 5,
+            "observer {k}"
+        );
+    }
+    // Renderer freeze, as a renderer sees it: no frame within the window, frames around it.
+    let rendered = |from: u64, to: u64| {
+        frames_rendered
+            .iter()
+            .filter(|&&at| (from..to).contains(&at))
+            .count()
+    };
+    assert_eq!(rendered(w(8).start + 20, w(8).end), 0);
+    assert!(rendered(w(8).start - 300, w(8).start) >= 10);
+    assert!(rendered(w(8).end + 50, w(8).end + 350) >= 10);
+
+    // The server never stopped ticking.
+    let line = json(&server.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+    assert!(
+        line["haptic"]["rate_hz"].as_f64().unwrap() > 900.0,
+        "{line}"
+    );
     server.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }

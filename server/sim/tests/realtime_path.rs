@@ -272,11 +272,19 @@ fn changing_youngs_modulus_matches_a_solver_built_with_it_and_does_not_allocate(
     };
     for mode in [SolverMode::Explicit, SolverMode::QuasiStatic] {
         let mut changed = prepared_with(&m, mode, &Material::LIVER);
+        // Known before the change: it is scaled, not searched for again.
+        let soft_dt = changed.dt_crit();
         let before = allocations();
         changed.set_youngs_modulus(stiffer.youngs_modulus_pa);
         assert_eq!(allocations() - before, 0, "{mode:?}");
         let mut built = prepared_with(&m, mode, &stiffer);
         let rest = prepared_with(&m, mode, &Material::LIVER);
+        let (scaled, searched) = (changed.dt_crit(), built.dt_crit());
+        assert!((scaled * 2.5f64.sqrt() - soft_dt).abs() < 1e-12 * soft_dt);
+        assert!(
+            (scaled / searched - 1.0).abs() < 0.02,
+            "{mode:?}: dt_crit scaled {scaled}, searched {searched}"
+        );
         for _ in 0..5 {
             changed.step(1e-3);
             built.step(1e-3);

@@ -472,10 +472,14 @@ impl Solver {
         // stiffness both are): scaled in place, no allocation on the simulation thread.
         if ratio.is_finite() && ratio > 0.0 {
             self.precond.iter_mut().for_each(|d| *d *= ratio);
+            // ω² of M⁻¹K is linear in E too: the critical step scales as 1/√ratio, with
+            // no power iteration (milliseconds at organ scale, on the simulation thread).
+            self.dt_crit = self.dt_crit.map(|dt| dt / ratio.sqrt());
         } else {
             self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
+            self.dt_crit = None;
         }
-        self.dt_crit = None;
+        self.substeps_for_dt = f64::NAN;
         self.invalidate_projective();
     }
 
