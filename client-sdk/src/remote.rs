@@ -321,6 +321,12 @@ impl Session {
             .map_err(|e| ClientError::Connection(e.to_string()))
     }
 
+    /// Bytes received on this connection so far (UDP payloads: everything the server sent,
+    /// headers and retransmissions included).
+    pub fn bytes_received(&self) -> u64 {
+        self.connection.stats().udp_rx.bytes
+    }
+
     /// Waits for the connection to close and says why.
     pub async fn closed(&self) -> String {
         self.connection.closed().await.to_string()

@@ -242,6 +242,7 @@ mod tests {
                 frame: 2,
                 keyframe: 1,
                 sim_tick: 40,
+                server_time_ns: 300,
                 topology: Some(Topology {
                     triangles: vec![[0, 1, 2]],
                     materials: vec![1],
@@ -275,7 +276,7 @@ mod tests {
             "030101030000204101fb2c013203616e6e01",
             "04fbe803fbea03000000000000f03f00007a440ad7a33c0000000040000000b040fbe00101",
             "0505000000000000e03f010172",
-            "06020128010100010201010000000000000000000000000000803f010100fb580200",
+            "06020128fb2c01010100010201010000000000000000000000000000803f010100fb580200",
         ];
         assert_eq!(all.len(), expected.len());
         all.into_iter().zip(expected).collect()

@@ -359,6 +359,9 @@ pub struct ObserverFrame {
     pub keyframe: u64,
     /// Simulation tick.
     pub sim_tick: u64,
+    /// The server's CLOCK_MONOTONIC when the simulation wrote the frame (ns): a client on
+    /// the same machine gets its frame latency from it.
+    pub server_time_ns: u64,
     /// Triangles and their materials: present in keyframes only.
     pub topology: Option<Topology>,
     /// Quantization origin (m), the keyframe's.
@@ -435,6 +438,10 @@ pub struct DecodedFrame {
     pub frame: u64,
     /// Simulation tick.
     pub sim_tick: u64,
+    /// See [`ObserverFrame::server_time_ns`].
+    pub server_time_ns: u64,
+    /// It came as a keyframe.
+    pub keyframe: bool,
     /// Vertex positions (m), within half a quantization step.
     pub positions: Vec<[f32; 3]>,
     /// Triangles and materials (of the keyframe).
@@ -503,6 +510,8 @@ impl FrameDecoder {
         Some(DecodedFrame {
             frame: frame.frame,
             sim_tick: frame.sim_tick,
+            server_time_ns: frame.server_time_ns,
+            keyframe: frame.topology.is_some(),
             positions,
             topology: topology.clone(),
             tool: frame.tool,

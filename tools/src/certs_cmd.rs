@@ -5,7 +5,7 @@
 //! `instructor`); the server reads it from the verified certificate and allows nothing else
 //! (docs/PROTOCOL.md, "Security"). Keys are written readable by their owner only.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, bail};
 use rcgen::{
@@ -82,8 +82,9 @@ fn check_name(name: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Makes a CA and a server certificate (for localhost and `hosts`) in `dir`.
-pub fn init(dir: &Path, hosts: &[String]) -> anyhow::Result<()> {
+/// Makes a CA and a server certificate (for localhost and `hosts`) in `dir`; returns what
+/// it made, for people.
+pub fn init(dir: &Path, hosts: &[String]) -> anyhow::Result<String> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     if dir.join(CA_CERT).exists() {
         bail!(
@@ -113,12 +114,11 @@ pub fn init(dir: &Path, hosts: &[String]) -> anyhow::Result<()> {
     write(&dir.join(CA_KEY), &issuer_key_pem(&issuer), true)?;
     write(&dir.join(SERVER_CERT), &server_cert.pem(), false)?;
     write(&dir.join(SERVER_KEY), &server_key.serialize_pem(), true)?;
-    println!(
+    Ok(format!(
         "lab CA and server certificate ({}) in {}; keep {CA_KEY} private",
         names.join(", "),
         dir.display()
-    );
-    Ok(())
+    ))
 }
 
 fn issuer_key_pem(issuer: &Issuer<'_, KeyPair>) -> String {
@@ -126,8 +126,8 @@ fn issuer_key_pem(issuer: &Issuer<'_, KeyPair>) -> String {
 }
 
 /// Issues a client certificate for `name` with `role` (observer or instructor), signed by
-/// the CA in `dir`; returns the certificate's path.
-pub fn issue(dir: &Path, role: &str, name: &str) -> anyhow::Result<PathBuf> {
+/// the CA in `dir`; returns what it made, for people.
+pub fn issue(dir: &Path, role: &str, name: &str) -> anyhow::Result<String> {
     check_name(name)?;
     if !["observer", "instructor"].contains(&role) {
         bail!("role {role:?}: observer or instructor");
@@ -153,9 +153,8 @@ pub fn issue(dir: &Path, role: &str, name: &str) -> anyhow::Result<PathBuf> {
     let cert_path = dir.join(format!("{name}.pem"));
     write(&cert_path, &cert.pem(), false)?;
     write(&dir.join(format!("{name}.key")), &key.serialize_pem(), true)?;
-    println!(
+    Ok(format!(
         "{role} certificate for {name}: {} and {name}.key",
         cert_path.display()
-    );
-    Ok(cert_path)
+    ))
 }

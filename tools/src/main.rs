@@ -322,6 +322,22 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Remote observers over QUIC on loopback: frame latency, bytes per second per
+    /// observer, and the haptic deadline misses they add (docs/BENCHMARKS.md).
+    Net {
+        /// Seconds per phase (without observers, with them).
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Observers in the second phase (30 Hz each).
+        #[arg(long, default_value_t = 32)]
+        observers: usize,
+        /// The built-in scene.
+        #[arg(long, default_value = "cerebroma")]
+        scene: String,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Build every built-in scene several times and report build times.
     Scenes {
         /// Builds per scene.
@@ -413,7 +429,9 @@ fn main() -> ExitCode {
             json,
         } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
         Command::Replay { file, json } => replay_cmd::run(&file, json),
-        Command::Certs(CertsCommand::Init { dir, host }) => certs_cmd::init(&dir, &host),
+        Command::Certs(CertsCommand::Init { dir, host }) => {
+            certs_cmd::init(&dir, &host).map(|made| println!("{made}"))
+        }
         Command::Observe {
             addr,
             certs,
@@ -475,7 +493,7 @@ fn main() -> ExitCode {
             },
         ),
         Command::Certs(CertsCommand::Issue { dir, role, name }) => {
-            certs_cmd::issue(&dir, &role, &name).map(|_| ())
+            certs_cmd::issue(&dir, &role, &name).map(|made| println!("{made}"))
         }
         Command::MockDevice {
             station,
@@ -533,6 +551,12 @@ fn main() -> ExitCode {
             viewers,
             json,
         }) => bench::loop_bench::run(seconds, viewers, json),
+        Command::Bench(BenchCommand::Net {
+            seconds,
+            observers,
+            scene,
+            json,
+        }) => bench::net::run(seconds, observers, &scene, json),
         Command::Bench(BenchCommand::Accuracy {
             out,
             min_across,

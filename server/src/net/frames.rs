@@ -107,6 +107,7 @@ impl FrameEncoder {
                 frame: self.next,
                 keyframe: self.next,
                 sim_tick: h.sim_tick,
+                server_time_ns: h.server_time_ns,
                 topology: Some(Topology {
                     triangles: f.triangles.clone(),
                     materials: f.materials.clone(),
@@ -131,6 +132,7 @@ impl FrameEncoder {
             frame: self.next,
             keyframe: key.frame,
             sim_tick: h.sim_tick,
+            server_time_ns: h.server_time_ns,
             topology: None,
             origin_m: key.origin,
             step_m: key.step,

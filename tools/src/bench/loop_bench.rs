@@ -89,7 +89,8 @@ struct LoopBench {
 /// Status lines of the server as (uptime, line).
 type Lines = Arc<std::sync::Mutex<Vec<(f64, serde_json::Value)>>>;
 
-fn server_binary() -> anyhow::Result<PathBuf> {
+/// The release server beside this binary.
+pub(crate) fn server_binary() -> anyhow::Result<PathBuf> {
     let exe = std::env::current_exe()?;
     let path = exe.with_file_name("scalpel-server");
     if !path.exists() {

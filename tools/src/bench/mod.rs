@@ -3,6 +3,7 @@
 pub mod accuracy;
 pub mod cutting;
 pub mod loop_bench;
+pub mod net;
 pub mod stability;
 
 use scalpel_sim::scene::{self, BUILTIN_SCENES};

@@ -123,7 +123,7 @@ def decode_server(payload: bytes) -> dict:
             }
         }
     elif kind == 6:
-        number, keyframe, sim_tick = r.u(), r.u(), r.u()
+        number, keyframe, sim_tick, server_time_ns = r.u(), r.u(), r.u(), r.u()
         triangles, materials = None, None
         if r.byte() == 1:
             triangles = [(r.u(), r.u(), r.u()) for _ in range(r.u())]

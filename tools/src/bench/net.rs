@@ -1,0 +1,318 @@
+//! `scalpel bench net [--seconds S] [--observers N] [--scene NAME] [--json]`: remote
+//! observers over real QUIC with TLS on loopback. Starts the release server (beside this
+//! binary) with the QUIC endpoint on a lab made for the run, the in-process scripted device
+//! cutting the scene in a loop (topology changes, so keyframes: the costly case) and render
+//! frames at 60 Hz. Two phases of S seconds: no observers, then N observers subscribed at
+//! 30 Hz. Reports the observers' frame latency (the server's CLOCK_MONOTONIC when the
+//! simulation wrote the frame → decoded by the observer), the bytes per second each
+//! observer receives (UDP payloads, from quinn's connection statistics), frames per second,
+//! and the haptic loop's deadline misses in each phase (from the server's status lines).
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use scalpel_client::remote::{Credentials, Observer, Update};
+use serde::Serialize;
+
+use crate::mock_cmd::quantiles_ms;
+
+/// Targets of issue 6.
+const LATENCY_P99_TARGET_MS: f64 = 5.0;
+/// See [`LATENCY_P99_TARGET_MS`].
+const BYTES_PER_S_TARGET: f64 = 1e6;
+
+#[derive(Debug, Serialize)]
+struct Latency {
+    n: usize,
+    p50: f64,
+    p99: f64,
+    max: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct NetBench {
+    scene: String,
+    seconds_per_phase: f64,
+    observers: usize,
+    /// Frame latency over every observer's frames of the second phase (ms).
+    frame_latency_ms: Latency,
+    /// Bytes received per observer per second: the mean and the largest over observers.
+    bytes_per_s_mean: f64,
+    bytes_per_s_max: f64,
+    /// Frames decoded per observer per second (mean).
+    frames_per_s_mean: f64,
+    /// Keyframes among them (a topology change or once a second).
+    keyframe_share: f64,
+    /// Haptic deadline misses in the phase without observers and in the phase with them.
+    deadline_misses_without: u64,
+    deadline_misses_with: u64,
+    /// Haptic ticks in each phase (for the misses' share).
+    haptic_ticks_without: u64,
+    haptic_ticks_with: u64,
+    latency_p99_target_ms: f64,
+    bytes_per_s_target: f64,
+    latency_p99_met: bool,
+    bytes_per_s_met: bool,
+    observers_add_no_misses: bool,
+}
+
+/// One observer's record of the measured phase.
+#[derive(Debug, Default)]
+struct Record {
+    latencies_s: Vec<f64>,
+    frames: u64,
+    keyframes: u64,
+    bytes: u64,
+}
+
+/// Status lines of the server as (arrival, s since the bench started; haptic window).
+type Lines = Arc<Mutex<Vec<(f64, serde_json::Value)>>>;
+
+/// Runs the benchmark.
+pub fn run(seconds: f64, observers: usize, scene: &str, json: bool) -> anyhow::Result<()> {
+    if !(seconds.is_finite() && (2.0..=3600.0).contains(&seconds)) {
+        bail!("--seconds must be between 2 and 3600, got {seconds}");
+    }
+    if !(1..=64).contains(&observers) {
+        bail!("--observers must be between 1 and 64, got {observers}");
+    }
+    let station = format!("bench-net-{}", std::process::id());
+    let dir = std::env::temp_dir().join(&station);
+    std::fs::create_dir_all(&dir)?;
+    let result = (|| {
+        crate::certs_cmd::init(&dir, &[])?;
+        crate::certs_cmd::issue(&dir, "observer", "bench")?;
+        let scene_file = dir.join("scene.toml");
+        std::fs::write(
+            &scene_file,
+            format!("extends = \"{scene}\"\n[features]\nobservers = true\n"),
+        )?;
+        let config = dir.join("server.toml");
+        std::fs::write(
+            &config,
+            format!(
+                "station = \"{station}\"\nscene = \"{}\"\n[device]\nkind = \"scripted\"\nloop_script = true\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\nframe_hz = 30.0\nmax_connections = {}\nmax_per_address = {}\n",
+                scene_file.display(),
+                dir.display(),
+                observers + 4,
+                observers + 4,
+            ),
+        )?;
+        measure(&config, scene, &dir, seconds, observers)
+    })();
+    std::fs::remove_dir_all(&dir).ok();
+    let report = result?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(())
+}
+
+fn measure(
+    config: &std::path::Path,
+    scene: &str,
+    dir: &std::path::Path,
+    seconds: f64,
+    observers: usize,
+) -> anyhow::Result<NetBench> {
+    let total = 2.0 * seconds + 30.0;
+    let started = Instant::now();
+    let mut server = Command::new(super::loop_bench::server_binary()?)
+        .arg(config)
+        .args(["--json", "--duration", &format!("{total}")])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .context("cannot start scalpel-server")?;
+    let lines: Lines = Arc::default();
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    {
+        let stdout = server.stdout.take().context("server stdout")?;
+        let lines = lines.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                let v: serde_json::Value = serde_json::from_str(&line).unwrap_or_default();
+                if let Some(addr) = v["event"]
+                    .as_str()
+                    .and_then(|e| e.split("network endpoint on ").nth(1))
+                    .and_then(|s| s.split([',', ';']).next())
+                    .and_then(|s| s.trim().parse::<SocketAddr>().ok())
+                {
+                    let _ = addr_tx.send(addr);
+                }
+                if v.get("haptic").is_some()
+                    && let Ok(mut l) = lines.lock()
+                {
+                    l.push((started.elapsed().as_secs_f64(), v["haptic"].clone()));
+                }
+            }
+        });
+    }
+    let result = (|| {
+        let addr = addr_rx
+            .recv_timeout(Duration::from_secs(120))
+            .context("the server did not report its network endpoint")?;
+        let last_line = |lines: &Lines| lines.lock().map_or(0.0, |l| l.last().map_or(0.0, |x| x.0));
+        // Let the cut start, then phase 1 without observers.
+        std::thread::sleep(Duration::from_secs(3));
+        let phase1 = (started.elapsed().as_secs_f64(), seconds);
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        // Phase 2: the observers connect, settle for a second, and are measured.
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        let records: Vec<Arc<Mutex<Record>>> = (0..observers).map(|_| Arc::default()).collect();
+        let phase2 = runtime.block_on(async {
+            let credentials = Credentials::from_dir(dir, "bench");
+            let mut tasks = Vec::new();
+            let measuring = Arc::new(std::sync::atomic::AtomicBool::new(false));
+            for (k, record) in records.iter().enumerate() {
+                let mut o =
+                    Observer::connect(addr, "localhost", &credentials, &format!("bench-{k}"))
+                        .await
+                        .with_context(|| format!("observer {k} cannot connect"))?;
+                o.0.subscribe(30.0).await?;
+                let (record, measuring) = (record.clone(), measuring.clone());
+                tasks.push(tokio::spawn(async move {
+                    let mut counting_from = None;
+                    while let Some(update) = o.0.next().await {
+                        let on = measuring.load(std::sync::atomic::Ordering::Relaxed);
+                        if on && counting_from.is_none() {
+                            counting_from = Some(o.0.bytes_received());
+                        }
+                        if let (true, Update::Frame(f)) = (on, update) {
+                            let now = scalpel_client::frames::monotonic_ns();
+                            let mut r = record.lock().unwrap_or_else(|e| e.into_inner());
+                            r.frames += 1;
+                            r.keyframes += u64::from(f.keyframe);
+                            if f.server_time_ns > 0 && now > f.server_time_ns {
+                                r.latencies_s.push((now - f.server_time_ns) as f64 * 1e-9);
+                            }
+                            r.bytes = o.0.bytes_received() - counting_from.unwrap_or(0);
+                        }
+                    }
+                }));
+            }
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            measuring.store(true, std::sync::atomic::Ordering::Relaxed);
+            let from = started.elapsed().as_secs_f64();
+            tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
+            for t in &tasks {
+                t.abort();
+            }
+            anyhow::Ok((from, seconds))
+        })?;
+        drop(runtime);
+        // One more status line covering the end of phase 2.
+        let want = started.elapsed().as_secs_f64() + 1.0;
+        while last_line(&lines) < want && started.elapsed().as_secs_f64() < total {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        anyhow::Ok((phase1, phase2, records))
+    })();
+    let _ = server.kill();
+    let _ = server.wait();
+    let (phase1, phase2, records) = result?;
+    // The one-second status windows wholly inside each phase (a line arrives as its window
+    // ends; 50 ms of slack for the printing).
+    let lines = lines.lock().map_err(|_| anyhow::anyhow!("poisoned"))?;
+    let misses = |(from, len): (f64, f64)| {
+        let windows: Vec<&serde_json::Value> = lines
+            .iter()
+            .filter(|(t, _)| *t - 1.0 >= from - 0.05 && *t <= from + len + 0.05)
+            .map(|(_, w)| w)
+            .collect();
+        let sum = |k: &str| {
+            windows
+                .iter()
+                .map(|w| w[k].as_u64().unwrap_or(0))
+                .sum::<u64>()
+        };
+        (sum("deadline_misses"), sum("ticks"))
+    };
+    let (misses_without, ticks_without) = misses(phase1);
+    let (misses_with, ticks_with) = misses(phase2);
+    let records: Vec<Record> = records
+        .iter()
+        .map(|r| std::mem::take(&mut *r.lock().unwrap_or_else(|e| e.into_inner())))
+        .collect();
+    let latencies: Vec<f64> = records.iter().flat_map(|r| r.latencies_s.clone()).collect();
+    let (p50, p99, max) = quantiles_ms(&latencies).unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+    let per_s = |x: u64| x as f64 / phase2.1;
+    let bytes: Vec<f64> = records.iter().map(|r| per_s(r.bytes)).collect();
+    let frames: u64 = records.iter().map(|r| r.frames).sum();
+    let keyframes: u64 = records.iter().map(|r| r.keyframes).sum();
+    let bytes_per_s_mean = bytes.iter().sum::<f64>() / bytes.len() as f64;
+    let bytes_per_s_max = bytes.iter().copied().fold(0.0, f64::max);
+    Ok(NetBench {
+        scene: scene.to_string(),
+        seconds_per_phase: seconds,
+        observers,
+        frame_latency_ms: Latency {
+            n: latencies.len(),
+            p50,
+            p99,
+            max,
+        },
+        bytes_per_s_mean,
+        bytes_per_s_max,
+        frames_per_s_mean: per_s(frames) / observers as f64,
+        keyframe_share: keyframes as f64 / frames.max(1) as f64,
+        deadline_misses_without: misses_without,
+        deadline_misses_with: misses_with,
+        haptic_ticks_without: ticks_without,
+        haptic_ticks_with: ticks_with,
+        latency_p99_target_ms: LATENCY_P99_TARGET_MS,
+        bytes_per_s_target: BYTES_PER_S_TARGET,
+        latency_p99_met: !latencies.is_empty() && p99 <= LATENCY_P99_TARGET_MS,
+        bytes_per_s_met: bytes_per_s_max <= BYTES_PER_S_TARGET,
+        observers_add_no_misses: misses_with <= misses_without,
+    })
+}
+
+fn print_report(r: &NetBench) {
+    println!(
+        "scene {}: {} observers at 30 Hz over QUIC on loopback, {} s per phase (release server, scripted device cutting in a loop)",
+        r.scene, r.observers, r.seconds_per_phase
+    );
+    println!(
+        "frame latency (written by the simulation → decoded by an observer): p50 {:.3} p99 {:.3} max {:.3} ms (n {})",
+        r.frame_latency_ms.p50,
+        r.frame_latency_ms.p99,
+        r.frame_latency_ms.max,
+        r.frame_latency_ms.n
+    );
+    println!(
+        "per observer: {:.0} B/s mean, {:.0} B/s largest; {:.1} frames/s ({:.0} % keyframes)",
+        r.bytes_per_s_mean,
+        r.bytes_per_s_max,
+        r.frames_per_s_mean,
+        100.0 * r.keyframe_share
+    );
+    println!(
+        "haptic deadline misses: {} in {} ticks without observers, {} in {} ticks with them",
+        r.deadline_misses_without,
+        r.haptic_ticks_without,
+        r.deadline_misses_with,
+        r.haptic_ticks_with
+    );
+    let met = |b: bool| if b { "met" } else { "NOT met" };
+    println!(
+        "targets: latency p99 ≤ {} ms {}; ≤ {:.0} B/s per observer {}; observers add no deadline misses {}",
+        r.latency_p99_target_ms,
+        met(r.latency_p99_met),
+        r.bytes_per_s_target,
+        met(r.bytes_per_s_met),
+        if r.observers_add_no_misses {
+            "yes"
+        } else {
+            "NO"
+        }
+    );
+}
