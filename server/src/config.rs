@@ -138,6 +138,11 @@ pub struct RealtimeConfig {
     pub sim_fifo_priority: i32,
     /// Lock the process's memory (mlockall) so the haptic loop never waits on a page fault.
     pub lock_memory: bool,
+    /// Give the haptic thread a CPU of its own (the last one the process may use) and keep
+    /// the network threads off it, when there are two CPUs or more: QUIC to many
+    /// observers is bursts of system calls and packet processing that otherwise share
+    /// the haptic thread's CPU.
+    pub isolate_haptic_cpu: bool,
 }
 
 /// Output stage limits.
@@ -200,6 +205,7 @@ impl Default for RealtimeConfig {
             fifo_priority: 80,
             sim_fifo_priority: 0,
             lock_memory: true,
+            isolate_haptic_cpu: true,
         }
     }
 }

@@ -84,6 +84,7 @@ fn run() -> anyhow::Result<()> {
         fifo_priority: config.realtime.fifo_priority,
         sim_fifo_priority: config.realtime.sim_fifo_priority,
         lock_memory: config.realtime.lock_memory,
+        isolate_haptic_cpu: config.realtime.isolate_haptic_cpu,
         limits: OutputLimits {
             max_force_n: if o.max_force_n > 0.0 {
                 o.max_force_n
@@ -257,5 +258,7 @@ fn network_params(
         max_per_address: n.max_per_address as usize,
         station: config.station.clone(),
         scene: scene.spec.name.clone(),
+        // The station sets them (away from the haptic thread's CPU).
+        cpus: Vec::new(),
     }))
 }

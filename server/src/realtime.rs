@@ -49,6 +49,43 @@ pub fn make_thread_fifo(priority: i32) -> Result<(), String> {
     }
 }
 
+/// CPUs this process may run on.
+pub fn allowed_cpus() -> Vec<usize> {
+    // SAFETY: `set` is a plain bit set that sched_getaffinity fills; its size is passed.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+            return Vec::new();
+        }
+        (0..libc::CPU_SETSIZE as usize)
+            .filter(|&c| libc::CPU_ISSET(c, &set))
+            .collect()
+    }
+}
+
+/// Restricts the calling thread to `cpus`.
+pub fn pin_thread(cpus: &[usize]) -> Result<(), String> {
+    if cpus.is_empty() {
+        return Err("no CPU to pin to".into());
+    }
+    // SAFETY: `set` is a plain bit set built here; pthread_self is the calling thread.
+    let rc = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for &c in cpus {
+            libc::CPU_SET(c, &mut set);
+        }
+        libc::pthread_setaffinity_np(libc::pthread_self(), size_of::<libc::cpu_set_t>(), &set)
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "CPU affinity {cpus:?}: {}",
+            std::io::Error::from_raw_os_error(rc)
+        ))
+    }
+}
+
 /// Seconds on CLOCK_MONOTONIC.
 pub fn monotonic_s() -> f64 {
     let t = monotonic();

@@ -315,6 +315,8 @@ pub struct StationParams {
     pub sim_fifo_priority: i32,
     /// Lock memory.
     pub lock_memory: bool,
+    /// A CPU of its own for the haptic thread (config `realtime.isolate_haptic_cpu`).
+    pub isolate_haptic_cpu: bool,
     /// Output stage.
     pub limits: OutputLimits,
     /// Status interval (s).
@@ -380,9 +382,21 @@ pub fn run(
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
     }
+    // The haptic thread's own CPU: the last one this process may use; the network
+    // threads run on the others.
+    let cpus = realtime::allowed_cpus();
+    let (haptic_cpu, other_cpus) = match cpus.split_last() {
+        Some((&last, rest)) if params.isolate_haptic_cpu && !rest.is_empty() => {
+            (Some(last), rest.to_vec())
+        }
+        _ => (None, Vec::new()),
+    };
     // The network endpoint first: if it cannot listen, nothing else has started yet.
     let network = match &params.network {
-        Some(n) => Some(crate::net::start(n.clone())?),
+        Some(n) => Some(crate::net::start(crate::net::NetworkParams {
+            cpus: other_cpus.clone(),
+            ..n.clone()
+        })?),
         None => None,
     };
     // The monitor also cleans up after any dead node (a killed viewer, a killed server of
@@ -435,6 +449,7 @@ pub fn run(
             HapticContext {
                 period_s: 1.0 / params.haptic_hz,
                 fifo_priority: params.fifo_priority,
+                cpu: haptic_cpu,
                 limits: params.limits,
                 t0,
             },
@@ -450,6 +465,7 @@ pub fn run(
         None
     };
     let mut fifo_priority = 0;
+    let mut pinned_cpu = None;
     let device_error = match (&haptic_thread, ready_rx.recv()) {
         (None, _) => None,
         (Some(_), Ok(ready)) => {
@@ -458,6 +474,10 @@ pub fn run(
                 Err(e) => warnings.push(format!(
                     "{e}: the haptic thread runs with normal scheduling"
                 )),
+            }
+            match ready.cpu {
+                Ok(c) => pinned_cpu = c,
+                Err(e) => warnings.push(format!("{e}: the haptic thread shares its CPU")),
             }
             ready.device.err()
         }
@@ -495,7 +515,7 @@ pub fn run(
     let mut off = Vec::new();
     if haptic_thread.is_some() {
         running.push(format!(
-            "haptic thread {} Hz ({}, memory {})",
+            "haptic thread {} Hz ({}, memory {}{})",
             params.haptic_hz,
             if fifo_priority > 0 {
                 format!("SCHED_FIFO {fifo_priority}")
@@ -506,7 +526,8 @@ pub fn run(
                 "locked"
             } else {
                 "not locked"
-            }
+            },
+            pinned_cpu.map_or(String::new(), |c| format!(", CPU {c} to itself"))
         ));
         running.push(if params.monitor_device {
             "shared-memory device with its force-out thread".into()
@@ -723,6 +744,7 @@ pub fn run(
 struct HapticContext {
     period_s: f64,
     fifo_priority: i32,
+    cpu: Option<usize>,
     limits: OutputLimits,
     t0: f64,
 }
@@ -731,6 +753,8 @@ struct HapticContext {
 struct HapticReady {
     /// The SCHED_FIFO priority granted, or why not.
     fifo: Result<i32, String>,
+    /// The CPU the thread has to itself, or why not.
+    cpu: Result<Option<usize>, String>,
     /// The device opened, or why not.
     device: Result<(), String>,
 }
@@ -754,10 +778,15 @@ fn spawn_haptic(
             } else {
                 Ok(0)
             };
+            let cpu = match ctx.cpu {
+                Some(c) => realtime::pin_thread(&[c]).map(|()| Some(c)),
+                None => Ok(None),
+            };
             let mut device = match device() {
                 Ok(d) => {
                     let _ = ready.send(HapticReady {
                         fifo: granted,
+                        cpu,
                         device: Ok(()),
                     });
                     d
@@ -765,6 +794,7 @@ fn spawn_haptic(
                 Err(e) => {
                     let _ = ready.send(HapticReady {
                         fifo: granted,
+                        cpu,
                         device: Err(format!("{e:#}")),
                     });
                     return;

@@ -44,6 +44,9 @@ pub struct NetworkParams {
     pub station: String,
     /// The scene.
     pub scene: String,
+    /// CPUs for the network threads (empty: any); the station keeps them off the haptic
+    /// thread's CPU.
+    pub cpus: Vec<usize>,
 }
 
 /// What the station hands the endpoint; the station keeps the senders.
@@ -144,6 +147,8 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
     let thread = std::thread::Builder::new()
         .name("network".into())
         .spawn(move || {
+            // Not fatal: the endpoint works anywhere, it just shares CPUs.
+            let _ = crate::realtime::pin_thread(&params.cpus);
             let runtime = match tokio::runtime::Builder::new_current_thread()
                 .enable_all()
                 .build()
@@ -165,6 +170,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
                 let _ = ready_tx.send(endpoint.local_addr().map_err(Into::into));
                 let (frames_tx, frames_rx) = watch::channel(None);
                 let reader = spawn_frame_reader(
+                    params.cpus.clone(),
                     params.station.clone(),
                     params.frame_hz,
                     frames_tx,
@@ -280,12 +286,14 @@ async fn accept_loop(
 
 /// Reads the station's shared-memory frames at up to `frame_hz` into `frames`.
 fn spawn_frame_reader(
+    cpus: Vec<usize>,
     station: String,
     frame_hz: f64,
     frames: watch::Sender<Option<Arc<SourceFrame>>>,
     stop: watch::Receiver<bool>,
 ) -> std::thread::JoinHandle<()> {
     std::thread::spawn(move || {
+        let _ = crate::realtime::pin_thread(&cpus);
         let mut reader = loop {
             if *stop.borrow() {
                 return;

@@ -163,7 +163,15 @@ fn measure(
         std::thread::sleep(Duration::from_secs(3));
         let phase1 = (started.elapsed().as_secs_f64(), seconds);
         std::thread::sleep(Duration::from_secs_f64(seconds));
-        // Phase 2: the observers connect, settle for a second, and are measured.
+        // Phase 2: the observers connect, settle for a second, and are measured. They
+        // stand for machines elsewhere in the lab: they keep off the server's haptic CPU
+        // (the last one; the server keeps its own network threads off it too).
+        let cpus = scalpel_server::realtime::allowed_cpus();
+        if let Some((_, others)) = cpus.split_last()
+            && !others.is_empty()
+        {
+            let _ = scalpel_server::realtime::pin_thread(others);
+        }
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()?;
