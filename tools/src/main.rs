@@ -12,6 +12,7 @@ mod instruct_cmd;
 mod load;
 mod mock_cmd;
 mod observe_cmd;
+mod observe_tui;
 mod plot;
 mod progress;
 mod replay_cmd;
@@ -108,6 +109,10 @@ enum Command {
         /// One JSON object per update.
         #[arg(long)]
         json: bool,
+        /// Lines of text instead of the live view (the default when the output is not a
+        /// terminal).
+        #[arg(long)]
+        plain: bool,
     },
     /// Instruct a station over QUIC (an instructor certificate): schedule a fault, list
     /// the faults, clear them (docs/PROTOCOL.md, "Faults").
@@ -440,6 +445,7 @@ fn main() -> ExitCode {
             frames,
             seconds,
             json,
+            plain,
         } => observe_cmd::run(&observe_cmd::ObserveArgs {
             addr: &addr,
             server_name: &server_name,
@@ -448,6 +454,7 @@ fn main() -> ExitCode {
             frames,
             seconds,
             json,
+            plain,
         }),
         Command::Instruct {
             addr,

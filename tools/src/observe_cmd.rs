@@ -1,6 +1,8 @@
-//! `scalpel observe ADDR --certs DIR --name NAME [--frames] [--seconds S] [--json]`: a
-//! remote observer in the terminal — a line of figures a second, events as they happen,
-//! and how many frames arrived (docs/PROTOCOL.md, "Remote clients").
+//! `scalpel observe ADDR --certs DIR --name NAME [--frames] [--seconds S] [--plain | --json]`:
+//! a remote observer in the terminal. On a terminal, a live view (`observe_tui`: figures,
+//! force and jitter charts, events); with `--plain` or when the output is not a terminal, a
+//! line of figures a second and events as they happen; with `--json`, every update as a
+//! JSON line (docs/PROTOCOL.md, "Remote clients").
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -24,6 +26,8 @@ pub struct ObserveArgs<'a> {
     pub seconds: Option<f64>,
     /// JSON lines.
     pub json: bool,
+    /// Lines of text even on a terminal.
+    pub plain: bool,
 }
 
 /// Runs the observer.
@@ -44,6 +48,17 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
         .await
         .with_context(|| format!("cannot observe {}", args.addr))?;
     let w = observer.0.welcome().clone();
+    let live = !args.json && !args.plain && std::io::IsTerminal::is_terminal(&std::io::stdout());
+    if live {
+        // Frames for the frame rate figure: the view is an observer's, like any other.
+        observer
+            .0
+            .subscribe(if args.frames { 30.0 } else { 0.0 })
+            .await?;
+        let result = crate::observe_tui::run(&mut observer, args.seconds).await;
+        observer.0.close_and_wait().await;
+        return result;
+    }
     if args.json {
         println!(
             "{}",
