@@ -148,21 +148,7 @@ mod tests {
             start: Start::AtTick(300),
             duration_ms: 50,
         };
-        let faults = [
-            Fault::DeviceDropout,
-            Fault::DeviceLatency { ms: 20.0 },
-            Fault::PoseNoise { sigma_mm: 0.5 },
-            Fault::ForceSpike { newtons: 10.0 },
-            Fault::ForceSaturation { max_n: 1.0 },
-            Fault::TissueStiffness {
-                factor: 2.0,
-                ramp_ms: 200,
-            },
-            Fault::SimStall,
-            Fault::SimSlowdown { factor: 2.0 },
-            Fault::RendererFreeze,
-            Fault::ObserverStreamLoss,
-        ];
+        let faults = Fault::EXAMPLES;
         let mut all = vec![
             client(&ClientMessage::Hello {
                 protocol_version: 1,
@@ -260,13 +246,13 @@ mod tests {
             "0208010103",
             "020902",
             "020100000000",
-            "020100010000a0410000",
-            "020100020000003f0000",
+            "02010001000048420000",
+            "020100020000803f0000",
             "02010003000020410000",
             "020100040000803f0000",
             "0201000500000040c80000",
             "020100060000",
-            "02010007000000400000",
+            "02010007000080400000",
             "020100080000",
             "020100090000",
             "00010173056c697665720103616e6e",
@@ -284,9 +270,13 @@ mod tests {
 
     #[test]
     fn golden_bytes() {
-        for (k, (got, want)) in golden().into_iter().enumerate() {
-            assert_eq!(got, want, "message {k}");
-        }
+        let wrong: Vec<String> = golden()
+            .into_iter()
+            .enumerate()
+            .filter(|(_, (got, want))| got != want)
+            .map(|(k, (got, want))| format!("message {k}: {got} (pinned {want})"))
+            .collect();
+        assert!(wrong.is_empty(), "{}", wrong.join("\n"));
     }
 
     #[test]

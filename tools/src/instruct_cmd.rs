@@ -3,22 +3,16 @@
 //! is one connection and one command; the answer is printed (JSON with `--json`), and a
 //! refused command exits with an error that gives the server's reason.
 
-use std::path::Path;
-
 use anyhow::{Context, bail};
-use scalpel_client::remote::{Credentials, Instructor};
+use scalpel_client::remote::Instructor;
 use scalpel_proto::wire::{Fault, FaultSpec, Outcome, ScheduledFault, Start};
+
+use crate::remote_target::RemoteTarget;
 
 /// Who instructs where.
 pub struct InstructArgs<'a> {
-    /// Server address.
-    pub addr: &'a str,
-    /// Name in the server's certificate.
-    pub server_name: &'a str,
-    /// The lab's certificate folder.
-    pub certs: &'a Path,
-    /// This instructor's certificate name.
-    pub name: &'a str,
+    /// The server, and this instructor's certificate.
+    pub target: &'a RemoteTarget,
     /// JSON output.
     pub json: bool,
 }
@@ -133,18 +127,12 @@ pub fn run(args: &InstructArgs<'_>, request: Request) -> anyhow::Result<()> {
         }),
         _ => None,
     };
-    let addr = std::net::ToSocketAddrs::to_socket_addrs(args.addr)
-        .with_context(|| format!("{}: not an address (HOST:PORT)", args.addr))?
-        .next()
-        .with_context(|| format!("{}: no address", args.addr))?;
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    runtime.block_on(async {
-        let credentials = Credentials::from_dir(args.certs, args.name);
-        let mut instructor = Instructor::connect(addr, args.server_name, &credentials, args.name)
+    let t = args.target;
+    let addr = t.socket_addr()?;
+    RemoteTarget::runtime()?.block_on(async {
+        let mut instructor = Instructor::connect(addr, &t.server_name, &t.credentials(), &t.name)
             .await
-            .with_context(|| format!("cannot instruct {}", args.addr))?;
+            .with_context(|| format!("cannot instruct {}", t.addr))?;
         let (outcome, faults) = match (&request, spec) {
             (_, Some(spec)) => (instructor.schedule(spec).await?, None),
             (Request::List, _) => {

@@ -15,6 +15,7 @@ mod observe_cmd;
 mod observe_tui;
 mod plot;
 mod progress;
+mod remote_target;
 mod replay_cmd;
 mod report;
 mod validate_cmd;
@@ -89,17 +90,8 @@ enum Command {
     Certs(CertsCommand),
     /// Observe a station remotely over QUIC: figures once a second, events, frames.
     Observe {
-        /// The server's address (HOST:PORT).
-        addr: String,
-        /// The lab's certificate folder (`scalpel certs`).
-        #[arg(long)]
-        certs: PathBuf,
-        /// This client's certificate name (NAME.pem, NAME.key in the folder).
-        #[arg(long)]
-        name: String,
-        /// The name in the server's certificate.
-        #[arg(long, default_value = "localhost")]
-        server_name: String,
+        #[command(flatten)]
+        target: remote_target::RemoteTarget,
         /// Ask for frames (30 per second) too.
         #[arg(long)]
         frames: bool,
@@ -117,17 +109,8 @@ enum Command {
     /// Instruct a station over QUIC (an instructor certificate): schedule a fault, list
     /// the faults, clear them (docs/PROTOCOL.md, "Faults").
     Instruct {
-        /// The server's address (HOST:PORT).
-        addr: String,
-        /// The lab's certificate folder (`scalpel certs`).
-        #[arg(long)]
-        certs: PathBuf,
-        /// This instructor's certificate name (NAME.pem, NAME.key in the folder).
-        #[arg(long)]
-        name: String,
-        /// The name in the server's certificate.
-        #[arg(long, default_value = "localhost")]
-        server_name: String,
+        #[command(flatten)]
+        target: remote_target::RemoteTarget,
         /// The answer as JSON.
         #[arg(long)]
         json: bool,
@@ -438,37 +421,21 @@ fn main() -> ExitCode {
             certs_cmd::init(&dir, &host).map(|made| println!("{made}"))
         }
         Command::Observe {
-            addr,
-            certs,
-            name,
-            server_name,
+            target,
             frames,
             seconds,
             json,
             plain,
         } => observe_cmd::run(&observe_cmd::ObserveArgs {
-            addr: &addr,
-            server_name: &server_name,
-            certs: &certs,
-            name: &name,
+            target: &target,
             frames,
             seconds,
             json,
             plain,
         }),
-        Command::Instruct {
-            addr,
-            certs,
-            name,
-            server_name,
-            json,
-            what,
-        } => instruct_cmd::run(
+        Command::Instruct { target, json, what } => instruct_cmd::run(
             &instruct_cmd::InstructArgs {
-                addr: &addr,
-                server_name: &server_name,
-                certs: &certs,
-                name: &name,
+                target: &target,
                 json,
             },
             match what {

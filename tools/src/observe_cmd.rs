@@ -4,22 +4,17 @@
 //! line of figures a second and events as they happen; with `--json`, every update as a
 //! JSON line (docs/PROTOCOL.md, "Remote clients").
 
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use scalpel_client::remote::{Credentials, Observer, Update};
+use scalpel_client::remote::{Observer, Update};
+
+use crate::remote_target::RemoteTarget;
 
 /// What to observe and how.
 pub struct ObserveArgs<'a> {
-    /// Server address.
-    pub addr: &'a str,
-    /// Name in the server's certificate.
-    pub server_name: &'a str,
-    /// The lab's certificate folder.
-    pub certs: &'a Path,
-    /// This observer's certificate name.
-    pub name: &'a str,
+    /// The server, and this observer's certificate.
+    pub target: &'a RemoteTarget,
     /// Ask for frames.
     pub frames: bool,
     /// Stop after this long.
@@ -32,21 +27,15 @@ pub struct ObserveArgs<'a> {
 
 /// Runs the observer.
 pub fn run(args: &ObserveArgs<'_>) -> anyhow::Result<()> {
-    let addr = std::net::ToSocketAddrs::to_socket_addrs(args.addr)
-        .with_context(|| format!("{}: not an address (HOST:PORT)", args.addr))?
-        .next()
-        .with_context(|| format!("{}: no address", args.addr))?;
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    runtime.block_on(observe(args, addr))
+    let addr = args.target.socket_addr()?;
+    RemoteTarget::runtime()?.block_on(observe(args, addr))
 }
 
 async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::Result<()> {
-    let credentials = Credentials::from_dir(args.certs, args.name);
-    let mut observer = Observer::connect(addr, args.server_name, &credentials, args.name)
+    let t = args.target;
+    let mut observer = Observer::connect(addr, &t.server_name, &t.credentials(), &t.name)
         .await
-        .with_context(|| format!("cannot observe {}", args.addr))?;
+        .with_context(|| format!("cannot observe {}", t.addr))?;
     let w = observer.0.welcome().clone();
     let live = !args.json && !args.plain && std::io::IsTerminal::is_terminal(&std::io::stdout());
     if live {

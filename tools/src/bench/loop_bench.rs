@@ -90,7 +90,7 @@ struct LoopBench {
 type Lines = Arc<std::sync::Mutex<Vec<(f64, serde_json::Value)>>>;
 
 /// The release server beside this binary.
-pub(crate) fn server_binary() -> anyhow::Result<PathBuf> {
+fn server_binary() -> anyhow::Result<PathBuf> {
     let exe = std::env::current_exe()?;
     let path = exe.with_file_name("scalpel-server");
     if !path.exists() {
@@ -100,6 +100,23 @@ pub(crate) fn server_binary() -> anyhow::Result<PathBuf> {
         );
     }
     Ok(path)
+}
+
+/// Starts the release server on `config` for `duration_s` with JSON output; returns it and
+/// its stdout.
+pub(crate) fn spawn_server(
+    config: &std::path::Path,
+    duration_s: f64,
+) -> anyhow::Result<(std::process::Child, std::process::ChildStdout)> {
+    let mut server = Command::new(server_binary()?)
+        .arg(config)
+        .args(["--json", "--duration", &format!("{duration_s}")])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .context("cannot start scalpel-server")?;
+    let stdout = server.stdout.take().context("server stdout")?;
+    Ok((server, stdout))
 }
 
 /// Runs the benchmark.
@@ -122,17 +139,10 @@ pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
         ),
     )?;
     let total = 2.0 * seconds + 4.0;
-    let mut server = Command::new(server_binary()?)
-        .arg(&config)
-        .args(["--json", "--duration", &format!("{}", total + 2.0)])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .context("cannot start scalpel-server")?;
+    let (mut server, stdout) = spawn_server(&config, total + 2.0)?;
     let lines: Lines = Arc::default();
     let (started_tx, started_rx) = std::sync::mpsc::channel();
     {
-        let stdout = server.stdout.take().context("server stdout")?;
         let lines = lines.clone();
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {

@@ -10,7 +10,6 @@
 
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
-use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -123,17 +122,10 @@ fn measure(
 ) -> anyhow::Result<NetBench> {
     let total = 2.0 * seconds + 30.0;
     let started = Instant::now();
-    let mut server = Command::new(super::loop_bench::server_binary()?)
-        .arg(config)
-        .args(["--json", "--duration", &format!("{total}")])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .context("cannot start scalpel-server")?;
+    let (mut server, stdout) = super::loop_bench::spawn_server(config, total)?;
     let lines: Lines = Arc::default();
     let (addr_tx, addr_rx) = std::sync::mpsc::channel();
     {
-        let stdout = server.stdout.take().context("server stdout")?;
         let lines = lines.clone();
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {

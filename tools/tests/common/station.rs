@@ -96,6 +96,16 @@ impl Running {
         }
     }
 
+    /// A server's next status line says its haptic loop runs at (nearly) 1 kHz.
+    pub fn assert_ticking(&mut self) {
+        let line =
+            json(&self.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
+        assert!(
+            line["haptic"]["rate_hz"].as_f64().unwrap() > 900.0,
+            "{line}"
+        );
+    }
+
     /// Kills the process with SIGKILL (no clean-up of any kind on its side).
     pub fn kill_9(&mut self) {
         self.child.kill().expect("SIGKILL");
