@@ -276,6 +276,12 @@ impl Session {
         self.updates.recv().await
     }
 
+    /// The `seq` the next command gets. The server refuses one not above the last it took
+    /// from this identity: setting it lower replays (what a test of that refusal does).
+    pub fn set_next_seq(&mut self, seq: u64) {
+        self.next_seq = seq;
+    }
+
     /// Sends a command and waits for its answer (and the fault list for `List`).
     pub async fn command(
         &mut self,

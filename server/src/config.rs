@@ -138,11 +138,11 @@ pub struct RealtimeConfig {
     pub sim_fifo_priority: i32,
     /// Lock the process's memory (mlockall) so the haptic loop never waits on a page fault.
     pub lock_memory: bool,
-    /// Give the haptic thread a CPU of its own (the last one the process may use) and keep
-    /// the network threads off it, when there are two CPUs or more: QUIC to many
-    /// observers is bursts of system calls and packet processing that otherwise share
-    /// the haptic thread's CPU.
-    pub isolate_haptic_cpu: bool,
+    /// A CPU for the haptic thread alone (-1: none): the thread is pinned to it and the
+    /// network threads to the other CPUs, so QUIC to many observers (bursts of system calls
+    /// and packet processing) does not share its CPU. Off by default: stations on one
+    /// machine must each get their own.
+    pub haptic_cpu: i32,
 }
 
 /// Output stage limits.
@@ -205,7 +205,7 @@ impl Default for RealtimeConfig {
             fifo_priority: 80,
             sim_fifo_priority: 0,
             lock_memory: true,
-            isolate_haptic_cpu: true,
+            haptic_cpu: -1,
         }
     }
 }
@@ -294,6 +294,13 @@ impl ServerConfig {
             f64::from(q),
             (0..=99).contains(&q) && (q == 0 || p == 0 || q < p),
             "0 (normal scheduling) or 1–99, below realtime.fifo_priority",
+        )?;
+        let c = self.realtime.haptic_cpu;
+        range(
+            "realtime.haptic_cpu",
+            f64::from(c),
+            (-1..=1023).contains(&c),
+            "-1 (none) or a CPU number",
         )?;
         let o = &self.output;
         range(

@@ -84,7 +84,7 @@ fn run() -> anyhow::Result<()> {
         fifo_priority: config.realtime.fifo_priority,
         sim_fifo_priority: config.realtime.sim_fifo_priority,
         lock_memory: config.realtime.lock_memory,
-        isolate_haptic_cpu: config.realtime.isolate_haptic_cpu,
+        haptic_cpu: usize::try_from(config.realtime.haptic_cpu).ok(),
         limits: OutputLimits {
             max_force_n: if o.max_force_n > 0.0 {
                 o.max_force_n

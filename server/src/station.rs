@@ -315,8 +315,8 @@ pub struct StationParams {
     pub sim_fifo_priority: i32,
     /// Lock memory.
     pub lock_memory: bool,
-    /// A CPU of its own for the haptic thread (config `realtime.isolate_haptic_cpu`).
-    pub isolate_haptic_cpu: bool,
+    /// A CPU of its own for the haptic thread (config `realtime.haptic_cpu`).
+    pub haptic_cpu: Option<usize>,
     /// Output stage.
     pub limits: OutputLimits,
     /// Status interval (s).
@@ -382,14 +382,19 @@ pub fn run(
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
     }
-    // The haptic thread's own CPU: the last one this process may use; the network
-    // threads run on the others.
+    // The haptic thread's own CPU, if one is given: the network threads run on the others.
     let cpus = realtime::allowed_cpus();
-    let (haptic_cpu, other_cpus) = match cpus.split_last() {
-        Some((&last, rest)) if params.isolate_haptic_cpu && !rest.is_empty() => {
-            (Some(last), rest.to_vec())
+    let (haptic_cpu, other_cpus) = match params.haptic_cpu {
+        Some(c) if cpus.contains(&c) && cpus.len() >= 2 => {
+            (Some(c), cpus.iter().copied().filter(|&o| o != c).collect())
         }
-        _ => (None, Vec::new()),
+        Some(c) => {
+            warnings.push(format!(
+                "realtime.haptic_cpu {c}: not one of this process's CPUs {cpus:?} (or the only one): the haptic thread shares its CPU"
+            ));
+            (None, Vec::new())
+        }
+        None => (None, Vec::new()),
     };
     // The network endpoint first: if it cannot listen, nothing else has started yet.
     let network = match &params.network {

@@ -10,7 +10,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use common::station::{self, Running, json, scalpel, unique_station};
-use scalpel_client::remote::{ClientError, Credentials, Observer, Session, Update, client_config};
+use scalpel_client::remote::{
+    ClientError, Credentials, Instructor, Observer, Session, Update, client_config,
+};
 use scalpel_proto::wire::{Action, Outcome};
 
 /// A lab: CA, server certificate, two observers and an instructor.
@@ -37,11 +39,11 @@ fn make_certs(dir: &Path) {
 /// Starts a server with the QUIC endpoint on a free port (and the in-process scripted
 /// device); returns it and the address.
 fn start(dir: &Path, station: &str) -> (Running, SocketAddr) {
-    start_with(dir, station, "")
+    start_with(dir, station, "", &[])
 }
 
-/// [`start`] with more configuration (TOML sections).
-fn start_with(dir: &Path, station: &str, more: &str) -> (Running, SocketAddr) {
+/// [`start`] with more configuration (TOML sections) and arguments.
+fn start_with(dir: &Path, station: &str, more: &str, args: &[&str]) -> (Running, SocketAddr) {
     let scene = dir.join("observed.toml");
     std::fs::write(
         &scene,
@@ -59,7 +61,10 @@ fn start_with(dir: &Path, station: &str, more: &str) -> (Running, SocketAddr) {
     )
     .unwrap();
     let mut command = std::process::Command::new(station::server_binary());
-    command.arg(&config).args(["--json", "--duration", "120"]);
+    command
+        .arg(&config)
+        .args(["--json", "--duration", "120"])
+        .args(args);
     let mut server = Running::start(command);
     let runs = server.wait_for(Duration::from_secs(60), |l| {
         json(l)["event"]
@@ -132,6 +137,34 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
             matches!(&outcome, Outcome::Rejected { reason } if reason.contains("observer")),
             "{outcome:?}"
         );
+
+        // An instructor's replayed command is refused; a flood is cut off by the rate limit.
+        let mut ann = Instructor::connect(
+            addr,
+            "localhost",
+            &Credentials::from_dir(&dir, "ann"),
+            "ann",
+        )
+        .await
+        .unwrap();
+        let (outcome, faults) = ann.list().await.unwrap();
+        assert_eq!((outcome, faults.len()), (Outcome::Listed, 0));
+        ann.0.set_next_seq(1);
+        let (outcome, _) = ann.list().await.unwrap();
+        assert!(
+            matches!(&outcome, Outcome::Rejected { reason } if reason.contains("replayed")),
+            "{outcome:?}"
+        );
+        ann.0.set_next_seq(u64::MAX / 2);
+        let mut limited = 0;
+        for _ in 0..30 {
+            if let (Outcome::Rejected { reason }, _) = ann.list().await.unwrap() {
+                assert!(reason.contains("rate limit"), "{reason}");
+                limited += 1;
+            }
+        }
+        // A burst of 20 (two used above), refilled at 10 a second while the flood lasts.
+        assert!((1..=20).contains(&limited), "{limited} of 30 refused");
 
         // Eight observers at once all get metrics.
         let mut many = Vec::new();
@@ -290,8 +323,8 @@ fn read_forces(csv: &Path) -> Vec<ForceRow> {
 struct Seen {
     /// (arrival tick, metrics).
     metrics: Vec<(u64, scalpel_proto::wire::Metrics)>,
-    /// (arrival tick, tool tip y in mm).
-    frames: Vec<(u64, Option<f64>)>,
+    /// (arrival tick, tick the simulation wrote it, tool tip y in mm).
+    frames: Vec<(u64, u64, Option<f64>)>,
     events: Vec<scalpel_proto::wire::Event>,
 }
 
@@ -307,7 +340,13 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     let dir = station::scratch("faults");
     make_certs(&dir);
     let name = unique_station("flt");
-    let (mut server, addr) = start_with(&dir, &name, "[device]\nkind = \"shared_memory\"\n");
+    let journal = dir.join("faults.journal");
+    let (mut server, addr) = start_with(
+        &dir,
+        &name,
+        "[device]\nkind = \"shared_memory\"\n",
+        &["--journal", journal.to_str().unwrap()],
+    );
     let clock = server.wait_for(Duration::from_secs(10), |l| {
         json(l)["event"]
             .as_str()
@@ -418,9 +457,11 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
                             let mut s = log.lock().unwrap();
                             match u {
                                 Update::Metrics(m) => s.metrics.push((at, m)),
-                                Update::Frame(f) => s
-                                    .frames
-                                    .push((at, f.tool.map(|t| f64::from(t.tip_m[1]) * 1e3))),
+                                Update::Frame(f) => s.frames.push((
+                                    at,
+                                    f.server_time_ns.saturating_sub(origin_ns) / 1_000_000,
+                                    f.tool.map(|t| f64::from(t.tip_m[1]) * 1e3),
+                                )),
                                 Update::Event(e) => s.events.push(e),
                             }
                         }
@@ -544,7 +585,12 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     // The output stage's limits hold over the whole run, every fault included (to the
     // recording's five decimals).
     const CSV: f64 = 1e-4;
-    for pair in forces.windows(2) {
+    // Each force sample once (a row repeats the last sample until a new one comes; the
+    // device zeroes a sample that is 10 ms old by itself, which is its own safety, not the
+    // server's output).
+    let mut samples = forces.clone();
+    samples.dedup_by_key(|r| r.tick);
+    for pair in samples.windows(2) {
         let (a, b) = (pair[0], pair[1]);
         assert!(b.force_n <= 3.3 + CSV, "{b:?}");
         let step = (b.force_n - a.force_n).abs();
@@ -604,6 +650,9 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
 
     for (k, log) in seen.iter().enumerate() {
         let s = log.lock().unwrap();
+        // What arrived when (delivery), and what was made when (the metrics' station
+        // tick, the frames' write time): under load a message made before a window can
+        // arrive inside it.
         let metrics_in = |from: u64, to: u64| {
             s.metrics
                 .iter()
@@ -612,7 +661,17 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
         let frames_in = |from: u64, to: u64| {
             s.frames
                 .iter()
-                .filter(move |(at, _)| (from..to).contains(at))
+                .filter(move |(at, _, _)| (from..to).contains(at))
+        };
+        let metrics_made = |from: u64, to: u64| {
+            s.metrics
+                .iter()
+                .filter(move |(_, m)| (from..to).contains(&m.station_tick))
+        };
+        let frames_made = |from: u64, to: u64| {
+            s.frames
+                .iter()
+                .filter(move |(_, made, _)| (from..to).contains(made))
         };
         // Every fault announced, applied and ended.
         let applied = s
@@ -628,7 +687,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
         assert_eq!((applied, ended), (10, 10), "observer {k}: {:?}", s.events);
         // Pose noise of 2 mm: the tool in the frames shakes across the stroke.
         let spread = |from: u64, to: u64| {
-            let y: Vec<f64> = frames_in(from, to).filter_map(|(_, y)| *y).collect();
+            let y: Vec<f64> = frames_made(from, to).filter_map(|(_, _, y)| *y).collect();
             let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
             (y.iter().map(|v| (v - m).powi(2)).sum::<f64>() / y.len().max(1) as f64).sqrt()
         };
@@ -643,7 +702,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
             spread(t - 500, t)
         );
         // Stall: the simulation tick stands still.
-        let ticks: Vec<u64> = metrics_in(w(6).start + 50, w(6).end)
+        let ticks: Vec<u64> = metrics_made(w(6).start + 15, w(6).end)
             .map(|(_, m)| m.sim_tick)
             .collect();
         assert!(
@@ -651,7 +710,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
             "observer {k}: {ticks:?}"
         );
         // Slowdown ×4: a quarter of the ticks.
-        let during: Vec<(u64, u64)> = metrics_in(w(7).start + 50, w(7).end)
+        let during: Vec<(u64, u64)> = metrics_made(w(7).start + 50, w(7).end)
             .map(|(_, m)| (m.station_tick, m.sim_tick))
             .collect();
         let (first, last) = (during[0], during[during.len() - 1]);
@@ -663,18 +722,24 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
         // Renderer freeze: no frames reach the observers either (they come from the same
         // shared memory).
         assert_eq!(
-            frames_in(w(8).start + 100, w(8).end).count(),
+            frames_made(w(8).start + 20, w(8).end).count(),
             0,
             "observer {k}"
         );
-        // Stream loss: no metrics, no frames; both back after it.
-        assert_eq!(
-            metrics_in(w(9).start + 30, w(9).end).count(),
-            0,
-            "observer {k}"
+        // Stream loss: none of the metrics and frames made while it lasts arrive (the
+        // station notices within its 10 ms round), but for the latest of each, which goes
+        // out when the stream resumes (metrics are sent every 100 ms, frames as they are
+        // read, up to 33 ms apart); both are back after it.
+        let leaked: Vec<(u64, u64)> = metrics_made(w(9).start + 15, w(9).end - 120)
+            .map(|(at, m)| (*at, m.station_tick))
+            .collect();
+        assert!(
+            leaked.is_empty(),
+            "observer {k}: metrics (arrived, made) {leaked:?} in {:?}",
+            w(9)
         );
         assert_eq!(
-            frames_in(w(9).start + 60, w(9).end).count(),
+            frames_made(w(9).start + 15, w(9).end - 40).count(),
             0,
             "observer {k}"
         );
@@ -700,6 +765,29 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
 
     // The server never stopped ticking.
     server.assert_ticking();
-    server.kill_9();
+    // Stopped as an operator stops it, its journal replays bit for bit, with every
+    // command and who sent it.
+    let stopped = std::process::Command::new("kill")
+        .args(["-INT", &server.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(stopped.success());
+    let (status, _) = server.finish();
+    assert!(status.success());
+    let out = scalpel()
+        .arg("replay")
+        .arg(&journal)
+        .arg("--json")
+        .output()
+        .unwrap();
+    let replay = json(String::from_utf8_lossy(&out.stdout).trim());
+    assert_eq!(replay["identical"], true, "{replay}");
+    let commands = replay["commands"].as_array().unwrap();
+    assert_eq!(commands.len(), 11, "ten faults and a list: {replay}");
+    assert!(commands.iter().all(|c| c["by"] == "ann"));
+    assert!(
+        replay["stiffness_changes"].as_u64().unwrap() >= 2,
+        "{replay}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

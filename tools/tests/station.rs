@@ -76,7 +76,7 @@ fn conformance_of_the_in_process_scripted_device() {
         fifo_priority: 80,
         sim_fifo_priority: 0,
         lock_memory: false,
-        isolate_haptic_cpu: true,
+        haptic_cpu: None,
         limits: OutputLimits {
             max_force_n: MAX_FORCE_N,
             rate_limit_n_per_ms: RATE_LIMIT_N,

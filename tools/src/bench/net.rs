@@ -90,11 +90,16 @@ pub fn run(seconds: f64, observers: usize, scene: &str, json: bool) -> anyhow::R
             &scene_file,
             format!("extends = \"{scene}\"\n[features]\nobservers = true\n"),
         )?;
+        // The haptic thread on the last CPU, alone: the server's network threads and the
+        // observers (this process) on the others.
+        let haptic_cpu = scalpel_server::realtime::allowed_cpus()
+            .last()
+            .map_or(-1, |&c| c as i64);
         let config = dir.join("server.toml");
         std::fs::write(
             &config,
             format!(
-                "station = \"{station}\"\nscene = \"{}\"\n[device]\nkind = \"scripted\"\nloop_script = true\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\nframe_hz = 30.0\nmax_connections = {}\nmax_per_address = {}\n",
+                "station = \"{station}\"\nscene = \"{}\"\n[device]\nkind = \"scripted\"\nloop_script = true\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[realtime]\nhaptic_cpu = {haptic_cpu}\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\nframe_hz = 30.0\nmax_connections = {}\nmax_per_address = {}\n",
                 scene_file.display(),
                 dir.display(),
                 observers + 4,

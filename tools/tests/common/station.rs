@@ -96,8 +96,12 @@ impl Running {
         }
     }
 
-    /// A server's next status line says its haptic loop runs at (nearly) 1 kHz.
+    /// A server's next status line (not one already printed) says its haptic loop runs at
+    /// (nearly) 1 kHz.
     pub fn assert_ticking(&mut self) {
+        while let Ok(line) = self.lines.try_recv() {
+            self.seen.push(line);
+        }
         let line =
             json(&self.wait_for(Duration::from_secs(2), |l| json(l).get("haptic").is_some()));
         assert!(
