@@ -20,7 +20,7 @@ use thiserror::Error;
 
 /// The layout version of every type here. Bumped on any change of a field's meaning,
 /// order or size.
-pub const LAYOUT_VERSION: u32 = 1;
+pub const LAYOUT_VERSION: u32 = 2;
 
 /// Longest station name (it becomes part of service and node names).
 pub const MAX_STATION_NAME: usize = 48;
@@ -448,10 +448,10 @@ mod tests {
         layout.describe(&mut header);
         assert_eq!(FrameLayout::of(&header, layout.len).unwrap(), layout);
         assert!(FrameLayout::of(&header, layout.len + 4).is_err());
-        header.layout_version = 2;
+        header.layout_version = LAYOUT_VERSION + 1;
         assert!(matches!(
             FrameLayout::of(&header, layout.len),
-            Err(ShmError::Version { found: 2 })
+            Err(ShmError::Version { found }) if found == LAYOUT_VERSION + 1
         ));
     }
 

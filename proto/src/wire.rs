@@ -14,8 +14,9 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Protocol version; `Hello` and `Welcome` carry it and a mismatch is refused.
-pub const PROTOCOL_VERSION: u16 = 1;
+/// Protocol version; `Hello` and `Welcome` carry it and a mismatch is refused. 2 added
+/// `Metrics::station_tick` and `ObserverFrame::server_time_ns` and made faults real.
+pub const PROTOCOL_VERSION: u16 = 2;
 /// TLS application protocol (ALPN).
 pub const ALPN: &[u8] = b"scalpel/1";
 /// Longest free text a client may send (client names).
@@ -196,6 +197,7 @@ impl Fault {
             Fault::ForceSpike { newtons } => within("newtons", newtons, 0.0, 1000.0),
             Fault::ForceSaturation { max_n } => within("max_n", max_n, 0.0, 1000.0),
             Fault::TissueStiffness { factor, ramp_ms } => {
+                // server/src/faults.rs keeps the combined factor of several in this range.
                 within("factor", factor, 0.1, 10.0)?;
                 if u64::from(ramp_ms) > 60_000 {
                     return Err(format!("tissue-stiffness: ramp_ms {ramp_ms} is over 60000"));

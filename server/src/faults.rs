@@ -22,6 +22,11 @@ pub const COMMAND_BURST: f64 = 20.0;
 /// each step re-derives the solver's constants, so every tick would be too many.
 pub const STIFFNESS_STEP: f64 = 0.02;
 
+/// The stiffness factor in effect stays within these, however many faults ask for one.
+pub const MIN_STIFFNESS: f32 = 0.1;
+/// See [`MIN_STIFFNESS`].
+pub const MAX_STIFFNESS: f32 = 10.0;
+
 /// A fault as the real-time threads see it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FaultSlot {
@@ -142,6 +147,8 @@ impl FaultTable {
         };
         for s in self.slots.iter().flatten() {
             if let Fault::TissueStiffness { factor, ramp_ms } = s.fault {
+                // Several at once multiply, within the range one may ask for (clamped
+                // below): stacked faults must not make the solver's step vanish.
                 let w = s.ramp(tick, ramp_ms);
                 e.stiffness *= 1.0 + (f64::from(factor) - 1.0) * w;
                 continue;
@@ -156,6 +163,9 @@ impl FaultTable {
                 _ => {}
             }
         }
+        e.stiffness = e
+            .stiffness
+            .clamp(f64::from(MIN_STIFFNESS), f64::from(MAX_STIFFNESS));
         e
     }
 
@@ -585,6 +595,28 @@ mod tests {
             matches!(o, Outcome::Rejected { ref reason } if reason.contains("booked")),
             "{o:?}"
         );
+    }
+
+    #[test]
+    fn stacked_stiffness_faults_stay_within_the_range_of_one() {
+        let mut book = FaultBook::new();
+        for seq in 1..=16 {
+            let f = Fault::TissueStiffness {
+                factor: 10.0,
+                ramp_ms: 1,
+            };
+            book.command("ann", &schedule(seq, f, Start::Now, 0), 0);
+        }
+        assert_eq!(book.table().sim(100).stiffness, 10.0);
+        let mut book = FaultBook::new();
+        for seq in 1..=16 {
+            let f = Fault::TissueStiffness {
+                factor: 0.1,
+                ramp_ms: 1,
+            };
+            book.command("ann", &schedule(seq, f, Start::Now, 0), 0);
+        }
+        assert!((book.table().sim(100).stiffness - 0.1).abs() < 1e-6);
     }
 
     #[test]

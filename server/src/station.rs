@@ -427,7 +427,12 @@ pub fn run(
             let writer = spawn_journal_writer(file, records_out, commands_out, sim_done.clone())?;
             (Some(records_in), Some(writer))
         }
-        None => (None, None),
+        None => {
+            // No journal: the command lines go nowhere (sending then fails, harmlessly)
+            // instead of piling up unread.
+            drop(commands_out);
+            (None, None)
+        }
     };
     let sim_thread = spawn_sim(
         sim,
@@ -587,6 +592,7 @@ pub fn run(
     let mut remote = RemoteFeed::default();
     let mut book = FaultBook::new();
     let mut stream_lost = false;
+    let stiff_mode = scene.spec.features.stiff_mode;
     while !stop.load(Ordering::Relaxed) {
         // Every 10 ms: instructors' commands are answered within that.
         realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
@@ -596,16 +602,40 @@ pub fn run(
         let mut table_changed = false;
         if let Some(n) = &network {
             while let Ok(request) = n.commands.try_recv() {
-                let (outcome, listed) = book.command(&request.by, &request.command, tick);
-                table_changed |= matches!(
-                    outcome,
-                    scalpel_proto::wire::Outcome::Scheduled { .. }
-                        | scalpel_proto::wire::Outcome::Cleared { .. }
-                );
+                use scalpel_proto::wire::{Action, Fault, Outcome, Role};
+                let refuse = |reason: &str| {
+                    (
+                        Outcome::Rejected {
+                            reason: reason.to_string(),
+                        },
+                        None,
+                    )
+                };
+                let (outcome, listed) = if request.reply.is_closed() {
+                    // The session gave up waiting (and told its client so): not carried
+                    // out late.
+                    refuse("expired: the station did not take it in time")
+                } else if request.role != Role::Instructor {
+                    refuse("an observer certificate may not instruct")
+                } else if stiff_mode
+                    && matches!(
+                        &request.command.action,
+                        Action::Schedule(spec) if matches!(spec.fault, Fault::TissueStiffness { .. })
+                    )
+                {
+                    // Each change would re-factorise the projective solver on the
+                    // simulation thread (milliseconds, allocating).
+                    refuse("tissue-stiffness is not available in a stiff-mode scene")
+                } else {
+                    book.command(&request.by, &request.command, tick)
+                };
+                table_changed |=
+                    matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
                 let record = serde_json::json!({
                     "station_tick": tick,
                     "sim_tick": sim_now.ticks,
                     "by": request.by,
+                    "role": request.role,
                     "seq": request.command.seq,
                     "action": request.command.action,
                     "outcome": outcome,
@@ -843,7 +873,17 @@ fn spawn_haptic(
                     break;
                 }
             }
-            device.send_force(Vec3::zeros(), ForceStatus::default());
+            let now = realtime::monotonic_s();
+            device.send_force(
+                Vec3::zeros(),
+                ForceStatus {
+                    faded: true,
+                    nan_guarded: false,
+                    tick_time_ns: (now * 1e9) as u64,
+                    station_tick: station_tick(now - ctx.t0),
+                    pose_seq: state.used_seq,
+                },
+            );
         })
 }
 
@@ -941,6 +981,11 @@ impl HapticState {
         let effects = faults.read().haptic(station_tick(now));
         let mut x = self.last_pose.map_or(Vec3::zeros(), |(_, x)| x);
         let arrived = device.sample(now);
+        if arrived.is_some() && !effects.dropout {
+            // The device is alive even while a latency fault holds its samples back: the
+            // watchdog must not fade the force for the lag.
+            self.device_seen = Some(now);
+        }
         if let Some(mut sample) = self.faulted_sample(now, arrived, &effects) {
             // Velocity on the device's clock: a device and this loop both at 1 kHz drift in
             // phase, so some ticks get no sample and some two; the receive times would

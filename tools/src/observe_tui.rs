@@ -243,9 +243,21 @@ fn draw_series(
     frame.render_widget(chart, area);
 }
 
+/// Whether q, Esc or Ctrl-C is among the keys pressed since the last look.
+fn quit_pressed() -> std::io::Result<bool> {
+    use ratatui::crossterm::event::{self, KeyCode, KeyModifiers};
+    let mut quit = false;
+    while event::poll(Duration::ZERO)? {
+        if let event::Event::Key(k) = event::read()? {
+            quit |= matches!(k.code, KeyCode::Char('q') | KeyCode::Esc)
+                || (k.code == KeyCode::Char('c') && k.modifiers.contains(KeyModifiers::CONTROL));
+        }
+    }
+    Ok(quit)
+}
+
 /// Runs the view until the user quits, `seconds` pass or the connection ends.
 pub async fn run(observer: &mut Observer, seconds: Option<f64>) -> anyhow::Result<()> {
-    use ratatui::crossterm::event::{self, KeyCode, KeyModifiers};
     let mut terminal = ratatui::try_init()?;
     let mut d = Dashboard::new(observer.0.welcome().clone());
     let started = Instant::now();
@@ -268,15 +280,11 @@ pub async fn run(observer: &mut Observer, seconds: Option<f64>) -> anyhow::Resul
                 if let Err(e) = terminal.draw(|f| draw(f, &d)) {
                     break Err(e.into());
                 }
-                let mut quit = false;
-                while event::poll(Duration::ZERO)? {
-                    if let event::Event::Key(k) = event::read()? {
-                        quit |= matches!(k.code, KeyCode::Char('q') | KeyCode::Esc)
-                            || (k.code == KeyCode::Char('c') && k.modifiers.contains(KeyModifiers::CONTROL));
-                    }
-                }
-                if quit {
-                    break Ok(());
+                // Errors leave the loop (never `?`): the terminal is restored below.
+                match quit_pressed() {
+                    Ok(false) => {}
+                    Ok(true) => break Ok(()),
+                    Err(e) => break Err(e.into()),
                 }
             }
         }

@@ -290,6 +290,7 @@ struct Window {
 #[derive(Debug, Clone, Copy)]
 struct ForceRow {
     seq: u64,
+    force: [f64; 3],
     force_n: f64,
     faded: bool,
     /// The station tick of the force.
@@ -308,6 +309,7 @@ fn read_forces(csv: &Path) -> Vec<ForceRow> {
                 .collect();
             ForceRow {
                 seq: c[1] as u64,
+                force: [c[5], c[6], c[7]],
                 force_n: (c[5] * c[5] + c[6] * c[6] + c[7] * c[7]).sqrt(),
                 faded: (c[9] as u32) & 1 == 1,
                 tick: c[10] as u64,
@@ -593,7 +595,11 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     for pair in samples.windows(2) {
         let (a, b) = (pair[0], pair[1]);
         assert!(b.force_n <= 3.3 + CSV, "{b:?}");
-        let step = (b.force_n - a.force_n).abs();
+        // The change of the force vector, direction included.
+        let step = (0..3)
+            .map(|i| (b.force[i] - a.force[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         let ticks = b.tick.saturating_sub(a.tick).max(1) as f64;
         assert!(step <= 0.5 * ticks + CSV, "{a:?} -> {b:?}");
     }

@@ -62,8 +62,10 @@ pub struct NetworkFeeds {
 /// An instructor's command on its way to the station's fault book (main thread), and
 /// where its answer goes.
 pub struct CommandRequest {
-    /// The instructor (certificate common name).
+    /// Who sent it (certificate common name).
     pub by: String,
+    /// Their role (from the certificate): the station refuses and journals an observer's.
+    pub role: scalpel_proto::wire::Role,
     /// The command.
     pub command: scalpel_proto::wire::Command,
     /// The outcome, and the fault list for `List`.

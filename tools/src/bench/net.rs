@@ -277,7 +277,10 @@ fn measure(
         bytes_per_s_target: BYTES_PER_S_TARGET,
         latency_p99_met: !latencies.is_empty() && p99 <= LATENCY_P99_TARGET_MS,
         bytes_per_s_met: bytes_per_s_max <= BYTES_PER_S_TARGET,
-        observers_add_no_misses: misses_with <= misses_without,
+        // Only when both phases had status windows to count in.
+        observers_add_no_misses: ticks_without > 0
+            && ticks_with > 0
+            && misses_with <= misses_without,
     })
 }
 

@@ -73,7 +73,7 @@ def main() -> int:
             continue
         h = sample.user_header().contents
         data = bytes(sample.payload().as_memory_view())
-        if h.layout_version != 1:
+        if h.layout_version != 2:
             print(json.dumps({"error": f"layout version {h.layout_version}"}))
             return 1
         nv, nt = h.n_vertices, h.n_triangles
