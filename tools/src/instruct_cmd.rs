@@ -19,19 +19,25 @@ pub struct InstructArgs<'a> {
 
 /// A fault's parameters as the command line gives them; [`fault`] checks that the kind
 /// has what it needs.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
 pub struct FaultParams {
-    /// device-latency: added latency (ms).
+    /// Added device latency (ms, 0–1000).
+    #[arg(long)]
     pub ms: Option<f32>,
-    /// pose-noise: standard deviation (mm).
+    /// Noise on the device position, standard deviation (mm, 0–20).
+    #[arg(long)]
     pub sigma_mm: Option<f32>,
-    /// force-spike: magnitude (N).
+    /// Spike magnitude (N, 0–1000; the output stage still limits the force).
+    #[arg(long)]
     pub newtons: Option<f32>,
-    /// force-saturation: cap (N).
+    /// Force cap (N).
+    #[arg(long)]
     pub max_n: Option<f32>,
-    /// tissue-stiffness, sim-slowdown: factor.
+    /// Stiffness factor (0.1–10) or slowdown factor (1–100).
+    #[arg(long)]
     pub factor: Option<f32>,
-    /// tissue-stiffness: ramp (ms).
+    /// Stiffness ramp in and out (ms, default 200).
+    #[arg(long)]
     pub ramp_ms: Option<u32>,
 }
 

@@ -183,24 +183,8 @@ enum InstructCommand {
     Fault {
         /// The kind.
         kind: String,
-        /// Added device latency (ms, 0–1000).
-        #[arg(long)]
-        ms: Option<f32>,
-        /// Noise on the device position, standard deviation (mm, 0–20).
-        #[arg(long)]
-        sigma_mm: Option<f32>,
-        /// Spike magnitude (N, 0–1000; the output stage still limits the force).
-        #[arg(long)]
-        newtons: Option<f32>,
-        /// Force cap (N).
-        #[arg(long)]
-        max_n: Option<f32>,
-        /// Stiffness factor (0.1–10) or slowdown factor (1–100).
-        #[arg(long)]
-        factor: Option<f32>,
-        /// Stiffness ramp in and out (ms, default 200).
-        #[arg(long)]
-        ramp_ms: Option<u32>,
+        #[command(flatten)]
+        params: instruct_cmd::FaultParams,
         /// Start at this station tick (ms since the server started; default: now).
         #[arg(long)]
         at: Option<u64>,
@@ -441,24 +425,12 @@ fn main() -> ExitCode {
             match what {
                 InstructCommand::Fault {
                     kind,
-                    ms,
-                    sigma_mm,
-                    newtons,
-                    max_n,
-                    factor,
-                    ramp_ms,
+                    params,
                     at,
                     duration_ms,
                 } => instruct_cmd::Request::Fault {
                     kind,
-                    params: instruct_cmd::FaultParams {
-                        ms,
-                        sigma_mm,
-                        newtons,
-                        max_n,
-                        factor,
-                        ramp_ms,
-                    },
+                    params,
                     at,
                     duration_ms,
                 },

@@ -161,13 +161,7 @@ pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
     let _ = server.kill();
     let _ = server.wait();
     std::fs::remove_dir_all(&dir).ok();
-    let report = result?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        print_report(&report);
-    }
-    Ok(())
+    super::emit(json, &result?, print_report)
 }
 
 fn measure(

@@ -97,3 +97,13 @@ pub fn scenes(runs: usize, json: bool) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// Prints `report` as pretty JSON, or for people with `text`.
+pub fn emit<T: Serialize>(json: bool, report: &T, text: impl FnOnce(&T)) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    } else {
+        text(report);
+    }
+    Ok(())
+}

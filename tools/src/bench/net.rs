@@ -109,13 +109,7 @@ pub fn run(seconds: f64, observers: usize, scene: &str, json: bool) -> anyhow::R
         measure(&config, scene, &dir, seconds, observers)
     })();
     std::fs::remove_dir_all(&dir).ok();
-    let report = result?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        print_report(&report);
-    }
-    Ok(())
+    super::emit(json, &result?, print_report)
 }
 
 fn measure(
