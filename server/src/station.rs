@@ -592,6 +592,8 @@ pub fn run(
     let mut remote = RemoteFeed::default();
     let mut book = FaultBook::new();
     let mut stream_lost = false;
+    // The table the threads have (rebuilt only when the book changes).
+    let mut table = FaultTable::default();
     let stiff_mode = scene.spec.features.stiff_mode;
     while !stop.load(Ordering::Relaxed) {
         // Every 10 ms: instructors' commands are answered within that.
@@ -666,12 +668,12 @@ pub fn run(
             }));
         }
         if table_changed {
-            let table = book.table();
+            table = book.table();
             faults_to_haptic.write(table);
             faults_to_sim.write(table);
         }
         if let Some(n) = &network {
-            let lost = book.table().stream_lost(tick);
+            let lost = table.stream_lost(tick);
             if lost != stream_lost {
                 stream_lost = lost;
                 n.feeds.stream_lost.send_replace(lost);
