@@ -61,6 +61,10 @@ pub fn hourglass_stiffness(params: &ElasticParams, volume: f64, trace_a: f64) ->
 pub struct ForceScratch {
     pos: [Vec<f64>; 3],
     force: [Vec<f64>; 3],
+    /// Positions as (x, y, z, 0) vectors for the point kernel.
+    pos4: Vec<f64x4>,
+    /// The point kernel's forces, (x, y, z, 0).
+    force4: Vec<f64x4>,
 }
 
 impl ForceScratch {
@@ -69,6 +73,8 @@ impl ForceScratch {
         Self {
             pos: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
             force: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+            pos4: vec![f64x4::ZERO; n],
+            force4: vec![f64x4::ZERO; n],
         }
     }
 
@@ -80,9 +86,14 @@ impl ForceScratch {
                 self.force[c].resize(n, 0.0);
             }
         }
+        if self.pos4.len() != n {
+            self.pos4.resize(n, f64x4::ZERO);
+            self.force4.resize(n, f64x4::ZERO);
+        }
     }
 
-    /// Copies the positions of `points` (all when `None`) and zeroes their force entries.
+    /// Copies the positions of `points` (all when `None`) into both layouts and zeroes
+    /// their force entries.
     fn prepare(&mut self, p: &[Vec3], points: Option<&[u32]>) {
         self.resize(p.len());
         let mut one = |i: usize| {
@@ -90,6 +101,8 @@ impl ForceScratch {
                 self.pos[c][i] = p[i][c];
                 self.force[c][i] = 0.0;
             }
+            self.pos4[i] = f64x4::from([p[i].x, p[i].y, p[i].z, 0.0]);
+            self.force4[i] = f64x4::ZERO;
         };
         match points {
             Some(list) => list.iter().for_each(|&i| one(i as usize)),
@@ -226,15 +239,18 @@ pub fn add_elastic_forces(
         Some(s) => &s.runs,
         None => op.runs(),
     };
-    // Runs read positions and write forces as structure-of-arrays (contiguous lanes); the
-    // scalar kernel keeps the Vec3 layout, where one neighbour is one cache line.
+    // Both kernels read positions and write forces in their own layout: runs as
+    // structure-of-arrays (contiguous lanes), single points as (x, y, z, 0) vectors (one
+    // neighbour is one aligned load). The forces are summed into `f` at the end.
+    scratch.prepare(p, set.map(|s| &s.touched[..]));
+    let ForceScratch {
+        pos,
+        force,
+        pos4,
+        force4,
+    } = scratch;
     if !runs.is_empty() {
-        scratch.prepare(p, set.map(|s| &s.touched[..]));
-    }
-    let ForceScratch { pos, force } = scratch;
-    let pos = [&pos[0][..], &pos[1][..], &pos[2][..]];
-    let mut offsets = [[0.0f64; 3]; BUFFERED];
-    if !runs.is_empty() {
+        let pos = [&pos[0][..], &pos[1][..], &pos[2][..]];
         let mut lanes = RunBuffers::default();
         for &i in runs {
             run_kernel(
@@ -242,60 +258,188 @@ pub fn add_elastic_forces(
             );
         }
     }
-    let mut scalar_point = |i: usize, stats: &mut ForceStats, f: &mut [Vec3]| {
-        let term = op.point(i);
-        // Orphans have no stress of their own; nor do virtual points (no volume), whose
-        // one-sided fits must not feed the statistics (det F, clamping) either.
-        if matches!(term.rank, PointRank::Orphan) || volumes[i] == 0.0 {
-            return;
-        }
-        let (ids, wx, w) = op.padded_row(i);
-        let used = op.neighbours(i).len();
-        let (b, sum_wuu) = accumulate_fit(ids, wx, w, used, p, p[i], &mut offsets);
-        let fp = b * term.a_pinv;
-        // Full rank passes through without the call (3.5 % of a liver cut step when the
-        // call was made for every point).
-        let full = match term.rank {
-            PointRank::Full => fp,
-            _ => complete(fp, &term.rank),
-        };
-        let st = stress(params, &full);
-        let v = volumes[i];
-        let k = hourglass_stiffness(params, v, term.trace_a);
-        record(
-            stats,
-            v * st.psi,
-            0.5 * k * (sum_wuu - fp.component_mul(&b).sum()),
-            &st,
-        );
-        let m = st.p * (-v) * term.a_pinv + fp * k;
-        scatter_pair_forces(ids, wx, w, used, &m, k, p, i, &offsets, f);
-    };
+    let mut offsets = [f64x4::ZERO; BUFFERED];
     match set {
         Some(s) => {
             for &i in &s.stress {
                 if !s.in_runs[i as usize] {
-                    scalar_point(i as usize, &mut stats, f);
+                    point_kernel(
+                        op,
+                        params,
+                        volumes,
+                        pos4,
+                        i as usize,
+                        force4,
+                        &mut offsets,
+                        &mut stats,
+                    );
                 }
             }
         }
         None => {
             for i in 0..op.len() {
                 if !op.in_run(i) {
-                    scalar_point(i, &mut stats, f);
+                    point_kernel(
+                        op,
+                        params,
+                        volumes,
+                        pos4,
+                        i,
+                        force4,
+                        &mut offsets,
+                        &mut stats,
+                    );
                 }
             }
         }
     }
-    if !runs.is_empty() {
-        let n = f.len();
-        let mut add = |i: usize| f[i] += Vec3::new(force[0][i], force[1][i], force[2][i]);
-        match set {
-            Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
-            None => (0..n).for_each(add),
-        }
+    let n = f.len();
+    let mut add = |i: usize| {
+        let g = force4[i].to_array();
+        f[i] += Vec3::new(force[0][i] + g[0], force[1][i] + g[1], force[2][i] + g[2]);
+    };
+    match set {
+        Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
+        None => (0..n).for_each(add),
     }
     stats
+}
+
+/// One point through the general kernel: its own row, any rank, any stress model. The three
+/// components of a position, offset or force are the lanes of one vector (the fourth is 0).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn point_kernel(
+    op: &MlsOperator,
+    params: &ElasticParams,
+    volumes: &[f64],
+    pos4: &[f64x4],
+    i: usize,
+    force4: &mut [f64x4],
+    offsets: &mut [f64x4; BUFFERED],
+    stats: &mut ForceStats,
+) {
+    let term = op.point(i);
+    // Orphans have no stress of their own; nor do virtual points (no volume), whose
+    // one-sided fits must not feed the statistics (det F, clamping) either.
+    if matches!(term.rank, PointRank::Orphan) || volumes[i] == 0.0 {
+        return;
+    }
+    let (ids, wx, w) = op.padded_row(i);
+    let used = op.neighbours(i).len();
+    let pi = pos4[i];
+    // Pass 1: the columns of B = Σ u ⊗ (w x) and Σ w |u|² (lane-wise, summed after). Even
+    // and odd slots accumulate separately: one chain of dependent FMAs over the row would
+    // bound the loop by FMA latency, not throughput. Rows are padded to a multiple of four
+    // with zero-weight slots naming i itself, so reading a pair of slots past `used` is safe.
+    let pairs = used.div_ceil(2);
+    let slot_terms = |k: usize| {
+        (
+            f64x4::splat(wx[0][k]),
+            f64x4::splat(wx[1][k]),
+            f64x4::splat(wx[2][k]),
+            f64x4::splat(w[k]),
+        )
+    };
+    let (mut b0, mut b1, mut b2, mut q) = (f64x4::ZERO, f64x4::ZERO, f64x4::ZERO, f64x4::ZERO);
+    let (mut c0, mut c1, mut c2, mut r) = (f64x4::ZERO, f64x4::ZERO, f64x4::ZERO, f64x4::ZERO);
+    for pair in 0..pairs {
+        let (ka, kb) = (2 * pair, 2 * pair + 1);
+        let ua = pos4[ids[ka] as usize] - pi;
+        let ub = pos4[ids[kb] as usize] - pi;
+        if kb < BUFFERED {
+            offsets[ka] = ua;
+            offsets[kb] = ub;
+        }
+        let (x, y, z, wa) = slot_terms(ka);
+        b0 = ua.mul_add(x, b0);
+        b1 = ua.mul_add(y, b1);
+        b2 = ua.mul_add(z, b2);
+        q = (ua * ua).mul_add(wa, q);
+        let (x, y, z, wb) = slot_terms(kb);
+        c0 = ub.mul_add(x, c0);
+        c1 = ub.mul_add(y, c1);
+        c2 = ub.mul_add(z, c2);
+        r = (ub * ub).mul_add(wb, r);
+    }
+    let bcol = [b0 + c0, b1 + c1, b2 + c2];
+    let sum_wuu = {
+        let l = (q + r).to_array();
+        l[0] + l[1] + l[2]
+    };
+    // The 3×3 algebra stays in column vectors: rebuilding matrices from scalar stores and
+    // reading them back as vectors stalls on store forwarding (43 % of this kernel, perf).
+    let a = &term.a_pinv;
+    let times_a = |cols: &[f64x4; 3], c: usize| {
+        cols[0].mul_add(
+            f64x4::splat(a[(0, c)]),
+            cols[1].mul_add(f64x4::splat(a[(1, c)]), cols[2] * f64x4::splat(a[(2, c)])),
+        )
+    };
+    let fpc: [f64x4; 3] = std::array::from_fn(|c| times_a(&bcol, c));
+    let v = volumes[i];
+    let k = hourglass_stiffness(params, v, term.trace_a);
+    let fpb = {
+        let l = fpc[0]
+            .mul_add(bcol[0], fpc[1].mul_add(bcol[1], fpc[2] * bcol[2]))
+            .to_array();
+        l[0] + l[1] + l[2]
+    };
+    let hourglass = 0.5 * k * (sum_wuu - fpb);
+    let fast = match term.rank {
+        PointRank::Full => point_stvk(params, &fpc),
+        _ => None,
+    };
+    let pc = match fast {
+        Some((pc, psi, det)) => {
+            stats.strain_energy += v * psi;
+            stats.hourglass_energy += hourglass.max(0.0);
+            stats.min_det_f = stats.min_det_f.min(det);
+            stats.max_det_f = stats.max_det_f.max(det);
+            pc
+        }
+        None => {
+            // Planar completion, other models, the clamp fallback: the general code.
+            let cols = fpc.map(|c| c.to_array());
+            let fp = Mat3::from_fn(|row, c| cols[c][row]);
+            let full = match term.rank {
+                PointRank::Full => fp,
+                _ => complete(fp, &term.rank),
+            };
+            let st = stress(params, &full);
+            record(stats, v * st.psi, hourglass, &st);
+            std::array::from_fn(|c| f64x4::from([st.p[(0, c)], st.p[(1, c)], st.p[(2, c)], 0.0]))
+        }
+    };
+    // Pass 2: M = −V P A⁺ + k F_p; g_ij = M (w x) − k w u onto the neighbours, −Σ g onto i.
+    let neg_v = f64x4::splat(-v);
+    let kk = f64x4::splat(k);
+    let mc: [f64x4; 3] = std::array::from_fn(|c| neg_v.mul_add(times_a(&pc, c), kk * fpc[c]));
+    let kw = |slot: usize| f64x4::splat(-k * w[slot]);
+    let pair_force = |slot: usize, u: f64x4| {
+        let t = mc[2] * f64x4::splat(wx[2][slot]);
+        let t = mc[1].mul_add(f64x4::splat(wx[1][slot]), t);
+        let t = mc[0].mul_add(f64x4::splat(wx[0][slot]), t);
+        kw(slot).mul_add(u, t)
+    };
+    let offset = |slot: usize| {
+        if slot < BUFFERED {
+            offsets[slot]
+        } else {
+            pos4[ids[slot] as usize] - pi
+        }
+    };
+    let (mut acc_a, mut acc_b) = (f64x4::ZERO, f64x4::ZERO);
+    for pair in 0..pairs {
+        let (ka, kb) = (2 * pair, 2 * pair + 1);
+        let ga = pair_force(ka, offset(ka));
+        let gb = pair_force(kb, offset(kb));
+        force4[ids[ka] as usize] += ga;
+        force4[ids[kb] as usize] += gb;
+        acc_a += ga;
+        acc_b += gb;
+    }
+    force4[i] -= acc_a + acc_b;
 }
 
 /// Adds one point's energies and stress figures to the statistics. The hourglass energy is
@@ -313,77 +457,6 @@ fn record(stats: &mut ForceStats, strain: f64, hourglass: f64, s: &StressSample)
 /// Offsets `u_ij = p_j − p_i` kept between the two passes over a row; rows longer than
 /// this (support ratios above ~3) are recomputed in the second pass instead.
 const BUFFERED: usize = 64;
-
-/// `B = Σ_j u_ij ⊗ (w x)_ij` and `Σ_j w |u_ij|²` over the row, leaving the offsets in `u`.
-#[inline]
-fn accumulate_fit(
-    ids: &[u32],
-    wx: [&[f64]; 3],
-    w: &[f64],
-    used: usize,
-    p: &[Vec3],
-    pi: Vec3,
-    u: &mut [[f64; 3]; BUFFERED],
-) -> (Mat3, f64) {
-    let mut b = [0.0f64; 9];
-    let mut wuu = 0.0;
-    for k in 0..used {
-        let q = p[ids[k] as usize];
-        let d = [q.x - pi.x, q.y - pi.y, q.z - pi.z];
-        if k < BUFFERED {
-            u[k] = d;
-        }
-        let (a, bb, c) = (wx[0][k], wx[1][k], wx[2][k]);
-        for r in 0..3 {
-            b[3 * r] = d[r].mul_add(a, b[3 * r]);
-            b[3 * r + 1] = d[r].mul_add(bb, b[3 * r + 1]);
-            b[3 * r + 2] = d[r].mul_add(c, b[3 * r + 2]);
-        }
-        wuu = w[k].mul_add(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], wuu);
-    }
-    (Mat3::from_row_slice(&b), wuu)
-}
-
-/// Adds `g_ij = M (w x)_ij − k w_ij u_ij` to `f_j` and subtracts their sum from `f_i`.
-#[allow(clippy::too_many_arguments)]
-#[inline]
-fn scatter_pair_forces(
-    ids: &[u32],
-    wx: [&[f64]; 3],
-    w: &[f64],
-    used: usize,
-    m: &Mat3,
-    k: f64,
-    p: &[Vec3],
-    i: usize,
-    u: &[[f64; 3]; BUFFERED],
-    f: &mut [Vec3],
-) {
-    let mm = [
-        [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
-        [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
-    ];
-    let mut acc = [0.0f64; 3];
-    for slot in 0..used {
-        let j = ids[slot] as usize;
-        let d = if slot < BUFFERED {
-            u[slot]
-        } else {
-            let (q, pi) = (p[j], p[i]);
-            [q.x - pi.x, q.y - pi.y, q.z - pi.z]
-        };
-        let (a, b, c) = (wx[0][slot], wx[1][slot], wx[2][slot]);
-        let kw = -k * w[slot];
-        let mut g = [0.0f64; 3];
-        for r in 0..3 {
-            g[r] = kw.mul_add(d[r], mm[r][0].mul_add(a, mm[r][1].mul_add(b, mm[r][2] * c)));
-            acc[r] -= g[r];
-        }
-        f[j] += Vec3::new(g[0], g[1], g[2]);
-    }
-    f[i] += Vec3::new(acc[0], acc[1], acc[2]);
-}
 
 /// Offsets of a run, one vector of four lanes per component and slot.
 struct RunBuffers {
@@ -428,28 +501,26 @@ fn run_kernel(
     let (ids, wx, w) = op.padded_row(i);
     let used = op.neighbours(i).len();
     let pi = [load4(pos[0], i), load4(pos[1], i), load4(pos[2], i)];
-    // Pass 1: B = Σ u ⊗ (w x) and Σ w |u|², with the row's scalars broadcast.
+    // Pass 1: B = Σ u ⊗ (w x), with the row's scalars broadcast one at a time. Nine
+    // accumulators, three offsets and one broadcast fit the sixteen vector registers; with
+    // Σ w |u|² here as well, an accumulator spilled to the stack and its chain of FMAs went
+    // through memory (13 % of the kernel, perf). Σ w |u|² is taken in pass 2.
+    let (wx, w) = (&wx.map(|c| &c[..used]), &w[..used]);
     let mut b = [[f64x4::ZERO; 3]; 3];
-    let mut wuu = f64x4::ZERO;
-    for slot in 0..used {
-        let j = ids[slot] as usize;
+    for (slot, &j) in ids[..used].iter().enumerate() {
+        let j = j as usize;
         let u = [
             load4(pos[0], j) - pi[0],
             load4(pos[1], j) - pi[1],
             load4(pos[2], j) - pi[2],
         ];
         lanes.u[slot] = u;
-        let x = [
-            f64x4::splat(wx[0][slot]),
-            f64x4::splat(wx[1][slot]),
-            f64x4::splat(wx[2][slot]),
-        ];
-        for r in 0..3 {
-            for c in 0..3 {
-                b[r][c] = u[r].mul_add(x[c], b[r][c]);
+        for c in 0..3 {
+            let x = f64x4::splat(wx[c][slot]);
+            for r in 0..3 {
+                b[r][c] = u[r].mul_add(x, b[r][c]);
             }
         }
-        wuu = f64x4::splat(w[slot]).mul_add(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], wuu);
     }
     // F_p = B A⁺ per lane.
     let a = &term.a_pinv;
@@ -486,10 +557,8 @@ fn run_kernel(
             fpb = fp[r][c].mul_add(b[r][c], fpb);
         }
     }
-    let hourglass = (f64x4::splat(0.5) * k * (wuu - fpb)).to_array();
-    for lane in 0..LANES {
-        stats.strain_energy += strain[lane];
-        stats.hourglass_energy += hourglass[lane].max(0.0);
+    for s in strain {
+        stats.strain_energy += s;
     }
     // M = −V P A⁺ + k F_p.
     let neg_v = -volume;
@@ -509,15 +578,17 @@ fn run_kernel(
     // Pass 2: g = M (w x) − k w u onto the neighbours, −Σ g onto the run.
     let neg_k = -k;
     let mut acc = [f64x4::ZERO; 3];
-    for slot in 0..used {
-        let j = ids[slot] as usize;
+    let mut wuu = f64x4::ZERO;
+    for (slot, &j) in ids[..used].iter().enumerate() {
+        let j = j as usize;
         let u = lanes.u[slot];
         let x = [
             f64x4::splat(wx[0][slot]),
             f64x4::splat(wx[1][slot]),
             f64x4::splat(wx[2][slot]),
         ];
-        let kw = neg_k * f64x4::splat(w[slot]);
+        let ws = f64x4::splat(w[slot]);
+        let kw = neg_k * ws;
         for r in 0..3 {
             let g = kw.mul_add(
                 u[r],
@@ -526,10 +597,57 @@ fn run_kernel(
             acc[r] -= g;
             add4(&mut force[r], j, g);
         }
+        wuu = ws.mul_add(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], wuu);
     }
     for r in 0..3 {
         add4(&mut force[r], i, acc[r]);
     }
+    // Hourglass energy ½ k (Σ w|u|² − F_p : B).
+    let hourglass = (f64x4::splat(0.5) * k * (wuu - fpb)).to_array();
+    for h in hourglass {
+        stats.hourglass_energy += h.max(0.0);
+    }
+}
+
+/// StVK for one point whose F is given as column vectors (x, y, z, 0): P as column
+/// vectors, ψ and det F; `None` when the model is not plain StVK or det F needs the clamp.
+#[inline]
+fn point_stvk(params: &ElasticParams, fc: &[f64x4; 3]) -> Option<([f64x4; 3], f64, f64)> {
+    if params.model != ElasticModel::StVK || params.volume_k != 0.0 {
+        return None;
+    }
+    // f[c][r] = F[r][c].
+    let f = fc.map(|c| c.to_array());
+    let det = f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1])
+        - f[1][0] * (f[0][1] * f[2][2] - f[0][2] * f[2][1])
+        + f[2][0] * (f[0][1] * f[1][2] - f[0][2] * f[1][1]);
+    let (lo, hi) = DET_RANGE;
+    if !(det >= lo && det <= hi) {
+        return None;
+    }
+    // E = ½ (FᵀF − I): entries are dot products of columns.
+    let dot = |a: usize, b: usize| f[a][0] * f[b][0] + f[a][1] * f[b][1] + f[a][2] * f[b][2];
+    let mut e = [[0.0f64; 3]; 3];
+    for r in 0..3 {
+        for c in r..3 {
+            let v = 0.5 * (dot(r, c) - if r == c { 1.0 } else { 0.0 });
+            e[r][c] = v;
+            e[c][r] = v;
+        }
+    }
+    let tr = e[0][0] + e[1][1] + e[2][2];
+    let (lambda, mu) = (params.lame.lambda, params.lame.mu);
+    let ee: f64 = e.iter().flatten().map(|x| x * x).sum();
+    let psi = mu * ee + 0.5 * lambda * tr * tr;
+    let sm = |r: usize, c: usize| 2.0 * mu * e[r][c] + if r == c { lambda * tr } else { 0.0 };
+    // P = F S, column by column: P[:, c] = Σ_k F[:, k] S[k][c].
+    let pc = std::array::from_fn(|c| {
+        fc[0].mul_add(
+            f64x4::splat(sm(0, c)),
+            fc[1].mul_add(f64x4::splat(sm(1, c)), fc[2] * f64x4::splat(sm(2, c))),
+        )
+    });
+    Some((pc, psi, det))
 }
 
 /// StVK stress and energy density for four lanes, or `None` when the model is not plain

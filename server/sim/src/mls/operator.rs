@@ -306,6 +306,7 @@ impl MlsOperator {
             self.w[base + count] = w;
             count += 1;
         }
+        self.order_row(base, count);
         for k in count..self.capacity {
             self.ids[base + k] = i as u32;
             for c in 0..3 {
@@ -315,6 +316,42 @@ impl MlsOperator {
         }
         self.counts[i] = count as u32;
         self.points[i] = classify(a, sum_wx, sum_w, count);
+    }
+
+    /// Orders a row's slots by their x offset: first the neighbours behind in x, then
+    /// those ahead, then those level. On the lattice, neighbours whose offsets differ only in
+    /// x have overlapping index ranges in a run's 4-lane force writes; kept apart in the
+    /// row, one write has left the store buffer before the next overlapping read (adjacent,
+    /// they stall on store forwarding: half of the run kernel's time, perf). The order is a
+    /// pure function of the row's values, so identical rows stay identical. In place,
+    /// without allocation (cuts call this on the simulation thread).
+    fn order_row(&mut self, base: usize, count: usize) {
+        let key = |op: &Self, k: usize| {
+            let x = op.wx[0][base + k];
+            let group = if x < 0.0 {
+                0
+            } else if x > 0.0 {
+                1
+            } else {
+                2
+            };
+            (group, x, op.wx[1][base + k], op.wx[2][base + k])
+        };
+        // Insertion sort: rows are short (~26) and this runs at build time and on cuts.
+        for k in 1..count {
+            let mut m = k;
+            while m > 0
+                && key(self, m - 1).partial_cmp(&key(self, m)) == Some(std::cmp::Ordering::Greater)
+            {
+                let (a, b) = (base + m - 1, base + m);
+                self.ids.swap(a, b);
+                self.w.swap(a, b);
+                for c in 0..3 {
+                    self.wx[c].swap(a, b);
+                }
+                m -= 1;
+            }
+        }
     }
 
     /// Number of points.
