@@ -8,7 +8,7 @@ use std::hint::black_box;
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use scalpel_sim::math::Vec3;
 use scalpel_sim::mls::add_elastic_forces;
-use scalpel_sim::mls::forces::ForceScratch;
+use scalpel_sim::mls::forces::{ForceScratch, Threads};
 use scalpel_sim::model::CoupledModel;
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{Material, build_scene, builtin};
@@ -21,9 +21,10 @@ fn model(name: &str) -> CoupledModel {
 }
 
 /// A solver on the scene with every point slightly displaced, so forces are non-trivial.
-fn solver(model: &CoupledModel, mode: SolverMode) -> Solver {
+fn solver(model: &CoupledModel, mode: SolverMode, threads: usize) -> Solver {
     let config = SolverConfig {
         mode,
+        threads,
         ..SolverConfig::default()
     };
     let mut solver = Solver::for_model(model, &Material::LIVER, config);
@@ -49,7 +50,7 @@ fn force_evaluation(c: &mut Criterion) {
     let mut group = c.benchmark_group("force_evaluation");
     for name in ["liver", "shoulder", "cerebroma"] {
         let model = model(name);
-        let solver = solver(&model, SolverMode::Explicit);
+        let solver = solver(&model, SolverMode::Explicit, 1);
         let p = solver.positions().to_vec();
         let mut f = vec![Vec3::zeros(); p.len()];
         let mut scratch = ForceScratch::new(p.len());
@@ -71,11 +72,57 @@ fn force_evaluation(c: &mut Criterion) {
     group.finish();
 }
 
+/// The force evaluation split over two threads (rayon), measured from inside the pool as
+/// the solver runs it (`SolverConfig::threads = 2`). Meaningful on a machine with two free
+/// cores.
+fn force_evaluation_two_threads(c: &mut Criterion) {
+    let mut group = c.benchmark_group("force_evaluation_2_threads");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool of two threads");
+    let name = "cerebroma";
+    {
+        let model = model(name);
+        let solver = solver(&model, SolverMode::Explicit, 1);
+        let p = solver.positions().to_vec();
+        let mut f = vec![Vec3::zeros(); p.len()];
+        let mut scratch = ForceScratch::new(p.len()).with_threads(Threads::Rayon);
+        group.bench_function(format!("{name}_{}_points", p.len()), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    f.iter_mut().for_each(|x| *x = Vec3::zeros());
+                    black_box(add_elastic_forces(
+                        solver.operator(),
+                        solver.params(),
+                        solver.volumes(),
+                        &p,
+                        None,
+                        &mut f,
+                        &mut scratch,
+                    ))
+                })
+            })
+        });
+    }
+    group.finish();
+}
+
 fn tick(c: &mut Criterion, group_name: &str, mode: SolverMode, scenes: &[&str]) {
+    tick_with(c, group_name, mode, scenes, 1);
+}
+
+fn tick_with(
+    c: &mut Criterion,
+    group_name: &str,
+    mode: SolverMode,
+    scenes: &[&str],
+    threads: usize,
+) {
     let mut group = c.benchmark_group(group_name);
     for name in scenes {
         let model = model(name);
-        let mut warm = solver(&model, mode);
+        let mut warm = solver(&model, mode, threads);
         warm.step(1e-3);
         let substeps = warm.substeps();
         group.bench_function(
@@ -85,7 +132,7 @@ fn tick(c: &mut Criterion, group_name: &str, mode: SolverMode, scenes: &[&str]) 
                 // same work (no settling toward rest across samples).
                 b.iter_batched_ref(
                     || {
-                        let mut s = solver(&model, mode);
+                        let mut s = solver(&model, mode, threads);
                         s.step(1e-3);
                         s
                     },
@@ -107,6 +154,16 @@ fn explicit_tick(c: &mut Criterion) {
     );
 }
 
+fn explicit_tick_two_threads(c: &mut Criterion) {
+    tick_with(
+        c,
+        "tick_1ms_explicit_2_threads",
+        SolverMode::Explicit,
+        &["cerebroma"],
+        2,
+    );
+}
+
 fn projective_tick(c: &mut Criterion) {
     tick(c, "tick_1ms_projective", SolverMode::Projective, &["liver"]);
 }
@@ -114,6 +171,6 @@ fn projective_tick(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(4));
-    targets = force_evaluation, explicit_tick, projective_tick
+    targets = force_evaluation, force_evaluation_two_threads, explicit_tick, explicit_tick_two_threads, projective_tick
 }
 criterion_main!(benches);

@@ -34,6 +34,11 @@ fn prepared_with(model: &CoupledModel, mode: SolverMode, material: &Material) ->
         mode,
         ..SolverConfig::default()
     };
+    prepared_from(model, material, config)
+}
+
+/// [`prepared`] with any configuration.
+fn prepared_from(model: &CoupledModel, material: &Material, config: SolverConfig) -> Solver {
     let mut solver = Solver::for_model(model, material, config);
     let p: Vec<Vec3> = model
         .points
@@ -300,5 +305,36 @@ fn changing_youngs_modulus_matches_a_solver_built_with_it_and_does_not_allocate(
         let error = gap(&changed, &built);
         assert!(moved > 1e-7, "{mode:?}: the solver should move ({moved})");
         assert!(error <= 1e-9 * moved, "{mode:?}: {error} against {moved}");
+    }
+}
+
+/// The optional two-thread force evaluation (rayon, `SolverConfig::threads`) gives the serial
+/// run's bits, on the whole body and on an active region.
+#[test]
+fn two_threads_give_the_serial_bits() {
+    let model = model("liver");
+    let run = |threads: usize, region: bool| {
+        let config = SolverConfig {
+            threads,
+            ..SolverConfig::default()
+        };
+        let mut solver = prepared_from(&model, &Material::LIVER, config);
+        if region {
+            let some: Vec<u32> = (0..model.points.len() as u32).step_by(3).collect();
+            solver.set_active(&some);
+        }
+        for _ in 0..30 {
+            solver.step(1e-3);
+        }
+        solver
+            .positions()
+            .iter()
+            .flat_map(|p| p.iter().map(|x| x.to_bits()))
+            .collect::<Vec<u64>>()
+    };
+    for region in [false, true] {
+        let serial = run(1, region);
+        assert_eq!(serial, run(2, region), "region {region}");
+        assert_eq!(serial, run(3, region), "region {region}");
     }
 }

@@ -40,6 +40,28 @@ pub struct ForceStats {
 }
 
 impl ForceStats {
+    /// Nothing evaluated yet.
+    pub const EMPTY: Self = Self {
+        strain_energy: 0.0,
+        hourglass_energy: 0.0,
+        min_det_f: f64::INFINITY,
+        max_det_f: f64::NEG_INFINITY,
+        clamped_points: 0,
+        finite: true,
+    };
+
+    /// The figures of two disjoint sets of points together (`self` first in the sums).
+    pub fn merge(&self, other: &Self) -> Self {
+        Self {
+            strain_energy: self.strain_energy + other.strain_energy,
+            hourglass_energy: self.hourglass_energy + other.hourglass_energy,
+            min_det_f: self.min_det_f.min(other.min_det_f),
+            max_det_f: self.max_det_f.max(other.max_det_f),
+            clamped_points: self.clamped_points + other.clamped_points,
+            finite: self.finite && other.finite,
+        }
+    }
+
     /// Total elastic energy (J).
     pub fn energy(&self) -> f64 {
         self.strain_energy + self.hourglass_energy
@@ -56,39 +78,58 @@ pub fn hourglass_stiffness(params: &ElasticParams, volume: f64, trace_a: f64) ->
     }
 }
 
-/// Positions and forces as structure-of-arrays for one force evaluation, allocated once.
+/// A force evaluation is split into this many parts, each summing into its own buffers,
+/// merged in a fixed order. Fixed whatever the thread count, so one thread and two give the
+/// same bits.
+pub const PARTS: usize = 2;
+
+/// One part's forces: the run kernel's (structure-of-arrays) and the point kernel's.
+#[derive(Debug, Clone, Default)]
+struct PartForces {
+    soa: [Vec<f64>; 3],
+    /// (x, y, z, 0) per point.
+    lanes: Vec<f64x4>,
+}
+
+/// Positions in both kernels' layouts and each part's forces, allocated once.
 #[derive(Debug, Clone, Default)]
 pub struct ForceScratch {
     pos: [Vec<f64>; 3],
-    force: [Vec<f64>; 3],
     /// Positions as (x, y, z, 0) vectors for the point kernel.
     pos4: Vec<f64x4>,
-    /// The point kernel's forces, (x, y, z, 0).
-    force4: Vec<f64x4>,
+    parts: [PartForces; PARTS],
+    /// Where the two parts run.
+    threads: Threads,
 }
 
 impl ForceScratch {
     /// Buffers for `n` points.
     pub fn new(n: usize) -> Self {
-        Self {
-            pos: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
-            force: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
-            pos4: vec![f64x4::ZERO; n],
-            force4: vec![f64x4::ZERO; n],
-        }
+        let mut s = Self::default();
+        s.resize(n);
+        s
+    }
+
+    /// The same buffers, evaluated with `threads`.
+    pub fn with_threads(mut self, threads: Threads) -> Self {
+        self.threads = threads;
+        self
     }
 
     fn resize(&mut self, n: usize) {
-        for c in 0..3 {
-            if self.pos[c].len() != n {
-                // Only when the point count changes, never in a steady loop.
-                self.pos[c].resize(n, 0.0);
-                self.force[c].resize(n, 0.0);
-            }
+        if self.pos4.len() == n {
+            return;
         }
-        if self.pos4.len() != n {
-            self.pos4.resize(n, f64x4::ZERO);
-            self.force4.resize(n, f64x4::ZERO);
+        // Only when the point count changes, never in a steady loop.
+        for c in 0..3 {
+            self.pos[c].resize(n, 0.0);
+        }
+        self.pos4.resize(n, f64x4::ZERO);
+        for part in &mut self.parts {
+            for c in 0..3 {
+                part.soa[c].resize(n, 0.0);
+            }
+            part.lanes.resize(n, f64x4::ZERO);
         }
     }
 
@@ -99,10 +140,14 @@ impl ForceScratch {
         let mut one = |i: usize| {
             for c in 0..3 {
                 self.pos[c][i] = p[i][c];
-                self.force[c][i] = 0.0;
             }
             self.pos4[i] = f64x4::from([p[i].x, p[i].y, p[i].z, 0.0]);
-            self.force4[i] = f64x4::ZERO;
+            for part in &mut self.parts {
+                for c in 0..3 {
+                    part.soa[c][i] = 0.0;
+                }
+                part.lanes[i] = f64x4::ZERO;
+            }
         };
         match points {
             Some(list) => list.iter().for_each(|&i| one(i as usize)),
@@ -227,14 +272,6 @@ pub fn add_elastic_forces(
     f: &mut [Vec3],
     scratch: &mut ForceScratch,
 ) -> ForceStats {
-    let mut stats = ForceStats {
-        strain_energy: 0.0,
-        hourglass_energy: 0.0,
-        min_det_f: f64::INFINITY,
-        max_det_f: f64::NEG_INFINITY,
-        clamped_points: 0,
-        finite: true,
-    };
     let runs: &[u32] = match set {
         Some(s) => &s.runs,
         None => op.runs(),
@@ -245,64 +282,126 @@ pub fn add_elastic_forces(
     scratch.prepare(p, set.map(|s| &s.touched[..]));
     let ForceScratch {
         pos,
-        force,
         pos4,
-        force4,
+        parts,
+        threads,
     } = scratch;
-    if !runs.is_empty() {
-        let pos = [&pos[0][..], &pos[1][..], &pos[2][..]];
-        let mut lanes = RunBuffers::default();
-        for &i in runs {
-            run_kernel(
-                op, params, volumes, pos, i as usize, force, &mut lanes, &mut stats,
-            );
-        }
-    }
-    let mut offsets = [f64x4::ZERO; BUFFERED];
-    match set {
+    let shared = Shared {
+        op,
+        params,
+        volumes,
+        pos: [&pos[0][..], &pos[1][..], &pos[2][..]],
+        pos4,
+        in_runs: set.map(|s| &s.in_runs[..]),
+    };
+    // Half of the runs and half of the single points each: the two kernels' costs per point
+    // differ, so both are split.
+    let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
+    let (points_a, points_b) = match set {
         Some(s) => {
-            for &i in &s.stress {
-                if !s.in_runs[i as usize] {
-                    point_kernel(
-                        op,
-                        params,
-                        volumes,
-                        pos4,
-                        i as usize,
-                        force4,
-                        &mut offsets,
-                        &mut stats,
-                    );
-                }
-            }
+            let (a, b) = s.stress.split_at(s.stress.len() / 2);
+            (Points::Listed(a), Points::Listed(b))
         }
         None => {
-            for i in 0..op.len() {
-                if !op.in_run(i) {
-                    point_kernel(
-                        op,
-                        params,
-                        volumes,
-                        pos4,
-                        i,
-                        force4,
-                        &mut offsets,
-                        &mut stats,
-                    );
-                }
-            }
+            let half = op.len() / 2;
+            (Points::Range(0..half), Points::Range(half..op.len()))
         }
-    }
+    };
+    let [part_a, part_b] = parts;
+    let (stats_a, stats_b) = match *threads {
+        Threads::One => (
+            shared.part(runs_a, points_a, part_a),
+            shared.part(runs_b, points_b, part_b),
+        ),
+        Threads::Rayon => rayon::join(
+            || shared.part(runs_a, points_a, part_a),
+            || shared.part(runs_b, points_b, part_b),
+        ),
+    };
     let n = f.len();
     let mut add = |i: usize| {
-        let g = force4[i].to_array();
-        f[i] += Vec3::new(force[0][i] + g[0], force[1][i] + g[1], force[2][i] + g[2]);
+        let (ga, gb) = (part_a.lanes[i].to_array(), part_b.lanes[i].to_array());
+        for c in 0..3 {
+            f[i][c] += part_a.soa[c][i] + ga[c] + (part_b.soa[c][i] + gb[c]);
+        }
     };
     match set {
         Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
         None => (0..n).for_each(add),
     }
-    stats
+    stats_a.merge(&stats_b)
+}
+
+/// Where a force evaluation runs its parts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Threads {
+    /// One after the other on the calling thread (the real-time default: no waiting).
+    #[default]
+    One,
+    /// As a `rayon::join`: in parallel when called inside a rayon pool with a free thread.
+    /// The caller waits on rayon's latch, so this is for machines with a core to spare.
+    Rayon,
+}
+
+/// The single points of one part: a range of indices, or a slice of the evaluation set.
+enum Points<'a> {
+    Range(std::ops::Range<usize>),
+    Listed(&'a [u32]),
+}
+
+/// What both parts read.
+struct Shared<'a> {
+    op: &'a MlsOperator,
+    params: &'a ElasticParams,
+    volumes: &'a [f64],
+    pos: [&'a [f64]; 3],
+    pos4: &'a [f64x4],
+    /// With an evaluation set: which points its runs cover.
+    in_runs: Option<&'a [bool]>,
+}
+
+impl Shared<'_> {
+    /// Evaluates `runs` and the single points of `points` that no run covers into `out`.
+    fn part(&self, runs: &[u32], points: Points<'_>, out: &mut PartForces) -> ForceStats {
+        let mut stats = ForceStats::EMPTY;
+        let mut lanes = RunBuffers::default();
+        for &i in runs {
+            run_kernel(
+                self.op,
+                self.params,
+                self.volumes,
+                self.pos,
+                i as usize,
+                &mut out.soa,
+                &mut lanes,
+                &mut stats,
+            );
+        }
+        let mut offsets = [f64x4::ZERO; BUFFERED];
+        let mut one = |i: usize| {
+            let in_run = match self.in_runs {
+                Some(flags) => flags[i],
+                None => self.op.in_run(i),
+            };
+            if !in_run {
+                point_kernel(
+                    self.op,
+                    self.params,
+                    self.volumes,
+                    self.pos4,
+                    i,
+                    &mut out.lanes,
+                    &mut offsets,
+                    &mut stats,
+                );
+            }
+        };
+        match points {
+            Points::Range(r) => r.for_each(&mut one),
+            Points::Listed(list) => list.iter().for_each(|&i| one(i as usize)),
+        }
+        stats
+    }
 }
 
 /// One point through the general kernel: its own row, any rank, any stress model. The three
@@ -501,12 +600,9 @@ fn run_kernel(
     let (ids, wx, w) = op.padded_row(i);
     let used = op.neighbours(i).len();
     let pi = [load4(pos[0], i), load4(pos[1], i), load4(pos[2], i)];
-    // Pass 1: B = Σ u ⊗ (w x), with the row's scalars broadcast one at a time. Nine
-    // accumulators, three offsets and one broadcast fit the sixteen vector registers; with
-    // Σ w |u|² here as well, an accumulator spilled to the stack and its chain of FMAs went
-    // through memory (13 % of the kernel, perf). Σ w |u|² is taken in pass 2.
+    // Pass 1a: the offsets u = p_j − p_i of the row, and Σ w |u|².
     let (wx, w) = (&wx.map(|c| &c[..used]), &w[..used]);
-    let mut b = [[f64x4::ZERO; 3]; 3];
+    let mut wuu = f64x4::ZERO;
     for (slot, &j) in ids[..used].iter().enumerate() {
         let j = j as usize;
         let u = [
@@ -515,6 +611,14 @@ fn run_kernel(
             load4(pos[2], j) - pi[2],
         ];
         lanes.u[slot] = u;
+        wuu = f64x4::splat(w[slot]).mul_add(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], wuu);
+    }
+    // Pass 1b: B = Σ u ⊗ (w x) from the stored offsets. A separate loop: nine accumulators,
+    // three offsets and a broadcast fill the sixteen vector registers, and with the run's
+    // position as well an accumulator spilled and its FMA chain went through memory (up to
+    // a quarter of the kernel, perf).
+    let mut b = [[f64x4::ZERO; 3]; 3];
+    for (slot, u) in lanes.u[..used].iter().enumerate() {
         for c in 0..3 {
             let x = f64x4::splat(wx[c][slot]);
             for r in 0..3 {
@@ -557,8 +661,10 @@ fn run_kernel(
             fpb = fp[r][c].mul_add(b[r][c], fpb);
         }
     }
-    for s in strain {
+    let hourglass = (f64x4::splat(0.5) * k * (wuu - fpb)).to_array();
+    for (s, h) in strain.into_iter().zip(hourglass) {
         stats.strain_energy += s;
+        stats.hourglass_energy += h.max(0.0);
     }
     // M = −V P A⁺ + k F_p.
     let neg_v = -volume;
@@ -578,7 +684,6 @@ fn run_kernel(
     // Pass 2: g = M (w x) − k w u onto the neighbours, −Σ g onto the run.
     let neg_k = -k;
     let mut acc = [f64x4::ZERO; 3];
-    let mut wuu = f64x4::ZERO;
     for (slot, &j) in ids[..used].iter().enumerate() {
         let j = j as usize;
         let u = lanes.u[slot];
@@ -587,8 +692,7 @@ fn run_kernel(
             f64x4::splat(wx[1][slot]),
             f64x4::splat(wx[2][slot]),
         ];
-        let ws = f64x4::splat(w[slot]);
-        let kw = neg_k * ws;
+        let kw = neg_k * f64x4::splat(w[slot]);
         for r in 0..3 {
             let g = kw.mul_add(
                 u[r],
@@ -597,15 +701,9 @@ fn run_kernel(
             acc[r] -= g;
             add4(&mut force[r], j, g);
         }
-        wuu = ws.mul_add(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], wuu);
     }
     for r in 0..3 {
         add4(&mut force[r], i, acc[r]);
-    }
-    // Hourglass energy ½ k (Σ w|u|² − F_p : B).
-    let hourglass = (f64x4::splat(0.5) * k * (wuu - fpb)).to_array();
-    for h in hourglass {
-        stats.hourglass_energy += h.max(0.0);
     }
 }
 
