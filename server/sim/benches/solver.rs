@@ -47,62 +47,53 @@ fn solver(model: &CoupledModel, mode: SolverMode, threads: usize) -> Solver {
 }
 
 fn force_evaluation(c: &mut Criterion) {
-    let mut group = c.benchmark_group("force_evaluation");
-    for name in ["liver", "shoulder", "cerebroma"] {
-        let model = model(name);
-        let solver = solver(&model, SolverMode::Explicit, 1);
-        let p = solver.positions().to_vec();
-        let mut f = vec![Vec3::zeros(); p.len()];
-        let mut scratch = ForceScratch::new(p.len());
-        group.bench_function(format!("{name}_{}_points", p.len()), |b| {
-            b.iter(|| {
-                f.iter_mut().for_each(|x| *x = Vec3::zeros());
-                black_box(add_elastic_forces(
-                    solver.operator(),
-                    solver.params(),
-                    solver.volumes(),
-                    &p,
-                    None,
-                    &mut f,
-                    &mut scratch,
-                ))
-            })
-        });
-    }
-    group.finish();
+    force_evaluation_with(
+        c,
+        "force_evaluation",
+        &["liver", "shoulder", "cerebroma"],
+        Threads::One,
+    );
 }
 
-/// The force evaluation split over two threads (rayon), measured from inside the pool as
-/// the solver runs it (`SolverConfig::threads = 2`). Meaningful on a machine with two free
-/// cores.
+/// The force evaluation split over two threads (rayon), measured from inside a pool of two
+/// as the solver runs it (`SolverConfig::threads = 2`). Meaningful on a machine with two
+/// free cores.
 fn force_evaluation_two_threads(c: &mut Criterion) {
-    let mut group = c.benchmark_group("force_evaluation_2_threads");
+    force_evaluation_with(
+        c,
+        "force_evaluation_2_threads",
+        &["cerebroma"],
+        Threads::Rayon,
+    );
+}
+
+fn force_evaluation_with(c: &mut Criterion, group_name: &str, scenes: &[&str], threads: Threads) {
+    let mut group = c.benchmark_group(group_name);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
         .build()
         .expect("a pool of two threads");
-    let name = "cerebroma";
-    {
+    for name in scenes {
         let model = model(name);
         let solver = solver(&model, SolverMode::Explicit, 1);
         let p = solver.positions().to_vec();
         let mut f = vec![Vec3::zeros(); p.len()];
-        let mut scratch = ForceScratch::new(p.len()).with_threads(Threads::Rayon);
-        group.bench_function(format!("{name}_{}_points", p.len()), |b| {
-            pool.install(|| {
-                b.iter(|| {
-                    f.iter_mut().for_each(|x| *x = Vec3::zeros());
-                    black_box(add_elastic_forces(
-                        solver.operator(),
-                        solver.params(),
-                        solver.volumes(),
-                        &p,
-                        None,
-                        &mut f,
-                        &mut scratch,
-                    ))
-                })
-            })
+        let mut scratch = ForceScratch::new(p.len()).with_threads(threads);
+        let mut evaluate = || {
+            f.iter_mut().for_each(|x| *x = Vec3::zeros());
+            black_box(add_elastic_forces(
+                solver.operator(),
+                solver.params(),
+                solver.volumes(),
+                &p,
+                None,
+                &mut f,
+                &mut scratch,
+            ))
+        };
+        group.bench_function(format!("{name}_{}_points", p.len()), |b| match threads {
+            Threads::One => b.iter(&mut evaluate),
+            Threads::Rayon => pool.install(|| b.iter(&mut evaluate)),
         });
     }
     group.finish();

@@ -135,6 +135,15 @@ fn rollbacks_do_not_allocate_either() {
     assert_eq!(allocations() - before, 0);
 }
 
+/// Every coordinate's bits, for bitwise comparisons.
+fn position_bits(solver: &Solver) -> Vec<u64> {
+    solver
+        .positions()
+        .iter()
+        .flat_map(|p| p.iter().map(|x| x.to_bits()))
+        .collect()
+}
+
 #[test]
 fn runs_are_bitwise_deterministic() {
     let model = model("liver");
@@ -144,11 +153,7 @@ fn runs_are_bitwise_deterministic() {
             for _ in 0..40 {
                 solver.step(1e-3);
             }
-            solver
-                .positions()
-                .iter()
-                .flat_map(|p| p.iter().map(|x| x.to_bits()))
-                .collect::<Vec<u64>>()
+            position_bits(&solver)
         };
         assert_eq!(run(), run(), "{mode:?}");
     }
@@ -166,11 +171,7 @@ fn an_explicit_active_set_of_everything_changes_nothing() {
         for _ in 0..20 {
             solver.step(1e-3);
         }
-        solver
-            .positions()
-            .iter()
-            .flat_map(|p| p.iter().map(|x| x.to_bits()))
-            .collect::<Vec<u64>>()
+        position_bits(&solver)
     };
     assert_eq!(run(false), run(true));
 }
@@ -326,11 +327,7 @@ fn two_threads_give_the_serial_bits() {
         for _ in 0..30 {
             solver.step(1e-3);
         }
-        solver
-            .positions()
-            .iter()
-            .flat_map(|p| p.iter().map(|x| x.to_bits()))
-            .collect::<Vec<u64>>()
+        position_bits(&solver)
     };
     for region in [false, true] {
         let serial = run(1, region);
