@@ -133,8 +133,10 @@ impl ForceScratch {
         }
     }
 
-    /// Copies the positions of `points` (all when `None`) into both layouts and zeroes
-    /// their force entries.
+    /// Copies the positions of `points` (all when `None`) into both layouts. The force
+    /// buffers are zero between evaluations: the merge that reads an entry clears it, and
+    /// the kernels write only to the points the merge reads (a separate clearing pass cost
+    /// as much as the merge).
     fn prepare(&mut self, p: &[Vec3], points: Option<&[u32]>) {
         self.resize(p.len());
         let mut one = |i: usize| {
@@ -142,12 +144,6 @@ impl ForceScratch {
                 self.pos[c][i] = p[i][c];
             }
             self.pos4[i] = f64x4::from([p[i].x, p[i].y, p[i].z, 0.0]);
-            for part in &mut self.parts {
-                for c in 0..3 {
-                    part.soa[c][i] = 0.0;
-                }
-                part.lanes[i] = f64x4::ZERO;
-            }
         };
         match points {
             Some(list) => list.iter().for_each(|&i| one(i as usize)),
@@ -323,7 +319,11 @@ pub fn add_elastic_forces(
         let (ga, gb) = (part_a.lanes[i].to_array(), part_b.lanes[i].to_array());
         for c in 0..3 {
             f[i][c] += part_a.soa[c][i] + ga[c] + (part_b.soa[c][i] + gb[c]);
+            part_a.soa[c][i] = 0.0;
+            part_b.soa[c][i] = 0.0;
         }
+        part_a.lanes[i] = f64x4::ZERO;
+        part_b.lanes[i] = f64x4::ZERO;
     };
     match set {
         Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
@@ -1038,6 +1038,29 @@ mod tests {
         let arm = p.iter().map(|x| x.norm()).fold(0.0, f64::max);
         assert!(total.norm() < 1e-13 * scale, "{total}");
         assert!(torque.norm() < 1e-13 * scale * arm, "{torque}");
+    }
+
+    /// The scratch's force buffers are clear after every evaluation (the merge clears what it
+    /// reads): a full evaluation after one over an evaluation set gives the bits of a full
+    /// evaluation with fresh buffers.
+    #[test]
+    fn scratch_buffers_are_clear_between_evaluations() {
+        let (rest, op, vol) = cloud();
+        let p = deformed(&rest);
+        let params = ElasticParams::stvk(5000.0, 0.45);
+        let evaluate = |set: Option<&EvalSet>, scratch: &mut ForceScratch| {
+            let mut f = vec![Vec3::zeros(); p.len()];
+            add_elastic_forces(&op, &params, &vol, &p, set, &mut f, scratch);
+            f
+        };
+        let fresh = evaluate(None, &mut ForceScratch::new(p.len()));
+        let some: Vec<u32> = (0..p.len() as u32).step_by(4).collect();
+        let set = EvalSet::for_active(&op, &some);
+        let mut scratch = ForceScratch::new(p.len());
+        let partial = evaluate(Some(&set), &mut scratch);
+        assert!(partial.iter().any(|f| f.norm() > 0.0));
+        assert_eq!(evaluate(None, &mut scratch), fresh);
+        assert_eq!(evaluate(None, &mut scratch), fresh);
     }
 
     /// The 4-lane run kernel agrees with the scalar kernel on a lattice body with many runs,
