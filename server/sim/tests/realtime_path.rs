@@ -334,4 +334,18 @@ fn two_threads_give_the_serial_bits() {
         assert_eq!(serial, run(2, region), "region {region}");
         assert_eq!(serial, run(3, region), "region {region}");
     }
+    // Outside a tick (here `elastic_forces`) the evaluation goes into the solver's pool too,
+    // with the same bits.
+    let forces = |threads: usize| {
+        let config = SolverConfig {
+            threads,
+            ..SolverConfig::default()
+        };
+        let mut solver = prepared_from(&model, &Material::LIVER, config);
+        let (f, _) = solver.elastic_forces();
+        f.iter()
+            .flat_map(|g| g.iter().map(|x| x.to_bits()))
+            .collect::<Vec<u64>>()
+    };
+    assert_eq!(forces(1), forces(2));
 }

@@ -268,6 +268,15 @@ pub fn add_elastic_forces(
     f: &mut [Vec3],
     scratch: &mut ForceScratch,
 ) -> ForceStats {
+    // The merge reads (and clears) `f.len()` entries and the kernels write up to
+    // `op.len()`: a shorter `f` would leave forces in the scratch for the next call.
+    assert!(
+        f.len() == p.len() && p.len() == op.len(),
+        "forces {}, positions {} and operator {} must cover the same points",
+        f.len(),
+        p.len(),
+        op.len()
+    );
     let runs: &[u32] = match set {
         Some(s) => &s.runs,
         None => op.runs(),

@@ -80,7 +80,10 @@ pub struct SolverConfig {
     pub static_tolerance: f64,
     /// Threads for the explicit force evaluation: 1 (default) keeps the simulation thread
     /// free of waiting; 2 runs the two halves in a rayon pool of the solver's own, with the
-    /// same results bit for bit (the halves are summed the same way either way).
+    /// same results bit for bit (the halves are summed the same way either way). For
+    /// offline runs and benches: the tick then runs on the pool's threads, which get neither
+    /// the station's SCHED_FIFO priority nor its locked memory, and the caller waits on
+    /// rayon's latch — so the station does not offer it.
     pub threads: usize,
 }
 
@@ -289,6 +292,13 @@ impl Solver {
         };
         let op = MlsOperator::build(rest, neighbours, &kernel, lattice);
         let zeros = vec![Vec3::zeros(); n];
+        // The split follows the pool actually built (none if the system refused threads).
+        let pool = thread_pool(config.threads);
+        let threads = if pool.is_some() {
+            Threads::Rayon
+        } else {
+            Threads::One
+        };
         let mut solver = Self {
             config,
             params,
@@ -304,12 +314,8 @@ impl Solver {
             target: rest.to_vec(),
             external: zeros.clone(),
             force: zeros.clone(),
-            force_scratch: ForceScratch::new(n).with_threads(if config.threads > 1 {
-                Threads::Rayon
-            } else {
-                Threads::One
-            }),
-            pool: thread_pool(config.threads),
+            force_scratch: ForceScratch::new(n).with_threads(threads),
+            pool,
             active_list: (0..n as u32).collect(),
             retired: Vec::with_capacity(n),
             is_active: vec![true; n],
@@ -675,15 +681,23 @@ impl Solver {
                 .for_each(|&i| out[i as usize] = Vec3::zeros()),
             None => out.iter_mut().for_each(|f| *f = Vec3::zeros()),
         }
-        add_elastic_forces(
-            &self.op,
-            &self.params,
-            &self.volume,
-            &self.p,
-            set,
-            out,
-            &mut self.force_scratch,
-        )
+        let mut evaluate = || {
+            add_elastic_forces(
+                &self.op,
+                &self.params,
+                &self.volume,
+                &self.p,
+                set,
+                out,
+                &mut self.force_scratch,
+            )
+        };
+        match &self.pool {
+            // Called from outside a tick (a static solve, `elastic_forces`): into the
+            // solver's own pool, not rayon's global one.
+            Some(pool) if pool.current_thread_index().is_none() => pool.install(evaluate),
+            _ => evaluate(),
+        }
     }
 }
 
