@@ -178,7 +178,7 @@ impl EvalSet {
         set
     }
 
-    /// Like [`EvalSet::for_active`] but never using the SIMD runs (the scalar kernel only).
+    /// Like [`EvalSet::for_active`] but never using the SIMD runs (the single-point kernel only).
     pub fn scalar_only(op: &MlsOperator, active: &[u32]) -> Self {
         let mut set = Self::default();
         set.rebuild(op, active, false);
@@ -258,7 +258,9 @@ impl EvalSet {
 /// the points in `set.stress` (forces then land only on `set.touched`).
 ///
 /// Runs of four interior points with identical stencils go through a 4-lane SIMD kernel
-/// (contiguous loads, shared rows); every other point through the scalar kernel.
+/// (contiguous loads, shared rows); every other point through the single-point kernel.
+/// The work is split in two fixed parts ([`PARTS`]), on one thread or two ([`Threads`]),
+/// with the same bits either way.
 pub fn add_elastic_forces(
     op: &MlsOperator,
     params: &ElasticParams,
@@ -1072,7 +1074,7 @@ mod tests {
         assert_eq!(evaluate(None, &mut scratch), fresh);
     }
 
-    /// The 4-lane run kernel agrees with the scalar kernel on a lattice body with many runs,
+    /// The 4-lane run kernel agrees with the single-point kernel on a lattice body with many runs,
     /// for StVK and for a clamped state.
     #[test]
     fn run_kernel_matches_scalar_kernel() {

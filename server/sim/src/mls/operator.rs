@@ -178,7 +178,7 @@ impl MlsOperator {
             self.compute_point(i as usize, rest, neighbours, kernel);
         }
         // Runs containing a changed point no longer share one row: their points go back to
-        // the scalar kernel. Local work only (new runs are not formed after a cut).
+        // the single-point kernel. Local work only (new runs are not formed after a cut).
         let mut dissolved = false;
         for &i in points {
             let i = i as usize;
