@@ -50,6 +50,17 @@ impl ForceStats {
         finite: true,
     };
 
+    /// Adds one point's energies and stress checks. The hourglass energy is
+    /// `½ k (Σ w |u|² − F_p : B)` for the least-squares F_p, clipped at 0 against rounding.
+    fn add_point(&mut self, strain: f64, hourglass: f64, check: PointCheck) {
+        self.strain_energy += strain;
+        self.hourglass_energy += hourglass.max(0.0);
+        self.min_det_f = self.min_det_f.min(check.det);
+        self.max_det_f = self.max_det_f.max(check.det);
+        self.clamped_points += u32::from(check.clamped);
+        self.finite &= check.finite;
+    }
+
     /// The figures of two disjoint sets of points together (`self` first in the sums).
     pub fn merge(&self, other: &Self) -> Self {
         Self {
@@ -65,6 +76,36 @@ impl ForceStats {
     /// Total elastic energy (J).
     pub fn energy(&self) -> f64 {
         self.strain_energy + self.hourglass_energy
+    }
+}
+
+/// What one point's stress evaluation tells the statistics.
+#[derive(Debug, Clone, Copy)]
+struct PointCheck {
+    /// det F before any clamping.
+    det: f64,
+    /// The singular values were clamped.
+    clamped: bool,
+    /// det F and P are finite.
+    finite: bool,
+}
+
+impl PointCheck {
+    fn of(s: &StressSample) -> Self {
+        Self {
+            det: s.det,
+            clamped: s.clamped,
+            finite: s.det.is_finite() && s.p.iter().all(|x| x.is_finite()),
+        }
+    }
+
+    /// Plain StVK inside the ordinary det F range (so finite, not clamped).
+    fn plain(det: f64) -> Self {
+        Self {
+            det,
+            clamped: false,
+            finite: det.is_finite(),
+        }
     }
 }
 
@@ -502,10 +543,7 @@ fn point_kernel(
     };
     let pc = match fast {
         Some((pc, psi, det)) => {
-            stats.strain_energy += v * psi;
-            stats.hourglass_energy += hourglass.max(0.0);
-            stats.min_det_f = stats.min_det_f.min(det);
-            stats.max_det_f = stats.max_det_f.max(det);
+            stats.add_point(v * psi, hourglass, PointCheck::plain(det));
             pc
         }
         None => {
@@ -517,7 +555,7 @@ fn point_kernel(
                 _ => complete(fp, &term.rank),
             };
             let st = stress(params, &full);
-            record(stats, v * st.psi, hourglass, &st);
+            stats.add_point(v * st.psi, hourglass, PointCheck::of(&st));
             std::array::from_fn(|c| f64x4::from([st.p[(0, c)], st.p[(1, c)], st.p[(2, c)], 0.0]))
         }
     };
@@ -550,18 +588,6 @@ fn point_kernel(
         acc_b += gb;
     }
     force4[i] -= acc_a + acc_b;
-}
-
-/// Adds one point's energies and stress figures to the statistics. The hourglass energy is
-/// `½ k (Σ w |u|² − F_p : B)` for the least-squares F_p, clipped at 0 against rounding.
-#[inline]
-fn record(stats: &mut ForceStats, strain: f64, hourglass: f64, s: &StressSample) {
-    stats.strain_energy += strain;
-    stats.hourglass_energy += hourglass.max(0.0);
-    stats.min_det_f = stats.min_det_f.min(s.det);
-    stats.max_det_f = stats.max_det_f.max(s.det);
-    stats.clamped_points += u32::from(s.clamped);
-    stats.finite &= s.det.is_finite() && s.p.iter().all(|x| x.is_finite());
 }
 
 /// Offsets `u_ij = p_j − p_i` kept between the two passes over a row; rows longer than
@@ -652,17 +678,9 @@ fn run_kernel(
     let k = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus() / term.trace_a)
         * volume;
     // Stress: vectorised StVK when every lane is in the ordinary range, else per lane.
-    let (p_stress, psi) = match lane_stvk(params, &fp) {
-        Some((p, psi, det)) => {
-            let d = det.to_array();
-            for dl in d {
-                stats.min_det_f = stats.min_det_f.min(dl);
-                stats.max_det_f = stats.max_det_f.max(dl);
-                stats.finite &= dl.is_finite();
-            }
-            (p, psi)
-        }
-        None => lane_stress_scalar(params, &fp, stats),
+    let (p_stress, psi, checks) = match lane_stvk(params, &fp) {
+        Some((p, psi, det)) => (p, psi, det.to_array().map(PointCheck::plain)),
+        None => lane_stress_scalar(params, &fp),
     };
     let strain = (psi * volume).to_array();
     // Hourglass energy ½ k (Σ w|u|² − F_p : B).
@@ -673,9 +691,8 @@ fn run_kernel(
         }
     }
     let hourglass = (f64x4::splat(0.5) * k * (wuu - fpb)).to_array();
-    for (s, h) in strain.into_iter().zip(hourglass) {
-        stats.strain_energy += s;
-        stats.hourglass_energy += h.max(0.0);
+    for lane in 0..LANES {
+        stats.add_point(strain[lane], hourglass[lane], checks[lane]);
     }
     // M = −V P A⁺ + k F_p.
     let neg_v = -volume;
@@ -816,19 +833,16 @@ fn lane_stvk(
 fn lane_stress_scalar(
     params: &ElasticParams,
     f: &[[f64x4; 3]; 3],
-    stats: &mut ForceStats,
-) -> ([[f64x4; 3]; 3], f64x4) {
+) -> ([[f64x4; 3]; 3], f64x4, [PointCheck; LANES]) {
     let fa: [[[f64; 4]; 3]; 3] =
         std::array::from_fn(|r| std::array::from_fn(|c| f[r][c].to_array()));
     let mut p = [[[0.0f64; 4]; 3]; 3];
     let mut psi = [0.0f64; 4];
+    let mut checks = [PointCheck::plain(1.0); LANES];
     for lane in 0..LANES {
         let fl = Mat3::from_fn(|r, c| fa[r][c][lane]);
         let s = stress(params, &fl);
-        stats.min_det_f = stats.min_det_f.min(s.det);
-        stats.max_det_f = stats.max_det_f.max(s.det);
-        stats.clamped_points += u32::from(s.clamped);
-        stats.finite &= s.det.is_finite() && s.p.iter().all(|x| x.is_finite());
+        checks[lane] = PointCheck::of(&s);
         psi[lane] = s.psi;
         for r in 0..3 {
             for c in 0..3 {
@@ -839,6 +853,7 @@ fn lane_stress_scalar(
     (
         std::array::from_fn(|r| std::array::from_fn(|c| f64x4::from(p[r][c]))),
         f64x4::from(psi),
+        checks,
     )
 }
 
