@@ -146,6 +146,13 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
             let _ = writeln!(s, "  surface: not opened (the blade never cut far enough)");
         }
     }
+    if m.diverged_ticks > 0 {
+        let _ = writeln!(
+            s,
+            "  solver: {} tick(s) diverged (state restored)",
+            m.diverged_ticks
+        );
+    }
     s
 }
 

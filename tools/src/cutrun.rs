@@ -40,6 +40,8 @@ pub struct TickRow {
     pub internal_ms: f64,
     /// Points integrated.
     pub active_points: usize,
+    /// The solver could not stabilise the tick (state restored, velocities zeroed).
+    pub diverged: bool,
 }
 
 /// Measures the two stages of each tick.
@@ -112,6 +114,7 @@ pub fn run_cut(
             surface_ms: clock.surface_s * 1e3,
             internal_ms: clock.internal_s * 1e3,
             active_points: report.active_points,
+            diverged: report.solver.diverged,
         });
         tick(k + 1, ticks);
     }
@@ -292,6 +295,6 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         points: scene.model.points.len(),
         triangles_before: scene.model.surface.triangles.len(),
         triangles_after: drawn.triangles.len(),
-        diverged_ticks: 0,
+        diverged_ticks: run.rows.iter().filter(|r| r.diverged).count(),
     }
 }

@@ -336,6 +336,7 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert_eq!(m["closed"], true);
     assert_eq!(m["manifold"], true);
     assert_eq!(m["incisions"].as_u64(), Some(1));
+    assert_eq!(m["diverged_ticks"].as_u64(), Some(0), "{m}");
     assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
     // The capsule ruptures at 3 N; about 13 mm deep the blade meets 0.19 N/mm + 0.3 N.
     let peak = m["peak_force_n"].as_f64().unwrap();

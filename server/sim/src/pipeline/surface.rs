@@ -466,6 +466,9 @@ impl CurrentSurface {
         let mut rows = Vec::with_capacity(nv);
         let mut base_to_new = vec![None; base_to_current.len()];
         let reach = 3.5 * self.support_m;
+        // Vertices follow the body's points only: the virtual points after them are no
+        // place for a vertex (the nearest-point fallback of `row_for` could pick one).
+        let body = &rest_points[..self.followed.len()];
         for v in 0..nv {
             let x = incised.mesh.positions[v];
             let carried = incised.source[v].and_then(|b| {
@@ -481,7 +484,7 @@ impl CurrentSurface {
                         .filter(|t| (closest_point_on_triangle(&x, t) - x).norm() < reach)
                         .copied()
                         .collect();
-                    SurfaceEmbedding::row_for(&x, rest_points, grid, &self.kernel, &near)
+                    SurfaceEmbedding::row_for(&x, body, grid, &self.kernel, &near)
                 }
             });
         }
