@@ -836,24 +836,12 @@ fn lane_stress_scalar(
 ) -> ([[f64x4; 3]; 3], f64x4, [PointCheck; LANES]) {
     let fa: [[[f64; 4]; 3]; 3] =
         std::array::from_fn(|r| std::array::from_fn(|c| f[r][c].to_array()));
-    let mut p = [[[0.0f64; 4]; 3]; 3];
-    let mut psi = [0.0f64; 4];
-    let mut checks = [PointCheck::plain(1.0); LANES];
-    for lane in 0..LANES {
-        let fl = Mat3::from_fn(|r, c| fa[r][c][lane]);
-        let s = stress(params, &fl);
-        checks[lane] = PointCheck::of(&s);
-        psi[lane] = s.psi;
-        for r in 0..3 {
-            for c in 0..3 {
-                p[r][c][lane] = s.p[(r, c)];
-            }
-        }
-    }
+    let samples: [_; LANES] =
+        std::array::from_fn(|lane| stress(params, &Mat3::from_fn(|r, c| fa[r][c][lane])));
     (
-        std::array::from_fn(|r| std::array::from_fn(|c| f64x4::from(p[r][c]))),
-        f64x4::from(psi),
-        checks,
+        std::array::from_fn(|r| std::array::from_fn(|c| f64x4::from(samples.map(|s| s.p[(r, c)])))),
+        f64x4::from(samples.map(|s| s.psi)),
+        samples.map(|s| PointCheck::of(&s)),
     )
 }
 
