@@ -163,6 +163,9 @@ pub struct OutputConfig {
     pub fade_in_ms: f64,
     /// Hannaford–Ryu passivity observer and controller.
     pub passivity: bool,
+    /// Time constant over which the passivity observer forgets absorbed energy (ms);
+    /// 0 = never (the classic observer).
+    pub passivity_memory_ms: f64,
 }
 
 impl Default for ServerConfig {
@@ -220,6 +223,7 @@ impl Default for OutputConfig {
             fade_out_ms: 5.0,
             fade_in_ms: 50.0,
             passivity: true,
+            passivity_memory_ms: 1000.0,
         }
     }
 }
@@ -342,6 +346,14 @@ impl ServerConfig {
             o.fade_in_ms > 0.0 && o.fade_in_ms <= 10_000.0,
             "above 0 and at most 10000 ms",
         )?;
+        // Shorter than a few periods would forget what the tissue absorbed within a tick
+        // and let the controller damp ordinary elastic contact.
+        range(
+            "output.passivity_memory_ms",
+            o.passivity_memory_ms,
+            o.passivity_memory_ms == 0.0 || (10.0..=3_600_000.0).contains(&o.passivity_memory_ms),
+            "0 (never forget) or 10 ms to one hour",
+        )?;
         let n = &self.network;
         range(
             "network.frame_hz",
@@ -442,5 +454,19 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("station"), "{e}");
+        // A memory of a few ticks would let the controller damp ordinary contact.
+        for bad in ["1", "-5", "nan"] {
+            let e = ServerConfig::from_toml(
+                &format!("[output]\npassivity_memory_ms = {bad}\n"),
+                Path::new("s.toml"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("output.passivity_memory_ms"), "{e}");
+        }
+        for good in ["0", "10", "1000.0"] {
+            let text = format!("[output]\npassivity_memory_ms = {good}\n");
+            assert!(ServerConfig::from_toml(&text, Path::new("s.toml")).is_ok());
+        }
     }
 }

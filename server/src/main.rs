@@ -97,6 +97,11 @@ fn run() -> anyhow::Result<()> {
             fade_out_s: o.fade_out_ms * 1e-3,
             fade_in_s: o.fade_in_ms * 1e-3,
             passivity: o.passivity,
+            passivity_memory_s: if o.passivity_memory_ms > 0.0 {
+                o.passivity_memory_ms * 1e-3
+            } else {
+                f64::INFINITY
+            },
             period_s: 1.0 / config.rates.haptic_hz,
         },
         status_interval_s: config.rates.status_interval_s,
@@ -206,7 +211,7 @@ fn print_report(report: &StationReport, json: bool) {
 fn print_status(line: &StatusLine) {
     let haptic = match &line.haptic {
         Some(h) => format!(
-            "haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}{}",
+            "haptic {:6.1} Hz  jitter p50 {:.3} p99 {:.3} max {:.3} ms  misses {}  force {:.2} N{}{}{}",
             h.rate_hz,
             h.jitter_p50_ms,
             h.jitter_p99_ms,
@@ -214,6 +219,11 @@ fn print_status(line: &StatusLine) {
             h.deadline_misses,
             h.force_n,
             if h.watchdog_faded { " (faded)" } else { "" },
+            if h.passivity_ticks > 0 {
+                format!("  passivity damped {} ticks", h.passivity_ticks)
+            } else {
+                String::new()
+            },
             match line.device_connected {
                 Some(false) => "  no device",
                 _ => "",

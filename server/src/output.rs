@@ -28,6 +28,13 @@ pub struct OutputLimits {
     pub fade_in_s: f64,
     /// Run the passivity observer and controller.
     pub passivity: bool,
+    /// Time constant (s) over which the observer forgets energy the environment absorbed
+    /// (infinite: never, the classic observer). A reserve built up by long dissipative
+    /// cutting would otherwise let an environment that turns active (an unstable model, a
+    /// force spike) give that much energy back before the controller acts (Ryu et al. 2005
+    /// describe this delay); forgetting bounds the reserve to about the power absorbed times
+    /// this constant. A deficit is never forgotten.
+    pub passivity_memory_s: f64,
     /// The haptic loop's period (s): the rate limit and the fade advance by at most one
     /// period per tick, however late the tick woke.
     pub period_s: f64,
@@ -44,6 +51,7 @@ impl Default for OutputLimits {
             fade_out_s: 0.005,
             fade_in_s: 0.05,
             passivity: true,
+            passivity_memory_s: 1.0,
             period_s: 0.001,
         }
     }
@@ -80,6 +88,9 @@ pub struct OutputReport {
     pub rate_limited: bool,
     /// Damping the passivity controller added (N·s/m).
     pub passivity_damping: f64,
+    /// The passivity observer's energy after this tick (J): what the environment has
+    /// absorbed and not given back (forgetting included).
+    pub passivity_energy_j: f64,
     /// Watchdog gain applied, 1 healthy, 0 faded out.
     pub watchdog_gain: f64,
 }
@@ -90,7 +101,8 @@ pub struct OutputStage {
     limits: OutputLimits,
     last_force: Vec3,
     last_now_s: Option<f64>,
-    /// Energy the virtual environment has absorbed so far (J): the passivity observer.
+    /// Energy the virtual environment has absorbed and not given back (J): the passivity
+    /// observer, forgetting included.
     observed_energy_j: f64,
     gain: f64,
 }
@@ -110,11 +122,6 @@ impl OutputStage {
     /// The limits.
     pub fn limits(&self) -> &OutputLimits {
         &self.limits
-    }
-
-    /// Energy the environment has absorbed so far, as the passivity observer sees it (J).
-    pub fn observed_energy_j(&self) -> f64 {
-        self.observed_energy_j
     }
 
     /// One tick: the force to send.
@@ -191,6 +198,10 @@ impl OutputStage {
         }
         if l.passivity {
             self.observed_energy_j += -f.dot(&v) * dt;
+            if self.observed_energy_j > 0.0 && l.passivity_memory_s.is_finite() {
+                self.observed_energy_j *= (-dt / l.passivity_memory_s.max(1e-6)).exp();
+            }
+            report.passivity_energy_j = self.observed_energy_j;
         }
         self.last_force = f;
         report.force_n = f;
@@ -288,6 +299,39 @@ mod tests {
         // The controller takes the excess back within a few ticks (the rate limit spreads
         // its damping): what is left is a few ticks' worth, not a growing supply.
         assert!(with < 0.05 * without, "{with} of {without}");
+    }
+
+    #[test]
+    fn a_long_dissipative_cut_banks_no_reserve_for_an_environment_that_turns_active() {
+        // 10 s of steady cutting: 2.2 N against the blade at 5 mm/s (0.11 J absorbed), then
+        // the environment turns active — a negative damper pushing along the motion.
+        let run = |memory_s: f64| {
+            let mut s = OutputStage::new(OutputLimits {
+                passivity_memory_s: memory_s,
+                ..limits()
+            });
+            let v_cut = Vec3::new(0.005, 0.0, 0.0);
+            for k in 0..10_000 {
+                let r = s.process(&input(k as f64 * 1e-3, v_cut * -440.0, v_cut));
+                // A passive environment is never damped.
+                assert_eq!(r.passivity_damping, 0.0, "tick {k}");
+            }
+            let v = Vec3::new(0.05, 0.0, 0.0);
+            let mut given = 0.0;
+            for k in 10_000..10_500 {
+                let r = s.process(&input(k as f64 * 1e-3, v * 40.0, v));
+                given += r.force_n.dot(&v) * 1e-3;
+            }
+            given
+        };
+        let classic = run(f64::INFINITY);
+        let forgetting = run(1.0);
+        // The classic observer lets the source give all 0.5 s of its 0.1 W: the reserve is
+        // larger than that.
+        assert!(classic > 0.045, "{classic}");
+        // Forgetting over 1 s keeps about 11 mJ (absorbed power × 1 s): the source gets that
+        // and a few ticks' worth while the rate limit spreads the damping.
+        assert!(forgetting < 0.015, "{forgetting} (classic {classic})");
     }
 
     #[test]

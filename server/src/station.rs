@@ -29,7 +29,7 @@ use crate::device_monitor::{DeviceEvent, DeviceMonitor};
 use crate::faults::{FaultBook, FaultTable, HapticEffects, Transition};
 use crate::frames::{FrameInfo, FramePublisher};
 use crate::journal::{self, TickRecord};
-use crate::output::{OutputInput, OutputLimits, OutputStage};
+use crate::output::{OutputInput, OutputLimits, OutputReport, OutputStage};
 use crate::realtime;
 use scalpel_proto::wire::{Event, EventKind, Metrics};
 
@@ -138,6 +138,8 @@ pub struct HapticCounters {
     force_bits: AtomicU64,
     nan_guards: AtomicU64,
     watchdog_faded: AtomicBool,
+    passivity_ticks: AtomicU64,
+    passivity_energy_bits: AtomicU64,
     total_ticks: AtomicU64,
     total_misses: AtomicU64,
     ring_full: AtomicU64,
@@ -153,13 +155,15 @@ impl HapticCounters {
             force_bits: AtomicU64::new(0),
             nan_guards: AtomicU64::new(0),
             watchdog_faded: AtomicBool::new(true),
+            passivity_ticks: AtomicU64::new(0),
+            passivity_energy_bits: AtomicU64::new(0),
             total_ticks: AtomicU64::new(0),
             total_misses: AtomicU64::new(0),
             ring_full: AtomicU64::new(0),
         }
     }
 
-    fn record(&self, jitter_s: f64, missed: bool, force_n: f64, nan: bool, faded: bool) {
+    fn record(&self, jitter_s: f64, missed: bool, out: &OutputReport) {
         self.ticks.fetch_add(1, Ordering::Relaxed);
         self.total_ticks.fetch_add(1, Ordering::Relaxed);
         if missed {
@@ -170,11 +174,18 @@ impl HapticCounters {
         self.jitter[bin].fetch_add(1, Ordering::Relaxed);
         self.max_jitter_ns
             .fetch_max((jitter_s * 1e9) as u64, Ordering::Relaxed);
-        self.force_bits.store(force_n.to_bits(), Ordering::Relaxed);
-        if nan {
+        self.force_bits
+            .store(out.force_n.norm().to_bits(), Ordering::Relaxed);
+        if out.nan_guarded {
             self.nan_guards.fetch_add(1, Ordering::Relaxed);
         }
-        self.watchdog_faded.store(faded, Ordering::Relaxed);
+        self.watchdog_faded
+            .store(out.watchdog_gain == 0.0, Ordering::Relaxed);
+        if out.passivity_damping > 0.0 {
+            self.passivity_ticks.fetch_add(1, Ordering::Relaxed);
+        }
+        self.passivity_energy_bits
+            .store(out.passivity_energy_j.to_bits(), Ordering::Relaxed);
     }
 
     /// Takes the window's figures and starts a new window.
@@ -216,6 +227,9 @@ impl HapticCounters {
             force_n: f64::from_bits(self.force_bits.load(Ordering::Relaxed)),
             nan_guards: self.nan_guards.load(Ordering::Relaxed),
             watchdog_faded: self.watchdog_faded.load(Ordering::Relaxed),
+            passivity_ticks: self.passivity_ticks.swap(0, Ordering::Relaxed),
+            passivity_energy_mj: f64::from_bits(self.passivity_energy_bits.load(Ordering::Relaxed))
+                * 1e3,
         }
     }
 }
@@ -245,6 +259,11 @@ pub struct HapticWindow {
     pub nan_guards: u64,
     /// The watchdog has the force faded out.
     pub watchdog_faded: bool,
+    /// Ticks in the window on which the passivity controller added damping.
+    pub passivity_ticks: u64,
+    /// The passivity observer's energy at the last tick (mJ): absorbed by the tissue and
+    /// not given back, as far as the observer still remembers (`output.passivity_memory_ms`).
+    pub passivity_energy_mj: f64,
 }
 
 /// A status line: the haptic window and the simulation's figures.
@@ -1054,13 +1073,7 @@ impl HapticState {
                 pose_seq: self.used_seq,
             },
         );
-        counters.record(
-            lateness,
-            missed,
-            report.force_n.norm(),
-            report.nan_guarded,
-            report.watchdog_gain == 0.0,
-        );
+        counters.record(lateness, missed, &report);
     }
 }
 
