@@ -29,11 +29,13 @@ pub struct OutputLimits {
     /// Run the passivity observer and controller.
     pub passivity: bool,
     /// Time constant (s) over which the observer forgets energy the environment absorbed
-    /// (infinite: never, the classic observer). A reserve built up by long dissipative
-    /// cutting would otherwise let an environment that turns active (an unstable model, a
-    /// force spike) give that much energy back before the controller acts (Ryu et al. 2005
-    /// describe this delay); forgetting bounds the reserve to about the power absorbed times
-    /// this constant. A deficit is never forgotten.
+    /// beyond what it still stores (infinite: never, the classic observer). A reserve built
+    /// up by long dissipative cutting would otherwise let an environment that turns active
+    /// (an unstable model, a force spike) give that much energy back before the controller
+    /// acts (Ryu et al. 2005 describe this delay); forgetting bounds the reserve to about
+    /// the power dissipated times this constant. The energy the model says the contact
+    /// stores (a pressed capsule) is kept, so its release is never mistaken for a source;
+    /// a deficit is never forgotten.
     pub passivity_memory_s: f64,
     /// The haptic loop's period (s): the rate limit and the fade advance by at most one
     /// period per tick, however late the tick woke.
@@ -73,6 +75,9 @@ pub struct OutputInput {
     /// A cap below the device limit (N; infinite: none), e.g. a force-saturation fault.
     /// It can only lower the limit.
     pub cap_n: f64,
+    /// Energy the model says the contact stores and would give back (J): the observer
+    /// does not forget below it.
+    pub stored_energy_j: f64,
 }
 
 /// What the stage did on one tick, for counters.
@@ -198,8 +203,15 @@ impl OutputStage {
         }
         if l.passivity {
             self.observed_energy_j += -f.dot(&v) * dt;
-            if self.observed_energy_j > 0.0 && l.passivity_memory_s.is_finite() {
-                self.observed_energy_j *= (-dt / l.passivity_memory_s.max(1e-6)).exp();
+            let kept = if input.stored_energy_j.is_finite() {
+                input.stored_energy_j.max(0.0)
+            } else {
+                0.0
+            };
+            let surplus = self.observed_energy_j - kept;
+            if surplus > 0.0 && l.passivity_memory_s.is_finite() {
+                self.observed_energy_j =
+                    kept + surplus * (-dt / l.passivity_memory_s.max(1e-6)).exp();
             }
             report.passivity_energy_j = self.observed_energy_j;
         }
@@ -237,6 +249,7 @@ mod tests {
             device_seen_s: Some(t),
             sim_seen_s: Some(t),
             cap_n: f64::INFINITY,
+            stored_energy_j: 0.0,
         }
     }
 
@@ -332,6 +345,42 @@ mod tests {
         // Forgetting over 1 s keeps about 11 mJ (absorbed power × 1 s): the source gets that
         // and a few ticks' worth while the rate limit spreads the damping.
         assert!(forgetting < 0.015, "{forgetting} (classic {classic})");
+    }
+
+    #[test]
+    fn a_held_press_is_released_without_damping() {
+        // A spring of 300 N/m pressed 5 mm at 5 mm/s, held 3 s (three memory constants),
+        // released at 5 mm/s. The contact stores ½kx², and gives it back on release.
+        let run = |publish_stored: bool| {
+            let mut s = OutputStage::new(limits());
+            settle(&mut s, Vec3::zeros(), 100);
+            let (k, step) = (300.0, 5e-6);
+            let mut damped = 0;
+            let mut tick = |s: &mut OutputStage, t: usize, x: f64, v: f64| {
+                let mut i = input(t as f64 * 1e-3, Vec3::new(-k * x, 0.0, 0.0), Vec3::x() * v);
+                if publish_stored {
+                    i.stored_energy_j = 0.5 * k * x * x;
+                }
+                damped += usize::from(s.process(&i).passivity_damping > 0.0);
+            };
+            let mut t = 100;
+            for j in 1..=1000 {
+                tick(&mut s, t, j as f64 * step, 5e-3);
+                t += 1;
+            }
+            for _ in 0..3000 {
+                tick(&mut s, t, 1000.0 * step, 0.0);
+                t += 1;
+            }
+            for j in (0..1000).rev() {
+                tick(&mut s, t, j as f64 * step, -5e-3);
+                t += 1;
+            }
+            damped
+        };
+        assert_eq!(run(true), 0);
+        // Forgetting the stored energy too would have damped the release.
+        assert!(run(false) > 100, "{}", run(false));
     }
 
     #[test]

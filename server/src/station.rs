@@ -373,6 +373,7 @@ pub fn run(
             f0_n: Vec3::zeros(),
             x0_m: Vec3::zeros(),
             stiffness_n_per_m: Mat3::zeros(),
+            stored_energy_j: 0.0,
         },
         tick: 0,
     };
@@ -1062,6 +1063,7 @@ impl HapticState {
             device_seen_s: self.device_seen,
             sim_seen_s: self.sim_seen,
             cap_n: effects.cap_n,
+            stored_energy_j: update.model.stored_energy_j,
         });
         device.send_force(
             report.force_n,
@@ -1087,6 +1089,7 @@ impl HapticState {
             device_seen_s: Some(now),
             sim_seen_s: Some(now),
             cap_n: f64::INFINITY,
+            stored_energy_j: 0.0,
         });
         device.send_force(
             report.force_n,

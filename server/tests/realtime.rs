@@ -31,6 +31,7 @@ fn haptic_ticks_do_not_allocate() {
         f0_n: Vec3::new(0.0, 0.0, 2.0),
         x0_m: Vec3::zeros(),
         stiffness_n_per_m: Mat3::identity() * -500.0,
+        stored_energy_j: 0.0,
     };
     // The instructor's faults that act on the haptic thread, over parts of the run: the
     // delay line, the noise generator, the spike and the cap run allocation-free too.
@@ -105,6 +106,7 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
         f0_n: Vec3::new(0.0, 0.0, 2.0),
         x0_m: Vec3::zeros(),
         stiffness_n_per_m: Mat3::identity() * -500.0,
+        stored_energy_j: 0.0,
     };
     let warm_up = 10;
     let ticks = 3000;

@@ -1,6 +1,6 @@
 //! Stability in cutting (issue 4, item 10): blades that start or stop inside, leave and
 //! re-enter, cross an earlier cut, cut through a thin part, and cuts that leave slivers and
-//! isolated points. In every case: nothing non-finite, the tool force bounded and without
+//! isolated points, and a press that backs out before rupture. In every case: nothing non-finite, the tool force bounded and without
 //! jumps outside rupture, no divergence, and the drawn surface still closed, manifold and
 //! consistently oriented.
 
@@ -55,6 +55,13 @@ struct Trace {
     /// Ticks where the blade fell out of the tissue while cutting and came back the next
     /// tick: the reading flickering on a surface it sits on.
     dropouts: usize,
+    /// Work the tool did on the tissue (J): Σ −f·Δx over the ticks where that is positive.
+    work_in_j: f64,
+    /// Work the tissue did on the tool (J): Σ f·Δx where positive. A passive tissue never
+    /// gives back more than it took.
+    work_out_j: f64,
+    /// Ticks in the cutting regime.
+    cutting_ticks: usize,
 }
 
 /// Plays `script` tick by tick (then `idle_ticks` with no tool), checking every tick.
@@ -66,8 +73,17 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
     let mut last_phase = None;
     let mut last_depth = 0.0;
     let mut out_after_cutting = false;
+    let mut last_tip = None;
     for k in 0..ticks + idle_ticks {
         let pose = (k < ticks).then(|| script.pose_at(k as f64 * TICK_S));
+        // The force of the last tick is what the hand felt while moving to this pose.
+        let tip = pose.map(|p| p.tip_m);
+        if let (Some(a), Some(b)) = (last_tip, tip) {
+            let work = last.dot(&(b - a));
+            trace.work_out_j += work.max(0.0);
+            trace.work_in_j += (-work).max(0.0);
+        }
+        last_tip = tip;
         sim.set_tool(pose);
         let r = sim.tick(TICK_S, &mut Unobserved);
         let f = r.tool_force_n;
@@ -94,6 +110,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
         let depth_before = std::mem::replace(&mut last_depth, depth);
         trace.max_depth_m = trace.max_depth_m.max(depth);
         let in_tissue = matches!(phase, Some((_, true, _)));
+        trace.cutting_ticks += usize::from(matches!(phase, Some((CutPhase::Cutting, ..))));
         trace.dropouts += usize::from(out_after_cutting && in_tissue);
         out_after_cutting = cutting_forward && !in_tissue;
         trace.breakthroughs += usize::from(breakthrough);
@@ -179,6 +196,9 @@ fn blade_that_starts_and_stops_inside() {
     let mut sim = Simulation::new(&scene);
     let trace = drive(&mut sim, &s, 300, &scene.spec.force);
     assert_calm(&trace);
+    // Appearing inside, it presses the way it first moves: it ruptures and cuts.
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert!(trace.cutting_ticks > 2000, "{trace:?}");
     // With the blade gone the force is gone and the dent released.
     let r = sim.tick(TICK_S, &mut Unobserved);
     assert_eq!(r.tool_force_n, Vec3::zeros());
@@ -188,6 +208,37 @@ fn blade_that_starts_and_stops_inside() {
         sim.solver().fixed()[..body]
             .iter()
             .all(|f| *f == [false; 3])
+    );
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_press_that_backs_out_before_rupture() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let spec = &scene.spec.force;
+    // Down at 5 mm/s to 2.5 mm past the surface (rupture takes 3.17), half a second held,
+    // back up the same way.
+    let press = top - 0.8 * spec.rupture_displacement_m * 1e3;
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (1.5, [-30.0, 0.0, press]),
+        (2.0, [-30.0, 0.0, press]),
+        (3.5, [-30.0, 0.0, top + 5.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &s, 0, spec);
+    assert_calm(&trace);
+    // The capsule holds, and its force eases off the way it came: backing out neither
+    // ruptures it nor makes it push harder (it did both when loading counted path length
+    // and the averaged direction could not turn round).
+    assert_eq!((trace.ruptures, trace.cutting_ticks), (0, 0), "{trace:?}");
+    assert!(trace.peak_n < spec.rupture_force_n, "{trace:?}");
+    assert!(trace.work_in_j > 5e-4, "{trace:?}");
+    // Elastic: what the press put in comes back, and no more.
+    assert!(
+        trace.work_out_j <= 1.02 * trace.work_in_j && trace.work_out_j >= 0.8 * trace.work_in_j,
+        "{trace:?}"
     );
     assert_sound_surface(&sim);
 }

@@ -6,7 +6,10 @@
 //!
 //! * **Loading** (blade pressing on intact capsule): the eq. 19 curve used as a *shape*,
 //!   `F_pre(x) = F_r · f(x · 3.17/x_r) / 42.85`, which peaks at exactly the rupture force F_r
-//!   at the rupture displacement x_r (physics.md §6.2: f peaks at 42.85 at x = 3.17).
+//!   at the rupture displacement x_r (physics.md §6.2: f peaks at 42.85 at x = 3.17). x is
+//!   the indentation along the direction the blade came in: backing out unloads along the
+//!   same curve (the capsule is elastic until it fails), so a press that stops short of
+//!   rupture gives back what it took and no more.
 //! * **Rupture**: once the blade has pressed x_r, the capsule fails.
 //! * **Cutting**: the mean force is the fracture work per unit advance plus friction,
 //!   `F_mean = J_c·d + F_friction(d)` (d = cut depth; friction grows with the rubbing area,
@@ -57,9 +60,10 @@ pub struct BladeContact {
     pub in_tissue: bool,
     /// Depth of the cutting edge below the surface at entry (m).
     pub depth_m: f64,
-    /// How far the blade moved along its cutting direction since the last update (m).
-    pub advance_m: f64,
-    /// Unit cutting direction (the blade's motion), for the force vector.
+    /// The tip's displacement since the last update (m).
+    pub motion_m: Vec3,
+    /// Unit cutting direction (the blade's recent motion, averaged over a short travel),
+    /// for the force vector.
     pub direction: Vec3,
     /// The blade entered along an existing incision: no capsule to rupture.
     pub in_existing_cut: bool,
@@ -75,24 +79,33 @@ pub struct CutForce {
     pub phase: CutPhase,
     /// Magnitude of the resistance (N), ≥ 0.
     pub magnitude_n: f64,
-    /// Force on the tool (N): the resistance, against the cutting direction.
+    /// Force on the tool (N): `−direction · magnitude_n`.
     pub force_n: Vec3,
-    /// Stiffness of the resistance along the cutting direction (N/m): dF/dx, for the
-    /// haptic loop's local model.
+    /// Unit direction the resistance acts against: the direction the blade pressed in
+    /// while loading, its motion while cutting (zero when free).
+    pub direction: Vec3,
+    /// Stiffness of the resistance along `direction` (N/m): dF/dx, for the haptic loop's
+    /// local model.
     pub stiffness_n_per_m: f64,
+    /// Energy the contact would give back if the blade backed out (J): the loading curve's
+    /// work over the current indentation; zero once cutting (fracture and friction give
+    /// nothing back). The haptic output stage's passivity observer keeps at least this.
+    pub stored_energy_j: f64,
     /// The update was a rupture (capsule failed this update).
     pub ruptured: bool,
 }
 
 impl CutForce {
     /// The local linear model for the haptic loop at tool position `x0`: the loop renders
-    /// `f = f0 + K (x − x0)` with `K = −k d dᵀ` (the resistance grows as the tool advances
-    /// along d, pushing back).
-    pub fn local_model(&self, x0: Vec3, direction: Vec3) -> LocalForceModel {
+    /// `f = f0 + K (x − x0)` with `K = −k d dᵀ`, d = `direction` (the resistance grows as
+    /// the tool advances along d, pushing back).
+    pub fn local_model(&self, x0: Vec3) -> LocalForceModel {
+        let d = self.direction;
         LocalForceModel {
             f0_n: self.force_n,
             x0_m: x0,
-            stiffness_n_per_m: -(direction * direction.transpose()) * self.stiffness_n_per_m,
+            stiffness_n_per_m: -(d * d.transpose()) * self.stiffness_n_per_m,
+            stored_energy_j: self.stored_energy_j,
         }
     }
 }
@@ -107,6 +120,9 @@ pub struct LocalForceModel {
     pub x0_m: Vec3,
     /// ∂f/∂x (N/m).
     pub stiffness_n_per_m: Mat3,
+    /// Energy the contact would give back if the tool backed out (J), see
+    /// [`CutForce::stored_energy_j`].
+    pub stored_energy_j: f64,
 }
 
 impl LocalForceModel {
@@ -122,8 +138,12 @@ pub struct CuttingForceModel {
     spec: ForceSpec,
     ripple: bool,
     phase: CutPhase,
-    /// Blade travel while loading (m).
+    /// Indentation of the intact capsule along `press_direction` while loading (m), ≥ 0.
     loading_m: f64,
+    /// Unit direction the blade came in along when it touched the capsule.
+    press_direction: Vec3,
+    /// The loading curve's work over the indentation (J): what backing out gives back.
+    stored_j: f64,
     /// Time of the last rupture (s).
     rupture_s: f64,
     /// Blade travel since the last rupture (m).
@@ -149,6 +169,8 @@ impl CuttingForceModel {
             ripple,
             phase: CutPhase::Free,
             loading_m: 0.0,
+            press_direction: Vec3::zeros(),
+            stored_j: 0.0,
             rupture_s: 0.0,
             travel_m: 0.0,
             engagement: 0.0,
@@ -191,11 +213,12 @@ impl CuttingForceModel {
 
     /// Advances the model to time `now_s` with this update's blade contact.
     pub fn update(&mut self, now_s: f64, contact: &BladeContact) -> CutForce {
-        let advance = if contact.advance_m.is_finite() {
-            contact.advance_m.max(0.0)
+        let motion = if contact.motion_m.iter().all(|c| c.is_finite()) {
+            contact.motion_m
         } else {
-            0.0
+            Vec3::zeros()
         };
+        let advance = motion.norm();
         let depth = if contact.depth_m.is_finite() {
             contact.depth_m.max(0.0)
         } else {
@@ -209,6 +232,7 @@ impl CuttingForceModel {
         if !contact.in_tissue {
             self.phase = CutPhase::Free;
             self.loading_m = 0.0;
+            self.stored_j = 0.0;
         } else {
             if self.phase == CutPhase::Free {
                 if contact.in_existing_cut {
@@ -216,11 +240,31 @@ impl CuttingForceModel {
                 } else {
                     self.phase = CutPhase::Loading;
                     self.loading_m = 0.0;
+                    self.stored_j = 0.0;
+                    self.press_direction = if direction != Vec3::zeros() {
+                        direction
+                    } else {
+                        motion.try_normalize(1e-12).unwrap_or_else(Vec3::zeros)
+                    };
                 }
             }
             match self.phase {
                 CutPhase::Loading => {
-                    self.loading_m += advance;
+                    // A blade that appeared in the tissue (no motion to come in along)
+                    // presses the way it first moves.
+                    if self.press_direction == Vec3::zeros() {
+                        self.press_direction =
+                            motion.try_normalize(1e-12).unwrap_or_else(Vec3::zeros);
+                    }
+                    // Pressing in loads the capsule, backing out unloads it along the same
+                    // curve; sliding across it does neither.
+                    let before = self.loading_m;
+                    self.loading_m = (before + motion.dot(&self.press_direction)).max(0.0);
+                    let (f_before, _) = self.loading_force(before);
+                    let (f_after, _) = self.loading_force(self.loading_m);
+                    self.stored_j = (self.stored_j
+                        + 0.5 * (f_before + f_after) * (self.loading_m - before))
+                        .max(0.0);
                     if self.loading_m >= self.spec.rupture_displacement_m {
                         self.start_cutting(now_s);
                         ruptured = true;
@@ -237,7 +281,10 @@ impl CuttingForceModel {
         }
         let (magnitude, stiffness) = match self.phase {
             CutPhase::Free => (0.0, 0.0),
-            CutPhase::Loading => self.loading_force(self.loading_m),
+            // Backed out to where it touched, the blade rests on the capsule without
+            // pressing (eq. 19's offset f(0) applies from the first touch on).
+            CutPhase::Loading if self.loading_m > 0.0 => self.loading_force(self.loading_m),
+            CutPhase::Loading => (0.0, 0.0),
             CutPhase::Cutting => {
                 let mean = self.mean_cutting_force(depth);
                 if self.ripple {
@@ -258,17 +305,26 @@ impl CuttingForceModel {
             }
         };
         let magnitude = magnitude.max(0.0);
+        let (along, stored) = match self.phase {
+            CutPhase::Free => (Vec3::zeros(), 0.0),
+            CutPhase::Loading => (self.press_direction, self.stored_j),
+            CutPhase::Cutting => (direction, 0.0),
+        };
         CutForce {
             phase: self.phase,
             magnitude_n: magnitude,
-            force_n: -direction * magnitude,
+            force_n: -along * magnitude,
+            direction: along,
             stiffness_n_per_m: stiffness,
+            stored_energy_j: stored,
             ruptured,
         }
     }
 
     fn start_cutting(&mut self, now_s: f64) {
         self.phase = CutPhase::Cutting;
+        self.loading_m = 0.0;
+        self.stored_j = 0.0;
         self.rupture_s = now_s;
         self.travel_m = 0.0;
         self.engagement = 1.0;
@@ -279,11 +335,12 @@ impl CuttingForceModel {
 mod tests {
     use super::*;
 
+    /// In the tissue, moving `advance_m` along +x.
     fn contact(advance_m: f64, depth_m: f64) -> BladeContact {
         BladeContact {
             in_tissue: true,
             depth_m,
-            advance_m,
+            motion_m: Vec3::x() * advance_m,
             direction: Vec3::x(),
             in_existing_cut: false,
             withdrawing: false,
@@ -343,6 +400,53 @@ mod tests {
             (peak_seen / spec.rupture_force_n - 1.0).abs() < 0.01,
             "{peak_seen}"
         );
+    }
+
+    #[test]
+    fn a_press_that_backs_out_before_rupture_gives_back_what_it_took() {
+        let spec = ForceSpec::default();
+        let mut m = CuttingForceModel::new(&spec, true);
+        let curve = m.clone();
+        // In along +x to 80 % of the rupture displacement at 5 mm/s, hold, and back out
+        // the same way (the averaged direction lags: it still says +x while backing out).
+        let step = 5e-6;
+        let n = (0.8 * spec.rupture_displacement_m / step) as usize;
+        let (mut t, mut work, mut pressed) = (0.0, 0.0, Vec::new());
+        let mut tick = |m: &mut CuttingForceModel, advance: f64, work: &mut f64| {
+            t += 1e-3;
+            let f = m.update(t, &contact(advance, 0.0));
+            // Work the tissue does on the tool over this step.
+            *work += f.force_n.x * advance;
+            f
+        };
+        for _ in 0..n {
+            pressed.push(tick(&mut m, step, &mut work));
+        }
+        let stored = pressed.last().unwrap().stored_energy_j;
+        for _ in 0..500 {
+            tick(&mut m, 0.0, &mut work);
+        }
+        for k in (0..n).rev() {
+            let f = tick(&mut m, -step, &mut work);
+            assert_eq!(f.phase, CutPhase::Loading, "no rupture while backing out");
+            // Unloading retraces the loading curve.
+            let expected = if k == 0 {
+                0.0
+            } else {
+                curve.loading_force(k as f64 * step).0
+            };
+            assert!((f.magnitude_n - expected).abs() < 1e-9, "{k}: {f:?}");
+            assert!(
+                f.force_n.x <= 0.0,
+                "it pushes the blade out, never pulls it in"
+            );
+        }
+        // The loading curve's work, and all of it back: passive, not a source.
+        let put_in = -pressed.iter().map(|f| f.force_n.x * step).sum::<f64>();
+        assert!((stored / put_in - 1.0).abs() < 0.01, "{stored} vs {put_in}");
+        // (Up to the rectangle rule's one step of force: ≈ F·step over the whole cycle.)
+        assert!(work.abs() < 1e-2 * put_in, "net work {work} of {put_in}");
+        assert!(m.update(t + 1e-3, &contact(0.0, 0.0)).stored_energy_j < 1e-12);
     }
 
     #[test]
@@ -422,7 +526,7 @@ mod tests {
     fn local_model_reproduces_the_force_at_its_origin_and_pushes_back() {
         let mut m = CuttingForceModel::new(&ForceSpec::default(), false);
         let f = m.update(0.0, &contact(0.002, 0.01));
-        let model = f.local_model(Vec3::new(0.01, 0.0, 0.0), Vec3::x());
+        let model = f.local_model(Vec3::new(0.01, 0.0, 0.0));
         assert_eq!(model.force_at(model.x0_m), f.force_n);
         // Loading stiffens: advancing further along +x gives a larger force against +x.
         let ahead = model.force_at(model.x0_m + Vec3::new(1e-4, 0.0, 0.0));

@@ -150,6 +150,9 @@ pub struct CuttingStage {
     release_start_s: Option<f64>,
     pressed: Vec<Pressed>,
     dent_radius_m: f64,
+    /// The blade's recent displacements, each weighed down by the travel since (m): its
+    /// direction is `direction`.
+    recent_motion: Vec3,
     direction: Vec3,
     awake: Vec<bool>,
     /// Side of each point relative to the blade plane (+1 left, −1 right, 0 unknown).
@@ -203,6 +206,7 @@ impl CuttingStage {
             pressed: Vec::with_capacity(MAX_DENT_POINTS),
             dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
                 .max(kernel.support_m),
+            recent_motion: Vec3::zeros(),
             direction: Vec3::zeros(),
             awake: vec![false; n],
             side: vec![0; n],
@@ -259,18 +263,18 @@ impl CuttingStage {
             }
         };
         let last_tip = self.last_tip;
-        let mut advance = 0.0;
+        let mut motion = Vec3::zeros();
         if let Some(b) = blade {
             if let Some(last) = self.last_tip {
-                let d = b.tip - last;
-                advance = d.norm();
-                if let Some(dir) = d.try_normalize(1e-9) {
-                    // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns
-                    // with the path, not in one tick at a corner of it.
-                    let blend = advance / (advance + DIRECTION_TRAVEL_M);
-                    self.direction = (self.direction * (1.0 - blend) + dir * blend)
-                        .try_normalize(1e-9)
-                        .unwrap_or(dir);
+                motion = b.tip - last;
+                // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns with
+                // the path, not in one tick at a corner of it. Summing displacements (not
+                // blending unit vectors, which never turn when the blade reverses exactly)
+                // makes it flip after about 0.7 × that travel back.
+                let decay = DIRECTION_TRAVEL_M / (DIRECTION_TRAVEL_M + motion.norm());
+                self.recent_motion = self.recent_motion * decay + motion;
+                if let Some(dir) = self.recent_motion.try_normalize(1e-12) {
+                    self.direction = dir;
                 }
             }
             self.last_tip = Some(b.tip);
@@ -356,7 +360,7 @@ impl CuttingStage {
             &BladeContact {
                 in_tissue,
                 depth_m,
-                advance_m: advance,
+                motion_m: motion,
                 direction: self.direction,
                 in_existing_cut,
                 withdrawing,

@@ -148,6 +148,7 @@ impl Simulation {
                 f0_n: Vec3::zeros(),
                 x0_m: Vec3::zeros(),
                 stiffness_n_per_m: crate::math::Mat3::zeros(),
+                stored_energy_j: 0.0,
             },
             all_points: (0..n as u32).collect(),
             spec,
@@ -283,13 +284,11 @@ impl Simulation {
         }
         observer.leave(Stage::Surface);
         self.time_s += dt;
-        let tool_force_n = match (&cut, &blade, &self.cutting) {
-            (Some(t), Some(b), Some(stage)) => {
+        let tool_force_n = match (&cut, &blade) {
+            (Some(t), Some(b)) => {
+                // Free, the force's direction is zero and so is the model's stiffness.
                 let force = bounded(&t.force, self.spec.force.max_force_n);
-                self.local_model = force.local_model(b.tip, stage.direction());
-                if t.force.phase == CutPhase::Free {
-                    self.local_model.stiffness_n_per_m = crate::math::Mat3::zeros();
-                }
+                self.local_model = force.local_model(b.tip);
                 force.force_n
             }
             _ => Vec3::zeros(),
@@ -401,11 +400,13 @@ fn bounded(force: &CutForce, max_n: f64) -> CutForce {
         f.force_n = Vec3::zeros();
         f.magnitude_n = 0.0;
         f.stiffness_n_per_m = 0.0;
+        f.stored_energy_j = 0.0;
     } else if m > max_n {
         let s = max_n / m;
         f.force_n *= s;
         f.magnitude_n *= s;
         f.stiffness_n_per_m *= s;
+        f.stored_energy_j *= s;
     }
     f
 }
