@@ -62,6 +62,18 @@ struct Trace {
     work_out_j: f64,
     /// Ticks in the cutting regime.
     cutting_ticks: usize,
+    /// The tool force of every tick (N).
+    forces: Forces,
+}
+
+/// Per-tick forces, shown in a trace by their count only.
+#[derive(Default)]
+struct Forces(Vec<Vec3>);
+
+impl std::fmt::Debug for Forces {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ticks", self.0.len())
+    }
 }
 
 /// Plays `script` tick by tick (then `idle_ticks` with no tool), checking every tick.
@@ -136,6 +148,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             );
         }
         last = f;
+        trace.forces.0.push(f);
         last_phase = phase;
         trace.peak_n = trace.peak_n.max(f.norm());
         trace.diverged_ticks += usize::from(r.solver.diverged);
@@ -240,6 +253,45 @@ fn a_press_that_backs_out_before_rupture() {
         trace.work_out_j <= 1.02 * trace.work_in_j && trace.work_out_j >= 0.8 * trace.work_in_j,
         "{trace:?}"
     );
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_blade_that_turns_back_along_its_cut() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let spec = &scene.spec.force;
+    let z = top - 10.0;
+    // Down 10 mm, 30 mm forward, 20 mm back the same way, out.
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (3.0, [-30.0, 0.0, z]),
+        (9.0, [0.0, 0.0, z]),
+        (13.0, [-20.0, 0.0, z]),
+        (16.0, [-20.0, 0.0, top + 5.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &s, 0, spec);
+    // The turn is smooth: the resistance passes through zero instead of flipping by twice
+    // its size in one tick (5.5 N when the direction was a blend of unit vectors).
+    assert_calm(&trace);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    // Forward it cuts: fracture and friction (J_c·d ≥ 1.9 N at 10 mm).
+    let forward = trace.forces.0[8500];
+    assert!(forward.x < -2.0, "{forward:?}");
+    // Back along its own cut it opens nothing: friction only, against the motion, from
+    // 2 mm after the turn on.
+    let friction = (1.0 + spec.ripple_amplitude) * spec.friction_n;
+    for (k, f) in trace.forces.0[9500..13000].iter().enumerate() {
+        assert!(
+            f.x > 0.0 && f.norm() <= friction + 1e-9,
+            "tick {}: {f:?}",
+            9500 + k
+        );
+    }
+    // What the tissue did on the hand around the turn (the averaged direction's lag) is a
+    // sliver of what the cut took.
+    assert!(trace.work_out_j < 0.01 * trace.work_in_j, "{trace:?}");
     assert_sound_surface(&sim);
 }
 

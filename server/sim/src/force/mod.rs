@@ -62,8 +62,9 @@ pub struct BladeContact {
     pub depth_m: f64,
     /// The tip's displacement since the last update (m).
     pub motion_m: Vec3,
-    /// Unit cutting direction (the blade's recent motion, averaged over a short travel),
-    /// for the force vector.
+    /// Cutting direction: the blade's recent motion, averaged over a short travel, at most
+    /// unit length — shorter while the motion turns round, so that the resistance against
+    /// it passes through zero on a reversal instead of flipping in one tick.
     pub direction: Vec3,
     /// The blade entered along an existing incision: no capsule to rupture.
     pub in_existing_cut: bool,
@@ -224,10 +225,11 @@ impl CuttingForceModel {
         } else {
             0.0
         };
-        let direction = contact
-            .direction
-            .try_normalize(1e-12)
-            .unwrap_or_else(Vec3::zeros);
+        let direction = if contact.direction.iter().all(|c| c.is_finite()) {
+            contact.direction / contact.direction.norm().max(1.0)
+        } else {
+            Vec3::zeros()
+        };
         let mut ruptured = false;
         if !contact.in_tissue {
             self.phase = CutPhase::Free;
@@ -241,11 +243,10 @@ impl CuttingForceModel {
                     self.phase = CutPhase::Loading;
                     self.loading_m = 0.0;
                     self.stored_j = 0.0;
-                    self.press_direction = if direction != Vec3::zeros() {
-                        direction
-                    } else {
-                        motion.try_normalize(1e-12).unwrap_or_else(Vec3::zeros)
-                    };
+                    self.press_direction = direction
+                        .try_normalize(1e-12)
+                        .or_else(|| motion.try_normalize(1e-12))
+                        .unwrap_or_else(Vec3::zeros);
                 }
             }
             match self.phase {

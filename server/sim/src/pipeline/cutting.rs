@@ -353,15 +353,30 @@ impl CuttingStage {
             }
             _ => false,
         };
-        // Moving mostly toward its own back, the blade slides out of its cut.
-        let withdrawing = blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
+        // Moving mostly toward its own back, the blade slides out of its cut. Moving back
+        // along its cut — the way ahead, in rest space, is already on Σ — it opens nothing
+        // new either: friction only, no fracture. (Forward, the way ahead is uncut tissue:
+        // Σ ends at most a sweep step behind the tip, and the probe is two tolerances
+        // ahead; crossing an older cut, the fracture term eases off while the blade is in it.)
+        let retracing = phase_before == CutPhase::Cutting
+            && edge_rest.is_some_and(|[tip, _]| {
+                let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
+                self.near_sigma(&(tip + self.direction * (2.0 * tol)))
+            });
+        let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
+        // The force acts against the averaged motion; shortened while it turns round, so
+        // that on a reversal the resistance passes through zero over about half a
+        // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
+        // at least 0.71 of the length: no dip).
+        let heading = self.recent_motion / (0.5 * DIRECTION_TRAVEL_M);
+        let heading = heading / heading.norm().max(1.0);
         let force = self.force.update(
             now_s,
             &BladeContact {
                 in_tissue,
                 depth_m,
                 motion_m: motion,
-                direction: self.direction,
+                direction: heading,
                 in_existing_cut,
                 withdrawing,
             },
