@@ -380,7 +380,8 @@ mod tests {
         };
         assert_eq!(run(true), 0);
         // Forgetting the stored energy too would have damped the release.
-        assert!(run(false) > 100, "{}", run(false));
+        let unheld = run(false);
+        assert!(unheld > 100, "{unheld}");
     }
 
     #[test]

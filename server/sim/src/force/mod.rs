@@ -82,8 +82,9 @@ pub struct CutForce {
     pub magnitude_n: f64,
     /// Force on the tool (N): `−direction · magnitude_n`.
     pub force_n: Vec3,
-    /// Unit direction the resistance acts against: the direction the blade pressed in
-    /// while loading, its motion while cutting (zero when free).
+    /// Direction the resistance acts against: the (unit) direction the blade pressed in
+    /// while loading; while cutting its averaged motion, at most unit length and shorter
+    /// while it turns round; zero when free.
     pub direction: Vec3,
     /// Stiffness of the resistance along `direction` (N/m): dF/dx, for the haptic loop's
     /// local model.
