@@ -62,17 +62,24 @@ struct Trace {
     work_out_j: f64,
     /// Ticks in the cutting regime.
     cutting_ticks: usize,
-    /// The tool force of every tick (N).
-    forces: Forces,
+    /// The regime on the script's last tick, with the tool still there.
+    phase_at_end: Option<CutPhase>,
+    /// Every tick's tool force and size of Σ.
+    ticks: PerTick,
 }
 
-/// Per-tick forces, shown in a trace by their count only.
+/// Per-tick records, shown in a trace by their count only.
 #[derive(Default)]
-struct Forces(Vec<Vec3>);
+struct PerTick {
+    /// Tool force (N).
+    force: Vec<Vec3>,
+    /// Triangles of the swept surface Σ.
+    sigma: Vec<usize>,
+}
 
-impl std::fmt::Debug for Forces {
+impl std::fmt::Debug for PerTick {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} ticks", self.0.len())
+        write!(f, "{} ticks", self.force.len())
     }
 }
 
@@ -148,7 +155,14 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             );
         }
         last = f;
-        trace.forces.0.push(f);
+        trace.ticks.force.push(f);
+        trace
+            .ticks
+            .sigma
+            .push(sim.cutting().map_or(0, |c| c.sigma.triangles.len()));
+        if k + 1 == ticks {
+            trace.phase_at_end = phase.map(|(p, ..)| p);
+        }
         last_phase = phase;
         trace.peak_n = trace.peak_n.max(f.norm());
         trace.diverged_ticks += usize::from(r.solver.diverged);
@@ -247,12 +261,42 @@ fn a_press_that_backs_out_before_rupture() {
     // and the averaged direction could not turn round).
     assert_eq!((trace.ruptures, trace.cutting_ticks), (0, 0), "{trace:?}");
     assert!(trace.peak_n < spec.rupture_force_n, "{trace:?}");
+    // Out again at the end, and the dent let go.
+    assert_eq!(trace.phase_at_end, Some(CutPhase::Free), "{trace:?}");
+    let body = sim.solver().material_points();
+    assert!(
+        sim.solver().fixed()[..body]
+            .iter()
+            .all(|f| *f == [false; 3])
+    );
     assert!(trace.work_in_j > 5e-4, "{trace:?}");
     // Elastic: what the press put in comes back, and no more.
     assert!(
         trace.work_out_j <= 1.02 * trace.work_in_j && trace.work_out_j >= 0.8 * trace.work_in_j,
         "{trace:?}"
     );
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_pressed_blade_that_slides_slices() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let spec = &scene.spec.force;
+    // 1.5 mm into the capsule (half the rupture displacement), then 10 mm sideways.
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (1.3, [-30.0, 0.0, top - 1.5]),
+        (3.3, [-20.0, 0.0, top - 1.5]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &s, 0, spec);
+    assert_calm(&trace);
+    // It slices: the capsule ruptures within the rupture displacement of sliding, at a
+    // force well under the rupture force, and the blade cuts on.
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert!(trace.peak_n < 0.8 * spec.rupture_force_n, "{trace:?}");
+    assert!(trace.cutting_ticks > 1000, "{trace:?}");
     assert_sound_surface(&sim);
 }
 
@@ -277,18 +321,19 @@ fn a_blade_that_turns_back_along_its_cut() {
     assert_calm(&trace);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // Forward it cuts: fracture and friction (J_c·d ≥ 1.9 N at 10 mm).
-    let forward = trace.forces.0[8500];
+    let forward = trace.ticks.force[8500];
     assert!(forward.x < -2.0, "{forward:?}");
     // Back along its own cut it opens nothing: friction only, against the motion, from
-    // 2 mm after the turn on.
+    // 2.5 mm after the turn on; Σ does not grow.
     let friction = (1.0 + spec.ripple_amplitude) * spec.friction_n;
-    for (k, f) in trace.forces.0[9500..13000].iter().enumerate() {
+    for (k, f) in trace.ticks.force[9500..13000].iter().enumerate() {
         assert!(
             f.x > 0.0 && f.norm() <= friction + 1e-9,
             "tick {}: {f:?}",
             9500 + k
         );
     }
+    assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[13000]);
     // What the tissue did on the hand around the turn (the averaged direction's lag) is a
     // sliver of what the cut took.
     assert!(trace.work_out_j < 0.01 * trace.work_in_j, "{trace:?}");

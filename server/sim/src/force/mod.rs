@@ -7,10 +7,11 @@
 //! * **Loading** (blade pressing on intact capsule): the eq. 19 curve used as a *shape*,
 //!   `F_pre(x) = F_r · f(x · 3.17/x_r) / 42.85`, which peaks at exactly the rupture force F_r
 //!   at the rupture displacement x_r (physics.md §6.2: f peaks at 42.85 at x = 3.17). x is
-//!   the indentation along the direction the blade came in: backing out unloads along the
-//!   same curve (the capsule is elastic until it fails), so a press that stops short of
-//!   rupture gives back what it took and no more.
-//! * **Rupture**: once the blade has pressed x_r, the capsule fails.
+//!   the indentation along the direction the blade moved when it touched: backing out
+//!   unloads along the same curve (the capsule is elastic until it fails), so a press that
+//!   stops short of rupture gives back what it took and no more.
+//! * **Rupture**: once the blade has pressed x_r, or slid x_r across the capsule while
+//!   pressing on it (a slice), the capsule fails.
 //! * **Cutting**: the mean force is the fracture work per unit advance plus friction,
 //!   `F_mean = J_c·d + F_friction(d)` (d = cut depth; friction grows with the rubbing area,
 //!   in proportion to d up to a reference depth), with a decaying ripple in blade travel,
@@ -68,8 +69,9 @@ pub struct BladeContact {
     pub direction: Vec3,
     /// The blade entered along an existing incision: no capsule to rupture.
     pub in_existing_cut: bool,
-    /// The blade is pulling back along its own edge (toward its back): it opens no new
-    /// cut: the fracture term fades out and friction remains.
+    /// The blade opens no new cut — it is pulling back along its own edge (toward its
+    /// back), or moving back along the cut it made: the fracture term fades out and
+    /// friction remains.
     pub withdrawing: bool,
 }
 
@@ -99,14 +101,20 @@ pub struct CutForce {
 
 impl CutForce {
     /// The local linear model for the haptic loop at tool position `x0`: the loop renders
-    /// `f = f0 + K (x − x0)` with `K = −k d dᵀ`, d = `direction` (the resistance grows as
-    /// the tool advances along d, pushing back).
+    /// `f = f0 + K (x − x0)` with `K = −k |d| d̂ d̂ᵀ`, d = `direction` (the resistance
+    /// grows as the tool advances along d, pushing back; scaled by |d| like the force).
     pub fn local_model(&self, x0: Vec3) -> LocalForceModel {
         let d = self.direction;
+        let len = d.norm();
+        let k = if len > 1e-12 {
+            self.stiffness_n_per_m / len
+        } else {
+            0.0
+        };
         LocalForceModel {
             f0_n: self.force_n,
             x0_m: x0,
-            stiffness_n_per_m: -(d * d.transpose()) * self.stiffness_n_per_m,
+            stiffness_n_per_m: -(d * d.transpose()) * k,
             stored_energy_j: self.stored_energy_j,
         }
     }
@@ -142,8 +150,11 @@ pub struct CuttingForceModel {
     phase: CutPhase,
     /// Indentation of the intact capsule along `press_direction` while loading (m), ≥ 0.
     loading_m: f64,
-    /// Unit direction the blade came in along when it touched the capsule.
+    /// Unit direction the blade presses in along: the way it moved when it touched the
+    /// capsule.
     press_direction: Vec3,
+    /// Travel across the capsule while pressing on it (m): a slice ruptures it too.
+    slide_m: f64,
     /// The loading curve's work over the indentation (J): what backing out gives back.
     stored_j: f64,
     /// Time of the last rupture (s).
@@ -172,6 +183,7 @@ impl CuttingForceModel {
             phase: CutPhase::Free,
             loading_m: 0.0,
             press_direction: Vec3::zeros(),
+            slide_m: 0.0,
             stored_j: 0.0,
             rupture_s: 0.0,
             travel_m: 0.0,
@@ -182,6 +194,10 @@ impl CuttingForceModel {
 
     /// Scales the tissue's stiffness (an instructor's fault); 1 is the scene's.
     pub fn set_stiffness_factor(&mut self, factor: f64) {
+        // The loading curve scales with it, and so does what a press holds.
+        if self.stiffness > 0.0 && factor.is_finite() {
+            self.stored_j *= factor / self.stiffness;
+        }
         self.stiffness = factor;
     }
 
@@ -190,7 +206,7 @@ impl CuttingForceModel {
         self.phase
     }
 
-    /// The loading curve F_pre at blade travel `x` (m) and its slope (N/m).
+    /// The loading curve F_pre at indentation `x` (m) and its slope (N/m).
     pub fn loading_force(&self, x: f64) -> (f64, f64) {
         let scale = EQ19_PEAK_X / (self.spec.rupture_displacement_m * 1e3);
         let (f, df) = eq19(x.max(0.0) * 1e3 * scale);
@@ -235,6 +251,7 @@ impl CuttingForceModel {
         if !contact.in_tissue {
             self.phase = CutPhase::Free;
             self.loading_m = 0.0;
+            self.slide_m = 0.0;
             self.stored_j = 0.0;
         } else {
             if self.phase == CutPhase::Free {
@@ -243,31 +260,39 @@ impl CuttingForceModel {
                 } else {
                     self.phase = CutPhase::Loading;
                     self.loading_m = 0.0;
+                    self.slide_m = 0.0;
                     self.stored_j = 0.0;
-                    self.press_direction = direction
+                    // The way it moved on the tick it touched (it came in then, whatever it
+                    // did before: the averaged direction may still say otherwise after a
+                    // tremor); a blade that appeared in the tissue presses the way it first
+                    // moves (below).
+                    self.press_direction = motion
                         .try_normalize(1e-12)
-                        .or_else(|| motion.try_normalize(1e-12))
+                        .or_else(|| direction.try_normalize(1e-12))
                         .unwrap_or_else(Vec3::zeros);
                 }
             }
             match self.phase {
                 CutPhase::Loading => {
-                    // A blade that appeared in the tissue (no motion to come in along)
-                    // presses the way it first moves.
                     if self.press_direction == Vec3::zeros() {
                         self.press_direction =
                             motion.try_normalize(1e-12).unwrap_or_else(Vec3::zeros);
                     }
                     // Pressing in loads the capsule, backing out unloads it along the same
-                    // curve; sliding across it does neither.
+                    // curve; sliding across it while pressing slices it.
                     let before = self.loading_m;
-                    self.loading_m = (before + motion.dot(&self.press_direction)).max(0.0);
+                    let inward = motion.dot(&self.press_direction);
+                    if before > 0.0 {
+                        self.slide_m += (motion - self.press_direction * inward).norm();
+                    }
+                    self.loading_m = (before + inward).max(0.0);
                     let (f_before, _) = self.loading_force(before);
                     let (f_after, _) = self.loading_force(self.loading_m);
                     self.stored_j = (self.stored_j
                         + 0.5 * (f_before + f_after) * (self.loading_m - before))
                         .max(0.0);
-                    if self.loading_m >= self.spec.rupture_displacement_m {
+                    let x_r = self.spec.rupture_displacement_m;
+                    if self.loading_m >= x_r || self.slide_m >= x_r {
                         self.start_cutting(now_s);
                         ruptured = true;
                     }
@@ -283,9 +308,9 @@ impl CuttingForceModel {
         }
         let (magnitude, stiffness) = match self.phase {
             CutPhase::Free => (0.0, 0.0),
-            // Backed out to where it touched, the blade rests on the capsule without
-            // pressing (eq. 19's offset f(0) applies from the first touch on).
-            CutPhase::Loading if self.loading_m > 0.0 => self.loading_force(self.loading_m),
+            // Backed out to where it touched (to rounding), the blade rests on the capsule
+            // without pressing (eq. 19's offset f(0) applies from the first touch on).
+            CutPhase::Loading if self.loading_m > 1e-12 => self.loading_force(self.loading_m),
             CutPhase::Loading => (0.0, 0.0),
             CutPhase::Cutting => {
                 let mean = self.mean_cutting_force(depth);
@@ -326,6 +351,7 @@ impl CuttingForceModel {
     fn start_cutting(&mut self, now_s: f64) {
         self.phase = CutPhase::Cutting;
         self.loading_m = 0.0;
+        self.slide_m = 0.0;
         self.stored_j = 0.0;
         self.rupture_s = now_s;
         self.travel_m = 0.0;

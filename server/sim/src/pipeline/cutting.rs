@@ -83,7 +83,8 @@ pub struct CutTick {
     pub pairs_removed: usize,
     /// Points whose MLS rows were recomputed this tick.
     pub points_changed: usize,
-    /// The blade is pulling back along its edge (friction only, no new cut).
+    /// The blade opens no new cut (friction only): it is pulling back along its edge, or
+    /// moving back along the cut it made.
     pub withdrawing: bool,
 }
 
@@ -279,7 +280,10 @@ impl CuttingStage {
             }
             self.last_tip = Some(b.tip);
         } else {
+            // A tool that comes back starts with no motion history.
             self.last_tip = None;
+            self.recent_motion = Vec3::zeros();
+            self.direction = Vec3::zeros();
         }
         // The edge in rest space. The entry maps through the displacement field; the tip
         // hangs below it along the current edge (the tissue around a cut is not dragged by
@@ -354,14 +358,15 @@ impl CuttingStage {
             _ => false,
         };
         // Moving mostly toward its own back, the blade slides out of its cut. Moving back
-        // along its cut — the way ahead, in rest space, is already on Σ — it opens nothing
-        // new either: friction only, no fracture. (Forward, the way ahead is uncut tissue:
-        // Σ ends at most a sweep step behind the tip, and the probe is two tolerances
-        // ahead; crossing an older cut, the fracture term eases off while the blade is in it.)
+        // along its cut — the way ahead, in rest space, is already on a part of Σ that runs
+        // along the motion — it opens nothing new either: friction only, no fracture.
+        // (Forward, the way ahead is uncut tissue: Σ ends at most a sweep step behind the
+        // tip, and the probe is two tolerances ahead. An older cut the blade crosses faces
+        // the motion and does not count: the blade still cuts on both sides of it.)
         let retracing = phase_before == CutPhase::Cutting
             && edge_rest.is_some_and(|[tip, _]| {
                 let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
-                self.near_sigma(&(tip + self.direction * (2.0 * tol)))
+                self.on_sigma_along(&(tip + self.direction * (2.0 * tol)), &self.direction)
             });
         let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
         // The force acts against the averaged motion; shortened while it turns round, so
@@ -385,14 +390,19 @@ impl CuttingStage {
         // Σ grows while cutting.
         let sigma_before = self.sigma.triangles.len();
         match (force.phase, edge_rest) {
-            // Pulling out opens nothing new; the sweep resumes from where it stopped.
-            (CutPhase::Cutting, Some(_)) if withdrawing => {}
             (CutPhase::Cutting, Some([tip, entry])) => {
                 // Σ reaches a quarter spacing above the surface, so that no pair or surface
                 // vertex near the top sees across it through rounding.
                 let up = (entry - tip).try_normalize(1e-12).unwrap_or_else(Vec3::z);
                 let edge = [tip, entry + up * (0.25 * self.spacing_m)];
                 match self.last_sweep {
+                    // Moving back along its cut the blade is on Σ: the sweep goes on from
+                    // here when it cuts again (from where it was, one straight quad would
+                    // cut the chord of a curved cut).
+                    _ if retracing => self.last_sweep = Some(edge),
+                    // Pulling out opens nothing new; the sweep resumes from where it
+                    // stopped.
+                    _ if withdrawing => {}
                     None => self.last_sweep = Some(edge),
                     Some(last) => {
                         if self.moved_enough(&last, &edge) {
@@ -601,13 +611,27 @@ impl CuttingStage {
 
     /// Whether `x` (rest) lies on Σ, within the blade's thickness and a quarter spacing.
     fn near_sigma(&self, x: &Vec3) -> bool {
-        let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
+        self.sigma
+            .triangles
+            .iter()
+            .any(|tri| self.near_triangle(x, tri))
+    }
+
+    /// Whether `x` (rest) lies on a part of Σ that runs along `direction` (its normal at
+    /// more than 60° from it): a cut the blade could be moving along, not one it crosses.
+    fn on_sigma_along(&self, x: &Vec3, direction: &Vec3) -> bool {
         self.sigma.triangles.iter().any(|tri| {
-            let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
-            let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
-            (0..3).all(|a| x[a] >= lo[a] - tol && x[a] <= hi[a] + tol)
-                && (closest_point_on_triangle(x, tri) - x).norm() <= tol
+            let n = (tri[1] - tri[0]).cross(&(tri[2] - tri[0]));
+            n.dot(direction).abs() < 0.5 * n.norm() * direction.norm() && self.near_triangle(x, tri)
         })
+    }
+
+    fn near_triangle(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
+        let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
+        let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
+        let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
+        (0..3).all(|a| x[a] >= lo[a] - tol && x[a] <= hi[a] + tol)
+            && (closest_point_on_triangle(x, tri) - x).norm() <= tol
     }
 
     /// Integrates point `i` from the next tick on (it falls asleep again once at rest and
@@ -751,7 +775,12 @@ impl CuttingStage {
                 self.release_start_s = None;
             }
             (true, Some(start), Some(b), _) if self.release_start_s.is_none() => {
-                self.press_travel = b.tip - start;
+                // The dent goes in with the blade and back up with it, never out past
+                // where the blade touched; sideways it follows (a slide ruptures the
+                // capsule within the rupture displacement).
+                let travel = b.tip - start;
+                let into = travel.dot(&force.direction);
+                self.press_travel = travel + force.direction * (into.max(0.0) - into);
                 self.hold_dent(1.0, solver);
             }
             (_, Some(_), _, _) => {
@@ -781,7 +810,8 @@ impl CuttingStage {
         }
     }
 
-    /// Unit direction of the blade's latest motion (zero before it has moved).
+    /// Unit direction of the blade's recent motion, averaged over about half a millimetre
+    /// of travel (zero before it has moved, and again after the tool is gone).
     pub fn direction(&self) -> Vec3 {
         self.direction
     }
