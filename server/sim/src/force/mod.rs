@@ -153,8 +153,10 @@ pub struct CuttingForceModel {
     /// Unit direction the blade presses in along: the way it moved when it touched the
     /// capsule.
     press_direction: Vec3,
-    /// Travel across the capsule while pressing on it (m): a slice ruptures it too.
-    slide_m: f64,
+    /// How far the blade has moved across the capsule while pressing on it (m): a slice
+    /// ruptures it too. Summed as a vector, so that a hand's tremor cancels out and only a
+    /// real slide adds up.
+    slide_m: Vec3,
     /// The loading curve's work over the indentation (J): what backing out gives back.
     stored_j: f64,
     /// Time of the last rupture (s).
@@ -183,7 +185,7 @@ impl CuttingForceModel {
             phase: CutPhase::Free,
             loading_m: 0.0,
             press_direction: Vec3::zeros(),
-            slide_m: 0.0,
+            slide_m: Vec3::zeros(),
             stored_j: 0.0,
             rupture_s: 0.0,
             travel_m: 0.0,
@@ -251,7 +253,7 @@ impl CuttingForceModel {
         if !contact.in_tissue {
             self.phase = CutPhase::Free;
             self.loading_m = 0.0;
-            self.slide_m = 0.0;
+            self.slide_m = Vec3::zeros();
             self.stored_j = 0.0;
         } else {
             if self.phase == CutPhase::Free {
@@ -260,7 +262,7 @@ impl CuttingForceModel {
                 } else {
                     self.phase = CutPhase::Loading;
                     self.loading_m = 0.0;
-                    self.slide_m = 0.0;
+                    self.slide_m = Vec3::zeros();
                     self.stored_j = 0.0;
                     // The way it moved on the tick it touched (it came in then, whatever it
                     // did before: the averaged direction may still say otherwise after a
@@ -283,7 +285,7 @@ impl CuttingForceModel {
                     let before = self.loading_m;
                     let inward = motion.dot(&self.press_direction);
                     if before > 0.0 {
-                        self.slide_m += (motion - self.press_direction * inward).norm();
+                        self.slide_m += motion - self.press_direction * inward;
                     }
                     self.loading_m = (before + inward).max(0.0);
                     let (f_before, _) = self.loading_force(before);
@@ -292,7 +294,7 @@ impl CuttingForceModel {
                         + 0.5 * (f_before + f_after) * (self.loading_m - before))
                         .max(0.0);
                     let x_r = self.spec.rupture_displacement_m;
-                    if self.loading_m >= x_r || self.slide_m >= x_r {
+                    if self.loading_m >= x_r || self.slide_m.norm() >= x_r {
                         self.start_cutting(now_s);
                         ruptured = true;
                     }
@@ -351,7 +353,7 @@ impl CuttingForceModel {
     fn start_cutting(&mut self, now_s: f64) {
         self.phase = CutPhase::Cutting;
         self.loading_m = 0.0;
-        self.slide_m = 0.0;
+        self.slide_m = Vec3::zeros();
         self.stored_j = 0.0;
         self.rupture_s = now_s;
         self.travel_m = 0.0;
@@ -475,6 +477,38 @@ mod tests {
         // (Up to the rectangle rule's one step of force: ≈ F·step over the whole cycle.)
         assert!(work.abs() < 1e-2 * put_in, "net work {work} of {put_in}");
         assert!(m.update(t + 1e-3, &contact(0.0, 0.0)).stored_energy_j < 1e-12);
+    }
+
+    #[test]
+    fn a_trembling_hand_holding_a_press_does_not_rupture_the_capsule() {
+        let spec = ForceSpec::default();
+        let mut m = CuttingForceModel::new(&spec, true);
+        let step = 5e-6;
+        let mut t = 0.0;
+        for _ in 0..300 {
+            t += 1e-3;
+            m.update(t, &contact(step, 0.0));
+        }
+        // 5 s of a device's noise around the held pose: ±30 µm a tick in every axis,
+        // tens of millimetres of path in all, a few micrometres of net displacement.
+        let mut at = Vec3::zeros();
+        for k in 0..5000 {
+            t += 1e-3;
+            let x = k as f64;
+            let target = Vec3::new((1.7 * x).sin(), (2.3 * x).sin(), (3.1 * x).cos()) * 15e-6;
+            let f = m.update(
+                t,
+                &BladeContact {
+                    motion_m: target - at,
+                    ..contact(0.0, 0.0)
+                },
+            );
+            at = target;
+            assert_eq!(f.phase, CutPhase::Loading, "tick {k}");
+            // The force follows the indentation: within the noise of the held one.
+            let held = m.loading_force(300.0 * step).0;
+            assert!((f.magnitude_n - held).abs() < 0.05 * held, "{k}: {f:?}");
+        }
     }
 
     #[test]
