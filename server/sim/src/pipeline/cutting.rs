@@ -365,8 +365,8 @@ impl CuttingStage {
         // the motion and does not count: the blade still cuts on both sides of it.)
         let retracing = phase_before == CutPhase::Cutting
             && edge_rest.is_some_and(|[tip, _]| {
-                let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
-                self.on_sigma_along(&(tip + self.direction * (2.0 * tol)), &self.direction)
+                let probe = tip + self.direction * (2.0 * self.sigma_tolerance());
+                self.on_sigma_along(&probe, &self.direction)
             });
         let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
         // The force acts against the averaged motion; shortened while it turns round, so
@@ -620,18 +620,36 @@ impl CuttingStage {
     /// Whether `x` (rest) lies on a part of Σ that runs along `direction` (its normal at
     /// more than 60° from it): a cut the blade could be moving along, not one it crosses.
     fn on_sigma_along(&self, x: &Vec3, direction: &Vec3) -> bool {
+        // Runs every cutting tick: the box test first, then the normal, then the distance.
         self.sigma.triangles.iter().any(|tri| {
-            let n = (tri[1] - tri[0]).cross(&(tri[2] - tri[0]));
-            n.dot(direction).abs() < 0.5 * n.norm() * direction.norm() && self.near_triangle(x, tri)
+            self.in_box(x, tri)
+                && {
+                    let n = (tri[1] - tri[0]).cross(&(tri[2] - tri[0]));
+                    n.dot(direction).abs() < 0.5 * n.norm() * direction.norm()
+                }
+                && self.within_tolerance(x, tri)
         })
     }
 
     fn near_triangle(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
-        let tol = self.tool.blade_thickness_m + 0.25 * self.spacing_m;
+        self.in_box(x, tri) && self.within_tolerance(x, tri)
+    }
+
+    /// Contact tolerance: the blade's thickness and a quarter spacing.
+    fn sigma_tolerance(&self) -> f64 {
+        self.tool.blade_thickness_m + 0.25 * self.spacing_m
+    }
+
+    /// `x` is within the tolerance of the triangle's bounding box.
+    fn in_box(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
+        let tol = self.sigma_tolerance();
         let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
         let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
         (0..3).all(|a| x[a] >= lo[a] - tol && x[a] <= hi[a] + tol)
-            && (closest_point_on_triangle(x, tri) - x).norm() <= tol
+    }
+
+    fn within_tolerance(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
+        (closest_point_on_triangle(x, tri) - x).norm() <= self.sigma_tolerance()
     }
 
     /// Integrates point `i` from the next tick on (it falls asleep again once at rest and
