@@ -1,8 +1,9 @@
 //! Stability in cutting (issue 4, item 10): blades that start or stop inside, leave and
-//! re-enter, cross an earlier cut, cut through a thin part, and cuts that leave slivers and
-//! isolated points, and a press that backs out before rupture. In every case: nothing non-finite, the tool force bounded and without
-//! jumps outside rupture, no divergence, and the drawn surface still closed, manifold and
-//! consistently oriented.
+//! re-enter, cross an earlier cut, cut through a thin part, cuts that leave slivers and
+//! isolated points, a press that backs out before rupture, a pressed blade that slides, and
+//! a blade that turns back along its cut. In every case: nothing non-finite, the tool force
+//! bounded and without jumps outside rupture, no divergence, and the drawn surface still
+//! closed, manifold and consistently oriented.
 
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::force::CutPhase;
@@ -202,6 +203,17 @@ fn assert_calm(trace: &Trace) {
     assert!(trace.max_step_n <= MAX_FORCE_STEP_N, "{trace:?}");
 }
 
+/// No body point is held by the blade's dent any more. (Virtual points, after the body's
+/// points, are kinematic: fixed by design.)
+fn assert_dent_released(sim: &Simulation) {
+    let body = sim.solver().material_points();
+    assert!(
+        sim.solver().fixed()[..body]
+            .iter()
+            .all(|f| *f == [false; 3])
+    );
+}
+
 /// Top of the organ at (x, y) in mm.
 fn top_mm(scene: &BuiltScene, x: f64, y: f64) -> f64 {
     scalpel_sim::pipeline::vertical_extent(&scene.model.surface, x * 1e-3, y * 1e-3)
@@ -229,13 +241,7 @@ fn blade_that_starts_and_stops_inside() {
     // With the blade gone the force is gone and the dent released.
     let r = sim.tick(TICK_S, &mut Unobserved);
     assert_eq!(r.tool_force_n, Vec3::zeros());
-    // (Virtual points, after the body's points, are kinematic: fixed by design.)
-    let body = sim.solver().material_points();
-    assert!(
-        sim.solver().fixed()[..body]
-            .iter()
-            .all(|f| *f == [false; 3])
-    );
+    assert_dent_released(&sim);
     assert_sound_surface(&sim);
 }
 
@@ -263,12 +269,7 @@ fn a_press_that_backs_out_before_rupture() {
     assert!(trace.peak_n < spec.rupture_force_n, "{trace:?}");
     // Out again at the end, and the dent let go.
     assert_eq!(trace.phase_at_end, Some(CutPhase::Free), "{trace:?}");
-    let body = sim.solver().material_points();
-    assert!(
-        sim.solver().fixed()[..body]
-            .iter()
-            .all(|f| *f == [false; 3])
-    );
+    assert_dent_released(&sim);
     assert!(trace.work_in_j > 5e-4, "{trace:?}");
     // Elastic: what the press put in comes back, and no more.
     assert!(
