@@ -1,7 +1,8 @@
 //! Stability in cutting (issue 4, item 10): blades that start or stop inside, leave and
 //! re-enter, cross an earlier cut, cut through a thin part, cuts that leave slivers and
-//! isolated points, a press that backs out before rupture, a pressed blade that slides, and
-//! a blade that turns back along its cut. In every case: nothing non-finite, the tool force
+//! isolated points, a press that backs out before rupture, a pressed blade that slides,
+//! a blade that turns back along its cut, and a blade held still in its cut by a device
+//! that reads a little off every tick. In every case: nothing non-finite, the tool force
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
 
@@ -325,19 +326,21 @@ fn a_blade_that_turns_back_along_its_cut() {
     let forward = trace.ticks.force[8500];
     assert!(forward.x < -2.0, "{forward:?}");
     // Back along its own cut it opens nothing: friction only, against the motion, from
-    // 2.5 mm after the turn on; Σ does not grow.
+    // 3 mm after the turn on; Σ does not grow.
     let friction = (1.0 + spec.ripple_amplitude) * spec.friction_n;
-    for (k, f) in trace.ticks.force[9500..13000].iter().enumerate() {
+    for (k, f) in trace.ticks.force[9600..13000].iter().enumerate() {
         assert!(
             f.x > 0.0 && f.norm() <= friction + 1e-9,
             "tick {}: {f:?}",
-            9500 + k
+            9600 + k
         );
     }
     assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[13000]);
-    // What the tissue did on the hand around the turn (the averaged direction's lag) is a
-    // sliver of what the cut took.
-    assert!(trace.work_out_j < 0.01 * trace.work_in_j, "{trace:?}");
+    // What the tissue did on the hand around the turn is a sliver of what the cut took:
+    // the averaged direction's lag, and the motion deadband's (the heading holds until
+    // the tip is a deadband behind where it last moved to: 2 × 0.1 mm of the way back
+    // at the full cutting force, ≈ 0.5 mJ).
+    assert!(trace.work_out_j < 0.015 * trace.work_in_j, "{trace:?}");
     assert_sound_surface(&sim);
 }
 
@@ -453,5 +456,70 @@ fn slivers_and_isolated_points() {
         ranks.planar + ranks.orphan > 0,
         "the cuts should have left degenerate neighbourhoods: {ranks:?}"
     );
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_blade_held_still_in_its_cut_by_a_noisy_hand() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let spec = &scene.spec.force;
+    let z = top - 10.0;
+    // Down 10 mm, 20 mm forward, held for 2 s, 5 mm on — through a device that reads
+    // ±0.05 mm off in every axis on every tick (a Touch: ±1 encoder count), from 2.5 s
+    // on: the capsule has ruptured by then (before, the press feels the noise as what it
+    // is, displacement against the capsule's stiffness — up to 4 N/mm near rupture).
+    let path = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (3.0, [-30.0, 0.0, z]),
+        (7.0, [-10.0, 0.0, z]),
+        (9.0, [-10.0, 0.0, z]),
+        (10.0, [-5.0, 0.0, z]),
+    ]);
+    let noise_mm = 0.05;
+    let frames: Vec<_> = (0..=10_000)
+        .map(|k| {
+            let x = f64::from(k);
+            let n = Vec3::new((1.7 * x).sin(), (2.3 * x).sin(), (3.1 * x).cos()) * noise_mm;
+            let t = x * TICK_S;
+            let p = path.pose_at(t).tip_m * 1e3 + if k < 2500 { Vec3::zeros() } else { n };
+            (t, [p.x, p.y, p.z])
+        })
+        .collect();
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &script(&frames), 0, spec);
+    assert_calm(&trace);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    // Held, it still resists with the cutting force it had, in the direction it had:
+    // the noise is not read as motion. (Read tick by tick it was: the resistance turned
+    // round every tick in steps of up to 1.7 N, and the crack's fracture term faded to
+    // nothing, even while cutting on.)
+    let held = trace.ticks.force[6999];
+    assert!(held.x < -2.0, "{held:?}");
+    let hold = &trace.ticks.force[7000..9000];
+    for (k, f) in hold.iter().enumerate() {
+        assert!(
+            (f - held).norm() < 0.04 * held.norm(),
+            "tick {}: {f:?}",
+            7000 + k
+        );
+    }
+    // Once stopped (the first ticks still carry the sideways wobble of the moving blade),
+    // it does not buzz.
+    for (k, w) in hold[50..].windows(2).enumerate() {
+        assert!((w[1] - w[0]).norm() < 0.05, "tick {}: {w:?}", 7051 + k);
+    }
+    // Cutting on with the noise, the resistance keeps its heading to a few degrees.
+    for (k, f) in trace.ticks.force[4000..7000].iter().enumerate() {
+        assert!(
+            f.x < -1.5 && f.y.hypot(f.z) < 0.15,
+            "tick {}: {f:?}",
+            4000 + k
+        );
+    }
+    assert_eq!(trace.ticks.sigma[7000], trace.ticks.sigma[9000]);
+    // And it cuts on.
+    assert!(trace.ticks.sigma[9999] > trace.ticks.sigma[9000]);
+    assert!(trace.ticks.force[9800].x < -2.0);
     assert_sound_surface(&sim);
 }

@@ -61,8 +61,13 @@ pub struct BladeContact {
     pub in_tissue: bool,
     /// Depth of the cutting edge below the surface at entry (m).
     pub depth_m: f64,
-    /// The tip's displacement since the last update (m).
+    /// The tip's displacement since the last update (m): what loads and unloads the
+    /// capsule (elastic, so every move counts, noise included — it cancels out).
     pub motion_m: Vec3,
+    /// The same with the device's position noise taken out (m): zero until the tip has
+    /// moved the scene's `motion_deadband` from where it last moved to, then its motion.
+    /// What advances the crack and its ripple and sets the press direction.
+    pub steady_motion_m: Vec3,
     /// Cutting direction: the blade's recent motion, averaged over a short travel, at most
     /// unit length — shorter while the motion turns round, so that the resistance against
     /// it passes through zero on a reversal instead of flipping in one tick.
@@ -153,6 +158,9 @@ pub struct CuttingForceModel {
     /// Unit direction the blade presses in along: the way it moved when it touched the
     /// capsule.
     press_direction: Vec3,
+    /// The tip's displacement since it touched, while the press direction is not known
+    /// yet (it touched without a steady motion): counted once the direction is.
+    unaimed_m: Vec3,
     /// How far the blade has moved across the capsule while pressing on it (m): a slice
     /// ruptures it too. Summed as a vector, so that a hand's tremor cancels out and only a
     /// real slide adds up.
@@ -185,6 +193,7 @@ impl CuttingForceModel {
             phase: CutPhase::Free,
             loading_m: 0.0,
             press_direction: Vec3::zeros(),
+            unaimed_m: Vec3::zeros(),
             slide_m: Vec3::zeros(),
             stored_j: 0.0,
             rupture_s: 0.0,
@@ -233,12 +242,16 @@ impl CuttingForceModel {
 
     /// Advances the model to time `now_s` with this update's blade contact.
     pub fn update(&mut self, now_s: f64, contact: &BladeContact) -> CutForce {
-        let motion = if contact.motion_m.iter().all(|c| c.is_finite()) {
-            contact.motion_m
-        } else {
-            Vec3::zeros()
+        let finite = |v: Vec3| {
+            if v.iter().all(|c| c.is_finite()) {
+                v
+            } else {
+                Vec3::zeros()
+            }
         };
-        let advance = motion.norm();
+        let motion = finite(contact.motion_m);
+        let steady = finite(contact.steady_motion_m);
+        let advance = steady.norm();
         let depth = if contact.depth_m.is_finite() {
             contact.depth_m.max(0.0)
         } else {
@@ -264,11 +277,11 @@ impl CuttingForceModel {
                     self.loading_m = 0.0;
                     self.slide_m = Vec3::zeros();
                     self.stored_j = 0.0;
-                    // The way it moved on the tick it touched (it came in then, whatever it
-                    // did before: the averaged direction may still say otherwise after a
-                    // tremor); a blade that appeared in the tissue presses the way it first
-                    // moves (below).
-                    self.press_direction = motion
+                    self.unaimed_m = Vec3::zeros();
+                    // The way it moved on the tick it touched (it came in then), or else
+                    // the way it had been moving (both without the device's noise); a blade
+                    // that appeared in the tissue presses the way it first moves (below).
+                    self.press_direction = steady
                         .try_normalize(1e-12)
                         .or_else(|| direction.try_normalize(1e-12))
                         .unwrap_or_else(Vec3::zeros);
@@ -276,9 +289,15 @@ impl CuttingForceModel {
             }
             match self.phase {
                 CutPhase::Loading => {
+                    let mut motion = motion;
                     if self.press_direction == Vec3::zeros() {
-                        self.press_direction =
-                            motion.try_normalize(1e-12).unwrap_or_else(Vec3::zeros);
+                        // Until it moves steadily, only remember where it went.
+                        self.unaimed_m += motion;
+                        motion = Vec3::zeros();
+                        if let Some(d) = steady.try_normalize(1e-12) {
+                            self.press_direction = d;
+                            motion = std::mem::take(&mut self.unaimed_m);
+                        }
                     }
                     // Pressing in loads the capsule, backing out unloads it along the same
                     // curve; sliding across it while pressing slices it.
@@ -371,6 +390,7 @@ mod tests {
             in_tissue: true,
             depth_m,
             motion_m: Vec3::x() * advance_m,
+            steady_motion_m: Vec3::x() * advance_m,
             direction: Vec3::x(),
             in_existing_cut: false,
             withdrawing: false,

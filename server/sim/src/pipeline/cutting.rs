@@ -151,8 +151,13 @@ pub struct CuttingStage {
     release_start_s: Option<f64>,
     pressed: Vec<Pressed>,
     dent_radius_m: f64,
-    /// The blade's recent displacements, each weighed down by the travel since (m): its
-    /// direction is `direction`.
+    /// Where the tip last moved to as far as cutting is concerned: it follows the tip on a
+    /// leash of `motion_deadband_m`, so that a device's position noise or a tremor held
+    /// still moves it not at all.
+    steady_tip: Option<Vec3>,
+    motion_deadband_m: f64,
+    /// The blade's recent steady displacements, each weighed down by the travel since (m):
+    /// its direction is `direction`.
     recent_motion: Vec3,
     direction: Vec3,
     awake: Vec<bool>,
@@ -207,6 +212,8 @@ impl CuttingStage {
             pressed: Vec::with_capacity(MAX_DENT_POINTS),
             dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
                 .max(kernel.support_m),
+            steady_tip: None,
+            motion_deadband_m: force.motion_deadband_m,
             recent_motion: Vec3::zeros(),
             direction: Vec3::zeros(),
             awake: vec![false; n],
@@ -265,23 +272,36 @@ impl CuttingStage {
         };
         let last_tip = self.last_tip;
         let mut motion = Vec3::zeros();
+        let mut steady = Vec3::zeros();
         if let Some(b) = blade {
             if let Some(last) = self.last_tip {
                 motion = b.tip - last;
-                // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns with
-                // the path, not in one tick at a corner of it. Summing displacements (not
-                // blending unit vectors, which never turn when the blade reverses exactly)
-                // makes it flip after about 0.7 × that travel back.
-                let decay = DIRECTION_TRAVEL_M / (DIRECTION_TRAVEL_M + motion.norm());
-                self.recent_motion = self.recent_motion * decay + motion;
-                if let Some(dir) = self.recent_motion.try_normalize(1e-12) {
-                    self.direction = dir;
-                }
+            }
+            // The leash: a real device's position is never still (encoder counts, the
+            // hand's tremor), and read tick by tick that noise is millimetres of travel a
+            // second in every direction — the resistance would turn round every tick and the
+            // crack would advance while the blade is held.
+            let anchor = self.steady_tip.get_or_insert(b.tip);
+            let pull = b.tip - *anchor;
+            let slack = pull.norm() - self.motion_deadband_m;
+            if slack > 0.0 {
+                steady = pull * (slack / pull.norm());
+                *anchor += steady;
+            }
+            // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns with
+            // the path, not in one tick at a corner of it. Summing displacements (not
+            // blending unit vectors, which never turn when the blade reverses exactly)
+            // makes it flip after about 0.7 × that travel back.
+            let decay = DIRECTION_TRAVEL_M / (DIRECTION_TRAVEL_M + steady.norm());
+            self.recent_motion = self.recent_motion * decay + steady;
+            if let Some(dir) = self.recent_motion.try_normalize(1e-12) {
+                self.direction = dir;
             }
             self.last_tip = Some(b.tip);
         } else {
             // A tool that comes back starts with no motion history.
             self.last_tip = None;
+            self.steady_tip = None;
             self.recent_motion = Vec3::zeros();
             self.direction = Vec3::zeros();
         }
@@ -381,6 +401,7 @@ impl CuttingStage {
                 in_tissue,
                 depth_m,
                 motion_m: motion,
+                steady_motion_m: steady,
                 direction: heading,
                 in_existing_cut,
                 withdrawing,

@@ -123,6 +123,7 @@ struct RawForce {
     ripple_wavelength_mm: Option<f64>,
     ripple_decay_s: Option<f64>,
     crack_transparency: Option<f64>,
+    motion_deadband_mm: Option<f64>,
     max_force_n: Option<f64>,
 }
 
@@ -476,6 +477,13 @@ impl SceneSpec {
                 1.0,
             )?;
             check.set(
+                &mut out.motion_deadband_m,
+                f.motion_deadband_mm,
+                "force.motion_deadband_mm",
+                Limit::closed(0.0, 2.0, "mm"),
+                MM,
+            )?;
+            check.set(
                 &mut out.max_force_n,
                 f.max_force_n,
                 "force.max_force_n",
@@ -749,6 +757,7 @@ mod tests {
             ripple_wavelength_mm,
             ripple_decay_s,
             crack_transparency,
+            motion_deadband_mm,
             max_force_n,
         } = force.expect("[force]");
         for f in [
@@ -761,6 +770,7 @@ mod tests {
             ripple_wavelength_mm,
             ripple_decay_s,
             crack_transparency,
+            motion_deadband_mm,
             max_force_n,
         ] {
             assert!(f.is_some());

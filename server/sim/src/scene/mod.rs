@@ -295,6 +295,12 @@ pub struct ForceSpec {
     /// cut within κh/2 of the blade's edge fades out instead of switching off; 0 is hard
     /// visibility.
     pub crack_transparency: f64,
+    /// How far the tip must move from where it last moved to before the move counts as
+    /// the blade's motion (m): the direction of the resistance, friction, the ripple's
+    /// travel and the press direction follow the tip on a leash this long, so a device's
+    /// position noise (a Geomagic Touch or a Falcon at rest: ±1 encoder count, ≈ 0.06 mm per
+    /// axis) or a hand's tremor held still in a cut is not cutting. 0 reads every move.
+    pub motion_deadband_m: f64,
     /// Largest force ever sent to a device (N).
     pub max_force_n: f64,
 }
@@ -311,6 +317,7 @@ impl Default for ForceSpec {
             ripple_wavelength_m: 0.002,
             ripple_decay_s: 1.0,
             crack_transparency: 1.0,
+            motion_deadband_m: 0.0001,
             // Geomagic Touch peak rating (physics.md §7.5).
             max_force_n: 3.3,
         }
