@@ -337,10 +337,10 @@ fn a_blade_that_turns_back_along_its_cut() {
     }
     assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[13000]);
     // What the tissue did on the hand around the turn is a sliver of what the cut took:
-    // the averaged direction's lag, and the motion deadband's (the heading holds until
-    // the tip is a deadband behind where it last moved to: 2 × 0.1 mm of the way back
-    // at the full cutting force, ≈ 0.5 mJ).
-    assert!(trace.work_out_j < 0.015 * trace.work_in_j, "{trace:?}");
+    // the averaged direction's lag (0.67 mJ), and the steady motion's — the heading holds
+    // until the smoothed tip is a deadband behind where it last moved to, 2 × (0.1 mm +
+    // 10 ms at 5 mm/s) of the way back at the full 2.6 N of cutting, ≈ 0.8 mJ.
+    assert!(trace.work_out_j < 0.02 * trace.work_in_j, "{trace:?}");
     assert_sound_surface(&sim);
 }
 
@@ -461,22 +461,29 @@ fn slivers_and_isolated_points() {
 
 #[test]
 fn a_blade_held_still_in_its_cut_by_a_noisy_hand() {
-    let scene = scene("liver");
-    let top = top_mm(&scene, -30.0, 0.0);
+    // The liver's coarse lattice and the cerebroma's fine one (Σ grows every s/8: 0.2 mm).
+    noisy_hold("liver", [-30.0, -10.0, -5.0], 10.0);
+    noisy_hold("cerebroma", [-15.0, -5.0, -2.5], 5.0);
+}
+
+/// Down `depth_mm`, forward from `x_mm[0]` to `x_mm[1]`, held for 2 s, on to `x_mm[2]` —
+/// through a device that reads up to 0.1 mm off in every axis on every tick (a Touch's
+/// ±1 encoder count and a hand's tremor), from 2.5 s on: the capsule has ruptured by then
+/// (before, the press feels the noise as what it is, displacement against the capsule's
+/// stiffness — up to 4 N/mm near rupture).
+fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
+    let scene = scene(name);
+    let top = top_mm(&scene, x_mm[0], 0.0);
     let spec = &scene.spec.force;
-    let z = top - 10.0;
-    // Down 10 mm, 20 mm forward, held for 2 s, 5 mm on — through a device that reads
-    // ±0.05 mm off in every axis on every tick (a Touch: ±1 encoder count), from 2.5 s
-    // on: the capsule has ruptured by then (before, the press feels the noise as what it
-    // is, displacement against the capsule's stiffness — up to 4 N/mm near rupture).
+    let z = top - depth_mm;
     let path = script(&[
-        (0.0, [-30.0, 0.0, top + 5.0]),
-        (3.0, [-30.0, 0.0, z]),
-        (7.0, [-10.0, 0.0, z]),
-        (9.0, [-10.0, 0.0, z]),
-        (10.0, [-5.0, 0.0, z]),
+        (0.0, [x_mm[0], 0.0, top + 5.0]),
+        (3.0, [x_mm[0], 0.0, z]),
+        (7.0, [x_mm[1], 0.0, z]),
+        (9.0, [x_mm[1], 0.0, z]),
+        (10.0, [x_mm[2], 0.0, z]),
     ]);
-    let noise_mm = 0.05;
+    let noise_mm = 0.1;
     let frames: Vec<_> = (0..=10_000)
         .map(|k| {
             let x = f64::from(k);
@@ -489,37 +496,43 @@ fn a_blade_held_still_in_its_cut_by_a_noisy_hand() {
     let mut sim = Simulation::new(&scene);
     let trace = drive(&mut sim, &script(&frames), 0, spec);
     assert_calm(&trace);
-    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert_eq!(trace.ruptures, 1, "{name}: {trace:?}");
     // Held, it still resists with the cutting force it had, in the direction it had:
-    // the noise is not read as motion. (Read tick by tick it was: the resistance turned
-    // round every tick in steps of up to 1.7 N, and the crack's fracture term faded to
-    // nothing, even while cutting on.)
+    // the noise is not read as motion. (Read tick by tick it was: on the liver at half
+    // this noise the resistance turned round every tick in steps of up to 1.7 N and the
+    // crack's fracture term faded to nothing, even while cutting on; on the cerebroma Σ
+    // grew to and fro around the held blade, 108 → 2796 triangles in 2 s.)
     let held = trace.ticks.force[6999];
-    assert!(held.x < -2.0, "{held:?}");
+    assert!(held.x < -1.0, "{name}: {held:?}");
     let hold = &trace.ticks.force[7000..9000];
     for (k, f) in hold.iter().enumerate() {
         assert!(
             (f - held).norm() < 0.04 * held.norm(),
-            "tick {}: {f:?}",
+            "{name}: tick {}: {f:?} against {held:?}",
             7000 + k
         );
     }
     // Once stopped (the first ticks still carry the sideways wobble of the moving blade),
-    // it does not buzz.
+    // it does not buzz: what is left is the depth reading, which follows the noise up and
+    // down (J_c × 0.2 mm ≈ 0.04 N).
     for (k, w) in hold[50..].windows(2).enumerate() {
-        assert!((w[1] - w[0]).norm() < 0.05, "tick {}: {w:?}", 7051 + k);
+        assert!(
+            (w[1] - w[0]).norm() < 0.08,
+            "{name}: tick {}: {w:?}",
+            7051 + k
+        );
     }
-    // Cutting on with the noise, the resistance keeps its heading to a few degrees.
+    assert_eq!(trace.ticks.sigma[7100], trace.ticks.sigma[9000], "{name}");
+    // Cutting with the noise, the resistance keeps its heading to a few degrees.
     for (k, f) in trace.ticks.force[4000..7000].iter().enumerate() {
         assert!(
-            f.x < -1.5 && f.y.hypot(f.z) < 0.15,
-            "tick {}: {f:?}",
+            f.x < -0.7 * held.norm() && f.y.hypot(f.z) < 0.06 * held.norm(),
+            "{name}: tick {}: {f:?}",
             4000 + k
         );
     }
-    assert_eq!(trace.ticks.sigma[7000], trace.ticks.sigma[9000]);
     // And it cuts on.
-    assert!(trace.ticks.sigma[9999] > trace.ticks.sigma[9000]);
-    assert!(trace.ticks.force[9800].x < -2.0);
+    assert!(trace.ticks.sigma[9999] > trace.ticks.sigma[9000], "{name}");
+    assert!(trace.ticks.force[9800].x < -0.7 * held.norm(), "{name}");
     assert_sound_surface(&sim);
 }

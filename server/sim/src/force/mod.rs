@@ -64,8 +64,8 @@ pub struct BladeContact {
     /// The tip's displacement since the last update (m): what loads and unloads the
     /// capsule (elastic, so every move counts, noise included — it cancels out).
     pub motion_m: Vec3,
-    /// The same with the device's position noise taken out (m): zero until the tip has
-    /// moved the scene's `motion_deadband` from where it last moved to, then its motion.
+    /// The same with the device's position noise taken out (m): the displacement of the
+    /// tip's steady point (`pipeline::steady_motion`), zero while the tip only jitters.
     /// What advances the crack and its ripple and sets the press direction.
     pub steady_motion_m: Vec3,
     /// Cutting direction: the blade's recent motion, averaged over a short travel, at most

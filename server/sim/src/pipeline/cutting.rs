@@ -28,6 +28,7 @@ use crate::model::{Kernel, Neighbourhoods, RestGrid};
 use crate::scene::{ForceSpec, ToolSpec};
 use crate::solver::Solver;
 
+use super::steady_motion::SteadyMotion;
 use super::surface::{CurrentSurface, SurfaceContact};
 
 /// How far outside the surface a cutting blade must be to count as out of the tissue (m),
@@ -151,11 +152,11 @@ pub struct CuttingStage {
     release_start_s: Option<f64>,
     pressed: Vec<Pressed>,
     dent_radius_m: f64,
-    /// Where the tip last moved to as far as cutting is concerned: it follows the tip on a
-    /// leash of `motion_deadband_m`, so that a device's position noise or a tremor held
-    /// still moves it not at all.
-    steady_tip: Option<Vec3>,
-    motion_deadband_m: f64,
+    /// The tip as far as cutting is concerned: a device's noise and a tremor held still
+    /// move it not at all.
+    steady: SteadyMotion,
+    /// Where it was when Σ last grew.
+    last_sweep_at: Option<Vec3>,
     /// The blade's recent steady displacements, each weighed down by the travel since (m):
     /// its direction is `direction`.
     recent_motion: Vec3,
@@ -212,8 +213,8 @@ impl CuttingStage {
             pressed: Vec::with_capacity(MAX_DENT_POINTS),
             dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
                 .max(kernel.support_m),
-            steady_tip: None,
-            motion_deadband_m: force.motion_deadband_m,
+            steady: SteadyMotion::new(force.motion_deadband_m),
+            last_sweep_at: None,
             recent_motion: Vec3::zeros(),
             direction: Vec3::zeros(),
             awake: vec![false; n],
@@ -271,23 +272,18 @@ impl CuttingStage {
             }
         };
         let last_tip = self.last_tip;
+        let dt = self.last_now_s.map_or(0.0, |t| (now_s - t).max(0.0));
+        self.last_now_s = Some(now_s);
         let mut motion = Vec3::zeros();
         let mut steady = Vec3::zeros();
         if let Some(b) = blade {
             if let Some(last) = self.last_tip {
                 motion = b.tip - last;
             }
-            // The leash: a real device's position is never still (encoder counts, the
-            // hand's tremor), and read tick by tick that noise is millimetres of travel a
-            // second in every direction — the resistance would turn round every tick and the
-            // crack would advance while the blade is held.
-            let anchor = self.steady_tip.get_or_insert(b.tip);
-            let pull = b.tip - *anchor;
-            let slack = pull.norm() - self.motion_deadband_m;
-            if slack > 0.0 {
-                steady = pull * (slack / pull.norm());
-                *anchor += steady;
-            }
+            // A real device's position is never still, and read tick by tick its noise is
+            // millimetres of travel a second in every direction: the resistance would turn
+            // round every tick and the crack advance while the blade is held.
+            steady = self.steady.update(b.tip, dt);
             // Averaged over the last DIRECTION_TRAVEL_M of travel: the force turns with
             // the path, not in one tick at a corner of it. Summing displacements (not
             // blending unit vectors, which never turn when the blade reverses exactly)
@@ -301,7 +297,7 @@ impl CuttingStage {
         } else {
             // A tool that comes back starts with no motion history.
             self.last_tip = None;
-            self.steady_tip = None;
+            self.steady.reset();
             self.recent_motion = Vec3::zeros();
             self.direction = Vec3::zeros();
         }
@@ -354,8 +350,6 @@ impl CuttingStage {
         if !in_tissue {
             self.last_entry = None;
         }
-        let dt = self.last_now_s.map_or(0.0, |t| (now_s - t).max(0.0));
-        self.last_now_s = Some(now_s);
         if in_tissue
             && phase_before == CutPhase::Cutting
             && let Some((b, last_tip)) = blade.zip(last_tip)
@@ -416,24 +410,29 @@ impl CuttingStage {
                 // vertex near the top sees across it through rounding.
                 let up = (entry - tip).try_normalize(1e-12).unwrap_or_else(Vec3::z);
                 let edge = [tip, entry + up * (0.25 * self.spacing_m)];
+                let at = self.steady.position();
                 match self.last_sweep {
                     // Moving back along its cut the blade is on Σ: the sweep goes on from
                     // here when it cuts again (from where it was, one straight quad would
                     // cut the chord of a curved cut).
-                    _ if retracing => self.last_sweep = Some(edge),
+                    _ if retracing => (self.last_sweep, self.last_sweep_at) = (Some(edge), at),
                     // Pulling out opens nothing new; the sweep resumes from where it
                     // stopped.
                     _ if withdrawing => {}
-                    None => self.last_sweep = Some(edge),
+                    None => (self.last_sweep, self.last_sweep_at) = (Some(edge), at),
+                    // The edge jitters with the device's noise, and would sweep Σ to and
+                    // fro around a held blade: the blade must also have moved steadily.
                     Some(last) => {
-                        if self.moved_enough(&last, &edge) {
+                        if self.moved_enough(&last, &edge)
+                            && self.moved_steadily_since(self.last_sweep_at)
+                        {
                             self.sigma.add_sweep(last[0], last[1], edge[0], edge[1]);
-                            self.last_sweep = Some(edge);
+                            (self.last_sweep, self.last_sweep_at) = (Some(edge), at);
                         }
                     }
                 }
             }
-            _ => self.last_sweep = None,
+            _ => (self.last_sweep, self.last_sweep_at) = (None, None),
         }
         let new_sigma = sigma_before..self.sigma.triangles.len();
         let mut pairs_removed = 0;
@@ -628,6 +627,15 @@ impl CuttingStage {
     fn moved_enough(&self, last: &[Vec3; 2], edge: &[Vec3; 2]) -> bool {
         let step = SWEEP_FRACTION_OF_SPACING * self.spacing_m;
         (edge[0] - last[0]).norm() >= step || (edge[1] - last[1]).norm() >= step
+    }
+
+    /// Whether the blade's steady point has moved a sweep step since it was at `from`.
+    fn moved_steadily_since(&self, from: Option<Vec3>) -> bool {
+        let step = SWEEP_FRACTION_OF_SPACING * self.spacing_m;
+        match (self.steady.position(), from) {
+            (Some(at), Some(from)) => (at - from).norm() >= step,
+            _ => true,
+        }
     }
 
     /// Whether `x` (rest) lies on Σ, within the blade's thickness and a quarter spacing.

@@ -14,6 +14,7 @@
 pub mod cutting;
 pub mod incision;
 pub mod script;
+pub mod steady_motion;
 pub mod surface;
 pub mod virtual_points;
 

@@ -295,11 +295,12 @@ pub struct ForceSpec {
     /// cut within κh/2 of the blade's edge fades out instead of switching off; 0 is hard
     /// visibility.
     pub crack_transparency: f64,
-    /// How far the tip must move from where it last moved to before the move counts as
-    /// the blade's motion (m): the direction of the resistance, friction, the ripple's
-    /// travel and the press direction follow the tip on a leash this long, so a device's
-    /// position noise (a Geomagic Touch or a Falcon at rest: ±1 encoder count, ≈ 0.06 mm per
-    /// axis) or a hand's tremor held still in a cut is not cutting. 0 reads every move.
+    /// How far the tip (smoothed over 10 ms) must move from where it last moved to before
+    /// the move counts as the blade's motion (m): the direction of the resistance, the
+    /// crack's travel and ripple, the growth of Σ and the press direction follow the tip on
+    /// a leash this long, so a device's position noise (a Geomagic Touch or a Falcon at
+    /// rest: ±1 encoder count, ≈ 0.06 mm per axis) or a hand's tremor held still in a cut
+    /// is not cutting. 0: the smoothed tip itself (`pipeline::steady_motion`).
     pub motion_deadband_m: f64,
     /// Largest force ever sent to a device (N).
     pub max_force_n: f64,
