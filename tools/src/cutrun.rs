@@ -188,6 +188,8 @@ pub struct CutMetrics {
     pub incisions: usize,
     /// Incision runs refused (surface left as it was).
     pub incisions_refused: usize,
+    /// Why the last refused run was refused.
+    pub incision_refusal: Option<String>,
     /// Neighbour pairs the cut removed.
     pub pairs_removed: usize,
     /// Triangles of the cut surface Σ.
@@ -287,6 +289,7 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         steady_depth_mm: steady_depth * 1e3,
         incisions: incisions.incisions,
         incisions_refused: incisions.refused,
+        incision_refusal: incisions.last_refusal.clone(),
         pairs_removed: sim.cutting().map_or(0, |c| c.pairs_removed_total),
         sigma_triangles: sim.cutting().map_or(0, |c| c.sigma.triangles.len()),
         max_active_points: run.rows.iter().map(|r| r.active_points).max().unwrap_or(0),

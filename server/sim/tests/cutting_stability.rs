@@ -1,8 +1,8 @@
 //! Stability in cutting (issue 4, item 10): blades that start or stop inside, leave and
 //! re-enter, cross an earlier cut, cut through a thin part, cuts that leave slivers and
 //! isolated points, a press that backs out before rupture, a pressed blade that slides,
-//! a blade that turns back along its cut, and a blade held still in its cut by a device
-//! that reads a little off every tick. In every case: nothing non-finite, the tool force
+//! a blade that turns back along its cut, a blade held still in its cut by a device that
+//! reads a little off every tick, a second deeper pass along a cut, and sawing to and fro. In every case: nothing non-finite, the tool force
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
 
@@ -534,5 +534,99 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     // And it cuts on.
     assert!(trace.ticks.sigma[9999] > trace.ticks.sigma[9000], "{name}");
     assert!(trace.ticks.force[9800].x < -0.7 * held.norm(), "{name}");
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let spec = &scene.spec.force;
+    // 5 mm deep from x = -30 to 0 mm, out, back over the start, and 10 mm deep along the
+    // same line: a surgeon deepening an incision.
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (2.0, [-30.0, 0.0, top - 5.0]),
+        (8.0, [0.0, 0.0, top - 5.0]),
+        (10.0, [0.0, 0.0, top + 5.0]),
+        (12.0, [-30.0, 0.0, top + 5.0]),
+        (15.0, [-30.0, 0.0, top - 10.0]),
+        (21.0, [0.0, 0.0, top - 10.0]),
+        (24.0, [0.0, 0.0, top + 5.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &s, 0, spec);
+    assert_calm(&trace);
+    // The second pass enters the incision: no capsule to rupture.
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    // Cutting along the first pass, the edge's upper 5 mm runs in the cut already made:
+    // the fracture term is J_c × the 5 mm below it (≈ 1 N with friction), not J_c × 10 mm
+    // (2.2–2.8 N, what the first pass would feel at that depth).
+    let new_depth = 0.005;
+    let expected = spec.toughness_n_per_m * new_depth + spec.friction_n;
+    for k in 16_500..20_500 {
+        let f = trace.ticks.force[k];
+        assert!(
+            f.x < 0.0 && (f.norm() - expected).abs() < 0.25 * expected,
+            "tick {k}: {f:?}, expected about {expected} N"
+        );
+    }
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn sawing_to_and_fro_in_a_cut() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -20.0, 0.0);
+    let spec = &scene.spec.force;
+    let z = top - 10.0;
+    // In at x = -20 mm, forward to -10, back past the start to -30, forward to -15.
+    let s = script(&[
+        (0.0, [-20.0, 0.0, top + 5.0]),
+        (3.0, [-20.0, 0.0, z]),
+        (5.0, [-10.0, 0.0, z]),
+        (9.0, [-30.0, 0.0, z]),
+        (12.0, [-15.0, 0.0, z]),
+        (14.0, [-15.0, 0.0, top + 5.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let trace = drive(&mut sim, &s, 0, spec);
+    assert_calm(&trace);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    let friction = (1.0 + spec.ripple_amplitude) * spec.friction_n;
+    let x_at = |k: usize| s.pose_at(k as f64 * TICK_S).tip_m.x * 1e3;
+    for (k, f) in trace.ticks.force.iter().enumerate() {
+        let x = x_at(k);
+        match k {
+            // Back over the first stroke, from 3 mm after the turn to 1.5 mm before its
+            // start: friction only. (The fracture term used to come back 3 mm before
+            // either end of a cut.)
+            5500..7000 if x < -13.0 && x > -18.5 => {
+                assert!(
+                    f.x > 0.0 && f.norm() <= friction + 1e-9,
+                    "tick {k} at {x}: {f:?}"
+                );
+            }
+            // Past where the cut began: cutting again (J_c·d + friction ≈ 2.2 N, ±15 %).
+            7500..9000 => assert!(f.x > 1.8, "tick {k} at {x}: {f:?}"),
+            // Forward over all of it: friction only, and Σ does not grow.
+            9500..12000 => {
+                assert!(
+                    f.x < 0.0 && f.norm() <= friction + 1e-9,
+                    "tick {k} at {x}: {f:?}"
+                );
+            }
+            _ => {}
+        }
+    }
+    assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[11999]);
+    // One incision along all of it: the path folded back on itself is no path (the
+    // incision used to be refused: "a lip crosses the region boundary").
+    let incisions = sim.incisions().expect("cutting scene");
+    assert_eq!(
+        (incisions.incisions, incisions.refused),
+        (1, 0),
+        "{incisions:?}"
+    );
     assert_sound_surface(&sim);
 }

@@ -78,6 +78,10 @@ pub struct BladeContact {
     /// back), or moving back along the cut it made: the fracture term fades out and
     /// friction remains.
     pub withdrawing: bool,
+    /// Share of the cutting edge that moves into uncut tissue (0–1): the fracture term is
+    /// J_c × that share of the depth (a second pass along a cut opens only what lies below
+    /// the first).
+    pub fresh_share: f64,
 }
 
 /// The force on the tool and its local linear model.
@@ -171,10 +175,10 @@ pub struct CuttingForceModel {
     rupture_s: f64,
     /// Blade travel since the last rupture (m).
     travel_m: f64,
-    /// How much of the fracture term J_c·d the blade carries, 0–1: 1 while it advances its
-    /// crack, fading toward 0 over [`ENGAGEMENT_TRAVEL_M`] of travel once it pulls back
-    /// (and back up when it cuts forward again), so the force eases between the two regimes
-    /// instead of dropping by J_c·d in one tick.
+    /// How much of the fracture term J_c·d the blade carries, 0–1: the share of its edge
+    /// that opens new crack (1 in fresh tissue, 0 pulling back or along its own cut),
+    /// eased toward it over [`ENGAGEMENT_TRAVEL_M`] of travel, so the force moves between
+    /// the regimes instead of jumping by J_c·d in one tick.
     engagement: f64,
     /// Factor on the tissue's stiffness (1: the scene's): scales the loading curve and the
     /// friction (the blade's faces press on stiffer walls), not the fracture toughness.
@@ -320,7 +324,11 @@ impl CuttingForceModel {
                 }
                 CutPhase::Cutting => {
                     self.travel_m += advance;
-                    let target = if contact.withdrawing { 0.0 } else { 1.0 };
+                    let target = match contact.fresh_share {
+                        _ if contact.withdrawing => 0.0,
+                        share if share.is_finite() => share.clamp(0.0, 1.0),
+                        _ => 1.0,
+                    };
                     let blend = advance / (advance + ENGAGEMENT_TRAVEL_M);
                     self.engagement += (target - self.engagement) * blend;
                 }
@@ -394,6 +402,7 @@ mod tests {
             direction: Vec3::x(),
             in_existing_cut: false,
             withdrawing: false,
+            fresh_share: 1.0,
         }
     }
 

@@ -48,6 +48,10 @@ const SWEEP_FRACTION_OF_SPACING: f64 = 0.125;
 const REMARK_AFTER_TICKS: u64 = 32;
 /// The blade's direction of motion is averaged over about this much travel (m).
 const DIRECTION_TRAVEL_M: f64 = 0.0005;
+/// Samples along the edge for the share of it that is in uncut tissue.
+const FRESH_SAMPLES: usize = 16;
+/// Σ triangles near the edge considered at most per tick (scratch capacity); past it, all.
+const MAX_PROBE_CANDIDATES: usize = 1024;
 /// The depth reading changes at most this fast (m/s) beyond the blade's own motion along
 /// its edge: the dent relaxes at about 30 mm/s, the tissue around a cut moves slower.
 const DEPTH_SLEW_M_PER_S: f64 = 0.05;
@@ -171,6 +175,8 @@ pub struct CuttingStage {
     changed: Vec<u32>,
     changed_flag: Vec<bool>,
     candidates: Vec<u32>,
+    /// Σ triangles near the edge, for the share of it in uncut tissue.
+    probe_candidates: Vec<u32>,
     /// κ of the crack-front transparency (0: hard visibility).
     transparency: f64,
     /// Pairs across Σ near the current front, fading out.
@@ -226,6 +232,7 @@ impl CuttingStage {
             changed: Vec::with_capacity(1024),
             changed_flag: vec![false; n],
             candidates: Vec::with_capacity(4096),
+            probe_candidates: Vec::with_capacity(MAX_PROBE_CANDIDATES),
             transparency: force.crack_transparency,
             transparent: Vec::with_capacity(MAX_TRANSPARENT_PAIRS),
             pairs_removed_total: 0,
@@ -371,17 +378,15 @@ impl CuttingStage {
             }
             _ => false,
         };
-        // Moving mostly toward its own back, the blade slides out of its cut. Moving back
-        // along its cut — the way ahead, in rest space, is already on a part of Σ that runs
-        // along the motion — it opens nothing new either: friction only, no fracture.
-        // (Forward, the way ahead is uncut tissue: Σ ends at most a sweep step behind the
-        // tip, and the probe is two tolerances ahead. An older cut the blade crosses faces
-        // the motion and does not count: the blade still cuts on both sides of it.)
-        let retracing = phase_before == CutPhase::Cutting
-            && edge_rest.is_some_and(|[tip, _]| {
-                let probe = tip + self.direction * (2.0 * self.sigma_tolerance());
-                self.on_sigma_along(&probe, &self.direction)
-            });
+        // The fracture term is the work of opening new crack: only the part of the edge
+        // that moves into uncut tissue does it. Moving back along its cut the blade opens
+        // nothing (friction only); a second, deeper pass along a cut opens only what lies
+        // below the first. Moving mostly toward its own back, it slides out of its cut.
+        let fresh = match (phase_before, edge_rest) {
+            (CutPhase::Cutting, Some([tip, entry])) => self.fresh_share(tip, entry),
+            _ => 1.0,
+        };
+        let retracing = phase_before == CutPhase::Cutting && fresh == 0.0;
         let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
         // The force acts against the averaged motion; shortened while it turns round, so
         // that on a reversal the resistance passes through zero over about half a
@@ -399,6 +404,7 @@ impl CuttingStage {
                 direction: heading,
                 in_existing_cut,
                 withdrawing,
+                fresh_share: fresh,
             },
         );
 
@@ -660,6 +666,79 @@ impl CuttingStage {
         })
     }
 
+    /// Share of the rest-space edge `tip`–`entry` that is in uncut tissue (0–1), looked at
+    /// a little ahead of the blade.
+    ///
+    /// Moving across its edge, the edge is moved ahead by two in-plane tolerances and
+    /// sampled; a sample is cut already if it lies on a part of Σ that runs along the
+    /// motion — within the contact tolerance across that part (a hand does not retrace a
+    /// cut exactly) but within the in-plane tolerance of its extent, so that the end of a
+    /// cut, or the floor of a shallower one, is found to within a millimetre. (Forward, the
+    /// samples are ahead of Σ's front, which is at most a sweep step behind the edge. An
+    /// older cut the blade crosses faces the motion and does not count.) Moving along its
+    /// edge — plunging, or pulling up — the tip leads: one probe ahead of it.
+    fn fresh_share(&mut self, tip: Vec3, entry: Vec3) -> f64 {
+        let Some(along_edge) = (entry - tip).try_normalize(1e-12) else {
+            return 1.0;
+        };
+        let across = self.direction - along_edge * along_edge.dot(&self.direction);
+        if across.norm() < 0.5 * self.direction.norm() {
+            let probe = tip + self.direction * (2.0 * self.sigma_tolerance());
+            return if self.on_sigma_along(&probe, &self.direction) {
+                0.0
+            } else {
+                1.0
+            };
+        }
+        let ahead = across.normalize() * (2.0 * self.sigma_plane_tolerance());
+        let (a, b) = (tip + ahead, entry + ahead);
+        // The Σ triangles near the moved edge, once; the samples test only those.
+        let tol = self.sigma_tolerance();
+        let (lo, hi) = (a.inf(&b).add_scalar(-tol), a.sup(&b).add_scalar(tol));
+        self.probe_candidates.clear();
+        let mut overflow = false;
+        for (t, tri) in self.sigma.triangles.iter().enumerate() {
+            let tlo = tri[0].inf(&tri[1]).inf(&tri[2]);
+            let thi = tri[0].sup(&tri[1]).sup(&tri[2]);
+            if (0..3).all(|k| tlo[k] <= hi[k] && thi[k] >= lo[k]) {
+                if self.probe_candidates.len() == MAX_PROBE_CANDIDATES {
+                    overflow = true;
+                    break;
+                }
+                self.probe_candidates.push(t as u32);
+            }
+        }
+        let fresh = (0..FRESH_SAMPLES)
+            .filter(|&k| {
+                let x = a + (b - a) * ((k as f64 + 0.5) / FRESH_SAMPLES as f64);
+                let on = |tri: &[Vec3; 3]| self.on_triangle_along(&x, tri, &across);
+                let cut = if overflow {
+                    self.sigma.triangles.iter().any(on)
+                } else {
+                    self.probe_candidates
+                        .iter()
+                        .any(|&t| on(&self.sigma.triangles[t as usize]))
+                };
+                !cut
+            })
+            .count();
+        fresh as f64 / FRESH_SAMPLES as f64
+    }
+
+    /// Whether `x` (rest) is on `tri`, a part of Σ running along `direction`: within the
+    /// contact tolerance of its plane and the in-plane tolerance of its extent.
+    fn on_triangle_along(&self, x: &Vec3, tri: &[Vec3; 3], direction: &Vec3) -> bool {
+        let n = (tri[1] - tri[0]).cross(&(tri[2] - tri[0]));
+        let n_len = n.norm();
+        if n.dot(direction).abs() >= 0.5 * n_len * direction.norm() {
+            return false;
+        }
+        let off = x - closest_point_on_triangle(x, tri);
+        let normal = off.dot(&n) / n_len;
+        let in_plane = (off - n * (normal / n_len)).norm();
+        normal.abs() <= self.sigma_tolerance() && in_plane <= self.sigma_plane_tolerance()
+    }
+
     fn near_triangle(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
         self.in_box(x, tri) && self.within_tolerance(x, tri)
     }
@@ -667,6 +746,13 @@ impl CuttingStage {
     /// Contact tolerance: the blade's thickness and a quarter spacing.
     fn sigma_tolerance(&self) -> f64 {
         self.tool.blade_thickness_m + 0.25 * self.spacing_m
+    }
+
+    /// Tolerance within Σ's plane, where its extent ends (the end of a cut, the floor of a
+    /// shallow one): the blade's thickness and a twentieth of a spacing, for the rest map's
+    /// wobble between passes and the kinks of a curved sweep.
+    fn sigma_plane_tolerance(&self) -> f64 {
+        self.tool.blade_thickness_m + 0.05 * self.spacing_m
     }
 
     /// `x` is within the tolerance of the triangle's bounding box.

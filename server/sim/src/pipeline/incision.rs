@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::cut::{FaceKind, IncisionError, IncisionParams, PathSample, incise};
 use crate::geometry::TriMesh;
-use crate::geometry::predicates::closest_point_on_triangle;
+use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
 use crate::model::RestGrid;
@@ -56,7 +56,9 @@ pub struct IncisionTracker {
     rerun_step_m: f64,
     base: Option<Base>,
     samples: Vec<PathSample>,
-    last_run_end: Option<Vec3>,
+    /// Whether the incision was computed in this stroke, and the samples added since.
+    ran_this_stroke: bool,
+    added_since_run: usize,
     /// The most advanced entry since the last sample, taken as the path's end when the
     /// stroke finishes between two samples.
     front: Option<PathSample>,
@@ -93,7 +95,8 @@ impl IncisionTracker {
             // A 250 mm stroke at a quarter of a 1 mm edge: the path grows without
             // allocating on the tick.
             samples: Vec::with_capacity(PATH_SAMPLE_CAPACITY),
-            last_run_end: None,
+            ran_this_stroke: false,
+            added_since_run: 0,
             front: None,
             opened_this_stroke: false,
             stats: IncisionStats {
@@ -120,13 +123,14 @@ impl IncisionTracker {
                 && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
             {
                 self.samples.push(front);
+                self.added_since_run += 1;
             }
-            let rerun = self.samples.len() >= 2
-                && self.last_run_end != self.samples.last().map(|s| s.surface);
+            let rerun = self.samples.len() >= 2 && self.added_since_run > 0;
             let changed = rerun && self.run(surface, inputs);
             self.base = None;
             self.samples.clear();
-            self.last_run_end = None;
+            self.ran_this_stroke = false;
+            self.added_since_run = 0;
             self.opened_this_stroke = false;
             return changed;
         };
@@ -159,26 +163,64 @@ impl IncisionTracker {
                 }
                 return false;
             }
-            // The path goes where the blade goes: an entry point that moved against the
-            // blade (the torn surface around it maps to rest space only roughly while
-            // the blade plunges or drags the tissue) is not a new sample.
-            Some(last)
-                if (entry - last.surface).dot(&direction) < 0.5 * (entry - last.surface).norm() =>
-            {
-                return false;
-            }
-            _ => {
-                self.front = None;
-                self.samples.push(PathSample {
-                    surface: entry,
-                    bottom: tip,
-                });
-            }
+            _ => {}
         }
-        let start = self.samples[0].surface;
-        let due = match self.last_run_end {
-            None => (entry - start).norm() >= self.rerun_step_m,
-            Some(end) => (entry - end).norm() >= self.rerun_step_m,
+        // Back over its own path (sawing to and fro in its cut) the blade adds nothing:
+        // a path folded onto itself is no incision. Past the path's start it extends the
+        // path there.
+        let sample = PathSample {
+            surface: entry,
+            bottom: tip,
+        };
+        let (Some(first), Some(last)) =
+            (self.samples.first().copied(), self.samples.last().copied())
+        else {
+            self.samples.push(sample);
+            self.added_since_run += 1;
+            return false;
+        };
+        let on_path = |x: &Vec3| {
+            let near = self.sample_step_m.powi(2);
+            (first.surface - x).norm_squared() < near
+                || self
+                    .samples
+                    .windows(2)
+                    .any(|w| distance_sq_to_segment(x, &w[0].surface, &w[1].surface) < near)
+        };
+        if self.samples.len() >= 2 && on_path(&entry) {
+            return false;
+        }
+        // (Past the start means on from the start the way the path leaves it: an entry
+        // that hops onto another sheet of a thin part is not an extension.)
+        let at_start = self.samples.len() >= 2
+            && (entry - first.surface).norm() < (entry - last.surface).norm()
+            && {
+                let out = first.surface - self.samples[1].surface;
+                (entry - first.surface).dot(&out)
+                    >= 0.5 * (entry - first.surface).norm() * out.norm()
+            };
+        let end = if at_start { first } else { last };
+        // The path goes where the blade goes: an entry point that moved against the
+        // blade (the torn surface around it maps to rest space only roughly while the
+        // blade plunges or drags the tissue) is not a new sample.
+        if (entry - end.surface).dot(&direction) < 0.5 * (entry - end.surface).norm() {
+            return false;
+        }
+        if at_start {
+            self.samples.insert(0, sample);
+        } else {
+            self.front = None;
+            self.samples.push(sample);
+        }
+        self.added_since_run += 1;
+        let due = if self.ran_this_stroke {
+            self.added_since_run as f64 * self.sample_step_m >= self.rerun_step_m
+        } else {
+            let (a, b) = (
+                self.samples[0].surface,
+                self.samples[self.samples.len() - 1].surface,
+            );
+            (b - a).norm() >= self.rerun_step_m
         };
         due && self.run(surface, inputs)
     }
@@ -193,7 +235,8 @@ impl IncisionTracker {
         let Some(base) = &mut self.base else {
             return false;
         };
-        self.last_run_end = self.samples.last().map(|s| s.surface);
+        self.ran_this_stroke = true;
+        self.added_since_run = 0;
         self.stats.runs += 1;
         // The path over intact skin, split where it crosses earlier wounds.
         let margin = 0.5 * self.rerun_step_m;
