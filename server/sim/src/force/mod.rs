@@ -78,9 +78,9 @@ pub struct BladeContact {
     /// back), or moving back along the cut it made: the fracture term fades out and
     /// friction remains.
     pub withdrawing: bool,
-    /// Share of the cutting edge that moves into uncut tissue (0–1): the fracture term is
-    /// J_c × that share of the depth (a second pass along a cut opens only what lies below
-    /// the first).
+    /// Width of the new crack the blade opens per unit of its motion, as a share of its
+    /// depth (0–1): the fracture term is J_c × that share of the depth (a second pass along
+    /// a cut opens only what lies below the first; a raked blade, its vertical depth).
     pub fresh_share: f64,
 }
 
@@ -175,8 +175,9 @@ pub struct CuttingForceModel {
     rupture_s: f64,
     /// Blade travel since the last rupture (m).
     travel_m: f64,
-    /// How much of the fracture term J_c·d the blade carries, 0–1: the share of its edge
-    /// that opens new crack (1 in fresh tissue, 0 pulling back or along its own cut),
+    /// How much of the fracture term J_c·d the blade carries, 0–1: the new crack's width as
+    /// a share of the depth (1 cutting fresh tissue upright, 0 pulling back or along its
+    /// own cut),
     /// eased toward it over [`ENGAGEMENT_TRAVEL_M`] of travel, so the force moves between
     /// the regimes instead of jumping by J_c·d in one tick.
     engagement: f64,

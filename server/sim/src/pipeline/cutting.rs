@@ -378,12 +378,13 @@ impl CuttingStage {
             }
             _ => false,
         };
-        // The fracture term is the work of opening new crack: only the part of the edge
-        // that moves into uncut tissue does it. Moving back along its cut the blade opens
-        // nothing (friction only); a second, deeper pass along a cut opens only what lies
-        // below the first. Moving mostly toward its own back, it slides out of its cut.
+        // The fracture term is the work of opening new crack: J_c × the new crack's width
+        // per unit of motion. Moving back along its cut the blade opens nothing (friction
+        // only); a second, deeper pass along a cut opens only what lies below the first; a
+        // raked blade opens its vertical depth. Moving mostly toward its own back, it slides
+        // out of its cut.
         let fresh = match (phase_before, edge_rest) {
-            (CutPhase::Cutting, Some([tip, entry])) => self.fresh_share(tip, entry),
+            (CutPhase::Cutting, Some([tip, entry])) => self.crack_share(tip, entry),
             _ => 1.0,
         };
         let retracing = phase_before == CutPhase::Cutting && fresh == 0.0;
@@ -666,31 +667,58 @@ impl CuttingStage {
         })
     }
 
-    /// Share of the rest-space edge `tip`–`entry` that is in uncut tissue (0–1), looked at
-    /// a little ahead of the blade.
+    /// How much new crack the blade opens per unit of its motion, as a share of its depth
+    /// (0–1): what its edge sweeps and what its tip slits, added in quadrature (a blade of
+    /// no width would open the larger, a rectangular one their sum; in between, a corner
+    /// from plunging to cutting forward neither dips nor bulges).
     ///
-    /// Moving across its edge, the edge is moved ahead by two in-plane tolerances and
-    /// sampled; a sample is cut already if it lies on a part of Σ that runs along the
-    /// motion — within the contact tolerance across that part (a hand does not retrace a
-    /// cut exactly) but within the in-plane tolerance of its extent, so that the end of a
-    /// cut, or the floor of a shallower one, is found to within a millimetre. (Forward, the
-    /// samples are ahead of Σ's front, which is at most a sweep step behind the edge. An
-    /// older cut the blade crosses faces the motion and does not count.) Moving along its
-    /// edge — plunging, or pulling up — the tip leads: one probe ahead of it.
-    fn fresh_share(&mut self, tip: Vec3, entry: Vec3) -> f64 {
-        let Some(along_edge) = (entry - tip).try_normalize(1e-12) else {
+    /// * The edge, moving across itself, sweeps its depth × the sine of its angle to the
+    ///   motion — a raked blade (a scalpel held at 45°) cuts the vertical depth, not the
+    ///   length of edge in the tissue — times the share of it in uncut tissue: the edge is
+    ///   moved ahead by two in-plane tolerances and sampled; a sample is cut already if it
+    ///   lies on a part of Σ that runs along the motion, within the contact tolerance across
+    ///   that part (a hand does not retrace a cut exactly) but within the in-plane tolerance
+    ///   of its extent, so that the end of a cut, or the floor of a shallower one, is found
+    ///   to within a millimetre. (Forward, the samples are ahead of Σ's front, which is at
+    ///   most a sweep step behind the edge. An older cut the blade crosses faces the motion
+    ///   and does not count.)
+    /// * The tip, moving tip first, slits the tissue ahead of it as wide as the blade is
+    ///   in it (its depth, at most the blade's width) × the cosine — if the way ahead of
+    ///   the tip is uncut.
+    fn crack_share(&mut self, tip: Vec3, entry: Vec3) -> f64 {
+        let h = self.direction;
+        // Not moved yet (a tool that appeared in the tissue): nothing to look ahead along.
+        let (Some(along_edge), false) = ((entry - tip).try_normalize(1e-12), h == Vec3::zeros())
+        else {
             return 1.0;
         };
-        let across = self.direction - along_edge * along_edge.dot(&self.direction);
-        if across.norm() < 0.5 * self.direction.norm() {
-            let probe = tip + self.direction * (2.0 * self.sigma_tolerance());
-            return if self.on_sigma_along(&probe, &self.direction) {
+        let cos = along_edge.dot(&h);
+        let across = h - along_edge * cos;
+        let sin = across.norm();
+        let edge = if sin > 1e-3 {
+            sin * self.fresh_along_edge(tip, entry, &(across / sin))
+        } else {
+            0.0
+        };
+        let tip_first = (-cos).max(0.0);
+        let slit = if tip_first > 0.0 {
+            let probe = tip + h * (2.0 * self.sigma_tolerance());
+            let width = (self.tool.blade_width_m / (entry - tip).norm()).min(1.0);
+            if self.on_sigma_along(&probe, &h) {
                 0.0
             } else {
-                1.0
-            };
-        }
-        let ahead = across.normalize() * (2.0 * self.sigma_plane_tolerance());
+                width * tip_first
+            }
+        } else {
+            0.0
+        };
+        edge.hypot(slit).min(1.0)
+    }
+
+    /// Share of the rest-space edge `tip`–`entry`, moved a little ahead along `across`
+    /// (unit, perpendicular to it), that is in uncut tissue (0–1).
+    fn fresh_along_edge(&mut self, tip: Vec3, entry: Vec3, across: &Vec3) -> f64 {
+        let ahead = across * (2.0 * self.sigma_plane_tolerance());
         let (a, b) = (tip + ahead, entry + ahead);
         // The Σ triangles near the moved edge, once; the samples test only those.
         let tol = self.sigma_tolerance();
@@ -711,7 +739,7 @@ impl CuttingStage {
         let fresh = (0..FRESH_SAMPLES)
             .filter(|&k| {
                 let x = a + (b - a) * ((k as f64 + 0.5) / FRESH_SAMPLES as f64);
-                let on = |tri: &[Vec3; 3]| self.on_triangle_along(&x, tri, &across);
+                let on = |tri: &[Vec3; 3]| self.on_triangle_along(&x, tri, across);
                 let cut = if overflow {
                     self.sigma.triangles.iter().any(on)
                 } else {
