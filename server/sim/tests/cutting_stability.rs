@@ -472,9 +472,9 @@ fn a_blade_held_still_in_its_cut_by_a_noisy_hand() {
 
 /// Down `depth_mm`, forward from `x_mm[0]` to `x_mm[1]`, held for 2 s, on to `x_mm[2]` —
 /// through a device that reads up to 0.1 mm off in every axis on every tick (a Touch's
-/// ±1 encoder count and a hand's tremor), from 2.5 s on: the capsule has ruptured by then
-/// (before, the press feels the noise as what it is, displacement against the capsule's
-/// stiffness — up to 4 N/mm near rupture).
+/// ±1 encoder count, and more), held by a hand with a 10 Hz tremor of ±0.04 mm per axis,
+/// from 2.5 s on: the capsule has ruptured by then (before, the press feels the noise as
+/// what it is, displacement against the capsule's stiffness — up to 4 N/mm near rupture).
 fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     let scene = scene(name);
     let top = top_mm(&scene, x_mm[0], 0.0);
@@ -491,8 +491,9 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     let frames: Vec<_> = (0..=10_000)
         .map(|k| {
             let x = f64::from(k);
-            let n = Vec3::new((1.7 * x).sin(), (2.3 * x).sin(), (3.1 * x).cos()) * noise_mm;
             let t = x * TICK_S;
+            let n = Vec3::new((1.7 * x).sin(), (2.3 * x).sin(), (3.1 * x).cos()) * noise_mm
+                + Vec3::repeat(0.04) * (2.0 * std::f64::consts::PI * 10.0 * t).sin();
             let p = path.pose_at(t).tip_m * 1e3 + if k < 2500 { Vec3::zeros() } else { n };
             (t, [p.x, p.y, p.z])
         })
@@ -509,16 +510,22 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     let held = trace.ticks.force[6999];
     assert!(held.x < -1.0, "{name}: {held:?}");
     let hold = &trace.ticks.force[7000..9000];
-    for (k, f) in hold.iter().enumerate() {
+    let mean = hold.iter().sum::<Vec3>() / hold.len() as f64;
+    assert!(
+        (mean.norm() - held.norm()).abs() < 0.03 * held.norm(),
+        "{name}: {mean:?} {held:?}"
+    );
+    // Once stopped (the first ticks still carry the sideways wobble of the moving blade),
+    // it holds its heading and size.
+    for (k, f) in hold.iter().enumerate().skip(50) {
         assert!(
-            (f - held).norm() < 0.04 * held.norm(),
-            "{name}: tick {}: {f:?} against {held:?}",
+            (f - mean).norm() < 0.04 * mean.norm(),
+            "{name}: tick {}: {f:?} against {mean:?}",
             7000 + k
         );
     }
-    // Once stopped (the first ticks still carry the sideways wobble of the moving blade),
-    // it does not buzz: what is left is the depth reading, which follows the noise up and
-    // down (J_c × 0.2 mm ≈ 0.04 N).
+    // And it does not buzz: what is left is the depth reading, which follows the noise up
+    // and down (J_c × 0.2 mm ≈ 0.04 N).
     for (k, w) in hold[50..].windows(2).enumerate() {
         assert!(
             (w[1] - w[0]).norm() < 0.08,
@@ -527,10 +534,11 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
         );
     }
     assert_eq!(trace.ticks.sigma[7100], trace.ticks.sigma[9000], "{name}");
-    // Cutting with the noise, the resistance keeps its heading to a few degrees.
+    // Cutting with the noise and the tremor, the resistance keeps its heading to within
+    // about 4.5°.
     for (k, f) in trace.ticks.force[4000..7000].iter().enumerate() {
         assert!(
-            f.x < -0.7 * held.norm() && f.y.hypot(f.z) < 0.06 * held.norm(),
+            f.x < -0.7 * held.norm() && f.y.hypot(f.z) < 0.08 * held.norm(),
             "{name}: tick {}: {f:?}",
             4000 + k
         );
@@ -564,14 +572,17 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
     // The second pass enters the incision: no capsule to rupture.
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // Cutting along the first pass, the edge's upper 5 mm runs in the cut already made:
-    // the fracture term is J_c × the 5 mm below it (≈ 1 N with friction), not J_c × 10 mm
-    // (2.2–2.8 N, what the first pass would feel at that depth).
-    let new_depth = 0.005;
+    // the fracture term is J_c × the 5 mm below it, not J_c × 10 mm (2.3–2.8 N, what the
+    // first pass would feel at that depth) — less the in-plane tolerance just under the
+    // old floor, where a sample counts as on it (the blade's thickness and a twentieth of
+    // a spacing, 0.87 mm here): ≈ 1.08 N with friction.
+    let plane_tolerance = scene.spec.tool.blade_thickness_m + 0.05 * scene.model.lattice.spacing;
+    let new_depth = 0.005 - plane_tolerance;
     let expected = spec.toughness_n_per_m * new_depth + spec.friction_n;
     for k in 16_500..20_500 {
         let f = trace.ticks.force[k];
         assert!(
-            f.x < 0.0 && (f.norm() - expected).abs() < 0.25 * expected,
+            f.x < 0.0 && (f.norm() - expected).abs() < 0.1 * expected,
             "tick {k}: {f:?}, expected about {expected} N"
         );
     }

@@ -51,7 +51,7 @@ const DIRECTION_TRAVEL_M: f64 = 0.0005;
 /// Samples along the edge for the share of it that is in uncut tissue.
 const FRESH_SAMPLES: usize = 16;
 /// Σ triangles near the edge considered at most per tick (scratch capacity); past it, all.
-const MAX_PROBE_CANDIDATES: usize = 1024;
+const MAX_PROBE_CANDIDATES: usize = 4096;
 /// The depth reading changes at most this fast (m/s) beyond the blade's own motion along
 /// its edge: the dent relaxes at about 30 mm/s, the tissue around a cut moves slower.
 const DEPTH_SLEW_M_PER_S: f64 = 0.05;
@@ -653,38 +653,26 @@ impl CuttingStage {
             .any(|tri| self.near_triangle(x, tri))
     }
 
-    /// Whether `x` (rest) lies on a part of Σ that runs along `direction` (its normal at
-    /// more than 60° from it): a cut the blade could be moving along, not one it crosses.
-    fn on_sigma_along(&self, x: &Vec3, direction: &Vec3) -> bool {
-        // Runs every cutting tick: the box test first, then the normal, then the distance.
-        self.sigma.triangles.iter().any(|tri| {
-            self.in_box(x, tri)
-                && {
-                    let n = (tri[1] - tri[0]).cross(&(tri[2] - tri[0]));
-                    n.dot(direction).abs() < 0.5 * n.norm() * direction.norm()
-                }
-                && self.within_tolerance(x, tri)
-        })
-    }
-
     /// How much new crack the blade opens per unit of its motion, as a share of its depth
-    /// (0–1): what its edge sweeps and what its tip slits, added in quadrature (a blade of
-    /// no width would open the larger, a rectangular one their sum; in between, a corner
-    /// from plunging to cutting forward neither dips nor bulges).
+    /// (0–1): what its edge sweeps and what its tip slits, added in quadrature (a pointed
+    /// blade, whose slit narrows to the tip, would open about the larger, a rectangular one
+    /// their sum; in between, a corner from plunging to cutting forward neither dips nor
+    /// bulges).
     ///
     /// * The edge, moving across itself, sweeps its depth × the sine of its angle to the
     ///   motion — a raked blade (a scalpel held at 45°) cuts the vertical depth, not the
     ///   length of edge in the tissue — times the share of it in uncut tissue: the edge is
-    ///   moved ahead by two in-plane tolerances and sampled; a sample is cut already if it
-    ///   lies on a part of Σ that runs along the motion, within the contact tolerance across
-    ///   that part (a hand does not retrace a cut exactly) but within the in-plane tolerance
-    ///   of its extent, so that the end of a cut, or the floor of a shallower one, is found
-    ///   to within a millimetre. (Forward, the samples are ahead of Σ's front, which is at
-    ///   most a sweep step behind the edge. An older cut the blade crosses faces the motion
-    ///   and does not count.)
+    ///   moved ahead by two in-plane tolerances and sampled.
     /// * The tip, moving tip first, slits the tissue ahead of it as wide as the blade is
-    ///   in it (its depth, at most the blade's width) × the cosine — if the way ahead of
-    ///   the tip is uncut.
+    ///   in it — its depth, at most the blade's width (a blade whose tip tapers at about
+    ///   45°) — × the cosine, if the point two in-plane tolerances ahead of it is uncut.
+    ///
+    /// A point is cut already if it lies on a part of Σ that runs along the motion, within
+    /// the contact tolerance across that part (a hand does not retrace a cut exactly) but
+    /// within the in-plane tolerance of its extent, so that the end of a cut, or the floor
+    /// of a shallower one, is found to within about a millimetre. (Forward, the samples are
+    /// ahead of Σ's front, which is at most a sweep step behind the edge. An older cut the
+    /// blade crosses faces the motion and does not count.)
     fn crack_share(&mut self, tip: Vec3, entry: Vec3) -> f64 {
         let h = self.direction;
         // Not moved yet (a tool that appeared in the tissue): nothing to look ahead along.
@@ -695,34 +683,20 @@ impl CuttingStage {
         let cos = along_edge.dot(&h);
         let across = h - along_edge * cos;
         let sin = across.norm();
-        let edge = if sin > 1e-3 {
-            sin * self.fresh_along_edge(tip, entry, &(across / sin))
-        } else {
-            0.0
-        };
         let tip_first = (-cos).max(0.0);
-        let slit = if tip_first > 0.0 {
-            let probe = tip + h * (2.0 * self.sigma_tolerance());
-            let width = (self.tool.blade_width_m / (entry - tip).norm()).min(1.0);
-            if self.on_sigma_along(&probe, &h) {
-                0.0
-            } else {
-                width * tip_first
-            }
+        let reach = 2.0 * self.sigma_plane_tolerance();
+        let (a, b) = if sin > 1e-3 {
+            let ahead = across * (reach / sin);
+            (tip + ahead, entry + ahead)
         } else {
-            0.0
+            (tip, tip)
         };
-        edge.hypot(slit).min(1.0)
-    }
-
-    /// Share of the rest-space edge `tip`–`entry`, moved a little ahead along `across`
-    /// (unit, perpendicular to it), that is in uncut tissue (0–1).
-    fn fresh_along_edge(&mut self, tip: Vec3, entry: Vec3, across: &Vec3) -> f64 {
-        let ahead = across * (2.0 * self.sigma_plane_tolerance());
-        let (a, b) = (tip + ahead, entry + ahead);
-        // The Σ triangles near the moved edge, once; the samples test only those.
-        let tol = self.sigma_tolerance();
-        let (lo, hi) = (a.inf(&b).add_scalar(-tol), a.sup(&b).add_scalar(tol));
+        let probe = tip + h * reach;
+        // The Σ triangles near the moved edge and the tip's probe, once (Σ only grows over
+        // a session); past the scratch's capacity, all of them.
+        let pad = self.sigma_tolerance() + self.sigma_plane_tolerance();
+        let lo = a.inf(&b).inf(&probe).add_scalar(-pad);
+        let hi = a.sup(&b).sup(&probe).add_scalar(pad);
         self.probe_candidates.clear();
         let mut overflow = false;
         for (t, tri) in self.sigma.triangles.iter().enumerate() {
@@ -736,21 +710,35 @@ impl CuttingStage {
                 self.probe_candidates.push(t as u32);
             }
         }
-        let fresh = (0..FRESH_SAMPLES)
-            .filter(|&k| {
-                let x = a + (b - a) * ((k as f64 + 0.5) / FRESH_SAMPLES as f64);
-                let on = |tri: &[Vec3; 3]| self.on_triangle_along(&x, tri, across);
-                let cut = if overflow {
-                    self.sigma.triangles.iter().any(on)
-                } else {
-                    self.probe_candidates
-                        .iter()
-                        .any(|&t| on(&self.sigma.triangles[t as usize]))
-                };
-                !cut
-            })
-            .count();
-        fresh as f64 / FRESH_SAMPLES as f64
+        let cut = |x: &Vec3, along: &Vec3| {
+            let on = |tri: &[Vec3; 3]| self.on_triangle_along(x, tri, along);
+            if overflow {
+                self.sigma.triangles.iter().any(on)
+            } else {
+                self.probe_candidates
+                    .iter()
+                    .any(|&t| on(&self.sigma.triangles[t as usize]))
+            }
+        };
+        let edge = if sin > 1e-3 {
+            let fresh = (0..FRESH_SAMPLES)
+                .filter(|&k| {
+                    !cut(
+                        &(a + (b - a) * ((k as f64 + 0.5) / FRESH_SAMPLES as f64)),
+                        &across,
+                    )
+                })
+                .count();
+            sin * fresh as f64 / FRESH_SAMPLES as f64
+        } else {
+            0.0
+        };
+        let slit = if tip_first > 0.0 && !cut(&probe, &h) {
+            (self.tool.blade_width_m / (entry - tip).norm()).min(1.0) * tip_first
+        } else {
+            0.0
+        };
+        edge.hypot(slit).min(1.0)
     }
 
     /// Whether `x` (rest) is on `tri`, a part of Σ running along `direction`: within the

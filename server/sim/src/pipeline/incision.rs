@@ -2,12 +2,14 @@
 //! step 9).
 //!
 //! While the blade cuts, the entry point (rest space) is sampled every quarter of a local
-//! edge, each sample keeping the deepest tip seen there. The incision of the stroke is
-//! recomputed from the surface as it was when the stroke started, only when the end of the
-//! path has moved more than one edge length since the last run (so the topology is not
-//! edited every tick), and once more when the stroke ends. Parts of the path that run over
-//! an earlier wound (its lid or walls) are left out, so crossing cuts split into separate
-//! incisions on either side of the earlier one.
+//! edge, each sample keeping the deepest tip seen there. A blade back over the stroke's own
+//! path adds nothing (a path folded onto itself is no incision); past the path's start it
+//! extends the path there. The incision of the stroke is recomputed from the surface as it
+//! was when the stroke started, only when the path has grown by more than one edge length
+//! since the last run (so the topology is not edited every tick), and once more when the
+//! stroke ends. Parts of the path that run over an earlier wound (its lid or walls) are
+//! left out, so crossing cuts split into separate incisions on either side of the earlier
+//! one.
 
 use serde::Serialize;
 
@@ -118,9 +120,16 @@ impl IncisionTracker {
         inputs: &IncisionInputs<'_>,
     ) -> bool {
         let Some([tip, entry]) = edge else {
-            // The stroke ended: settle its incision on the final path.
+            // The stroke ended: settle its incision on the final path, up to the most
+            // advanced entry past its last sample (past it along the path: a blade that
+            // turned round within a sample step leaves no fold).
+            let n = self.samples.len();
             if let (Some(front), Some(last)) = (self.front.take(), self.samples.last())
                 && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
+                && (n < 2
+                    || (front.surface - last.surface)
+                        .dot(&(last.surface - self.samples[n - 2].surface))
+                        > 0.0)
             {
                 self.samples.push(front);
                 self.added_since_run += 1;

@@ -79,6 +79,11 @@ mod tests {
         Vec3::new((1.7 * x).sin(), (2.3 * x).sin(), (3.1 * x).cos()) * a
     }
 
+    /// A hand's tremor: 10 Hz along (1, 1, 1), `a` per axis.
+    fn tremor(k: u32, a: f64) -> Vec3 {
+        Vec3::repeat(a) * (2.0 * std::f64::consts::PI * 10.0 * f64::from(k) * 1e-3).sin()
+    }
+
     #[test]
     fn noise_held_still_is_no_motion() {
         // ±0.1 mm per axis, every tick: larger than the 0.1 mm leash on its own, inside it
@@ -90,6 +95,24 @@ mod tests {
         }
         // (Where the smoothed noise touches the leash: micrometres in 10 s.)
         assert!(moved < 1e-5, "{moved}");
+    }
+
+    #[test]
+    fn a_tremor_is_held_still_while_it_spans_less_than_twice_the_leash() {
+        // A 10 Hz tremor passes the smoothing almost whole (≈ 85 %). Once the steady point
+        // has been dragged to the middle of the swing, a swing under twice the leash moves
+        // it no more: ±0.05 mm per axis (0.15 mm peak to peak once smoothed), with the
+        // device's jitter on top, is held; ±0.1 mm per axis (0.29 mm) is read as motion.
+        let run = |a: f64| {
+            let mut m = SteadyMotion::new(1e-4);
+            (0..10_000)
+                .map(|k| m.update(tremor(k, a) + noise(k, 5e-5), 1e-3).norm())
+                .sum::<f64>()
+        };
+        let inside = run(5e-5);
+        assert!(inside < 1e-4, "{inside}");
+        let outside = run(1e-4);
+        assert!(outside > 1e-2, "{outside}");
     }
 
     #[test]

@@ -480,7 +480,9 @@ impl SceneSpec {
                 &mut out.motion_deadband_m,
                 f.motion_deadband_mm,
                 "force.motion_deadband_mm",
-                Limit::closed(0.0, 2.0, "mm"),
+                // A reversal holds the heading for twice the deadband at the full cutting
+                // force: work the tissue does on the hand.
+                Limit::closed(0.0, 0.5, "mm"),
                 MM,
             )?;
             check.set(
