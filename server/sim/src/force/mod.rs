@@ -177,9 +177,8 @@ pub struct CuttingForceModel {
     travel_m: f64,
     /// How much of the fracture term J_c·d the blade carries, 0–1: the new crack's width as
     /// a share of the depth (1 cutting fresh tissue upright, 0 pulling back or along its
-    /// own cut),
-    /// eased toward it over [`ENGAGEMENT_TRAVEL_M`] of travel, so the force moves between
-    /// the regimes instead of jumping by J_c·d in one tick.
+    /// own cut), eased toward it over [`ENGAGEMENT_TRAVEL_M`] of travel, so the force moves
+    /// between the regimes instead of jumping by J_c·d in one tick.
     engagement: f64,
     /// Factor on the tissue's stiffness (1: the scene's): scales the loading curve and the
     /// friction (the blade's faces press on stiffer walls), not the fracture toughness.

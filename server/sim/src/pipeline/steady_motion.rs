@@ -9,8 +9,10 @@
 //! 1. a first-order low-pass with a 10 ms time constant, which takes the tick-to-tick
 //!    jitter down by about five (white noise) and lags a steady motion by 10 ms;
 //! 2. a leash `deadband_m` long: the steady point moves only once the smoothed tip is
-//!    that far from it, and then exactly as far as the tip, a deadband behind. Noise (and
-//!    tremor) inside the leash moves it not at all.
+//!    that far from it, and then exactly as far as the tip, a deadband behind. Jitter
+//!    inside the leash moves it not at all; a tremor (8–12 Hz, which the smoothing lets
+//!    through) is held once the point sits in the middle of its swing, while the swing
+//!    stays under twice the leash.
 //!
 //! The elastic loading of the capsule still reads every move of the raw tip: a net
 //! displacement, in which noise cancels.
@@ -46,6 +48,10 @@ impl SteadyMotion {
     /// Reads the tip `dt_s` after the last reading; returns how far the steady point
     /// moved (m).
     pub fn update(&mut self, tip: Vec3, dt_s: f64) -> Vec3 {
+        // A garbage reading is no motion (and must not stay in the filter).
+        if !tip.iter().all(|c| c.is_finite()) {
+            return Vec3::zeros();
+        }
         let Some(smoothed) = self.smoothed.as_mut() else {
             self.smoothed = Some(tip);
             self.anchor = tip;
@@ -147,7 +153,9 @@ mod tests {
         assert_eq!(m.position(), None);
         assert_eq!(m.update(Vec3::x(), 1e-3), Vec3::zeros());
         assert_eq!(m.position(), Some(Vec3::x()));
-        // Garbage time steps do not poison it.
+        // Garbage time steps and readings do not poison it.
+        assert_eq!(m.update(Vec3::repeat(f64::NAN), 1e-3), Vec3::zeros());
+        assert!(m.position().unwrap().iter().all(|c| c.is_finite()));
         assert!(
             m.update(Vec3::x() * 2.0, f64::NAN)
                 .iter()
