@@ -81,7 +81,7 @@ pub struct BladeContact {
     /// Width of the new crack the blade opens per unit of its motion, as a share of its
     /// depth (0–1): the fracture term is J_c × that share of the depth (a second pass along
     /// a cut opens only what lies below the first; a raked blade, its vertical depth).
-    pub fresh_share: f64,
+    pub crack_share: f64,
 }
 
 /// The force on the tool and its local linear model.
@@ -324,7 +324,7 @@ impl CuttingForceModel {
                 }
                 CutPhase::Cutting => {
                     self.travel_m += advance;
-                    let target = match contact.fresh_share {
+                    let target = match contact.crack_share {
                         _ if contact.withdrawing => 0.0,
                         share if share.is_finite() => share.clamp(0.0, 1.0),
                         _ => 1.0,
@@ -402,7 +402,7 @@ mod tests {
             direction: Vec3::x(),
             in_existing_cut: false,
             withdrawing: false,
-            fresh_share: 1.0,
+            crack_share: 1.0,
         }
     }
 

@@ -383,11 +383,11 @@ impl CuttingStage {
         // only); a second, deeper pass along a cut opens only what lies below the first; a
         // raked blade opens its vertical depth. Moving mostly toward its own back, it slides
         // out of its cut.
-        let fresh = match (phase_before, edge_rest) {
+        let crack = match (phase_before, edge_rest) {
             (CutPhase::Cutting, Some([tip, entry])) => self.crack_share(tip, entry),
             _ => 1.0,
         };
-        let retracing = phase_before == CutPhase::Cutting && fresh == 0.0;
+        let retracing = phase_before == CutPhase::Cutting && crack == 0.0;
         let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
         // The force acts against the averaged motion; shortened while it turns round, so
         // that on a reversal the resistance passes through zero over about half a
@@ -405,7 +405,7 @@ impl CuttingStage {
                 direction: heading,
                 in_existing_cut,
                 withdrawing,
-                fresh_share: fresh,
+                crack_share: crack,
             },
         );
 
