@@ -201,6 +201,15 @@ fn assert_sound_surface(sim: &Simulation) {
     );
 }
 
+/// Plays `script` on a fresh simulation of `scene` (then `idle_ticks` with no tool) and
+/// checks the run is calm: no divergence, no drop-outs, no force step over the bound.
+fn calm_run(scene: &BuiltScene, script: &CutScript, idle_ticks: usize) -> (Simulation, Trace) {
+    let mut sim = Simulation::new(scene);
+    let trace = drive(&mut sim, script, idle_ticks, &scene.spec.force);
+    assert_calm(&trace);
+    (sim, trace)
+}
+
 fn assert_calm(trace: &Trace) {
     println!("{trace:?}");
     assert_eq!(trace.diverged_ticks, 0);
@@ -237,9 +246,7 @@ fn blade_that_starts_and_stops_inside() {
         (3.0, [5.0, 0.0, z]),
         (3.5, [5.0, 0.0, z]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 300, &scene.spec.force);
-    assert_calm(&trace);
+    let (mut sim, trace) = calm_run(&scene, &s, 300);
     // Appearing inside, it presses the way it first moves: it ruptures and cuts.
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert!(trace.cutting_ticks > 2000, "{trace:?}");
@@ -264,9 +271,7 @@ fn a_press_that_backs_out_before_rupture() {
         (2.0, [-30.0, 0.0, press]),
         (3.5, [-30.0, 0.0, top + 5.0]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     // The capsule holds, and its force eases off the way it came: backing out neither
     // ruptures it nor makes it push harder (it did both when loading counted path length
     // and the averaged direction could not turn round).
@@ -295,9 +300,7 @@ fn a_pressed_blade_that_slides_slices() {
         (1.3, [-30.0, 0.0, top - 1.5]),
         (3.3, [-20.0, 0.0, top - 1.5]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     // It slices: the capsule ruptures within the rupture displacement of sliding, at a
     // force well under the rupture force, and the blade cuts on.
     assert_eq!(trace.ruptures, 1, "{trace:?}");
@@ -320,11 +323,9 @@ fn a_blade_that_turns_back_along_its_cut() {
         (13.0, [-20.0, 0.0, z]),
         (16.0, [-20.0, 0.0, top + 5.0]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
     // The turn is smooth: the resistance passes through zero instead of flipping by twice
     // its size in one tick (5.5 N when the direction was a blend of unit vectors).
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // Forward it cuts: fracture and friction (J_c·d ≥ 1.9 N at 10 mm).
     let forward = trace.ticks.force[8500];
@@ -363,9 +364,7 @@ fn blade_that_leaves_and_reenters() {
         (19.8, [30.0, 0.0, down]),
         (23.4, [30.0, 0.0, up]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, &scene.spec.force);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(
         trace.ruptures, 2,
         "one rupture per entry into intact capsule"
@@ -392,9 +391,7 @@ fn two_crossing_cuts() {
         (32.8, [0.0, 25.0, down]),
         (36.4, [0.0, 25.0, up]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, &scene.spec.force);
-    assert_calm(&trace);
+    let (sim, _) = calm_run(&scene, &s, 0);
     let stats = sim.incisions().unwrap();
     println!("{stats:?}");
     assert!(stats.incisions >= 2, "{stats:?}");
@@ -416,9 +413,7 @@ fn cut_through_a_thin_part() {
         (6.0, [0.0, y1 + 5.0, z0 - 5.0]),
         (9.0, [0.0, y1 + 5.0, z1 + 5.0]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 200, &scene.spec.force);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 200);
     // One rupture, and the blade read the whole thickness of the part while through it.
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert!(
@@ -451,9 +446,7 @@ fn slivers_and_isolated_points() {
         (41.0, [20.0, 0.5 * s_mm, down]),
         (44.0, [20.0, 0.5 * s_mm, up]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 300, &scene.spec.force);
-    assert_calm(&trace);
+    let (sim, _) = calm_run(&scene, &s, 300);
     let ranks = sim.solver().rank_counts();
     println!("{ranks:?}");
     assert!(
@@ -478,7 +471,6 @@ fn a_blade_held_still_in_its_cut_by_a_noisy_hand() {
 fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     let scene = scene(name);
     let top = top_mm(&scene, x_mm[0], 0.0);
-    let spec = &scene.spec.force;
     let z = top - depth_mm;
     let path = script(&[
         (0.0, [x_mm[0], 0.0, top + 5.0]),
@@ -498,9 +490,7 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
             (t, [p.x, p.y, p.z])
         })
         .collect();
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &script(&frames), 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &script(&frames), 0);
     assert_eq!(trace.ruptures, 1, "{name}: {trace:?}");
     // Held, it still resists with the cutting force it had, in the direction it had:
     // the noise is not read as motion. (Read tick by tick it was: on the liver at half
@@ -566,9 +556,7 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
         (21.0, [0.0, 0.0, top - 10.0]),
         (24.0, [0.0, 0.0, top + 5.0]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     // The second pass enters the incision: no capsule to rupture.
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // Cutting along the first pass, the edge's upper 5 mm runs in the cut already made:
@@ -604,9 +592,7 @@ fn sawing_to_and_fro_in_a_cut() {
         (12.0, [-15.0, 0.0, z]),
         (14.0, [-15.0, 0.0, top + 5.0]),
     ]);
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     let friction = (1.0 + spec.ripple_amplitude) * spec.friction_n;
     let x_at = |k: usize| s.pose_at(k as f64 * TICK_S).tip_m.x * 1e3;
@@ -667,9 +653,7 @@ fn a_raked_blade_cuts_by_its_vertical_depth() {
         ],
         description: "raked".into(),
     };
-    let mut sim = Simulation::new(&scene);
-    let trace = drive(&mut sim, &s, 0, spec);
-    assert_calm(&trace);
+    let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // The new crack per millimetre forward is the vertical depth v the edge sweeps, with
     // what the tip slits ahead of it (the blade's 8 mm width × cos 45°) in quadrature: not
