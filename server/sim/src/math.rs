@@ -74,4 +74,39 @@ impl Aabb {
     pub fn is_empty(&self) -> bool {
         (0..3).any(|a| self.min[a] > self.max[a])
     }
+
+    /// The box grown by `margin` on every side.
+    pub fn expanded(&self, margin: f64) -> Aabb {
+        Aabb {
+            min: self.min.map(|c| c - margin),
+            max: self.max.map(|c| c + margin),
+        }
+    }
+
+    /// Whether the two boxes share a point (touching counts).
+    pub fn overlaps(&self, other: &Aabb) -> bool {
+        (0..3).all(|a| self.min[a] <= other.max[a] && self.max[a] >= other.min[a])
+    }
+
+    /// Whether `p` is in the box (its faces count).
+    pub fn contains(&self, p: &Vec3) -> bool {
+        (0..3).all(|a| p[a] >= self.min[a] && p[a] <= self.max[a])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boxes_grow_overlap_and_contain_with_their_faces() {
+        let unit = Aabb::around(&[Vec3::zeros(), Vec3::repeat(1.0)]);
+        let beside = Aabb::around(&[Vec3::new(1.5, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0)]);
+        assert!(!unit.overlaps(&beside) && !beside.overlaps(&unit));
+        let grown = unit.expanded(0.5);
+        assert!(grown.overlaps(&beside) && beside.overlaps(&grown));
+        assert!(grown.contains(&Vec3::new(-0.5, 1.5, 0.5)));
+        assert!(!grown.contains(&Vec3::new(-0.6, 0.5, 0.5)));
+        assert!(Aabb::EMPTY.expanded(1.0).is_empty());
+    }
 }

@@ -23,7 +23,7 @@ use std::ops::Range;
 use crate::cut::{Blade, SweptSurface, visit_crossing_pairs};
 use crate::force::{BladeContact, CutForce, CutPhase, CuttingForceModel};
 use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
-use crate::math::Vec3;
+use crate::math::{Aabb, Vec3};
 use crate::model::{Kernel, Neighbourhoods, RestGrid};
 use crate::scene::{ForceSpec, ToolSpec};
 use crate::solver::Solver;
@@ -695,14 +695,11 @@ impl CuttingStage {
         // The Σ triangles near the moved edge and the tip's probe, once (Σ only grows over
         // a session); past the scratch's capacity, all of them.
         let pad = self.sigma_tolerance() + self.sigma_plane_tolerance();
-        let lo = a.inf(&b).inf(&probe).add_scalar(-pad);
-        let hi = a.sup(&b).sup(&probe).add_scalar(pad);
+        let region = Aabb::around([&a, &b, &probe]).expanded(pad);
         self.probe_candidates.clear();
         let mut overflow = false;
         for (t, tri) in self.sigma.triangles.iter().enumerate() {
-            let tlo = tri[0].inf(&tri[1]).inf(&tri[2]);
-            let thi = tri[0].sup(&tri[1]).sup(&tri[2]);
-            if (0..3).all(|k| tlo[k] <= hi[k] && thi[k] >= lo[k]) {
+            if Aabb::around(tri).overlaps(&region) {
                 if self.probe_candidates.len() == MAX_PROBE_CANDIDATES {
                     overflow = true;
                     break;
@@ -755,8 +752,11 @@ impl CuttingStage {
         normal.abs() <= self.sigma_tolerance() && in_plane <= self.sigma_plane_tolerance()
     }
 
+    /// Whether `x` (rest) is within the contact tolerance of `tri`: the box test first.
     fn near_triangle(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
-        self.in_box(x, tri) && self.within_tolerance(x, tri)
+        let tol = self.sigma_tolerance();
+        Aabb::around(tri).expanded(tol).contains(x)
+            && (closest_point_on_triangle(x, tri) - x).norm() <= tol
     }
 
     /// Contact tolerance: the blade's thickness and a quarter spacing.
@@ -769,18 +769,6 @@ impl CuttingStage {
     /// wobble between passes and the kinks of a curved sweep.
     fn sigma_plane_tolerance(&self) -> f64 {
         self.tool.blade_thickness_m + 0.05 * self.spacing_m
-    }
-
-    /// `x` is within the tolerance of the triangle's bounding box.
-    fn in_box(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
-        let tol = self.sigma_tolerance();
-        let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
-        let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
-        (0..3).all(|a| x[a] >= lo[a] - tol && x[a] <= hi[a] + tol)
-    }
-
-    fn within_tolerance(&self, x: &Vec3, tri: &[Vec3; 3]) -> bool {
-        (closest_point_on_triangle(x, tri) - x).norm() <= self.sigma_tolerance()
     }
 
     /// Integrates point `i` from the next tick on (it falls asleep again once at rest and

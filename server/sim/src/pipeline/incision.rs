@@ -190,11 +190,9 @@ impl IncisionTracker {
         };
         let on_path = |x: &Vec3| {
             let near = self.sample_step_m.powi(2);
-            (first.surface - x).norm_squared() < near
-                || self
-                    .samples
-                    .windows(2)
-                    .any(|w| distance_sq_to_segment(x, &w[0].surface, &w[1].surface) < near)
+            self.samples
+                .windows(2)
+                .any(|w| distance_sq_to_segment(x, &w[0].surface, &w[1].surface) < near)
         };
         if self.samples.len() >= 2 && on_path(&entry) {
             return false;
