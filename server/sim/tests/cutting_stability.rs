@@ -7,7 +7,7 @@
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
 
-use scalpel_sim::cut::ToolPose;
+use scalpel_sim::cut::{FaceKind, ToolPose};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
@@ -572,6 +572,27 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
         assert!(
             f.x < 0.0 && (f.norm() - expected).abs() < 0.1 * expected,
             "tick {k}: {f:?}, expected about {expected} N"
+        );
+    }
+    // The drawn walls go down with it: as deep as the second pass along the middle of the
+    // cut (they used to keep the first pass's 5 mm).
+    let surface = sim.current_surface();
+    let rest = surface.rest_positions();
+    for x in [-20.0, -10.0] {
+        let expected = top_mm(&scene, x, 0.0) - (top - 10.0);
+        let deepest = surface
+            .mesh
+            .triangles
+            .iter()
+            .zip(&surface.kinds)
+            .filter(|(_, k)| **k == FaceKind::Wall)
+            .flat_map(|(t, _)| t.map(|v| rest[v as usize] * 1e3))
+            .filter(|p| (p.x - x).abs() < 2.0)
+            .map(|p| top_mm(&scene, x, 0.0) - p.z)
+            .fold(0.0, f64::max);
+        assert!(
+            (deepest - expected).abs() < 1.0,
+            "walls at x = {x} mm reach {deepest} mm, the blade went {expected} mm deep"
         );
     }
     assert_sound_surface(&sim);

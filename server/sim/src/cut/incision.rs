@@ -35,8 +35,10 @@ use thiserror::Error;
 
 use crate::geometry::TriMesh;
 use crate::geometry::angle_deg;
-use crate::geometry::predicates::{distance_sq_to_segment, line_triangle};
+use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
+
+use super::wound::{Assembly, WallColumn, Wound, build_walls, carry_wounds, first_hit};
 
 /// What a surface triangle is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -93,6 +95,8 @@ pub struct Incised {
     pub source: Vec<Option<u32>>,
     /// Triangles created by this incision (skin, wall and lid).
     pub created: Vec<u32>,
+    /// The wounds in this surface (the earlier ones and this one's).
+    pub wounds: Vec<Wound>,
     /// Largest turn between consecutive lip segments in the incision's tangent plane
     /// (degrees).
     pub lip_max_turn_deg: f64,
@@ -313,10 +317,12 @@ impl ArcPolyline {
     }
 }
 
-/// Re-triangulates `mesh` around the path and opens the incision (see the module docs).
+/// Re-triangulates `mesh` around the path and opens the incision (see the module docs);
+/// `wounds` are the incisions already in `mesh`.
 pub fn incise(
     mesh: &TriMesh,
     kinds: &[FaceKind],
+    wounds: &[Wound],
     path: &[PathSample],
     params: &IncisionParams,
 ) -> Result<Incised, IncisionError> {
@@ -951,8 +957,7 @@ pub fn incise(
     let lower_chain = chain(&lower_handles, &lower_inserts);
 
     // Wound walls: from each lip down to the bottom curve (the blade tip's track), meeting
-    // at the bottom and at both ends. Rows below the lip are sampled at every parameter of
-    // either lip, so the two walls share the bottom row and the end columns exactly.
+    // at the bottom and at both ends (super::wound).
     let sample_arc: Vec<f64> = path2.arc.clone();
     let bottom_at = |u: f64| -> Vec3 {
         let i = sample_arc
@@ -973,21 +978,15 @@ pub fn incise(
     };
     // Columns below the lips: evenly spaced, as many as the denser lip has vertices.
     let n_cols = upper_chain.len().max(lower_chain.len());
-    let params_all: Vec<f64> = (0..n_cols)
-        .map(|c| c as f64 / (n_cols - 1) as f64)
-        .collect();
     let min_depth = 0.5 * spacing;
     let other_skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && !in_region[t])
         .collect();
-    // Centre line and bottom at every parameter.
-    let mut bottoms = Vec::with_capacity(params_all.len());
-    let mut depth_max_out: f64 = 0.0;
-    for &tp in &params_all {
-        let u = tp * length;
+    let mut columns = Vec::with_capacity(n_cols);
+    for c in 0..n_cols {
+        let param = c as f64 / (n_cols - 1) as f64;
+        let u = param * length;
         let top = lift(path2.at(u));
-        let d = bottom_at(u);
-        let depth = d.norm();
         // Columns go straight into the tissue: along the inward surface normal (smoothed
         // over the region near the path), square to the path, so that the wall's cells stay
         // rectangles where the surface slopes along the cut. The blade's own track sets the
@@ -1003,170 +1002,52 @@ pub fn incise(
             }
         }
         let inward = -normal.try_normalize(1e-300).unwrap_or(n_bar);
-        let dir = tangent
+        let inward = tangent
             .try_normalize(1e-300)
             .and_then(|t| (inward - t * inward.dot(&t)).try_normalize(1e-9))
             .unwrap_or(inward);
-        let mut depth = depth.max(min_depth);
+        let mut depth = bottom_at(u).norm().max(min_depth);
         // A thin part: stop the wall short of the far side of the organ.
-        if let Some(hit) = first_hit(mesh, &other_skin, &top, &dir, depth + spacing) {
+        if let Some(hit) = first_hit(mesh, &other_skin, &top, &inward, depth + spacing) {
             depth = depth.min(0.7 * hit);
         }
-        depth_max_out = depth_max_out.max(depth);
-        bottoms.push(top + dir * depth);
+        let tau = path2.tangent(u, 0.5 * spacing);
+        columns.push(WallColumn {
+            param,
+            top,
+            inward,
+            across: frame.lift_direction([-tau[1], tau[0]]),
+            depth,
+        });
     }
-    let column = length / (params_all.len() - 1).max(1) as f64;
-    // At least two rows: with one, the row under the lips would be the shared bottom row,
-    // and both walls would fan the same triangles from the shared end vertices.
-    let rows = ((depth_max_out / column.max(spacing / 4.0)).round() as usize).clamp(2, 64);
-    let push = |p: Vec3, positions: &mut Vec<Vec3>, source: &mut Vec<Option<u32>>| {
-        positions.push(p);
-        source.push(None);
-        (positions.len() - 1) as u32
+    let wound = Wound {
+        upper: upper_chain,
+        lower: lower_chain,
+        columns,
+        opening_m: w_o,
+        length_m: length,
+        spacing_m: spacing,
     };
-    let a_id = upper_chain[0].1;
-    let b_id = upper_chain[upper_chain.len() - 1].1;
-    // Shared: the end columns (rows 1..=rows) and the bottom row.
-    let mut end0 = vec![a_id];
-    let mut end1 = vec![b_id];
-    for j in 1..=rows {
-        let f = j as f64 / rows as f64;
-        end0.push(push(
-            positions[a_id as usize] * (1.0 - f) + bottoms[0] * f,
-            &mut positions,
-            &mut source,
-        ));
-        end1.push(push(
-            positions[b_id as usize] * (1.0 - f) + bottoms[n_cols - 1] * f,
-            &mut positions,
-            &mut source,
-        ));
-    }
-    let mut bottom_ids = vec![end0[rows]];
-    for c in 1..n_cols - 1 {
-        bottom_ids.push(push(bottoms[c], &mut positions, &mut source));
-    }
-    bottom_ids.push(end1[rows]);
-    for (lip, side) in [(&upper_chain, 1.0), (&lower_chain, -1.0)] {
-        // The lip's position at any parameter (on its refined polyline).
-        let lip_at = |tp: f64, positions: &[Vec3]| -> Vec3 {
-            let i = lip
-                .partition_point(|&(t, _)| t <= tp)
-                .clamp(1, lip.len() - 1)
-                - 1;
-            let (t0, v0) = lip[i];
-            let (t1, v1) = lip[i + 1];
-            let f = if t1 > t0 {
-                ((tp - t0) / (t1 - t0)).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            positions[v0 as usize] * (1.0 - f) + positions[v1 as usize] * f
-        };
-        // grid[j][c]: row j ≥ 1 at every parameter.
-        let mut grid = vec![vec![0u32; n_cols]; rows + 1];
-        for j in 1..=rows {
-            for c in 0..n_cols {
-                grid[j][c] = if c == 0 {
-                    end0[j]
-                } else if c == n_cols - 1 {
-                    end1[j]
-                } else if j == rows {
-                    bottom_ids[c]
-                } else {
-                    let f = j as f64 / rows as f64;
-                    let top = lip_at(params_all[c], &positions);
-                    push(
-                        top * (1.0 - f) + bottoms[c] * f,
-                        &mut positions,
-                        &mut source,
-                    )
-                };
-            }
-        }
-        let mut emit = |tri: [u32; 3], c: usize, positions: &[Vec3]| {
-            // The wall faces the gap: its outward normal points away from its own side.
-            let u = params_all[c.min(n_cols - 1)] * length;
-            let tau = path2.tangent(u, 0.5 * spacing);
-            let outward = -frame.lift_direction([-tau[1], tau[0]]) * side;
-            let q = tri.map(|v| positions[v as usize]);
-            let n = (q[1] - q[0]).cross(&(q[2] - q[0]));
-            let tri = if n.dot(&outward) < 0.0 {
-                [tri[0], tri[2], tri[1]]
-            } else {
-                tri
-            };
-            created.push(triangles.len() as u32);
-            triangles.push(tri);
-            out_kinds.push(FaceKind::Wall);
-        };
-        // Between the lip and row 1: zip the two polylines together by parameter.
-        let (mut i, mut k) = (0, 0);
-        while i + 1 < lip.len() || k + 1 < n_cols {
-            // Take the step that makes the better-shaped triangle.
-            let advance_lip = if i + 1 == lip.len() {
-                false
-            } else if k + 1 == n_cols {
-                true
-            } else if (lip[i + 1].0 - params_all[k + 1]).abs() > 0.5 / (n_cols - 1) as f64 {
-                // Keep the two fronts in step along the cut.
-                lip[i + 1].0 < params_all[k + 1]
-            } else {
-                let shape = |t: [u32; 3]| {
-                    let q = t.map(|v| positions[v as usize]);
-                    (0..3)
-                        .map(|e| angle_deg(q[(e + 1) % 3] - q[e], q[(e + 2) % 3] - q[e]))
-                        .fold(180.0, f64::min)
-                };
-                shape([lip[i].1, grid[1][k], lip[i + 1].1])
-                    >= shape([lip[i].1, grid[1][k], grid[1][k + 1]])
-            };
-            if advance_lip {
-                emit([lip[i].1, grid[1][k], lip[i + 1].1], k, &positions);
-                i += 1;
-            } else {
-                emit([lip[i].1, grid[1][k], grid[1][k + 1]], k, &positions);
-                k += 1;
-            }
-        }
-        // Rows below: quads split along the shorter diagonal, avoiding a diagonal between
-        // two shared vertices (both walls would emit the same triangle).
-        let shared = |c: usize, j: usize| c == 0 || c == n_cols - 1 || j == rows;
-        for j in 1..rows {
-            for c in 0..n_cols - 1 {
-                let q = [
-                    grid[j][c],
-                    grid[j][c + 1],
-                    grid[j + 1][c + 1],
-                    grid[j + 1][c],
-                ];
-                let p = q.map(|v| positions[v as usize]);
-                let first_shared = shared(c, j) && shared(c + 1, j + 1);
-                let second_shared = shared(c + 1, j) && shared(c, j + 1);
-                let use_first = if first_shared != second_shared {
-                    second_shared
-                } else {
-                    (p[0] - p[2]).norm() <= (p[1] - p[3]).norm()
-                };
-                let pair = if use_first {
-                    [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
-                } else {
-                    [[q[0], q[1], q[3]], [q[1], q[2], q[3]]]
-                };
-                for tri in pair {
-                    emit(tri, c, &positions);
-                }
-            }
-        }
-    }
+    let mut assembly = Assembly {
+        positions,
+        source,
+        triangles,
+        kinds: out_kinds,
+        created,
+    };
+    build_walls(&wound, &mut assembly);
+    let min_angle = assembly.min_created_angle_deg();
+    let depth_max_out = wound.depth_m();
+    let mut wounds = carry_wounds(wounds, &assembly.source, mesh.positions.len());
+    wounds.push(wound);
+    let Assembly {
+        positions,
+        source,
+        triangles,
+        kinds: out_kinds,
+        created,
+    } = assembly;
     let out = TriMesh::new(positions, triangles);
-    let mut min_angle: f64 = 180.0;
-    for &t in &created {
-        if out_kinds[t as usize] != FaceKind::Lid {
-            let a = out.angles_deg(t as usize).into_iter().fold(180.0, f64::min);
-            min_angle = min_angle.min(a);
-        }
-    }
     // The lips' own smoothness, in the incision's tangent plane (the facets of the surface
     // they are lifted onto add their dihedral angles on top).
     let turn = |lip: &[[f64; 2]]| {
@@ -1184,6 +1065,7 @@ pub fn incise(
         kinds: out_kinds,
         source,
         created,
+        wounds,
         lip_max_turn_deg,
         min_angle_deg: min_angle,
         opening_m: w_o,
@@ -1192,134 +1074,19 @@ pub fn incise(
     })
 }
 
-/// Distance along the ray from `origin` in unit direction `dir` to the first of
-/// `triangles` it hits within `reach`.
-fn first_hit(
-    mesh: &TriMesh,
-    triangles: &[usize],
-    origin: &Vec3,
-    dir: &Vec3,
-    reach: f64,
-) -> Option<f64> {
-    let end = origin + dir * reach;
-    let lo = origin.inf(&end);
-    let hi = origin.sup(&end);
-    triangles
-        .iter()
-        .filter_map(|&t| {
-            let c = mesh.corners(t);
-            let tlo = c[0].inf(&c[1]).inf(&c[2]);
-            let thi = c[0].sup(&c[1]).sup(&c[2]);
-            if (0..3).any(|a| thi[a] < lo[a] || tlo[a] > hi[a]) {
-                return None;
-            }
-            line_triangle(origin, dir, &c)
-                .map(|(s, _)| s)
-                .filter(|&s| s > 1e-9 && s <= reach)
-        })
-        .min_by(f64::total_cmp)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::topology::check_surface;
+    use crate::cut::checks::{check, top_path};
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
-
-    /// A straight path across the top of `mesh` from (x0, y0) to (x1, y1), `depth` deep.
-    fn top_path(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Vec<PathSample> {
-        let n = 24;
-        (0..=n)
-            .map(|k| {
-                let f = k as f64 / n as f64;
-                let x = from[0] + f * (to[0] - from[0]);
-                let y = from[1] + f * (to[1] - from[1]);
-                let (top, _) = vertical_extent(mesh, x, y).expect("surface above");
-                let surface = Vec3::new(x, y, top);
-                PathSample {
-                    surface,
-                    bottom: surface - Vec3::z() * depth,
-                }
-            })
-            .collect()
-    }
-
-    fn check(out: &Incised, name: &str) {
-        let drawn: Vec<[u32; 3]> = out
-            .mesh
-            .triangles
-            .iter()
-            .zip(&out.kinds)
-            .filter(|(_, k)| **k != FaceKind::Lid)
-            .map(|(t, _)| *t)
-            .collect();
-        let envelope: Vec<[u32; 3]> = out
-            .mesh
-            .triangles
-            .iter()
-            .zip(&out.kinds)
-            .filter(|(_, k)| **k != FaceKind::Wall)
-            .map(|(t, _)| *t)
-            .collect();
-        let nv = out.mesh.positions.len();
-        let c = check_surface(&drawn, nv);
-        assert!(
-            c.closed && c.manifold && c.oriented,
-            "{name}: drawn surface {c:?}"
-        );
-        let c = check_surface(&envelope, nv);
-        assert!(
-            c.closed && c.manifold && c.oriented,
-            "{name}: envelope {c:?}"
-        );
-        let worst = out
-            .created
-            .iter()
-            .filter(|&&t| out.kinds[t as usize] != FaceKind::Lid)
-            .map(|&t| {
-                let a = out
-                    .mesh
-                    .angles_deg(t as usize)
-                    .into_iter()
-                    .fold(180.0, f64::min);
-                (
-                    a,
-                    out.kinds[t as usize],
-                    out.mesh.corners(t as usize).map(|c| {
-                        [
-                            (c.x * 1e4).round() / 10.0,
-                            (c.y * 1e4).round() / 10.0,
-                            (c.z * 1e4).round() / 10.0,
-                        ]
-                    }),
-                )
-            })
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        assert!(
-            out.min_angle_deg >= 15.0,
-            "{name}: min angle {} {worst:?} depth {} w {} L {}",
-            out.min_angle_deg,
-            out.depth_m,
-            out.opening_m,
-            out.length_m
-        );
-        // Every vertex is used.
-        let mut used = vec![false; nv];
-        out.mesh
-            .triangles
-            .iter()
-            .flatten()
-            .for_each(|&v| used[v as usize] = true);
-        assert!(used.iter().all(|&u| u), "{name}: unused vertices");
-    }
 
     #[test]
     fn straight_incision_on_the_liver_is_closed_manifold_and_well_shaped() {
         let liver = BuiltinMesh::Liver.generate();
         let kinds = vec![FaceKind::Skin; liver.triangles.len()];
         let path = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-        let out = incise(&liver, &kinds, &path, &IncisionParams::default()).expect("incision");
+        let out = incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
         check(&out, "liver");
         // w_o = min(0.15 × 60 mm, 0.3 × 10 mm) = 3 mm.
         assert!((out.opening_m - 0.003).abs() < 1e-9, "{}", out.opening_m);
@@ -1396,7 +1163,7 @@ mod tests {
                     })
                     .collect();
                 let name = format!("{} case {case}", organ.name());
-                match incise(&mesh, &kinds, &path, &IncisionParams::default()) {
+                match incise(&mesh, &kinds, &[], &path, &IncisionParams::default()) {
                     Ok(out) => {
                         check(&out, &name);
                         worst = worst.min(out.min_angle_deg);

@@ -1,10 +1,14 @@
 //! Cutting: the virtual scalpel, the swept cut surface and the visibility criterion.
 
 pub mod blade;
+#[cfg(test)]
+pub(crate) mod checks;
 pub mod incision;
 pub mod swept;
+pub mod wound;
 
 pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
 pub use incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
 pub use swept::{SweptSurface, cut_pairs, visit_crossing_pairs};
+pub use wound::{WallColumn, Wound, deepen};

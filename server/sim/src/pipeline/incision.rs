@@ -7,13 +7,13 @@
 //! extends the path there. The incision of the stroke is recomputed from the surface as it
 //! was when the stroke started, only when the path has grown by more than one edge length
 //! since the last run (so the topology is not edited every tick), and once more when the
-//! stroke ends. Parts of the path that run over an earlier wound (its lid or walls) are
-//! left out, so crossing cuts split into separate incisions on either side of the earlier
-//! one.
+//! stroke ends. Parts of the path that run over an earlier wound (its lid or walls) open
+//! no incision — crossing cuts split into separate incisions on either side of the
+//! earlier one — but take the wound's walls down where they cut deeper than them.
 
 use serde::Serialize;
 
-use crate::cut::{FaceKind, IncisionError, IncisionParams, PathSample, incise};
+use crate::cut::{FaceKind, IncisionError, IncisionParams, PathSample, Wound, deepen, incise};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
 use crate::math::Vec3;
@@ -47,6 +47,7 @@ pub struct IncisionStats {
 struct Base {
     mesh: TriMesh,
     kinds: Vec<FaceKind>,
+    wounds: Vec<Wound>,
     /// The current vertex each base vertex is now.
     to_current: Vec<Option<u32>>,
 }
@@ -147,6 +148,7 @@ impl IncisionTracker {
             self.base = Some(Base {
                 mesh: surface.rest_mesh(),
                 kinds: surface.kinds.clone(),
+                wounds: surface.wounds.clone(),
                 to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
             });
         }
@@ -245,51 +247,65 @@ impl IncisionTracker {
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.stats.runs += 1;
-        // The path over intact skin, split where it crosses earlier wounds.
+        // The path split where it runs over earlier wounds (their lids or walls): the
+        // parts over intact skin open incisions, the parts over a wound take its walls
+        // down where they cut deeper. (Crossing cuts split into separate incisions on
+        // either side of the earlier one.)
         let margin = 0.5 * self.rerun_step_m;
-        let wounds: Vec<[Vec3; 3]> = (0..base.mesh.triangles.len())
+        let wound_faces: Vec<[Vec3; 3]> = (0..base.mesh.triangles.len())
             .filter(|&t| base.kinds[t] != FaceKind::Skin)
             .map(|t| base.mesh.corners(t))
             .collect();
-        let mut pieces: Vec<Vec<PathSample>> = vec![Vec::new()];
+        let mut pieces: Vec<(bool, Vec<PathSample>)> = Vec::new();
         for s in &self.samples {
-            let clear = wounds
+            let over = wound_faces
                 .iter()
-                .all(|t| (closest_point_on_triangle(&s.surface, t) - s.surface).norm() >= margin);
-            match (clear, pieces.last_mut()) {
-                (true, Some(piece)) => piece.push(*s),
-                (false, Some(piece)) if !piece.is_empty() => pieces.push(Vec::new()),
-                _ => {}
+                .any(|t| (closest_point_on_triangle(&s.surface, t) - s.surface).norm() < margin);
+            match pieces.last_mut() {
+                Some((o, piece)) if *o == over => piece.push(*s),
+                _ => pieces.push((over, vec![*s])),
             }
         }
         let mut mesh = base.mesh.clone();
         let mut kinds = base.kinds.clone();
+        let mut wounds = base.wounds.clone();
         // Composition of the pieces' vertex maps, back to the base.
         let mut source: Vec<Option<u32>> = (0..mesh.positions.len() as u32).map(Some).collect();
         let mut last: Option<crate::cut::Incised> = None;
-        for piece in pieces.iter().filter(|p| p.len() >= 2) {
-            match incise(&mesh, &kinds, piece, &self.params) {
-                Ok(out) => {
-                    source = out
-                        .source
-                        .iter()
-                        .map(|s| s.and_then(|v| source[v as usize]))
-                        .collect();
-                    self.stats.lip_max_turn_deg =
-                        self.stats.lip_max_turn_deg.max(out.lip_max_turn_deg);
-                    self.stats.min_angle_deg = self.stats.min_angle_deg.min(out.min_angle_deg);
-                    self.stats.opening_m = self.stats.opening_m.max(out.opening_m);
-                    self.stats.depth_m = self.stats.depth_m.max(out.depth_m);
-                    mesh = out.mesh.clone();
-                    kinds = out.kinds.clone();
-                    last = Some(out);
+        let mut opened = false;
+        for (over, piece) in &pieces {
+            let out = if *over {
+                match deepen(&mesh, &kinds, &wounds, piece) {
+                    Some(out) => out,
+                    None => continue,
                 }
-                Err(IncisionError::TooShort { .. }) => {}
-                Err(e) => {
-                    self.stats.refused += 1;
-                    self.stats.last_refusal = Some(e.to_string());
+            } else {
+                match incise(&mesh, &kinds, &wounds, piece, &self.params) {
+                    Ok(out) => {
+                        opened = true;
+                        out
+                    }
+                    Err(IncisionError::TooShort { .. }) => continue,
+                    Err(e) => {
+                        self.stats.refused += 1;
+                        self.stats.last_refusal = Some(e.to_string());
+                        continue;
+                    }
                 }
-            }
+            };
+            source = out
+                .source
+                .iter()
+                .map(|s| s.and_then(|v| source[v as usize]))
+                .collect();
+            self.stats.lip_max_turn_deg = self.stats.lip_max_turn_deg.max(out.lip_max_turn_deg);
+            self.stats.min_angle_deg = self.stats.min_angle_deg.min(out.min_angle_deg);
+            self.stats.opening_m = self.stats.opening_m.max(out.opening_m);
+            self.stats.depth_m = self.stats.depth_m.max(out.depth_m);
+            mesh = out.mesh.clone();
+            kinds = out.kinds.clone();
+            wounds = out.wounds.clone();
+            last = Some(out);
         }
         let Some(mut out) = last else {
             return false;
@@ -304,7 +320,7 @@ impl IncisionTracker {
             inputs.op,
             inputs.positions,
         );
-        if !self.opened_this_stroke {
+        if opened && !self.opened_this_stroke {
             self.opened_this_stroke = true;
             self.stats.incisions += 1;
         }

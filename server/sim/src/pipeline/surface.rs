@@ -6,7 +6,7 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
-use crate::cut::{Blade, FaceKind, Incised, segment_meets_triangle};
+use crate::cut::{Blade, FaceKind, Incised, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
@@ -87,6 +87,8 @@ pub struct CurrentSurface {
     pub mesh: TriMesh,
     /// What each triangle is (skin, wound wall, lid).
     pub kinds: Vec<FaceKind>,
+    /// The incisions opened in it, for a deeper pass to take their walls down.
+    pub wounds: Vec<Wound>,
     rest: Vec<Vec3>,
     kernel: Kernel,
     bvh: TriangleBvh,
@@ -175,6 +177,7 @@ impl CurrentSurface {
         Self {
             bvh: TriangleBvh::build(&mesh),
             kinds: vec![FaceKind::Skin; mesh.triangles.len()],
+            wounds: Vec::new(),
             kernel: model.kernel,
             rest: mesh.positions.clone(),
             vertex_grid: RestGrid::build(&mesh.positions, model.kernel.support_m),
@@ -492,6 +495,7 @@ impl CurrentSurface {
         self.rest = incised.mesh.positions.clone();
         self.mesh = incised.mesh.clone();
         self.kinds = incised.kinds.clone();
+        self.wounds = incised.wounds.clone();
         self.rebuild_indices(rest_points.len());
         let all: Vec<u32> = (0..rest_points.len() as u32).collect();
         self.followed.iter_mut().for_each(|f| *f = STALE);

@@ -1,0 +1,597 @@
+//! Wound walls: what an incision leaves below its lips, and a deeper pass along it.
+//!
+//! An incision records its wound: the two lips (vertices of the surface) and the columns
+//! its walls hang from (a point on the path, the direction into the tissue, the depth).
+//! The walls are two strips, one from each lip down to the shared bottom curve, gridded
+//! column by column, each column with as many rows as its depth needs — so a wound that
+//! is shallow in one place and deep in another keeps well-shaped cells in both.
+//!
+//! A later stroke that runs along the wound deeper than its walls (a surgeon deepening an
+//! incision, or a deeper cut across it) cuts below the old floor; [`deepen`] takes the
+//! walls of every such column down to the new depth. Only the walls are rebuilt: the lips
+//! and the skin around them stay, so the opening keeps the width of the first pass.
+
+use std::collections::HashSet;
+
+use crate::geometry::TriMesh;
+use crate::geometry::angle_deg;
+use crate::geometry::predicates::line_triangle;
+use crate::math::Vec3;
+
+use super::incision::{FaceKind, Incised, PathSample};
+
+/// One column of a wound's walls.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallColumn {
+    /// Where it is along the path, in [0, 1].
+    pub param: f64,
+    /// Its top, on the path (rest space, m).
+    pub top: Vec3,
+    /// Unit direction into the tissue.
+    pub inward: Vec3,
+    /// Unit direction across the path, towards the upper lip.
+    pub across: Vec3,
+    /// Depth of the walls here (m).
+    pub depth: f64,
+}
+
+impl WallColumn {
+    fn bottom(&self) -> Vec3 {
+        self.top + self.inward * self.depth
+    }
+}
+
+/// An opened incision: what a later, deeper pass needs to take its walls further down.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Wound {
+    /// The upper lip from end A to end B: (parameter along the path in [0, 1], vertex).
+    pub upper: Vec<(f64, u32)>,
+    /// The lower lip, A to B (the same end vertices).
+    pub lower: Vec<(f64, u32)>,
+    /// The wall columns, evenly spaced from A (parameter 0) to B (parameter 1).
+    pub columns: Vec<WallColumn>,
+    /// Largest half-opening (m).
+    pub opening_m: f64,
+    /// Path length (m).
+    pub length_m: f64,
+    /// The spacing the incision was meshed at (m).
+    pub spacing_m: f64,
+}
+
+impl Wound {
+    /// Deepest column (m).
+    pub fn depth_m(&self) -> f64 {
+        self.columns.iter().map(|c| c.depth).fold(0.0, f64::max)
+    }
+
+    /// The same wound in another numbering of the vertices (`None` if a lip vertex is
+    /// gone).
+    fn renumbered(&self, new_id: &[Option<u32>]) -> Option<Wound> {
+        let map = |lip: &[(f64, u32)]| -> Option<Vec<(f64, u32)>> {
+            lip.iter()
+                .map(|&(t, v)| new_id.get(v as usize).copied().flatten().map(|n| (t, n)))
+                .collect()
+        };
+        Some(Wound {
+            upper: map(&self.upper)?,
+            lower: map(&self.lower)?,
+            ..self.clone()
+        })
+    }
+}
+
+/// The wounds of `wounds` after a re-mesh whose vertex `v` came from input vertex
+/// `source[v]`; wounds that lost a lip vertex are dropped.
+pub(crate) fn carry_wounds(wounds: &[Wound], source: &[Option<u32>], inputs: usize) -> Vec<Wound> {
+    let mut new_id = vec![None; inputs];
+    for (v, s) in source.iter().enumerate() {
+        if let Some(s) = s {
+            new_id[*s as usize] = Some(v as u32);
+        }
+    }
+    wounds
+        .iter()
+        .filter_map(|w| w.renumbered(&new_id))
+        .collect()
+}
+
+/// A surface being assembled: vertices with the input vertex each one is, triangles with
+/// their kind, and which triangles are new.
+pub(crate) struct Assembly {
+    pub positions: Vec<Vec3>,
+    pub source: Vec<Option<u32>>,
+    pub triangles: Vec<[u32; 3]>,
+    pub kinds: Vec<FaceKind>,
+    pub created: Vec<u32>,
+}
+
+impl Assembly {
+    fn vertex(&mut self, p: Vec3) -> u32 {
+        self.positions.push(p);
+        self.source.push(None);
+        (self.positions.len() - 1) as u32
+    }
+
+    /// Smallest angle of the created triangles that are drawn (degrees).
+    pub fn min_created_angle_deg(&self) -> f64 {
+        self.created
+            .iter()
+            .filter(|&&t| self.kinds[t as usize] != FaceKind::Lid)
+            .map(|&t| min_angle_deg(self.triangles[t as usize].map(|v| self.positions[v as usize])))
+            .fold(180.0, f64::min)
+    }
+}
+
+fn min_angle_deg(q: [Vec3; 3]) -> f64 {
+    (0..3)
+        .map(|e| angle_deg(q[(e + 1) % 3] - q[e], q[(e + 2) % 3] - q[e]))
+        .fold(180.0, f64::min)
+}
+
+/// Rows of a column `depth` deep, for cells about `cell` tall.
+fn rows_for(depth: f64, cell: f64) -> usize {
+    // At least two rows: with one, the row under the lips would be the shared bottom row,
+    // and both walls would fan the same triangles from the shared end vertices.
+    ((depth / cell).round() as usize).clamp(2, 64)
+}
+
+/// Adds the wound's walls: from each lip down to the bottom curve, meeting at the bottom
+/// and at both ends (the end columns and the bottom vertices are shared by the two walls).
+pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
+    let cols = &wound.columns;
+    let n = cols.len();
+    let column = wound.length_m / (n - 1).max(1) as f64;
+    let cell = column.max(wound.spacing_m / 4.0);
+    let rows: Vec<usize> = cols.iter().map(|c| rows_for(c.depth, cell)).collect();
+    let a_id = wound.upper[0].1;
+    let b_id = wound.upper[wound.upper.len() - 1].1;
+    // The end columns, rows 1 ..= rows, shared.
+    let end_column = |id: u32, c: usize, out: &mut Assembly| {
+        let top = out.positions[id as usize];
+        let mut ids = vec![id];
+        for j in 1..=rows[c] {
+            let f = j as f64 / rows[c] as f64;
+            ids.push(out.vertex(top * (1.0 - f) + cols[c].bottom() * f));
+        }
+        ids
+    };
+    let end0 = end_column(a_id, 0, out);
+    let end1 = end_column(b_id, n - 1, out);
+    let mut bottoms = vec![end0[rows[0]]];
+    for c in cols.iter().take(n - 1).skip(1) {
+        bottoms.push(out.vertex(c.bottom()));
+    }
+    bottoms.push(end1[rows[n - 1]]);
+    let end = |c: usize| c == 0 || c == n - 1;
+
+    for (lip, side) in [(&wound.upper, 1.0), (&wound.lower, -1.0)] {
+        // The lip's position at any parameter (on its polyline).
+        let lip_at = |tp: f64, positions: &[Vec3]| -> Vec3 {
+            let i = lip
+                .partition_point(|&(t, _)| t <= tp)
+                .clamp(1, lip.len() - 1)
+                - 1;
+            let (t0, v0) = lip[i];
+            let (t1, v1) = lip[i + 1];
+            let f = if t1 > t0 {
+                ((tp - t0) / (t1 - t0)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            positions[v0 as usize] * (1.0 - f) + positions[v1 as usize] * f
+        };
+        // grid[c][j]: column c, row j ≥ 1 (row 0 is the lip, not on the columns).
+        let mut grid: Vec<Vec<u32>> = Vec::with_capacity(n);
+        for (c, col) in cols.iter().enumerate() {
+            let ids = if c == 0 {
+                end0.clone()
+            } else if c == n - 1 {
+                end1.clone()
+            } else {
+                let top = lip_at(col.param, &out.positions);
+                let mut ids = vec![u32::MAX];
+                for j in 1..rows[c] {
+                    let f = j as f64 / rows[c] as f64;
+                    ids.push(out.vertex(top * (1.0 - f) + col.bottom() * f));
+                }
+                ids.push(bottoms[c]);
+                ids
+            };
+            grid.push(ids);
+        }
+        let emit = |tri: [u32; 3], c: usize, out: &mut Assembly| {
+            // The wall faces the gap: its outward normal points away from its own side.
+            let outward = -cols[c.min(n - 1)].across * side;
+            let q = tri.map(|v| out.positions[v as usize]);
+            let normal = (q[1] - q[0]).cross(&(q[2] - q[0]));
+            let tri = if normal.dot(&outward) < 0.0 {
+                [tri[0], tri[2], tri[1]]
+            } else {
+                tri
+            };
+            out.created.push(out.triangles.len() as u32);
+            out.triangles.push(tri);
+            out.kinds.push(FaceKind::Wall);
+        };
+        let shape =
+            |t: [u32; 3], out: &Assembly| min_angle_deg(t.map(|v| out.positions[v as usize]));
+        // Between the lip and row 1: zip the two polylines together by parameter.
+        let (mut i, mut k) = (0, 0);
+        while i + 1 < lip.len() || k + 1 < n {
+            let advance_lip = if i + 1 == lip.len() {
+                false
+            } else if k + 1 == n {
+                true
+            } else if (lip[i + 1].0 - cols[k + 1].param).abs() > 0.5 / (n - 1) as f64 {
+                // Keep the two fronts in step along the cut.
+                lip[i + 1].0 < cols[k + 1].param
+            } else {
+                shape([lip[i].1, grid[k][1], lip[i + 1].1], out)
+                    >= shape([lip[i].1, grid[k][1], grid[k + 1][1]], out)
+            };
+            if advance_lip {
+                emit([lip[i].1, grid[k][1], lip[i + 1].1], k, out);
+                i += 1;
+            } else {
+                emit([lip[i].1, grid[k][1], grid[k + 1][1]], k, out);
+                k += 1;
+            }
+        }
+        // Between neighbouring columns, row 1 down to the bottom: zip the two columns
+        // together by depth fraction (they may have different numbers of rows).
+        for a in 0..n - 1 {
+            let b = a + 1;
+            let (ra, rb) = (rows[a], rows[b]);
+            let (mut j, mut k) = (1, 1);
+            while j < ra || k < rb {
+                // A column may reach its bottom only after an end column beside it has:
+                // a triangle of three shared vertices would be emitted by both walls.
+                let may_reach = |x_next: usize, rx: usize, y: usize, y_at: usize, ry: usize| {
+                    x_next < rx || !end(y) || y_at == ry
+                };
+                let can_a = j < ra && may_reach(j + 1, ra, b, k, rb);
+                let can_b = k < rb && may_reach(k + 1, rb, a, j, ra);
+                let tri_a = |j: usize| [grid[a][j], grid[b][k], grid[a][j + 1]];
+                let tri_b = |k: usize| [grid[a][j], grid[b][k], grid[b][k + 1]];
+                let advance_a = match (can_a, can_b) {
+                    (true, false) => true,
+                    (false, _) => false,
+                    (true, true) => {
+                        let (fa, fb) = ((j + 1) as f64 / ra as f64, (k + 1) as f64 / rb as f64);
+                        if (fa - fb).abs() > 0.5 / ra.max(rb) as f64 {
+                            // Keep the two fronts in step down the wall.
+                            fa < fb
+                        } else {
+                            shape(tri_a(j), out) >= shape(tri_b(k), out)
+                        }
+                    }
+                };
+                if advance_a {
+                    emit(tri_a(j), a, out);
+                    j += 1;
+                } else {
+                    emit(tri_b(k), a, out);
+                    k += 1;
+                }
+            }
+        }
+    }
+}
+
+/// Distance along the ray from `origin` in unit direction `dir` to the first of
+/// `triangles` of `mesh` it hits within `reach`.
+pub(crate) fn first_hit(
+    mesh: &TriMesh,
+    triangles: &[usize],
+    origin: &Vec3,
+    dir: &Vec3,
+    reach: f64,
+) -> Option<f64> {
+    let end = origin + dir * reach;
+    let lo = origin.inf(&end);
+    let hi = origin.sup(&end);
+    triangles
+        .iter()
+        .filter_map(|&t| {
+            let c = mesh.corners(t);
+            let tlo = c[0].inf(&c[1]).inf(&c[2]);
+            let thi = c[0].sup(&c[1]).sup(&c[2]);
+            if (0..3).any(|a| thi[a] < lo[a] || tlo[a] > hi[a]) {
+                return None;
+            }
+            line_triangle(origin, dir, &c)
+                .map(|(s, _)| s)
+                .filter(|&s| s > 1e-9 && s <= reach)
+        })
+        .min_by(f64::total_cmp)
+}
+
+/// The depth `path` cut (m along the blade) at its point nearest `x`, if that point is
+/// within `across` of `x` — or within `along` where it is an end of the path (beside it,
+/// not ahead of it).
+fn path_depth_near(path: &[PathSample], x: &Vec3, across: f64, along: f64) -> Option<f64> {
+    let depth = |s: &PathSample| (s.bottom - s.surface).norm();
+    if let [only] = path {
+        return ((x - only.surface).norm() <= along).then(|| depth(only));
+    }
+    let (distance, at_end, d) = path
+        .windows(2)
+        .enumerate()
+        .map(|(i, w)| {
+            let (a, b) = (w[0].surface, w[1].surface);
+            let ab = b - a;
+            let len2 = ab.norm_squared();
+            let f = if len2 > 0.0 {
+                ((x - a).dot(&ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let at_end = (i == 0 && f == 0.0) || (i + 2 == path.len() && f == 1.0);
+            let distance = (x - (a + ab * f)).norm();
+            (
+                distance,
+                at_end,
+                depth(&w[0]) * (1.0 - f) + depth(&w[1]) * f,
+            )
+        })
+        .min_by(|p, q| p.0.total_cmp(&q.0))?;
+    (distance <= if at_end { along } else { across }).then_some(d)
+}
+
+/// Takes the walls of `wounds` down where `path` cut deeper than them (see the module
+/// docs). `None` when no wound is deepened by more than a quarter of its spacing.
+pub fn deepen(
+    mesh: &TriMesh,
+    kinds: &[FaceKind],
+    wounds: &[Wound],
+    path: &[PathSample],
+) -> Option<Incised> {
+    // The new depth of every column the path ran over (within the opening and a spacing
+    // of the column's top), for the wounds it deepens.
+    let skin: Vec<usize> = (0..mesh.triangles.len())
+        .filter(|&t| kinds[t] == FaceKind::Skin)
+        .collect();
+    let mut deeper: Vec<(usize, Wound)> = Vec::new();
+    for (w, wound) in wounds.iter().enumerate() {
+        // Across the wound, anywhere over the lid or a spacing beside it; along it, the
+        // walls go down as far as the blade has come (to the nearest column), not ahead.
+        let across = wound.opening_m + wound.spacing_m;
+        let along = 0.5 * wound.length_m / (wound.columns.len() - 1).max(1) as f64;
+        let mut changed = false;
+        let mut new = wound.clone();
+        for col in &mut new.columns {
+            let Some(depth) = path_depth_near(path, &col.top, across, along) else {
+                continue;
+            };
+            if depth <= col.depth + 0.25 * wound.spacing_m {
+                continue;
+            }
+            // A thin part: stop the wall short of the far side of the organ, as the
+            // incision does.
+            let depth = match first_hit(mesh, &skin, &col.top, &col.inward, depth + wound.spacing_m)
+            {
+                Some(hit) => depth.min(0.7 * hit),
+                None => depth,
+            };
+            if depth > col.depth + 0.25 * wound.spacing_m {
+                col.depth = depth;
+                changed = true;
+            }
+        }
+        if changed {
+            deeper.push((w, new));
+        }
+    }
+    if deeper.is_empty() {
+        return None;
+    }
+    // The old walls of those wounds: the wall faces reached from their lip edges without
+    // crossing a lip (each wound's walls are one strip of faces, joined to nothing else).
+    let mut lip_edges: HashSet<(u32, u32)> = HashSet::new();
+    for (w, _) in &deeper {
+        for lip in [&wounds[*w].upper, &wounds[*w].lower] {
+            for e in lip.windows(2) {
+                lip_edges.insert((e[0].1.min(e[1].1), e[0].1.max(e[1].1)));
+            }
+        }
+    }
+    let key = |a: u32, b: u32| (a.min(b), a.max(b));
+    let mut walls_by_edge: std::collections::HashMap<(u32, u32), Vec<usize>> =
+        std::collections::HashMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if kinds[t] == FaceKind::Wall {
+            for e in 0..3 {
+                walls_by_edge
+                    .entry(key(tri[e], tri[(e + 1) % 3]))
+                    .or_default()
+                    .push(t);
+            }
+        }
+    }
+    let mut removed = vec![false; mesh.triangles.len()];
+    let mut stack: Vec<usize> = lip_edges
+        .iter()
+        .filter_map(|e| walls_by_edge.get(e))
+        .flatten()
+        .copied()
+        .collect();
+    while let Some(t) = stack.pop() {
+        if std::mem::replace(&mut removed[t], true) {
+            continue;
+        }
+        let tri = mesh.triangles[t];
+        for e in 0..3 {
+            let edge = key(tri[e], tri[(e + 1) % 3]);
+            if lip_edges.contains(&edge) {
+                continue;
+            }
+            if let Some(next) = walls_by_edge.get(&edge) {
+                stack.extend(next.iter().copied().filter(|&u| !removed[u]));
+            }
+        }
+    }
+    // Vertices only the old walls used go with them.
+    let mut used = vec![false; mesh.positions.len()];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !removed[t] {
+            tri.iter().for_each(|&v| used[v as usize] = true);
+        }
+    }
+    let mut new_id = vec![None; mesh.positions.len()];
+    let mut out = Assembly {
+        positions: Vec::with_capacity(mesh.positions.len()),
+        source: Vec::with_capacity(mesh.positions.len()),
+        triangles: Vec::with_capacity(mesh.triangles.len()),
+        kinds: Vec::with_capacity(mesh.triangles.len()),
+        created: Vec::new(),
+    };
+    for (v, p) in mesh.positions.iter().enumerate() {
+        if used[v] {
+            new_id[v] = Some(out.positions.len() as u32);
+            out.positions.push(*p);
+            out.source.push(Some(v as u32));
+        }
+    }
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !removed[t] {
+            out.triangles
+                .push(tri.map(|v| new_id[v as usize].unwrap_or(u32::MAX)));
+            out.kinds.push(kinds[t]);
+        }
+    }
+    let mut carried: Vec<Wound> = wounds.to_vec();
+    for (w, new) in &deeper {
+        carried[*w] = new.clone();
+    }
+    let carried: Vec<Wound> = carried
+        .iter()
+        .filter_map(|w| w.renumbered(&new_id))
+        .collect();
+    let mut depth_m: f64 = 0.0;
+    let (mut opening_m, mut length_m) = (0.0, 0.0);
+    for (_, new) in &deeper {
+        let Some(renumbered) = new.renumbered(&new_id) else {
+            continue;
+        };
+        build_walls(&renumbered, &mut out);
+        depth_m = depth_m.max(new.depth_m());
+        opening_m = new.opening_m;
+        length_m = new.length_m;
+    }
+    let min_angle_deg = out.min_created_angle_deg();
+    Some(Incised {
+        mesh: TriMesh::new(out.positions, out.triangles),
+        kinds: out.kinds,
+        source: out.source,
+        created: out.created,
+        wounds: carried,
+        lip_max_turn_deg: 0.0,
+        min_angle_deg,
+        opening_m,
+        depth_m,
+        length_m,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cut::checks::{check, top_path};
+    use crate::cut::{IncisionParams, incise};
+    use crate::pipeline::script::vertical_extent;
+    use crate::scene::BuiltinMesh;
+
+    /// The liver with a 60 mm incision 4 mm deep along y = 0.
+    fn first_pass() -> (TriMesh, Incised) {
+        let liver = BuiltinMesh::Liver.generate();
+        let kinds = vec![FaceKind::Skin; liver.triangles.len()];
+        let path = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.004);
+        let out = incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+        (liver, out)
+    }
+
+    /// How far the walls reach below the organ's top within 2 mm of x (m).
+    fn wall_depth_at(liver: &TriMesh, out: &Incised, x: f64) -> f64 {
+        let (top, _) = vertical_extent(liver, x, 0.0).expect("surface above");
+        out.mesh
+            .triangles
+            .iter()
+            .zip(&out.kinds)
+            .filter(|(_, k)| **k == FaceKind::Wall)
+            .flat_map(|(t, _)| t.map(|v| out.mesh.positions[v as usize]))
+            .filter(|p| (p.x - x).abs() < 2e-3)
+            .map(|p| top - p.z)
+            .fold(0.0, f64::max)
+    }
+
+    /// The skin and lid faces, as corner positions: what a deeper pass must not touch.
+    fn outside(out: &Incised) -> Vec<[Vec3; 3]> {
+        (0..out.mesh.triangles.len())
+            .filter(|&t| out.kinds[t] != FaceKind::Wall)
+            .map(|t| out.mesh.corners(t))
+            .collect()
+    }
+
+    #[test]
+    fn a_deeper_pass_takes_the_walls_down_and_leaves_the_lips() {
+        let (liver, first) = first_pass();
+        assert_eq!(first.wounds.len(), 1);
+        let d0 = wall_depth_at(&liver, &first, 0.0);
+        assert!((d0 - 0.004).abs() < 5e-4, "{d0}");
+        let deeper = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
+        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper).expect("deeper walls");
+        check(&out, "deepened");
+        for x in [-0.02, 0.0, 0.02] {
+            let d = wall_depth_at(&liver, &out, x);
+            assert!((d - 0.01).abs() < 5e-4, "at {x}: {d}");
+        }
+        assert_eq!(outside(&out), outside(&first));
+        assert_eq!(out.wounds.len(), 1);
+        assert!((out.wounds[0].depth_m() - 0.01).abs() < 1e-3);
+        // Every vertex that stayed is the one it was.
+        for (v, s) in out.source.iter().enumerate() {
+            if let Some(s) = s {
+                assert_eq!(out.mesh.positions[v], first.mesh.positions[*s as usize]);
+            }
+        }
+    }
+
+    #[test]
+    fn a_deeper_pass_along_part_of_the_wound_deepens_that_part() {
+        let (liver, first) = first_pass();
+        let deeper = top_path(&liver, [-0.01, 0.0], [0.01, 0.0], 0.01);
+        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper).expect("deeper walls");
+        check(&out, "partly deepened");
+        let d = |x| wall_depth_at(&liver, &out, x);
+        assert!((d(0.0) - 0.01).abs() < 5e-4, "{}", d(0.0));
+        assert!((d(-0.02) - 0.004).abs() < 5e-4, "{}", d(-0.02));
+        assert!((d(0.02) - 0.004).abs() < 5e-4, "{}", d(0.02));
+        // And again, deeper still over the middle: the walls of a deepened wound deepen.
+        let again = top_path(&liver, [-0.005, 0.0], [0.005, 0.0], 0.015);
+        let out2 = deepen(&out.mesh, &out.kinds, &out.wounds, &again).expect("deeper again");
+        check(&out2, "deepened twice");
+        assert!((wall_depth_at(&liver, &out2, 0.0) - 0.015).abs() < 5e-4);
+        assert!((wall_depth_at(&liver, &out2, -0.008) - 0.01).abs() < 5e-4);
+    }
+
+    #[test]
+    fn a_deeper_cut_across_the_wound_notches_its_walls() {
+        let (liver, first) = first_pass();
+        // The part of a crossing cut over the wound (the rest opens incisions of its own).
+        let across = top_path(&liver, [0.0, -0.004], [0.0, 0.004], 0.01);
+        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &across).expect("notch");
+        check(&out, "notched");
+        assert!((wall_depth_at(&liver, &out, 0.0) - 0.01).abs() < 5e-4);
+        assert!((wall_depth_at(&liver, &out, 0.015) - 0.004).abs() < 5e-4);
+    }
+
+    #[test]
+    fn a_pass_no_deeper_than_the_walls_changes_nothing() {
+        let (liver, first) = first_pass();
+        let shallow = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.004);
+        assert!(deepen(&first.mesh, &first.kinds, &first.wounds, &shallow).is_none());
+        // Nor does a deeper pass beside the wound, clear of its lips.
+        let beside = top_path(&liver, [-0.03, 0.012], [0.03, 0.012], 0.01);
+        assert!(deepen(&first.mesh, &first.kinds, &first.wounds, &beside).is_none());
+    }
+}
