@@ -170,6 +170,8 @@ pub struct CutMetrics {
     pub lip_max_turn_deg: Option<f64>,
     /// Smallest angle of the remeshed triangles (degrees).
     pub min_angle_deg: Option<f64>,
+    /// Deepest wound wall at the end (mm, along the wall's columns).
+    pub wall_depth_mm: Option<f64>,
     /// The drawn surface is closed at the end.
     pub closed: bool,
     /// ... and edge- and vertex-manifold.
@@ -280,6 +282,10 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         total_ms: Quantiles::of(&total),
         lip_max_turn_deg: opened.then_some(incisions.lip_max_turn_deg),
         min_angle_deg: opened.then_some(incisions.min_angle_deg),
+        wall_depth_mm: opened.then(|| {
+            let wounds = &sim.current_surface().wounds;
+            wounds.iter().map(|w| w.depth_m()).fold(0.0, f64::max) * 1e3
+        }),
         closed: check.closed,
         manifold: check.manifold,
         oriented: check.oriented,

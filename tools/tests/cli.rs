@@ -345,6 +345,12 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     let depth_mm = m["steady_depth_mm"].as_f64().unwrap();
     let want = 0.19 * depth_mm + 0.3;
     assert!((steady - want).abs() < 0.1 * want, "{steady} vs {want}");
+    // The drawn walls go as deep as the blade did.
+    let walls_mm = m["wall_depth_mm"].as_f64().unwrap();
+    assert!(
+        (walls_mm - depth_mm).abs() < 2.0,
+        "{walls_mm} vs {depth_mm}"
+    );
     // Every file is there and readable.
     let csv = std::fs::read_to_string(out.join("force.csv")).unwrap();
     assert!(csv.starts_with("t_s,tip_x_mm"));
