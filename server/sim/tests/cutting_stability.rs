@@ -2,7 +2,7 @@
 //! re-enter, cross an earlier cut, cut through a thin part, cuts that leave slivers and
 //! isolated points, a press that backs out before rupture, a pressed blade that slides,
 //! a blade that turns back along its cut, a blade held still in its cut by a device that
-//! reads a little off every tick, a second deeper pass along a cut, sawing to and fro, and
+//! reads a little off every tick, a second deeper pass along a cut, sawing deeper in one stroke, sawing to and fro, and
 //! a raked blade. In every case: nothing non-finite, the tool force
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
@@ -576,10 +576,17 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
     }
     // The drawn walls go down with it: as deep as the second pass along the middle of the
     // cut (they used to keep the first pass's 5 mm).
+    assert_walls_reach(&sim, &scene, top - 10.0);
+    assert_sound_surface(&sim);
+}
+
+/// The drawn wound walls reach the blade's height `tip_z_mm` (±1 mm) at x = −20 and −10 mm
+/// along y = 0.
+fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, tip_z_mm: f64) {
     let surface = sim.current_surface();
     let rest = surface.rest_positions();
     for x in [-20.0, -10.0] {
-        let expected = top_mm(&scene, x, 0.0) - (top - 10.0);
+        let top = top_mm(scene, x, 0.0);
         let deepest = surface
             .mesh
             .triangles
@@ -588,13 +595,39 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
             .filter(|(_, k)| **k == FaceKind::Wall)
             .flat_map(|(t, _)| t.map(|v| rest[v as usize] * 1e3))
             .filter(|p| (p.x - x).abs() < 2.0)
-            .map(|p| top_mm(&scene, x, 0.0) - p.z)
+            .map(|p| top - p.z)
             .fold(0.0, f64::max);
+        let expected = top - tip_z_mm;
         assert!(
             (deepest - expected).abs() < 1.0,
             "walls at x = {x} mm reach {deepest} mm, the blade went {expected} mm deep"
         );
     }
+}
+
+#[test]
+fn sawing_deeper_in_one_stroke() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    // 5 mm deep from x = -30 to 0 mm, back to -30 going down to 10 mm, forward to 0 at
+    // 10 mm, and out: one stroke that deepens its own cut.
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (2.0, [-30.0, 0.0, top - 5.0]),
+        (8.0, [0.0, 0.0, top - 5.0]),
+        (14.0, [-30.0, 0.0, top - 10.0]),
+        (20.0, [0.0, 0.0, top - 10.0]),
+        (22.0, [0.0, 0.0, top + 5.0]),
+    ]);
+    let (sim, trace) = calm_run(&scene, &s, 0);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    let incisions = sim.incisions().expect("cutting scene");
+    assert_eq!(
+        (incisions.incisions, incisions.refused),
+        (1, 0),
+        "{incisions:?}"
+    );
+    assert_walls_reach(&sim, &scene, top - 10.0);
     assert_sound_surface(&sim);
 }
 

@@ -3,8 +3,9 @@
 //!
 //! While the blade cuts, the entry point (rest space) is sampled every quarter of a local
 //! edge, each sample keeping the deepest tip seen there. A blade back over the stroke's own
-//! path adds nothing (a path folded onto itself is no incision); past the path's start it
-//! extends the path there. The incision of the stroke is recomputed from the surface as it
+//! path adds no path (a path folded onto itself is no incision), but deepens the samples
+//! it goes deeper than (sawing down in its cut); past the path's start it extends the path
+//! there. The incision of the stroke is recomputed from the surface as it
 //! was when the stroke started, only when the path has grown by more than one edge length
 //! since the last run (so the topology is not edited every tick), and once more when the
 //! stroke ends. Parts of the path that run over an earlier wound (its lid or walls) open
@@ -62,6 +63,8 @@ pub struct IncisionTracker {
     /// Whether the incision was computed in this stroke, and the samples added since.
     ran_this_stroke: bool,
     added_since_run: usize,
+    /// How much deeper the samples went since the last run, summed over them (m).
+    deepened_since_run_m: f64,
     /// The most advanced entry since the last sample, taken as the path's end when the
     /// stroke finishes between two samples.
     front: Option<PathSample>,
@@ -100,6 +103,7 @@ impl IncisionTracker {
             samples: Vec::with_capacity(PATH_SAMPLE_CAPACITY),
             ran_this_stroke: false,
             added_since_run: 0,
+            deepened_since_run_m: 0.0,
             front: None,
             opened_this_stroke: false,
             stats: IncisionStats {
@@ -135,12 +139,14 @@ impl IncisionTracker {
                 self.samples.push(front);
                 self.added_since_run += 1;
             }
-            let rerun = self.samples.len() >= 2 && self.added_since_run > 0;
+            let rerun = self.samples.len() >= 2
+                && (self.added_since_run > 0 || self.deepened_since_run_m > 0.0);
             let changed = rerun && self.run(surface, inputs);
             self.base = None;
             self.samples.clear();
             self.ran_this_stroke = false;
             self.added_since_run = 0;
+            self.deepened_since_run_m = 0.0;
             self.opened_this_stroke = false;
             return changed;
         };
@@ -157,8 +163,12 @@ impl IncisionTracker {
         }
         match self.samples.last_mut() {
             Some(last) if (entry - last.surface).norm() < self.sample_step_m => {
-                if (tip - entry).norm() > (last.bottom - last.surface).norm() {
+                let (depth, was) = ((tip - entry).norm(), (last.bottom - last.surface).norm());
+                if depth > was {
                     last.bottom = last.surface + (tip - entry);
+                    if self.ran_this_stroke {
+                        self.deepened_since_run_m += depth - was;
+                    }
                 }
                 let step = entry - last.surface;
                 let ahead = step.dot(&direction) >= 0.5 * step.norm();
@@ -197,7 +207,20 @@ impl IncisionTracker {
                 .any(|w| distance_sq_to_segment(x, &w[0].surface, &w[1].surface) < near)
         };
         if self.samples.len() >= 2 && on_path(&entry) {
-            return false;
+            // Deeper than before there (sawing down in its own cut), it deepens the
+            // samples it is over, and the incision is run again once they have gone a
+            // quarter of an edge deeper between them.
+            let cut = tip - entry;
+            let depth = cut.norm();
+            for s in &mut self.samples {
+                let was = (s.bottom - s.surface).norm();
+                if depth > was && (s.surface - entry).norm() < self.sample_step_m {
+                    s.bottom = s.surface + cut;
+                    self.deepened_since_run_m += depth - was;
+                }
+            }
+            return self.deepened_since_run_m >= 0.25 * self.rerun_step_m
+                && self.run(surface, inputs);
         }
         // (Past the start means on from the start the way the path leaves it: an entry
         // that hops onto another sheet of a thin part is not an extension.)
@@ -246,6 +269,7 @@ impl IncisionTracker {
         };
         self.ran_this_stroke = true;
         self.added_since_run = 0;
+        self.deepened_since_run_m = 0.0;
         self.stats.runs += 1;
         // The path split where it runs over earlier wounds (their lids or walls): the
         // parts over intact skin open incisions, the parts over a wound take its walls
