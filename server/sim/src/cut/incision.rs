@@ -303,6 +303,21 @@ impl ArcPolyline {
         [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]
     }
 
+    /// Largest turn per unit length at any vertex (1/m).
+    fn max_curvature(&self) -> f64 {
+        (1..self.points.len().saturating_sub(1))
+            .map(|i| {
+                let (d0, d1) = (
+                    sub2(self.points[i], self.points[i - 1]),
+                    sub2(self.points[i + 1], self.points[i]),
+                );
+                let turn = cross2(d0, d1).atan2(d0[0] * d1[0] + d0[1] * d1[1]).abs();
+                let half = 0.5 * (self.arc[i + 1] - self.arc[i - 1]);
+                if half > 0.0 { turn / half } else { 0.0 }
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// Unit tangent at u, smoothed over ±δ.
     fn tangent(&self, u: f64, delta: f64) -> [f64; 2] {
         let a = self.at((u - delta).max(0.0));
@@ -315,6 +330,53 @@ impl ArcPolyline {
             [1.0, 0.0]
         }
     }
+}
+
+/// Largest turn of a lip from one segment to the next on a curved path (degrees), unless
+/// that would take segments shorter than a quarter of the spacing.
+const LIP_TURN_DEG: f64 = 10.0;
+
+/// The path through its samples as a smooth curve, and the blade's track (tip − entry)
+/// along it: quadratic Bézier pieces from the middle of one segment to the middle of the
+/// next with the sample between as control point (a quadratic B-spline clamped to the first
+/// and last sample), four chords a piece. Sampled every quarter edge, a curved stroke
+/// would otherwise turn by whole sample angles at the samples, and the lips with it; a
+/// straight one stays as it is.
+fn smooth_path(points: &[[f64; 2]], tracks: &[Vec3]) -> (Vec<[f64; 2]>, Vec<Vec3>) {
+    let n = points.len();
+    if n < 3 {
+        return (points.to_vec(), tracks.to_vec());
+    }
+    let mid = |i: usize| {
+        (
+            [
+                0.5 * (points[i][0] + points[i + 1][0]),
+                0.5 * (points[i][1] + points[i + 1][1]),
+            ],
+            (tracks[i] + tracks[i + 1]) * 0.5,
+        )
+    };
+    let mut out_points = vec![points[0]];
+    let mut out_tracks = vec![tracks[0]];
+    for i in 1..n - 1 {
+        let ((a, ta), (c, tc)) = (mid(i - 1), mid(i));
+        let (b, tb) = (points[i], tracks[i]);
+        for k in 0..4 {
+            let t = k as f64 / 4.0;
+            let (wa, wb, wc) = ((1.0 - t) * (1.0 - t), 2.0 * t * (1.0 - t), t * t);
+            out_points.push([
+                wa * a[0] + wb * b[0] + wc * c[0],
+                wa * a[1] + wb * b[1] + wc * c[1],
+            ]);
+            out_tracks.push(ta * wa + tb * wb + tc * wc);
+        }
+    }
+    let (last_mid, last_track) = mid(n - 2);
+    out_points.push(last_mid);
+    out_tracks.push(last_track);
+    out_points.push(points[n - 1]);
+    out_tracks.push(tracks[n - 1]);
+    (out_points, out_tracks)
 }
 
 /// Re-triangulates `mesh` around the path and opens the incision (see the module docs);
@@ -396,7 +458,17 @@ pub fn incise(
         e1,
         e2: n_bar.cross(&e1),
     };
-    let path2 = ArcPolyline::new(samples.iter().map(|s| frame.project(&s.surface)).collect());
+    let (points2, tracks) = smooth_path(
+        &samples
+            .iter()
+            .map(|s| frame.project(&s.surface))
+            .collect::<Vec<_>>(),
+        &samples
+            .iter()
+            .map(|s| s.bottom - s.surface)
+            .collect::<Vec<_>>(),
+    );
+    let path2 = ArcPolyline::new(points2);
     let length = path2.length();
     let depth_max = samples
         .iter()
@@ -566,7 +638,12 @@ pub fn incise(
         // Lip segments no longer than three quarters of the depth either: the walls below are
         // gridded at the lips' spacing with rows about as tall, and a shallow wall under long
         // segments would be all slivers.
-        let lip_step = spacing.min((0.75 * depth_max).max(0.25 * spacing));
+        // And short enough on a curved path that a lip turns by at most LIP_TURN_DEG from
+        // one segment to the next.
+        let turn_step = LIP_TURN_DEG.to_radians() / path2.max_curvature().max(1e-300);
+        let lip_step = spacing
+            .min((0.75 * depth_max).max(0.25 * spacing))
+            .min(turn_step.max(0.25 * spacing));
         let m = ((length / lip_step).ceil() as usize).clamp(8, 400);
         let mut centre = Vec::with_capacity(m + 1);
         let mut upper = Vec::with_capacity(m + 1);
@@ -959,6 +1036,7 @@ pub fn incise(
     // Wound walls: from each lip down to the bottom curve (the blade tip's track), meeting
     // at the bottom and at both ends (super::wound).
     let sample_arc: Vec<f64> = path2.arc.clone();
+    // The blade's track (tip − entry) at arc length u.
     let bottom_at = |u: f64| -> Vec3 {
         let i = sample_arc
             .partition_point(|&a| a <= u)
@@ -970,11 +1048,7 @@ pub fn incise(
         } else {
             0.0
         };
-        let s0 = &samples[i];
-        let s1 = &samples[i + 1];
-        let d0 = s0.bottom - s0.surface;
-        let d1 = s1.bottom - s1.surface;
-        d0 * (1.0 - f) + d1 * f
+        tracks[i] * (1.0 - f) + tracks[i + 1] * f
     };
     // Columns below the lips: evenly spaced, as many as the denser lip has vertices.
     let n_cols = upper_chain.len().max(lower_chain.len());
@@ -1115,6 +1189,36 @@ mod tests {
             out.min_angle_deg,
             out.lip_max_turn_deg
         );
+    }
+
+    /// A curved stroke sampled every quarter edge (a half circle of 12 mm radius on the
+    /// liver, 10 mm deep): the lips follow a smooth curve, not the samples' polygon.
+    #[test]
+    fn a_curved_incision_has_smooth_lips() {
+        let liver = BuiltinMesh::Liver.generate();
+        let kinds = vec![FaceKind::Skin; liver.triangles.len()];
+        let step = 0.25 * liver.mean_edge_length();
+        let radius = 0.012;
+        let n = (std::f64::consts::PI * radius / step).ceil() as usize;
+        let path: Vec<PathSample> = (0..=n)
+            .map(|k| {
+                let a = std::f64::consts::PI * k as f64 / n as f64;
+                let (x, y) = (-0.01 + radius * a.cos(), radius * a.sin());
+                let (top, _) = vertical_extent(&liver, x, y).expect("surface above");
+                let surface = Vec3::new(x, y, top);
+                PathSample {
+                    surface,
+                    bottom: surface - Vec3::z() * 0.01,
+                }
+            })
+            .collect();
+        let out = incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+        check(&out, "half circle");
+        // The samples turn by 180° / n each (20° here), and lips drawn through them turned
+        // by 27°; on the smooth curve, at most LIP_TURN_DEG plus the lens's own bend and
+        // the facets the lips lie on.
+        println!("{n} samples, lip turn {:.1}°", out.lip_max_turn_deg);
+        assert!(out.lip_max_turn_deg < 15.0, "{}", out.lip_max_turn_deg);
     }
 
     /// Straight and curved paths of random length, direction and depth on the organs'
