@@ -7,6 +7,7 @@
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
 
+use scalpel_sim::cut::incision::corners_of_kind;
 use scalpel_sim::cut::{FaceKind, ToolPose};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
@@ -584,16 +585,11 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
 /// along y = 0.
 fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, tip_z_mm: f64) {
     let surface = sim.current_surface();
-    let rest = surface.rest_positions();
+    let rest = surface.rest_mesh();
     for x in [-20.0, -10.0] {
         let top = top_mm(scene, x, 0.0);
-        let deepest = surface
-            .mesh
-            .triangles
-            .iter()
-            .zip(&surface.kinds)
-            .filter(|(_, k)| **k == FaceKind::Wall)
-            .flat_map(|(t, _)| t.map(|v| rest[v as usize] * 1e3))
+        let deepest = corners_of_kind(&rest, &surface.kinds, FaceKind::Wall)
+            .map(|p| p * 1e3)
             .filter(|p| (p.x - x).abs() < 2.0)
             .map(|p| top - p.z)
             .fold(0.0, f64::max);

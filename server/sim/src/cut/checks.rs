@@ -28,22 +28,16 @@ pub fn top_path(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Vec
 /// The incised surface is closed, edge-manifold and oriented (drawn and envelope), its new
 /// triangles have angles ≥ 15°, and every vertex is used.
 pub fn check(out: &Incised, name: &str) {
-    let drawn: Vec<[u32; 3]> = out
-        .mesh
-        .triangles
-        .iter()
-        .zip(&out.kinds)
-        .filter(|(_, k)| **k != FaceKind::Lid)
-        .map(|(t, _)| *t)
-        .collect();
-    let envelope: Vec<[u32; 3]> = out
-        .mesh
-        .triangles
-        .iter()
-        .zip(&out.kinds)
-        .filter(|(_, k)| **k != FaceKind::Wall)
-        .map(|(t, _)| *t)
-        .collect();
+    let all_but = |left_out: FaceKind| -> Vec<[u32; 3]> {
+        out.mesh
+            .triangles
+            .iter()
+            .zip(&out.kinds)
+            .filter(|(_, k)| **k != left_out)
+            .map(|(t, _)| *t)
+            .collect()
+    };
+    let (drawn, envelope) = (all_but(FaceKind::Lid), all_but(FaceKind::Wall));
     let nv = out.mesh.positions.len();
     let c = check_surface(&drawn, nv);
     assert!(

@@ -332,6 +332,19 @@ impl ArcPolyline {
     }
 }
 
+/// The corners of the triangles of `kind`, with repeats.
+pub fn corners_of_kind<'a>(
+    mesh: &'a TriMesh,
+    kinds: &'a [FaceKind],
+    kind: FaceKind,
+) -> impl Iterator<Item = Vec3> + 'a {
+    mesh.triangles
+        .iter()
+        .zip(kinds)
+        .filter(move |(_, k)| **k == kind)
+        .flat_map(|(t, _)| t.map(|v| mesh.positions[v as usize]))
+}
+
 /// Largest turn of a lip from one segment to the next on a curved path (degrees), unless
 /// that would take segments shorter than a quarter of the spacing.
 const LIP_TURN_DEG: f64 = 10.0;

@@ -15,7 +15,7 @@ use std::collections::HashSet;
 
 use crate::geometry::TriMesh;
 use crate::geometry::angle_deg;
-use crate::geometry::predicates::line_triangle;
+use crate::geometry::predicates::{line_triangle, nearest_on_segment};
 use crate::math::Vec3;
 
 use super::incision::{FaceKind, Incised, PathSample};
@@ -319,15 +319,9 @@ fn path_depth_near(path: &[PathSample], x: &Vec3, across: f64, along: f64) -> Op
         .enumerate()
         .map(|(i, w)| {
             let (a, b) = (w[0].surface, w[1].surface);
-            let ab = b - a;
-            let len2 = ab.norm_squared();
-            let f = if len2 > 0.0 {
-                ((x - a).dot(&ab) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
+            let f = nearest_on_segment(x, &a, &b);
             let at_end = (i == 0 && f == 0.0) || (i + 2 == path.len() && f == 1.0);
-            let distance = (x - (a + ab * f)).norm();
+            let distance = (x - (a + (b - a) * f)).norm();
             (
                 distance,
                 at_end,
@@ -497,6 +491,7 @@ pub fn deepen(
 mod tests {
     use super::*;
     use crate::cut::checks::{check, top_path};
+    use crate::cut::incision::corners_of_kind;
     use crate::cut::{IncisionParams, incise};
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
@@ -513,12 +508,7 @@ mod tests {
     /// How far the walls reach below the organ's top within 2 mm of x (m).
     fn wall_depth_at(liver: &TriMesh, out: &Incised, x: f64) -> f64 {
         let (top, _) = vertical_extent(liver, x, 0.0).expect("surface above");
-        out.mesh
-            .triangles
-            .iter()
-            .zip(&out.kinds)
-            .filter(|(_, k)| **k == FaceKind::Wall)
-            .flat_map(|(t, _)| t.map(|v| out.mesh.positions[v as usize]))
+        corners_of_kind(&out.mesh, &out.kinds, FaceKind::Wall)
             .filter(|p| (p.x - x).abs() < 2e-3)
             .map(|p| top - p.z)
             .fold(0.0, f64::max)

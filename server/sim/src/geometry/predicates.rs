@@ -109,16 +109,21 @@ pub fn segment_meets_triangle(p: &Vec3, q: &Vec3, tri: &[Vec3; 3]) -> bool {
     u >= tol && v >= tol && w >= tol
 }
 
-/// Squared distance from `x` to the segment `[a, b]`.
-pub fn distance_sq_to_segment(x: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
+/// Where on the segment `[a, b]` the point nearest `x` is, as a fraction from `a` (0 for a
+/// degenerate segment).
+pub fn nearest_on_segment(x: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
     let ab = b - a;
     let len2 = ab.norm_squared();
-    let t = if len2 > 0.0 {
+    if len2 > 0.0 {
         ((x - a).dot(&ab) / len2).clamp(0.0, 1.0)
     } else {
         0.0
-    };
-    (a + ab * t - x).norm_squared()
+    }
+}
+
+/// Squared distance from `x` to the segment `[a, b]`.
+pub fn distance_sq_to_segment(x: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
+    (a + (b - a) * nearest_on_segment(x, a, b) - x).norm_squared()
 }
 
 /// Where the line `origin + t·dir` meets a triangle (Möller–Trumbore): the parameter t

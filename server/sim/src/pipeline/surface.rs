@@ -6,6 +6,7 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
+use crate::cut::incision::corners_of_kind;
 use crate::cut::{Blade, FaceKind, Incised, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
@@ -426,13 +427,7 @@ impl CurrentSurface {
     /// The corners of the wound-wall triangles at their current positions (m), with
     /// repeats: where the incisions are, for a camera or a test to look at.
     pub fn wall_corners(&self) -> Vec<Vec3> {
-        self.mesh
-            .triangles
-            .iter()
-            .zip(&self.kinds)
-            .filter(|(_, k)| **k == FaceKind::Wall)
-            .flat_map(|(t, _)| t.map(|v| self.mesh.positions[v as usize]))
-            .collect()
+        corners_of_kind(&self.mesh, &self.kinds, FaceKind::Wall).collect()
     }
 
     /// The drawn surface (skin and wound walls, no lids) at the current positions, with the
