@@ -28,27 +28,8 @@ pub fn top_path(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Vec
 /// The incised surface is closed, edge-manifold and oriented (drawn and envelope), its new
 /// triangles have angles ≥ 15°, and every vertex is used.
 pub fn check(out: &Incised, name: &str) {
-    let all_but = |left_out: FaceKind| -> Vec<[u32; 3]> {
-        out.mesh
-            .triangles
-            .iter()
-            .zip(&out.kinds)
-            .filter(|(_, k)| **k != left_out)
-            .map(|(t, _)| *t)
-            .collect()
-    };
-    let (drawn, envelope) = (all_but(FaceKind::Lid), all_but(FaceKind::Wall));
+    check_topology(out, name);
     let nv = out.mesh.positions.len();
-    let c = check_surface(&drawn, nv);
-    assert!(
-        c.closed && c.manifold && c.oriented,
-        "{name}: drawn surface {c:?}"
-    );
-    let c = check_surface(&envelope, nv);
-    assert!(
-        c.closed && c.manifold && c.oriented,
-        "{name}: envelope {c:?}"
-    );
     let worst = out
         .created
         .iter()
@@ -88,4 +69,29 @@ pub fn check(out: &Incised, name: &str) {
         .flatten()
         .for_each(|&v| used[v as usize] = true);
     assert!(used.iter().all(|&u| u), "{name}: unused vertices");
+}
+
+/// The incised surface is closed, edge-manifold and oriented (drawn and envelope).
+pub fn check_topology(out: &Incised, name: &str) {
+    let all_but = |left_out: FaceKind| -> Vec<[u32; 3]> {
+        out.mesh
+            .triangles
+            .iter()
+            .zip(&out.kinds)
+            .filter(|(_, k)| **k != left_out)
+            .map(|(t, _)| *t)
+            .collect()
+    };
+    let (drawn, envelope) = (all_but(FaceKind::Lid), all_but(FaceKind::Wall));
+    let nv = out.mesh.positions.len();
+    let c = check_surface(&drawn, nv);
+    assert!(
+        c.closed && c.manifold && c.oriented,
+        "{name}: drawn surface {c:?}"
+    );
+    let c = check_surface(&envelope, nv);
+    assert!(
+        c.closed && c.manifold && c.oriented,
+        "{name}: envelope {c:?}"
+    );
 }

@@ -38,7 +38,7 @@ use crate::geometry::angle_deg;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 
-use super::wound::{Assembly, WallColumn, Wound, build_walls, carry_wounds, first_hit};
+use super::wound::{Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, first_hit};
 
 /// What a surface triangle is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -303,19 +303,36 @@ impl ArcPolyline {
         [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]
     }
 
-    /// Largest turn per unit length at any vertex (1/m).
-    fn max_curvature(&self) -> f64 {
-        (1..self.points.len().saturating_sub(1))
+    /// Largest turn per unit length over any stretch `window` long (1/m): the curvature a
+    /// lip step of that length must follow, not a single kink's (a sample knocked aside
+    /// by the hand's noise turns the path sharply over a short stretch only).
+    fn max_turn_rate(&self, window: f64) -> f64 {
+        let n = self.points.len();
+        let turns: Vec<f64> = (0..n)
             .map(|i| {
+                if i == 0 || i + 1 == n {
+                    return 0.0;
+                }
                 let (d0, d1) = (
                     sub2(self.points[i], self.points[i - 1]),
                     sub2(self.points[i + 1], self.points[i]),
                 );
-                let turn = cross2(d0, d1).atan2(d0[0] * d1[0] + d0[1] * d1[1]).abs();
-                let half = 0.5 * (self.arc[i + 1] - self.arc[i - 1]);
-                if half > 0.0 { turn / half } else { 0.0 }
+                cross2(d0, d1).atan2(d0[0] * d1[0] + d0[1] * d1[1]).abs()
             })
-            .fold(0.0, f64::max)
+            .collect();
+        let mut best: f64 = 0.0;
+        let mut start = 0;
+        let mut sum = 0.0;
+        // Turns at the vertices within a window ending at vertex i.
+        for i in 0..n {
+            sum += turns[i];
+            while self.arc[i] - self.arc[start] > window {
+                sum -= turns[start];
+                start += 1;
+            }
+            best = best.max(sum);
+        }
+        best / window.max(1e-300)
     }
 
     /// Unit tangent at u, smoothed over ±δ.
@@ -351,8 +368,8 @@ const LIP_TURN_DEG: f64 = 10.0;
 
 /// The path through its samples as a smooth curve, and the blade's track (tip − entry)
 /// along it: quadratic Bézier pieces from the middle of one segment to the middle of the
-/// next with the sample between as control point (a quadratic B-spline clamped to the first
-/// and last sample), four chords a piece. Sampled every quarter edge, a curved stroke
+/// next with the sample between as control point (a uniform quadratic B-spline, extended by
+/// straight half segments to the first and last sample), four chords a piece. Sampled every quarter edge, a curved stroke
 /// would otherwise turn by whole sample angles at the samples, and the lips with it; a
 /// straight one stays as it is.
 fn smooth_path(points: &[[f64; 2]], tracks: &[Vec3]) -> (Vec<[f64; 2]>, Vec<Vec3>) {
@@ -653,7 +670,7 @@ pub fn incise(
         // segments would be all slivers.
         // And short enough on a curved path that a lip turns by at most LIP_TURN_DEG from
         // one segment to the next.
-        let turn_step = LIP_TURN_DEG.to_radians() / path2.max_curvature().max(1e-300);
+        let turn_step = LIP_TURN_DEG.to_radians() / path2.max_turn_rate(spacing).max(1e-300);
         let lip_step = spacing
             .min((0.75 * depth_max).max(0.25 * spacing))
             .min(turn_step.max(0.25 * spacing));
@@ -1125,7 +1142,18 @@ pub fn incise(
     build_walls(&wound, &mut assembly);
     let min_angle = assembly.min_created_angle_deg();
     let depth_max_out = wound.depth_m();
-    let mut wounds = carry_wounds(wounds, &assembly.source, mesh.positions.len());
+    // R's boundary may run along an earlier wound's lip: the vertices put on it go into
+    // that wound's record.
+    let splits: EdgeSplits = boundary_inserts
+        .iter()
+        .map(|(&k, list)| {
+            (
+                (boundary[k], boundary[(k + 1) % boundary.len()]),
+                list.clone(),
+            )
+        })
+        .collect();
+    let mut wounds = carry_wounds(wounds, &assembly.source, mesh.positions.len(), &splits);
     wounds.push(wound);
     let Assembly {
         positions,

@@ -5,10 +5,10 @@
 //! edge, each sample keeping the deepest tip seen there. A blade back over the stroke's own
 //! path adds no path (a path folded onto itself is no incision), but deepens the samples
 //! it goes deeper than (sawing down in its cut); past the path's start it extends the path
-//! there. The incision of the stroke is recomputed from the surface as it
-//! was when the stroke started, only when the path has grown by more than one edge length
-//! since the last run (so the topology is not edited every tick), and once more when the
-//! stroke ends. Parts of the path that run over an earlier wound (its lid or walls) open
+//! there. The incision of the stroke is recomputed from the surface as it was when the
+//! stroke started, only when the path has grown by more than one edge length since the
+//! last run or its samples have gone a quarter of an edge deeper between them (so the
+//! topology is not edited every tick), and once more when the stroke ends. Parts of the path that run over an earlier wound (its lid or walls) open
 //! no incision — crossing cuts split into separate incisions on either side of the
 //! earlier one — but take the wound's walls down where they cut deeper than them.
 
@@ -139,8 +139,7 @@ impl IncisionTracker {
                 self.samples.push(front);
                 self.added_since_run += 1;
             }
-            let rerun = self.samples.len() >= 2
-                && (self.added_since_run > 0 || self.deepened_since_run_m > 0.0);
+            let rerun = self.samples.len() >= 2 && (self.added_since_run > 0 || self.deepened());
             let changed = rerun && self.run(surface, inputs);
             self.base = None;
             self.samples.clear();
@@ -186,9 +185,9 @@ impl IncisionTracker {
             }
             _ => {}
         }
-        // Back over its own path (sawing to and fro in its cut) the blade adds nothing:
-        // a path folded onto itself is no incision. Past the path's start it extends the
-        // path there.
+        // Back over its own path (sawing to and fro in its cut) the blade adds no path: a
+        // path folded onto itself is no incision (it may deepen the samples there, below).
+        // Past the path's start it extends the path there.
         let sample = PathSample {
             surface: entry,
             bottom: tip,
@@ -216,11 +215,12 @@ impl IncisionTracker {
                 let was = (s.bottom - s.surface).norm();
                 if depth > was && (s.surface - entry).norm() < self.sample_step_m {
                     s.bottom = s.surface + cut;
-                    self.deepened_since_run_m += depth - was;
+                    if self.ran_this_stroke {
+                        self.deepened_since_run_m += depth - was;
+                    }
                 }
             }
-            return self.deepened_since_run_m >= 0.25 * self.rerun_step_m
-                && self.run(surface, inputs);
+            return self.deepened() && self.run(surface, inputs);
         }
         // (Past the start means on from the start the way the path leaves it: an entry
         // that hops onto another sheet of a thin part is not an extension.)
@@ -255,6 +255,12 @@ impl IncisionTracker {
             (b - a).norm() >= self.rerun_step_m
         };
         due && self.run(surface, inputs)
+    }
+
+    /// Whether the samples have gone deep enough below the last run's to run again: a
+    /// quarter of an edge between them.
+    fn deepened(&self) -> bool {
+        self.deepened_since_run_m >= 0.25 * self.rerun_step_m
     }
 
     /// The current stroke's path samples (empty between strokes).
@@ -297,6 +303,7 @@ impl IncisionTracker {
         let mut source: Vec<Option<u32>> = (0..mesh.positions.len() as u32).map(Some).collect();
         let mut last: Option<crate::cut::Incised> = None;
         let mut opened = false;
+        let mut refused = false;
         for (over, piece) in &pieces {
             let out = if *over {
                 match deepen(&mesh, &kinds, &wounds, piece) {
@@ -313,6 +320,7 @@ impl IncisionTracker {
                     Err(e) => {
                         self.stats.refused += 1;
                         self.stats.last_refusal = Some(e.to_string());
+                        refused = true;
                         continue;
                     }
                 }
@@ -330,6 +338,11 @@ impl IncisionTracker {
             kinds = out.kinds.clone();
             wounds = out.wounds.clone();
             last = Some(out);
+        }
+        // A piece refused now may have opened in an earlier run of this stroke: the surface
+        // keeps that run's incision rather than lose it.
+        if refused && self.opened_this_stroke {
+            return false;
         }
         let Some(mut out) = last else {
             return false;
