@@ -175,10 +175,6 @@ impl Frame {
         let d = x - self.origin;
         [d.dot(&self.e1), d.dot(&self.e2)]
     }
-
-    fn lift_direction(&self, d: [f64; 2]) -> Vec3 {
-        self.e1 * d[0] + self.e2 * d[1]
-    }
 }
 
 fn sub2(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
@@ -1086,41 +1082,61 @@ pub fn incise(
     let other_skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && !in_region[t])
         .collect();
+    // Columns go straight into the tissue: along the inward surface normal (averaged over
+    // the region near the path), square to the path, so that the wall's cells stay
+    // rectangles where the surface slopes along the cut. The blade's own track sets the
+    // depth. The normal and the path's direction are averaged along the path over the
+    // depth: columns a fraction of a millimetre apart that lean by a degree more than their
+    // neighbours (the path crosses a facet edge between them) would cross a few
+    // millimetres down in a short, deep cut, and a wall does not bend on a scale shorter
+    // than its depth.
+    let params_of = |c: usize| c as f64 / (n_cols - 1) as f64;
+    let tops: Vec<Vec3> = (0..n_cols)
+        .map(|c| lift(path2.at(params_of(c) * length)))
+        .collect();
+    let depths: Vec<f64> = (0..n_cols)
+        .map(|c| bottom_at(params_of(c) * length).norm().max(min_depth))
+        .collect();
+    let normals: Vec<Vec3> = tops
+        .iter()
+        .map(|top| {
+            let mut normal = Vec3::zeros();
+            for &t in &region {
+                let [a, b, c] = mesh.corners(t);
+                if ((a + b + c) / 3.0 - top).norm() < edge {
+                    normal += mesh.doubled_area_normal(t);
+                }
+            }
+            normal.try_normalize(1e-300).unwrap_or(n_bar)
+        })
+        .collect();
+    let reach = depths.iter().copied().fold(0.0, f64::max) / length.max(1e-300);
     let mut columns = Vec::with_capacity(n_cols);
     for c in 0..n_cols {
-        let param = c as f64 / (n_cols - 1) as f64;
+        let param = params_of(c);
         let u = param * length;
-        let top = lift(path2.at(u));
-        // Columns go straight into the tissue: along the inward surface normal (smoothed
-        // over the region near the path), square to the path, so that the wall's cells stay
-        // rectangles where the surface slopes along the cut. The blade's own track sets the
-        // depth.
-        let delta = 0.5 * spacing;
+        let top = tops[c];
+        let delta = (reach * length).max(0.5 * spacing);
         let tangent =
             lift(path2.at((u + delta).min(length))) - lift(path2.at((u - delta).max(0.0)));
-        let mut normal = Vec3::zeros();
-        for &t in &region {
-            let [a, b, c] = mesh.corners(t);
-            if ((a + b + c) / 3.0 - top).norm() < edge {
-                normal += mesh.doubled_area_normal(t);
-            }
-        }
+        let normal: Vec3 = (0..n_cols)
+            .filter(|&k| (params_of(k) - param).abs() <= reach)
+            .map(|k| normals[k])
+            .sum();
         let inward = -normal.try_normalize(1e-300).unwrap_or(n_bar);
         let inward = tangent
             .try_normalize(1e-300)
             .and_then(|t| (inward - t * inward.dot(&t)).try_normalize(1e-9))
             .unwrap_or(inward);
-        let mut depth = bottom_at(u).norm().max(min_depth);
+        let mut depth = depths[c];
         // A thin part: stop the wall short of the far side of the organ.
         if let Some(hit) = first_hit(mesh, &other_skin, &top, &inward, depth + spacing) {
             depth = depth.min(0.7 * hit);
         }
-        let tau = path2.tangent(u, 0.5 * spacing);
         columns.push(WallColumn {
             param,
             top,
             inward,
-            across: frame.lift_direction([-tau[1], tau[0]]),
             depth,
         });
     }

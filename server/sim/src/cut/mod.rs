@@ -4,11 +4,13 @@ pub mod blade;
 #[cfg(test)]
 pub(crate) mod checks;
 pub mod incision;
+pub mod stroke;
 pub mod swept;
 pub mod wound;
 
 pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
 pub use incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
+pub use stroke::{StrokeOutcome, open_stroke};
 pub use swept::{SweptSurface, cut_pairs, visit_crossing_pairs};
 pub use wound::{WallColumn, Wound, deepen};

@@ -29,8 +29,6 @@ pub struct WallColumn {
     pub top: Vec3,
     /// Unit direction into the tissue.
     pub inward: Vec3,
-    /// Unit direction across the path, towards the upper lip.
-    pub across: Vec3,
     /// Depth of the walls here (m).
     pub depth: f64,
 }
@@ -238,15 +236,18 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
             };
             grid.push(ids);
         }
-        let emit = |tri: [u32; 3], c: usize, out: &mut Assembly| {
-            // The wall faces the gap: its outward normal points away from its own side.
-            let outward = -cols[c.min(n - 1)].across * side;
-            let q = tri.map(|v| out.positions[v as usize]);
-            let normal = (q[1] - q[0]).cross(&(q[2] - q[0]));
-            let tri = if normal.dot(&outward) < 0.0 {
-                [tri[0], tri[2], tri[1]]
-            } else {
+        // The wall faces the gap: its outward normal points away from its own side. The
+        // winding follows from the grid (the lips and columns run from A to B, the rows
+        // down, the upper lip on the path's left seen from outside), not from each
+        // triangle's own normal, which a sliver of a narrow, deep wound can have pointing
+        // either way.
+        // Listed as the zips list them, a triangle between a lip and row 1 faces the lower
+        // side, and one between two columns the upper side.
+        let emit = |tri: [u32; 3], faces_lower: bool, out: &mut Assembly| {
+            let tri = if faces_lower == (side > 0.0) {
                 tri
+            } else {
+                [tri[0], tri[2], tri[1]]
             };
             out.created.push(out.triangles.len() as u32);
             out.triangles.push(tri);
@@ -269,10 +270,10 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
                     >= shape([lip[i].1, grid[k][1], grid[k + 1][1]], out)
             };
             if advance_lip {
-                emit([lip[i].1, grid[k][1], lip[i + 1].1], k, out);
+                emit([lip[i].1, grid[k][1], lip[i + 1].1], true, out);
                 i += 1;
             } else {
-                emit([lip[i].1, grid[k][1], grid[k + 1][1]], k, out);
+                emit([lip[i].1, grid[k][1], grid[k + 1][1]], true, out);
                 k += 1;
             }
         }
@@ -306,10 +307,10 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
                     }
                 };
                 if advance_a {
-                    emit(tri_a(j), a, out);
+                    emit(tri_a(j), false, out);
                     j += 1;
                 } else {
-                    emit(tri_b(k), a, out);
+                    emit(tri_b(k), false, out);
                     k += 1;
                 }
             }

@@ -14,9 +14,9 @@
 
 use serde::Serialize;
 
-use crate::cut::{FaceKind, IncisionError, IncisionParams, PathSample, Wound, deepen, incise};
+use crate::cut::{FaceKind, IncisionParams, PathSample, Wound, open_stroke};
 use crate::geometry::TriMesh;
-use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
+use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
 use crate::model::RestGrid;
@@ -277,77 +277,32 @@ impl IncisionTracker {
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
         self.stats.runs += 1;
-        // The path split where it runs over earlier wounds (their lids or walls): the
-        // parts over intact skin open incisions, the parts over a wound take its walls
-        // down where they cut deeper. (Crossing cuts split into separate incisions on
-        // either side of the earlier one.)
-        let margin = 0.5 * self.rerun_step_m;
-        let wound_faces: Vec<[Vec3; 3]> = (0..base.mesh.triangles.len())
-            .filter(|&t| base.kinds[t] != FaceKind::Skin)
-            .map(|t| base.mesh.corners(t))
-            .collect();
-        let mut pieces: Vec<(bool, Vec<PathSample>)> = Vec::new();
-        for s in &self.samples {
-            let over = wound_faces
-                .iter()
-                .any(|t| (closest_point_on_triangle(&s.surface, t) - s.surface).norm() < margin);
-            match pieces.last_mut() {
-                Some((o, piece)) if *o == over => piece.push(*s),
-                _ => pieces.push((over, vec![*s])),
+        let outcome = open_stroke(
+            &base.mesh,
+            &base.kinds,
+            &base.wounds,
+            &self.samples,
+            0.5 * self.rerun_step_m,
+            &self.params,
+        );
+        let stats = &mut self.stats;
+        stats.lip_max_turn_deg = stats.lip_max_turn_deg.max(outcome.lip_max_turn_deg);
+        stats.min_angle_deg = stats.min_angle_deg.min(outcome.min_angle_deg);
+        stats.opening_m = stats.opening_m.max(outcome.opening_m);
+        stats.depth_m = stats.depth_m.max(outcome.depth_m);
+        stats.refused += outcome.refusals.len();
+        if let Some(e) = outcome.refusals.last() {
+            stats.last_refusal = Some(e.to_string());
+            // A piece refused now may have opened in an earlier run of this stroke: the
+            // surface keeps that run's incision rather than lose it.
+            if self.opened_this_stroke {
+                return false;
             }
         }
-        let mut mesh = base.mesh.clone();
-        let mut kinds = base.kinds.clone();
-        let mut wounds = base.wounds.clone();
-        // Composition of the pieces' vertex maps, back to the base.
-        let mut source: Vec<Option<u32>> = (0..mesh.positions.len() as u32).map(Some).collect();
-        let mut last: Option<crate::cut::Incised> = None;
-        let mut opened = false;
-        let mut refused = false;
-        for (over, piece) in &pieces {
-            let out = if *over {
-                match deepen(&mesh, &kinds, &wounds, piece) {
-                    Some(out) => out,
-                    None => continue,
-                }
-            } else {
-                match incise(&mesh, &kinds, &wounds, piece, &self.params) {
-                    Ok(out) => {
-                        opened = true;
-                        out
-                    }
-                    Err(IncisionError::TooShort { .. }) => continue,
-                    Err(e) => {
-                        self.stats.refused += 1;
-                        self.stats.last_refusal = Some(e.to_string());
-                        refused = true;
-                        continue;
-                    }
-                }
-            };
-            source = out
-                .source
-                .iter()
-                .map(|s| s.and_then(|v| source[v as usize]))
-                .collect();
-            self.stats.lip_max_turn_deg = self.stats.lip_max_turn_deg.max(out.lip_max_turn_deg);
-            self.stats.min_angle_deg = self.stats.min_angle_deg.min(out.min_angle_deg);
-            self.stats.opening_m = self.stats.opening_m.max(out.opening_m);
-            self.stats.depth_m = self.stats.depth_m.max(out.depth_m);
-            mesh = out.mesh.clone();
-            kinds = out.kinds.clone();
-            wounds = out.wounds.clone();
-            last = Some(out);
-        }
-        // A piece refused now may have opened in an earlier run of this stroke: the surface
-        // keeps that run's incision rather than lose it.
-        if refused && self.opened_this_stroke {
-            return false;
-        }
-        let Some(mut out) = last else {
+        let Some(out) = outcome.surface else {
             return false;
         };
-        out.source = source;
+        let opened = outcome.opened;
         base.to_current = surface.replace(
             &out,
             &base.to_current,
