@@ -129,11 +129,16 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
         m.left_points,
         m.right_points
     );
-    match (m.min_angle_deg, m.lip_max_turn_deg, m.wall_depth_mm) {
-        (Some(angle), Some(turn), Some(depth)) => {
+    match (
+        m.min_angle_deg,
+        m.lip_max_turn_deg,
+        m.wall_depth_mm,
+        m.opening_mm,
+    ) {
+        (Some(angle), Some(turn), Some(depth), Some(opening)) => {
             let _ = writeln!(
                 s,
-                "  surface: {} incision(s), {} → {} triangles, min angle {angle:.1}°, lip turn ≤ {turn:.1}°, walls ≤ {depth:.1} mm deep, closed {}, manifold {}, oriented {}",
+                "  surface: {} incision(s), {} → {} triangles, min angle {angle:.1}°, lip turn ≤ {turn:.1}°, walls ≤ {depth:.1} mm deep, half-opening ≤ {opening:.1} mm, closed {}, manifold {}, oriented {}",
                 m.incisions,
                 m.triangles_before,
                 m.triangles_after,

@@ -172,6 +172,8 @@ pub struct CutMetrics {
     pub min_angle_deg: Option<f64>,
     /// Deepest wound wall at the end (mm, along the wall's columns).
     pub wall_depth_mm: Option<f64>,
+    /// Widest half-opening of a wound at the end (mm).
+    pub opening_mm: Option<f64>,
     /// The drawn surface is closed at the end.
     pub closed: bool,
     /// ... and edge- and vertex-manifold.
@@ -285,6 +287,10 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         wall_depth_mm: opened.then(|| {
             let wounds = &sim.current_surface().wounds;
             wounds.iter().map(|w| w.depth_m()).fold(0.0, f64::max) * 1e3
+        }),
+        opening_mm: opened.then(|| {
+            let wounds = &sim.current_surface().wounds;
+            wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max) * 1e3
         }),
         closed: check.closed,
         manifold: check.manifold,

@@ -364,10 +364,10 @@ const LIP_TURN_DEG: f64 = 10.0;
 
 /// The path through its samples as a smooth curve, and the blade's track (tip − entry)
 /// along it: quadratic Bézier pieces from the middle of one segment to the middle of the
-/// next with the sample between as control point (a uniform quadratic B-spline, extended by
-/// straight half segments to the first and last sample), four chords a piece. Sampled every quarter edge, a curved stroke
-/// would otherwise turn by whole sample angles at the samples, and the lips with it; a
-/// straight one stays as it is.
+/// next with the sample between as control point (a uniform quadratic B-spline, extended
+/// by straight half segments to the first and last sample), four chords a piece. Sampled
+/// every quarter edge, a curved stroke would otherwise turn by whole sample angles at the
+/// samples, and the lips with it; a straight one stays as it is.
 fn smooth_path(points: &[[f64; 2]], tracks: &[Vec3]) -> (Vec<[f64; 2]>, Vec<Vec3>) {
     let n = points.len();
     if n < 3 {

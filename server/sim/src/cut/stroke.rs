@@ -73,7 +73,7 @@ pub fn open_stroke(
             None => (mesh, kinds, wounds),
         };
         let out = if *over {
-            match deepen(m, k, w, piece) {
+            match deepen(m, k, w, piece, params) {
                 Some(out) => out,
                 None => continue,
             }
@@ -154,7 +154,7 @@ mod tests {
     /// across it or beside it, then one more anywhere through the middle — opened as the
     /// tracker opens them: the surface stays closed, edge-manifold and oriented after every
     /// stroke, no vertex is left unused, the new triangles have angles ≥ 15°, and a pass
-    /// along a wound deeper than its walls takes them down. (Before the walls' columns
+    /// along a wound deeper than its walls takes them down (and mostly opens it wider). (Before the walls' columns
     /// were averaged over the depth, short deep pieces of crossing cuts on the cerebroma
     /// made wall slivers down to 0.4°.)
     #[test]
@@ -167,7 +167,7 @@ mod tests {
             (rng >> 11) as f64 / (1u64 << 53) as f64
         };
         let params = IncisionParams::default();
-        let (mut strokes, mut changed, mut deepened) = (0, 0, 0);
+        let (mut strokes, mut changed, mut deepened, mut widened) = (0, 0, 0, 0);
         for organ in [
             BuiltinMesh::Liver,
             BuiltinMesh::Shoulder,
@@ -204,6 +204,7 @@ mod tests {
                 for (k, path) in [first, second, third].iter().enumerate() {
                     let name = format!("{} trial {trial} stroke {k}", organ.name());
                     let before = wounds.iter().map(Wound::depth_m).fold(0.0, f64::max);
+                    let was_open = wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max);
                     let outcome = open_stroke(&mesh, &kinds, &wounds, path, margin, &params);
                     strokes += 1;
                     let Some(out) = outcome.surface else {
@@ -228,6 +229,10 @@ mod tests {
                         // (A thin part stops the walls short of its far side.)
                         assert!(after > before + 0.001, "{name}: {before} → {after}");
                         deepened += 1;
+                        let open = out.wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max);
+                        if open > was_open + 1e-6 {
+                            widened += 1;
+                        }
                     }
                     mesh = out.mesh;
                     kinds = out.kinds;
@@ -235,7 +240,13 @@ mod tests {
                 }
             }
         }
-        println!("{strokes} strokes, {changed} changed the surface, {deepened} deepened a wound");
-        assert!(changed >= 100 && deepened >= 15, "{changed} {deepened}");
+        println!(
+            "{strokes} strokes, {changed} changed the surface, {deepened} deepened a wound, \
+             {widened} of those opened it wider"
+        );
+        assert!(
+            changed >= 100 && deepened >= 15 && 2 * widened >= deepened,
+            "{changed} {deepened} {widened}"
+        );
     }
 }

@@ -18,7 +18,7 @@ use crate::geometry::angle_deg;
 use crate::geometry::predicates::{line_triangle, nearest_on_segment};
 use crate::math::Vec3;
 
-use super::incision::{FaceKind, Incised, PathSample};
+use super::incision::{FaceKind, Incised, IncisionParams, PathSample, incise};
 
 /// One column of a wound's walls.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -394,6 +394,7 @@ pub fn deepen(
     kinds: &[FaceKind],
     wounds: &[Wound],
     path: &[PathSample],
+    params: &IncisionParams,
 ) -> Option<Incised> {
     // Wall faces by edge: to find each wound's walls, and to check that its lips are
     // still wall edges.
@@ -408,8 +409,7 @@ pub fn deepen(
             }
         }
     }
-    // The new depth of every column the path ran over (within the opening and a spacing
-    // of the column's top), for the wounds it deepens.
+    // The new depth of every column the path ran over, for the wounds it deepens.
     let skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin)
         .collect();
@@ -454,50 +454,14 @@ pub fn deepen(
     if deeper.is_empty() {
         return None;
     }
-    // The old walls of those wounds: the wall faces reached from their lip edges without
-    // crossing a lip (each wound's walls are one strip of faces, joined to nothing else).
+    // The old walls of those wounds go, with the vertices only they used (the lips stay:
+    // skin and lids use them).
     let lip_edges: HashSet<(u32, u32)> = deeper
         .iter()
         .flat_map(|(w, _)| wounds[*w].lip_edges())
         .collect();
-    let mut removed = vec![false; mesh.triangles.len()];
-    let mut stack: Vec<usize> = lip_edges
-        .iter()
-        .filter_map(|e| walls_by_edge.get(e))
-        .flatten()
-        .copied()
-        .collect();
-    while let Some(t) = stack.pop() {
-        if std::mem::replace(&mut removed[t], true) {
-            continue;
-        }
-        let tri = mesh.triangles[t];
-        for e in 0..3 {
-            let edge = edge_key(tri[e], tri[(e + 1) % 3]);
-            if lip_edges.contains(&edge) {
-                continue;
-            }
-            if let Some(next) = walls_by_edge.get(&edge) {
-                stack.extend(next.iter().copied().filter(|&u| !removed[u]));
-            }
-        }
-    }
-    // Vertices only the old walls used go with them (the lips stay: skin and lids use
-    // them).
-    let mut used = vec![false; mesh.positions.len()];
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if !removed[t] {
-            tri.iter().for_each(|&v| used[v as usize] = true);
-        }
-    }
-    let mut new_id = vec![None; mesh.positions.len()];
-    let mut kept = 0u32;
-    for (v, id) in new_id.iter_mut().enumerate() {
-        if used[v] {
-            *id = Some(kept);
-            kept += 1;
-        }
-    }
+    let removed = faces_inside(mesh, kinds, FaceKind::Wall, &lip_edges);
+    let (mut out, new_id) = without(mesh, kinds, &removed);
     let no_splits = EdgeSplits::new();
     let mut carried: Vec<Wound> = wounds.to_vec();
     for (w, new) in &deeper {
@@ -508,6 +472,156 @@ pub fn deepen(
         .map(|w| w.renumbered(&new_id, &no_splits))
         .collect();
     let carried = carried?;
+    let (mut depth_m, mut opening_m, mut length_m): (f64, f64, f64) = (0.0, 0.0, 0.0);
+    for (w, _) in &deeper {
+        let wound = &carried[*w];
+        build_walls(wound, &mut out);
+        depth_m = depth_m.max(wound.depth_m());
+        opening_m = opening_m.max(wound.opening_m);
+        length_m = length_m.max(wound.length_m);
+    }
+    let min_angle_deg = out.min_created_angle_deg();
+    let mut result = Incised {
+        mesh: TriMesh::new(out.positions, out.triangles),
+        kinds: out.kinds,
+        source: out.source,
+        created: out.created,
+        wounds: carried,
+        lip_max_turn_deg: 0.0,
+        min_angle_deg,
+        opening_m,
+        depth_m,
+        length_m,
+    };
+    // A wound deepened along most of its length opens as wide as a first pass that deep
+    // would have (the lips part with the depth); a notch under a crossing cut does not
+    // widen the whole wound. Last wound first: reopening one keeps the others' places.
+    for (w, new) in deeper.iter().rev() {
+        let deepened = new
+            .columns
+            .iter()
+            .zip(&wounds[*w].columns)
+            .filter(|(n, o)| n.depth > o.depth)
+            .count();
+        if 2 * deepened < new.columns.len() {
+            continue;
+        }
+        if let Some(mut wider) = reopen(&result, *w, params) {
+            wider.source = wider
+                .source
+                .iter()
+                .map(|s| s.and_then(|v| result.source[v as usize]))
+                .collect();
+            if deeper.len() > 1 {
+                wider.min_angle_deg = wider.min_angle_deg.min(result.min_angle_deg);
+            }
+            result = wider;
+        }
+    }
+    Some(result)
+}
+
+/// Opens wound `w` of `surface` again as one incision along its columns at their depths —
+/// its walls out, its lid back to skin (the lid lies on the surface as it was), and
+/// [`incise`] on that — so the opening is the one a first pass that deep would have drawn.
+/// `None` if the incision is refused (the caller keeps the walls it rebuilt).
+fn reopen(surface: &Incised, w: usize, params: &IncisionParams) -> Option<Incised> {
+    let wound = &surface.wounds[w];
+    let lip_edges: HashSet<(u32, u32)> = wound.lip_edges().collect();
+    let walls = faces_inside(&surface.mesh, &surface.kinds, FaceKind::Wall, &lip_edges);
+    let lid = faces_inside(&surface.mesh, &surface.kinds, FaceKind::Lid, &lip_edges);
+    let mut kinds = surface.kinds.clone();
+    for (k, &in_lid) in kinds.iter_mut().zip(&lid) {
+        if in_lid {
+            *k = FaceKind::Skin;
+        }
+    }
+    let (closed, new_id) = without(&surface.mesh, &kinds, &walls);
+    let no_splits = EdgeSplits::new();
+    let others: Vec<Wound> = surface
+        .wounds
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != w)
+        .map(|(_, o)| o.renumbered(&new_id, &no_splits))
+        .collect::<Option<_>>()?;
+    let path: Vec<PathSample> = wound
+        .columns
+        .iter()
+        .map(|c| PathSample {
+            surface: c.top,
+            bottom: c.bottom(),
+        })
+        .collect();
+    let mesh = TriMesh::new(closed.positions, closed.triangles);
+    let mut out = incise(&mesh, &closed.kinds, &others, &path, params).ok()?;
+    out.source = out
+        .source
+        .iter()
+        .map(|s| s.and_then(|v| closed.source[v as usize]))
+        .collect();
+    // The reopened wound back in its place (unless another lost its record on the way).
+    let reopened = out.wounds.pop()?;
+    if out.wounds.len() != others.len() {
+        return None;
+    }
+    out.wounds.insert(w, reopened);
+    Some(out)
+}
+
+/// The faces of `kind` reached from `lip_edges` across edges between two such faces, never
+/// across a lip edge: a wound's walls (or its lid), which are joined to nothing else.
+fn faces_inside(
+    mesh: &TriMesh,
+    kinds: &[FaceKind],
+    kind: FaceKind,
+    lip_edges: &HashSet<(u32, u32)>,
+) -> Vec<bool> {
+    let mut by_edge: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if kinds[t] == kind {
+            for e in 0..3 {
+                by_edge
+                    .entry(edge_key(tri[e], tri[(e + 1) % 3]))
+                    .or_default()
+                    .push(t);
+            }
+        }
+    }
+    let mut inside = vec![false; mesh.triangles.len()];
+    let mut stack: Vec<usize> = lip_edges
+        .iter()
+        .filter_map(|e| by_edge.get(e))
+        .flatten()
+        .copied()
+        .collect();
+    while let Some(t) = stack.pop() {
+        if std::mem::replace(&mut inside[t], true) {
+            continue;
+        }
+        let tri = mesh.triangles[t];
+        for e in 0..3 {
+            let edge = edge_key(tri[e], tri[(e + 1) % 3]);
+            if lip_edges.contains(&edge) {
+                continue;
+            }
+            if let Some(next) = by_edge.get(&edge) {
+                stack.extend(next.iter().copied().filter(|&u| !inside[u]));
+            }
+        }
+    }
+    inside
+}
+
+/// `mesh` without the `removed` faces and the vertices only they used, as an assembly whose
+/// `source` points back into `mesh`, and where each vertex of `mesh` went.
+fn without(mesh: &TriMesh, kinds: &[FaceKind], removed: &[bool]) -> (Assembly, Vec<Option<u32>>) {
+    let mut used = vec![false; mesh.positions.len()];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !removed[t] {
+            tri.iter().for_each(|&v| used[v as usize] = true);
+        }
+    }
     let mut out = Assembly {
         positions: Vec::with_capacity(mesh.positions.len()),
         source: Vec::with_capacity(mesh.positions.len()),
@@ -515,8 +629,10 @@ pub fn deepen(
         kinds: Vec::with_capacity(mesh.triangles.len()),
         created: Vec::new(),
     };
+    let mut new_id = vec![None; mesh.positions.len()];
     for (v, p) in mesh.positions.iter().enumerate() {
         if used[v] {
+            new_id[v] = Some(out.positions.len() as u32);
             out.positions.push(*p);
             out.source.push(Some(v as u32));
         }
@@ -529,27 +645,7 @@ pub fn deepen(
             out.kinds.push(kinds[t]);
         }
     }
-    let (mut depth_m, mut opening_m, mut length_m): (f64, f64, f64) = (0.0, 0.0, 0.0);
-    for (w, _) in &deeper {
-        let wound = &carried[*w];
-        build_walls(wound, &mut out);
-        depth_m = depth_m.max(wound.depth_m());
-        opening_m = opening_m.max(wound.opening_m);
-        length_m = length_m.max(wound.length_m);
-    }
-    let min_angle_deg = out.min_created_angle_deg();
-    Some(Incised {
-        mesh: TriMesh::new(out.positions, out.triangles),
-        kinds: out.kinds,
-        source: out.source,
-        created: out.created,
-        wounds: carried,
-        lip_max_turn_deg: 0.0,
-        min_angle_deg,
-        opening_m,
-        depth_m,
-        length_m,
-    })
+    (out, new_id)
 }
 
 #[cfg(test)]
@@ -588,22 +684,27 @@ mod tests {
     }
 
     #[test]
-    fn a_deeper_pass_takes_the_walls_down_and_leaves_the_lips() {
+    fn a_deeper_pass_along_the_wound_takes_its_walls_down_and_opens_it_wider() {
         let (liver, first) = first_pass();
         assert_eq!(first.wounds.len(), 1);
-        let d0 = wall_depth_at(&liver, &first, 0.0);
-        assert!((d0 - 0.004).abs() < 5e-4, "{d0}");
+        assert!((wall_depth_at(&liver, &first, 0.0) - 0.004).abs() < 5e-4);
         let deeper = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper).expect("deeper walls");
+        let params = IncisionParams::default();
+        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper, &params)
+            .expect("deeper walls");
         check(&out, "deepened");
         for x in [-0.02, 0.0, 0.02] {
             let d = wall_depth_at(&liver, &out, x);
             assert!((d - 0.01).abs() < 5e-4, "at {x}: {d}");
         }
-        assert_eq!(outside(&out), outside(&first));
+        // The lips part as a first pass 10 mm deep would have opened them: k_open × 10 mm,
+        // less the little the re-meshed region's margin takes (a first pass 1.2 mm).
         assert_eq!(out.wounds.len(), 1);
+        assert!((first.wounds[0].opening_m - 0.0012).abs() < 1e-9);
+        let opening = out.wounds[0].opening_m;
+        assert!(opening > 0.0025 && opening <= 0.003 + 1e-9, "{opening}");
         assert!((out.wounds[0].depth_m() - 0.01).abs() < 1e-3);
-        // Every vertex that stayed is the one it was.
+        // Every vertex that stayed is where it was.
         for (v, s) in out.source.iter().enumerate() {
             if let Some(s) = s {
                 assert_eq!(out.mesh.positions[v], first.mesh.positions[*s as usize]);
@@ -615,15 +716,31 @@ mod tests {
     fn a_deeper_pass_along_part_of_the_wound_deepens_that_part() {
         let (liver, first) = first_pass();
         let deeper = top_path(&liver, [-0.01, 0.0], [0.01, 0.0], 0.01);
-        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper).expect("deeper walls");
+        let out = deepen(
+            &first.mesh,
+            &first.kinds,
+            &first.wounds,
+            &deeper,
+            &IncisionParams::default(),
+        )
+        .expect("deeper walls");
         check(&out, "partly deepened");
         let d = |x| wall_depth_at(&liver, &out, x);
         assert!((d(0.0) - 0.01).abs() < 5e-4, "{}", d(0.0));
         assert!((d(-0.02) - 0.004).abs() < 5e-4, "{}", d(-0.02));
         assert!((d(0.02) - 0.004).abs() < 5e-4, "{}", d(0.02));
+        // A third of the wound deepened: the lips stay (the opening is the first pass's).
+        assert_eq!(outside(&out), outside(&first));
         // And again, deeper still over the middle: the walls of a deepened wound deepen.
         let again = top_path(&liver, [-0.005, 0.0], [0.005, 0.0], 0.015);
-        let out2 = deepen(&out.mesh, &out.kinds, &out.wounds, &again).expect("deeper again");
+        let out2 = deepen(
+            &out.mesh,
+            &out.kinds,
+            &out.wounds,
+            &again,
+            &IncisionParams::default(),
+        )
+        .expect("deeper again");
         check(&out2, "deepened twice");
         assert!((wall_depth_at(&liver, &out2, 0.0) - 0.015).abs() < 5e-4);
         assert!((wall_depth_at(&liver, &out2, -0.008) - 0.01).abs() < 5e-4);
@@ -634,7 +751,14 @@ mod tests {
         let (liver, first) = first_pass();
         // The part of a crossing cut over the wound (the rest opens incisions of its own).
         let across = top_path(&liver, [0.0, -0.004], [0.0, 0.004], 0.01);
-        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &across).expect("notch");
+        let out = deepen(
+            &first.mesh,
+            &first.kinds,
+            &first.wounds,
+            &across,
+            &IncisionParams::default(),
+        )
+        .expect("notch");
         check(&out, "notched");
         // The walls are gridded by columns a few millimetres apart: the crossing shows as a
         // V eased down from the old floor at 45° (7.1 mm deep here, where the blade went
@@ -667,7 +791,14 @@ mod tests {
                 split += 1;
             }
             let deeper = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-            let out = deepen(&second.mesh, &second.kinds, &second.wounds, &deeper).expect("deeper");
+            let out = deepen(
+                &second.mesh,
+                &second.kinds,
+                &second.wounds,
+                &deeper,
+                &IncisionParams::default(),
+            )
+            .expect("deeper");
             // Sound, though not well shaped: a split a fraction of a column from a lip
             // vertex makes a short lip segment, and the wall cell under it a sliver.
             check_topology(&out, "deepened after a cut beside it");
@@ -683,9 +814,27 @@ mod tests {
     fn a_pass_no_deeper_than_the_walls_changes_nothing() {
         let (liver, first) = first_pass();
         let shallow = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.004);
-        assert!(deepen(&first.mesh, &first.kinds, &first.wounds, &shallow).is_none());
+        assert!(
+            deepen(
+                &first.mesh,
+                &first.kinds,
+                &first.wounds,
+                &shallow,
+                &IncisionParams::default()
+            )
+            .is_none()
+        );
         // Nor does a deeper pass beside the wound, clear of its lips.
         let beside = top_path(&liver, [-0.03, 0.012], [0.03, 0.012], 0.01);
-        assert!(deepen(&first.mesh, &first.kinds, &first.wounds, &beside).is_none());
+        assert!(
+            deepen(
+                &first.mesh,
+                &first.kinds,
+                &first.wounds,
+                &beside,
+                &IncisionParams::default()
+            )
+            .is_none()
+        );
     }
 }

@@ -8,9 +8,10 @@
 //! there. The incision of the stroke is recomputed from the surface as it was when the
 //! stroke started, only when the path has grown by more than one edge length since the
 //! last run or its samples have gone a quarter of an edge deeper between them (so the
-//! topology is not edited every tick), and once more when the stroke ends. Parts of the path that run over an earlier wound (its lid or walls) open
-//! no incision — crossing cuts split into separate incisions on either side of the
-//! earlier one — but take the wound's walls down where they cut deeper than them.
+//! topology is not edited every tick), and once more when the stroke ends. Parts of the
+//! path that run over an earlier wound (its lid or walls) open no incision — crossing cuts
+//! split into separate incisions on either side of the earlier one — but take the wound's
+//! walls down where they cut deeper than them (`cut::open_stroke`).
 
 use serde::Serialize;
 
