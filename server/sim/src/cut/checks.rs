@@ -29,7 +29,6 @@ pub fn top_path(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Vec
 /// triangles have angles ≥ 15°, and every vertex is used.
 pub fn check(out: &Incised, name: &str) {
     check_topology(out, name);
-    let nv = out.mesh.positions.len();
     let worst = out
         .created
         .iter()
@@ -61,17 +60,10 @@ pub fn check(out: &Incised, name: &str) {
         out.opening_m,
         out.length_m
     );
-    // Every vertex is used.
-    let mut used = vec![false; nv];
-    out.mesh
-        .triangles
-        .iter()
-        .flatten()
-        .for_each(|&v| used[v as usize] = true);
-    assert!(used.iter().all(|&u| u), "{name}: unused vertices");
 }
 
-/// The incised surface is closed, edge-manifold and oriented (drawn and envelope).
+/// The incised surface is closed, edge-manifold and oriented (drawn and envelope), and
+/// every vertex is used.
 pub fn check_topology(out: &Incised, name: &str) {
     let all_but = |left_out: FaceKind| -> Vec<[u32; 3]> {
         out.mesh
@@ -94,4 +86,22 @@ pub fn check_topology(out: &Incised, name: &str) {
         c.closed && c.manifold && c.oriented,
         "{name}: envelope {c:?}"
     );
+    let mut used = vec![false; nv];
+    out.mesh
+        .triangles
+        .iter()
+        .flatten()
+        .for_each(|&v| used[v as usize] = true);
+    assert!(used.iter().all(|&u| u), "{name}: unused vertices");
+}
+
+/// A repeatable stream of numbers in [0, 1) from `seed` (xorshift64), for randomized tests.
+pub fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut rng = seed;
+    move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    }
 }

@@ -1208,7 +1208,7 @@ pub fn incise(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cut::checks::{check, top_path};
+    use crate::cut::checks::{check, top_path, uniform};
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
 
@@ -1282,13 +1282,7 @@ mod tests {
     /// tops: every incision is closed, manifold, oriented, with angles ≥ 15°.
     #[test]
     fn random_incisions_on_every_organ_are_valid() {
-        let mut rng = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1du64);
         let mut done = 0;
         let mut worst: f64 = 180.0;
         for organ in [

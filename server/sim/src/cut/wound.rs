@@ -666,6 +666,18 @@ mod tests {
         (liver, out)
     }
 
+    /// `deepen` on an incised surface with the default parameters.
+    fn deepen_on(surface: &Incised, path: &[PathSample]) -> Option<Incised> {
+        let params = IncisionParams::default();
+        deepen(
+            &surface.mesh,
+            &surface.kinds,
+            &surface.wounds,
+            path,
+            &params,
+        )
+    }
+
     /// How far the walls reach below the organ's top within 2 mm of x (m).
     fn wall_depth_at(liver: &TriMesh, out: &Incised, x: f64) -> f64 {
         let (top, _) = vertical_extent(liver, x, 0.0).expect("surface above");
@@ -689,9 +701,7 @@ mod tests {
         assert_eq!(first.wounds.len(), 1);
         assert!((wall_depth_at(&liver, &first, 0.0) - 0.004).abs() < 5e-4);
         let deeper = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-        let params = IncisionParams::default();
-        let out = deepen(&first.mesh, &first.kinds, &first.wounds, &deeper, &params)
-            .expect("deeper walls");
+        let out = deepen_on(&first, &deeper).expect("deeper walls");
         check(&out, "deepened");
         for x in [-0.02, 0.0, 0.02] {
             let d = wall_depth_at(&liver, &out, x);
@@ -716,14 +726,7 @@ mod tests {
     fn a_deeper_pass_along_part_of_the_wound_deepens_that_part() {
         let (liver, first) = first_pass();
         let deeper = top_path(&liver, [-0.01, 0.0], [0.01, 0.0], 0.01);
-        let out = deepen(
-            &first.mesh,
-            &first.kinds,
-            &first.wounds,
-            &deeper,
-            &IncisionParams::default(),
-        )
-        .expect("deeper walls");
+        let out = deepen_on(&first, &deeper).expect("deeper walls");
         check(&out, "partly deepened");
         let d = |x| wall_depth_at(&liver, &out, x);
         assert!((d(0.0) - 0.01).abs() < 5e-4, "{}", d(0.0));
@@ -733,14 +736,7 @@ mod tests {
         assert_eq!(outside(&out), outside(&first));
         // And again, deeper still over the middle: the walls of a deepened wound deepen.
         let again = top_path(&liver, [-0.005, 0.0], [0.005, 0.0], 0.015);
-        let out2 = deepen(
-            &out.mesh,
-            &out.kinds,
-            &out.wounds,
-            &again,
-            &IncisionParams::default(),
-        )
-        .expect("deeper again");
+        let out2 = deepen_on(&out, &again).expect("deeper again");
         check(&out2, "deepened twice");
         assert!((wall_depth_at(&liver, &out2, 0.0) - 0.015).abs() < 5e-4);
         assert!((wall_depth_at(&liver, &out2, -0.008) - 0.01).abs() < 5e-4);
@@ -751,14 +747,7 @@ mod tests {
         let (liver, first) = first_pass();
         // The part of a crossing cut over the wound (the rest opens incisions of its own).
         let across = top_path(&liver, [0.0, -0.004], [0.0, 0.004], 0.01);
-        let out = deepen(
-            &first.mesh,
-            &first.kinds,
-            &first.wounds,
-            &across,
-            &IncisionParams::default(),
-        )
-        .expect("notch");
+        let out = deepen_on(&first, &across).expect("notch");
         check(&out, "notched");
         // The walls are gridded by columns a few millimetres apart: the crossing shows as a
         // V eased down from the old floor at 45° (7.1 mm deep here, where the blade went
@@ -791,14 +780,7 @@ mod tests {
                 split += 1;
             }
             let deeper = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-            let out = deepen(
-                &second.mesh,
-                &second.kinds,
-                &second.wounds,
-                &deeper,
-                &IncisionParams::default(),
-            )
-            .expect("deeper");
+            let out = deepen_on(&second, &deeper).expect("deeper");
             // Sound, though not well shaped: a split a fraction of a column from a lip
             // vertex makes a short lip segment, and the wall cell under it a sliver.
             check_topology(&out, "deepened after a cut beside it");
@@ -814,27 +796,9 @@ mod tests {
     fn a_pass_no_deeper_than_the_walls_changes_nothing() {
         let (liver, first) = first_pass();
         let shallow = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.004);
-        assert!(
-            deepen(
-                &first.mesh,
-                &first.kinds,
-                &first.wounds,
-                &shallow,
-                &IncisionParams::default()
-            )
-            .is_none()
-        );
+        assert!(deepen_on(&first, &shallow).is_none());
         // Nor does a deeper pass beside the wound, clear of its lips.
         let beside = top_path(&liver, [-0.03, 0.012], [0.03, 0.012], 0.01);
-        assert!(
-            deepen(
-                &first.mesh,
-                &first.kinds,
-                &first.wounds,
-                &beside,
-                &IncisionParams::default()
-            )
-            .is_none()
-        );
+        assert!(deepen_on(&first, &beside).is_none());
     }
 }
