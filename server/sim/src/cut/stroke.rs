@@ -15,8 +15,8 @@ pub struct StrokeOutcome {
     /// The surface after it, its `source` mapping back to the surface before it; `None` if
     /// nothing changed.
     pub surface: Option<Incised>,
-    /// An incision was opened over intact skin.
-    pub opened: bool,
+    /// Pieces over intact skin that opened an incision.
+    pub opened: usize,
     /// Why pieces of the path were refused (the surface is left as it was under them).
     pub refusals: Vec<IncisionError>,
     /// Largest lip turn of the pieces (degrees).
@@ -56,7 +56,7 @@ pub fn open_stroke(
     }
     let mut outcome = StrokeOutcome {
         surface: None,
-        opened: false,
+        opened: 0,
         refusals: Vec::new(),
         lip_max_turn_deg: 0.0,
         min_angle_deg: 180.0,
@@ -80,7 +80,7 @@ pub fn open_stroke(
         } else {
             match incise(m, k, w, piece, params) {
                 Ok(out) => {
-                    outcome.opened = true;
+                    outcome.opened += 1;
                     out
                 }
                 Err(IncisionError::TooShort { .. }) => continue,
@@ -201,6 +201,12 @@ mod tests {
                     let was_open = wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max);
                     let outcome = open_stroke(&mesh, &kinds, &wounds, path, margin, &params);
                     strokes += 1;
+                    // A pass along an open wound, 5 mm deeper than it, must deepen it.
+                    let deeper_pass = k == 1 && trial % 3 == 0 && !wounds.is_empty();
+                    assert!(
+                        !deeper_pass || outcome.surface.is_some(),
+                        "{name}: the deeper pass changed nothing"
+                    );
                     let Some(out) = outcome.surface else {
                         continue;
                     };
@@ -211,7 +217,8 @@ mod tests {
                         "{name}: {}",
                         outcome.min_angle_deg
                     );
-                    if k == 1 && trial % 3 == 0 {
+                    if deeper_pass {
+                        assert_eq!(out.wounds.len(), wounds.len(), "{name}: a new wound");
                         let after = out.wounds.iter().map(Wound::depth_m).fold(0.0, f64::max);
                         // (A thin part stops the walls short of its far side.)
                         assert!(after > before + 0.001, "{name}: {before} → {after}");

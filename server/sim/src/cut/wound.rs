@@ -8,8 +8,10 @@
 //!
 //! A later stroke that runs along the wound deeper than its walls (a surgeon deepening an
 //! incision, or a deeper cut across it) cuts below the old floor; [`deepen`] takes the
-//! walls of every such column down to the new depth. Only the walls are rebuilt: the lips
-//! and the skin around them stay, so the opening keeps the width of the first pass.
+//! walls of every such column down to the new depth. A wound deepened along at least half
+//! its columns is then opened again as one incision at the new depths (its lid back to
+//! skin), so its lips part as a first pass that deep would have opened them; if that
+//! incision is refused, or less than half the wound was deepened, only the walls change.
 
 use std::collections::{HashMap, HashSet};
 
@@ -387,8 +389,9 @@ fn limit_slope(columns: &mut [WallColumn], old: &[WallColumn], gap: f64) {
     }
 }
 
-/// Takes the walls of `wounds` down where `path` cut deeper than them (see the module
-/// docs). `None` when no wound is deepened by more than a quarter of its spacing.
+/// Takes the walls of `wounds` down where `path` cut deeper than them, and opens again
+/// the wounds deepened along at least half their columns (see the module docs). `None`
+/// when no wound is deepened by more than a quarter of its spacing.
 pub fn deepen(
     mesh: &TriMesh,
     kinds: &[FaceKind],
@@ -512,8 +515,12 @@ pub fn deepen(
                 .iter()
                 .map(|s| s.and_then(|v| result.source[v as usize]))
                 .collect();
+            // The figures cover every deepened wound, not only the reopened one.
             if deeper.len() > 1 {
                 wider.min_angle_deg = wider.min_angle_deg.min(result.min_angle_deg);
+                wider.depth_m = wider.depth_m.max(result.depth_m);
+                wider.opening_m = wider.opening_m.max(result.opening_m);
+                wider.length_m = wider.length_m.max(result.length_m);
             }
             result = wider;
         }

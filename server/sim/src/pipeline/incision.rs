@@ -31,7 +31,7 @@ pub struct IncisionStats {
     pub incisions: usize,
     /// Times an incision was (re)computed.
     pub runs: usize,
-    /// Runs that were refused (the surface stayed as it was), and the last reason.
+    /// Pieces of runs that were refused (the surface stayed as it was under them).
     pub refused: usize,
     /// Why the last refused run was refused.
     pub last_refusal: Option<String>,
@@ -69,7 +69,8 @@ pub struct IncisionTracker {
     /// The most advanced entry since the last sample, taken as the path's end when the
     /// stroke finishes between two samples.
     front: Option<PathSample>,
-    opened_this_stroke: bool,
+    /// Pieces the last applied run of this stroke opened over intact skin.
+    opened_pieces: usize,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -106,7 +107,7 @@ impl IncisionTracker {
             added_since_run: 0,
             deepened_since_run_m: 0.0,
             front: None,
-            opened_this_stroke: false,
+            opened_pieces: 0,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -147,7 +148,7 @@ impl IncisionTracker {
             self.ran_this_stroke = false;
             self.added_since_run = 0;
             self.deepened_since_run_m = 0.0;
-            self.opened_this_stroke = false;
+            self.opened_pieces = 0;
             return changed;
         };
         if self.base.is_none() {
@@ -286,24 +287,24 @@ impl IncisionTracker {
             0.5 * self.rerun_step_m,
             &self.params,
         );
+        self.stats.refused += outcome.refusals.len();
+        if let Some(e) = outcome.refusals.last() {
+            self.stats.last_refusal = Some(e.to_string());
+        }
+        // A piece refused now may have opened in an earlier run of this stroke: a run that
+        // opens fewer pieces than the last one applied would lose that incision, so the
+        // surface keeps the last one.
+        if outcome.opened < self.opened_pieces {
+            return false;
+        }
+        let Some(out) = outcome.surface else {
+            return false;
+        };
         let stats = &mut self.stats;
         stats.lip_max_turn_deg = stats.lip_max_turn_deg.max(outcome.lip_max_turn_deg);
         stats.min_angle_deg = stats.min_angle_deg.min(outcome.min_angle_deg);
         stats.opening_m = stats.opening_m.max(outcome.opening_m);
         stats.depth_m = stats.depth_m.max(outcome.depth_m);
-        stats.refused += outcome.refusals.len();
-        if let Some(e) = outcome.refusals.last() {
-            stats.last_refusal = Some(e.to_string());
-            // A piece refused now may have opened in an earlier run of this stroke: the
-            // surface keeps that run's incision rather than lose it.
-            if self.opened_this_stroke {
-                return false;
-            }
-        }
-        let Some(out) = outcome.surface else {
-            return false;
-        };
-        let opened = outcome.opened;
         base.to_current = surface.replace(
             &out,
             &base.to_current,
@@ -313,10 +314,10 @@ impl IncisionTracker {
             inputs.op,
             inputs.positions,
         );
-        if opened && !self.opened_this_stroke {
-            self.opened_this_stroke = true;
+        if outcome.opened > 0 && self.opened_pieces == 0 {
             self.stats.incisions += 1;
         }
+        self.opened_pieces = outcome.opened;
         true
     }
 }
