@@ -1110,17 +1110,17 @@ pub fn incise(
             normal.try_normalize(1e-300).unwrap_or(n_bar)
         })
         .collect();
-    let reach = depths.iter().copied().fold(0.0, f64::max) / length.max(1e-300);
+    let window = depths.iter().copied().fold(0.0, f64::max);
+    let delta = window.max(0.5 * spacing);
     let mut columns = Vec::with_capacity(n_cols);
     for c in 0..n_cols {
         let param = params_of(c);
         let u = param * length;
         let top = tops[c];
-        let delta = (reach * length).max(0.5 * spacing);
         let tangent =
             lift(path2.at((u + delta).min(length))) - lift(path2.at((u - delta).max(0.0)));
         let normal: Vec3 = (0..n_cols)
-            .filter(|&k| (params_of(k) - param).abs() <= reach)
+            .filter(|&k| (params_of(k) - param).abs() * length <= window)
             .map(|k| normals[k])
             .sum();
         let inward = -normal.try_normalize(1e-300).unwrap_or(n_bar);

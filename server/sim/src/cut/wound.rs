@@ -16,9 +16,9 @@
 use std::collections::{HashMap, HashSet};
 
 use crate::geometry::TriMesh;
-use crate::geometry::angle_deg;
 use crate::geometry::predicates::{line_triangle, nearest_on_segment};
-use crate::math::Vec3;
+use crate::geometry::triangle_angles_deg;
+use crate::math::{Aabb, Vec3};
 
 use super::incision::{FaceKind, Incised, IncisionParams, PathSample, incise};
 
@@ -161,9 +161,9 @@ impl Assembly {
     }
 }
 
-fn min_angle_deg(q: [Vec3; 3]) -> f64 {
-    (0..3)
-        .map(|e| angle_deg(q[(e + 1) % 3] - q[e], q[(e + 2) % 3] - q[e]))
+fn min_angle_deg(corners: [Vec3; 3]) -> f64 {
+    triangle_angles_deg(corners)
+        .into_iter()
         .fold(180.0, f64::min)
 }
 
@@ -179,8 +179,7 @@ fn rows_for(depth: f64, cell: f64) -> usize {
 pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
     let cols = &wound.columns;
     let n = cols.len();
-    let column = wound.length_m / (n - 1).max(1) as f64;
-    let cell = column.max(wound.spacing_m / 4.0);
+    let cell = wound.column_gap_m().max(wound.spacing_m / 4.0);
     let rows: Vec<usize> = cols.iter().map(|c| rows_for(c.depth, cell)).collect();
     let a_id = wound.upper[0].1;
     let b_id = wound.upper[wound.upper.len() - 1].1;
@@ -329,16 +328,12 @@ pub(crate) fn first_hit(
     dir: &Vec3,
     reach: f64,
 ) -> Option<f64> {
-    let end = origin + dir * reach;
-    let lo = origin.inf(&end);
-    let hi = origin.sup(&end);
+    let ray = Aabb::around([origin, &(origin + dir * reach)]);
     triangles
         .iter()
         .filter_map(|&t| {
             let c = mesh.corners(t);
-            let tlo = c[0].inf(&c[1]).inf(&c[2]);
-            let thi = c[0].sup(&c[1]).sup(&c[2]);
-            if (0..3).any(|a| thi[a] < lo[a] || tlo[a] > hi[a]) {
+            if !ray.overlaps(&Aabb::around(&c)) {
                 return None;
             }
             line_triangle(origin, dir, &c)
@@ -401,17 +396,7 @@ pub fn deepen(
 ) -> Option<Incised> {
     // Wall faces by edge: to find each wound's walls, and to check that its lips are
     // still wall edges.
-    let mut walls_by_edge: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if kinds[t] == FaceKind::Wall {
-            for e in 0..3 {
-                walls_by_edge
-                    .entry(edge_key(tri[e], tri[(e + 1) % 3]))
-                    .or_default()
-                    .push(t);
-            }
-        }
-    }
+    let walls_by_edge = faces_by_edge(mesh, kinds, FaceKind::Wall);
     // The new depth of every column the path ran over, for the wounds it deepens.
     let skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin)
@@ -463,7 +448,7 @@ pub fn deepen(
         .iter()
         .flat_map(|(w, _)| wounds[*w].lip_edges())
         .collect();
-    let removed = faces_inside(mesh, kinds, FaceKind::Wall, &lip_edges);
+    let removed = faces_inside(mesh, &walls_by_edge, &lip_edges);
     let (mut out, new_id) = without(mesh, kinds, &removed);
     let no_splits = EdgeSplits::new();
     let mut carried: Vec<Wound> = wounds.to_vec();
@@ -535,8 +520,13 @@ pub fn deepen(
 fn reopen(surface: &Incised, w: usize, params: &IncisionParams) -> Option<Incised> {
     let wound = &surface.wounds[w];
     let lip_edges: HashSet<(u32, u32)> = wound.lip_edges().collect();
-    let walls = faces_inside(&surface.mesh, &surface.kinds, FaceKind::Wall, &lip_edges);
-    let lid = faces_inside(&surface.mesh, &surface.kinds, FaceKind::Lid, &lip_edges);
+    let (mesh, kinds) = (&surface.mesh, &surface.kinds);
+    let walls = faces_inside(
+        mesh,
+        &faces_by_edge(mesh, kinds, FaceKind::Wall),
+        &lip_edges,
+    );
+    let lid = faces_inside(mesh, &faces_by_edge(mesh, kinds, FaceKind::Lid), &lip_edges);
     let mut kinds = surface.kinds.clone();
     for (k, &in_lid) in kinds.iter_mut().zip(&lid) {
         if in_lid {
@@ -576,15 +566,11 @@ fn reopen(surface: &Incised, w: usize, params: &IncisionParams) -> Option<Incise
     Some(out)
 }
 
-/// The faces of `kind` reached from `lip_edges` across edges between two such faces, never
-/// across a lip edge: a wound's walls (or its lid), which are joined to nothing else.
-fn faces_inside(
-    mesh: &TriMesh,
-    kinds: &[FaceKind],
-    kind: FaceKind,
-    lip_edges: &HashSet<(u32, u32)>,
-) -> Vec<bool> {
-    let mut by_edge: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
+/// The faces of `kind` by their (unordered) edges.
+type FacesByEdge = HashMap<(u32, u32), Vec<usize>>;
+
+fn faces_by_edge(mesh: &TriMesh, kinds: &[FaceKind], kind: FaceKind) -> FacesByEdge {
+    let mut by_edge = FacesByEdge::new();
     for (t, tri) in mesh.triangles.iter().enumerate() {
         if kinds[t] == kind {
             for e in 0..3 {
@@ -595,6 +581,16 @@ fn faces_inside(
             }
         }
     }
+    by_edge
+}
+
+/// The faces of `by_edge` reached from `lip_edges` across edges between two of them, never
+/// across a lip edge: a wound's walls (or its lid), which are joined to nothing else.
+fn faces_inside(
+    mesh: &TriMesh,
+    by_edge: &FacesByEdge,
+    lip_edges: &HashSet<(u32, u32)>,
+) -> Vec<bool> {
     let mut inside = vec![false; mesh.triangles.len()];
     let mut stack: Vec<usize> = lip_edges
         .iter()

@@ -80,12 +80,7 @@ impl TriMesh {
 
     /// The three interior angles of triangle `t` in degrees.
     pub fn angles_deg(&self, t: usize) -> [f64; 3] {
-        let [a, b, c] = self.corners(t);
-        [
-            angle_deg(b - a, c - a),
-            angle_deg(c - b, a - b),
-            angle_deg(a - c, b - c),
-        ]
+        triangle_angles_deg(self.corners(t))
     }
 
     /// Smallest interior angle over all triangles (degrees); 0 for an empty mesh.
@@ -111,6 +106,15 @@ impl TriMesh {
             t.swap(1, 2);
         }
     }
+}
+
+/// The three interior angles of the triangle with corners `[a, b, c]` in degrees.
+pub fn triangle_angles_deg([a, b, c]: [Vec3; 3]) -> [f64; 3] {
+    [
+        angle_deg(b - a, c - a),
+        angle_deg(c - b, a - b),
+        angle_deg(a - c, b - c),
+    ]
 }
 
 /// Angle between two vectors in degrees; 0 if either is zero.
