@@ -59,7 +59,7 @@ pub struct DevicePose {
     /// Blade tip in the scene's frame (m).
     pub tip_m: [f64; 3],
     /// Tool orientation, unit quaternion (x, y, z, w); the blade's edge runs along the
-    /// tool's local +z axis from the tip.
+    /// tool's local +z axis from the tip, its back toward local −x.
     pub orientation_xyzw: [f64; 4],
 }
 

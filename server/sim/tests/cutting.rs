@@ -184,7 +184,8 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         "{check:?}"
     );
     assert!(kinds.contains(&FaceKind::Wall));
-    // The wound is about 60 mm long and 10 mm deep.
+    // The wound is about 68 mm long and 10 mm deep: the 60 mm stroke, and the slit the
+    // blade's flat opened behind the edge going in (8 mm, the blade's width).
     let walls = sim.current_surface().wall_corners();
     let lo = walls
         .iter()
@@ -193,7 +194,7 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         .iter()
         .fold(Vec3::repeat(f64::NEG_INFINITY), |a, b| a.sup(b));
     println!("wound box {:?} .. {:?}", lo.as_slice(), hi.as_slice());
-    assert!((0.05..0.065).contains(&(hi.x - lo.x)), "{}", hi.x - lo.x);
+    assert!((0.06..0.073).contains(&(hi.x - lo.x)), "{}", hi.x - lo.x);
     assert!((stats.depth_m - 0.0105).abs() < 0.002, "{}", stats.depth_m);
     assert!(stats.lip_max_turn_deg < 15.0, "{}", stats.lip_max_turn_deg);
     // The work stays in the affected region.

@@ -2,8 +2,8 @@
 //! re-enter, cross an earlier cut, cut through a thin part, cuts that leave slivers and
 //! isolated points, a press that backs out before rupture, a pressed blade that slides,
 //! a blade that turns back along its cut, a blade held still in its cut by a device that
-//! reads a little off every tick, a second deeper pass along a cut, sawing deeper in one stroke, sawing to and fro, and
-//! a raked blade. In every case: nothing non-finite, the tool force
+//! reads a little off every tick, a second deeper pass along a cut, sawing deeper in one
+//! stroke, sawing to and fro, a raked blade, and a stab (alone and followed by a slide). In every case: nothing non-finite, the tool force
 //! bounded and without jumps outside rupture, no divergence, and the drawn surface still
 //! closed, manifold and consistently oriented.
 
@@ -627,6 +627,132 @@ fn sawing_deeper_in_one_stroke() {
     assert_sound_surface(&sim);
 }
 
+/// The wall corners of the drawn wound, in rest space (mm), and the top of the organ.
+fn wall_corners_mm(sim: &Simulation) -> Vec<Vec3> {
+    let surface = sim.current_surface();
+    corners_of_kind(&surface.rest_mesh(), &surface.kinds, FaceKind::Wall)
+        .map(|p| p * 1e3)
+        .collect()
+}
+
+#[test]
+fn a_stab_slits_as_wide_as_the_blade() {
+    // The shoulder: the liver's 17.7 mm surface edges are too coarse to draw an 8 mm slit
+    // (an incision must be half an edge long).
+    // Its top is flat behind x = -12 mm.
+    let scene = scene("shoulder");
+    let (x, top) = (-12.0, top_mm(&scene, -12.0, 0.0));
+    let width_mm = scene.spec.tool.blade_width_m * 1e3;
+    // Straight down 10 mm at 5 mm/s, held, and straight out: the blade's flat (its back
+    // toward −x) slits the tissue behind the edge. Nothing used to be cut: the edge moving
+    // along itself sweeps nothing.
+    let s = script(&[
+        (0.0, [x, 0.0, top + 5.0]),
+        (3.0, [x, 0.0, top - 10.0]),
+        (3.5, [x, 0.0, top - 10.0]),
+        (6.5, [x, 0.0, top + 5.0]),
+        // Again into the same slit: it is open, the capsule does not rupture again, and
+        // the blade opens no new crack above the first one's floor.
+        (7.0, [x, 0.0, top + 5.0]),
+        (10.0, [x, 0.0, top - 10.0]),
+        (13.0, [x, 0.0, top + 5.0]),
+    ]);
+    let (sim, trace) = calm_run(&scene, &s, 200);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    let friction = (1.0 + scene.spec.force.ripple_amplitude) * scene.spec.force.friction_n;
+    // Friction only, until the tip is within the end-of-cut tolerance (about a
+    // millimetre) of the first stab's floor.
+    for k in 7000..10000 {
+        let (f, depth) = (trace.ticks.force[k].norm(), trace.ticks.depth[k]);
+        if depth <= 8.5e-3 {
+            assert!(
+                f <= friction + 1e-9,
+                "tick {k}: {f} N {depth} m deep going in again"
+            );
+        }
+    }
+    assert_dent_released(&sim);
+    let cutting = sim.cutting().expect("cutting scene");
+    // Pairs across the slit are cut, or fading near its edges (crack fronts).
+    let (cut, fading) = (cutting.pairs_removed_total, cutting.transparent_pairs());
+    assert!(
+        cutting.sigma.triangles.len() > 4 && cut + fading > 20,
+        "{} triangles of Σ, {cut} pairs cut, {fading} fading",
+        cutting.sigma.triangles.len(),
+    );
+    let incisions = sim.incisions().expect("cutting scene");
+    assert_eq!(
+        (incisions.incisions, incisions.refused),
+        (1, 0),
+        "{incisions:?}"
+    );
+    // The slit runs from the edge back one blade width, as deep as the blade went at the
+    // edge and shallower behind it (the point narrows at 45°).
+    let walls = wall_corners_mm(&sim);
+    let span = walls.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(p.x), hi.max(p.x))
+    });
+    assert!(
+        (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - x).abs() < 2.0,
+        "walls from x = {:.1} to {:.1} mm",
+        span.0,
+        span.1
+    );
+    let deepest = walls
+        .iter()
+        .filter(|p| (p.x - x).abs() < 2.0)
+        .map(|p| top - p.z)
+        .fold(0.0, f64::max);
+    assert!(
+        (deepest - 10.0).abs() < 1.5,
+        "walls {deepest} mm deep at the edge"
+    );
+    let shallow = walls
+        .iter()
+        .filter(|p| p.x < x - width_mm + 2.0)
+        .map(|p| top_mm(&scene, p.x, p.y) - p.z)
+        .fold(0.0, f64::max);
+    assert!(
+        shallow < deepest - 4.0,
+        "walls {shallow} mm deep at the back"
+    );
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_stab_then_a_slide_is_one_incision() {
+    let scene = scene("liver");
+    let (x, top) = (-30.0, top_mm(&scene, -30.0, 0.0));
+    let width_mm = scene.spec.tool.blade_width_m * 1e3;
+    // In point first, then forward 25 mm (edge first) and out: one incision from a blade
+    // width behind the stab to the end.
+    let s = script(&[
+        (0.0, [x, 0.0, top + 5.0]),
+        (3.0, [x, 0.0, top - 10.0]),
+        (8.0, [x + 25.0, 0.0, top - 10.0]),
+        (11.0, [x + 25.0, 0.0, top + 5.0]),
+    ]);
+    let (sim, trace) = calm_run(&scene, &s, 200);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    let incisions = sim.incisions().expect("cutting scene");
+    assert_eq!(
+        (incisions.incisions, incisions.refused),
+        (1, 0),
+        "{incisions:?}"
+    );
+    let walls = wall_corners_mm(&sim);
+    let span = walls.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(p.x), hi.max(p.x))
+    });
+    assert!(
+        (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - (x + 25.0)).abs() < 2.5,
+        "walls from x = {:.1} to {:.1} mm",
+        span.0,
+        span.1
+    );
+    assert_sound_surface(&sim);
+}
+
 #[test]
 fn sawing_to_and_fro_in_a_cut() {
     let scene = scene("liver");
@@ -634,6 +760,7 @@ fn sawing_to_and_fro_in_a_cut() {
     let spec = &scene.spec.force;
     let z = top - 10.0;
     // In at x = -20 mm, forward to -10, back past the start to -30, forward to -15.
+    // (Going in, the blade's flat slits 8 mm behind the edge, to -28 mm.)
     let s = script(&[
         (0.0, [-20.0, 0.0, top + 5.0]),
         (3.0, [-20.0, 0.0, z]),
@@ -658,8 +785,14 @@ fn sawing_to_and_fro_in_a_cut() {
                     "tick {k} at {x}: {f:?}"
                 );
             }
-            // Past where the cut began: cutting again (J_c·d + friction ≈ 2.2 N, ±15 %).
-            7500..9000 => assert!(f.x > 1.8, "tick {k} at {x}: {f:?}"),
+            // Behind where the blade went in, the slit its flat opened going down: its
+            // floor rises at 45° from 10 mm deep at -20 mm to 2 mm at -28 mm, so the
+            // blade opens the crack below it, from nothing to all of its depth.
+            7000..8500 if x < -20.5 && x > -27.0 => {
+                assert!(f.x > friction && f.x < 1.8, "tick {k} at {x}: {f:?}");
+            }
+            // Past the slit: cutting again (J_c·d + friction ≈ 2.2 N, ±15 %).
+            7500..9000 if x < -28.5 => assert!(f.x > 1.8, "tick {k} at {x}: {f:?}"),
             // Forward over all of it: friction only, and Σ does not grow.
             9500..12000 => {
                 assert!(

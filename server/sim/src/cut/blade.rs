@@ -4,6 +4,8 @@
 //! length away. The cutting edge runs from P toward P'. When the blade enters the tissue, the
 //! blade plane is the plane through the edge perpendicular to the tissue surface at the entry
 //! point: its normal is `n_b = normalize((P' − P) × ν_s)` with ν_s the surface normal there.
+//! The blade's flat lies in the tool's local x–z plane, its back (the blade's width behind
+//! the edge) toward local −x: what a blade pushed in point first slits (a stab incision).
 
 use nalgebra::UnitQuaternion;
 use serde::Serialize;
@@ -16,7 +18,8 @@ use crate::scene::ToolSpec;
 pub struct ToolPose {
     /// Blade tip (m).
     pub tip_m: Vec3,
-    /// Orientation; the blade's edge runs along the tool's local +z axis from the tip.
+    /// Orientation; the blade's edge runs along the tool's local +z axis from the tip, its
+    /// back lies toward local −x.
     pub orientation: UnitQuaternion<f64>,
 }
 
@@ -29,6 +32,25 @@ impl ToolPose {
             });
         Self { tip_m, orientation }
     }
+
+    /// A pose with the edge along `edge_direction` and the blade's sharp side toward
+    /// `facing` (its back away from it; taken square to the edge). A `facing` along the
+    /// edge leaves the turn of [`ToolPose::pointing`].
+    pub fn facing(tip_m: Vec3, edge_direction: Vec3, facing: Vec3) -> Self {
+        let Some(z) = edge_direction.try_normalize(1e-12) else {
+            return Self::pointing(tip_m, edge_direction);
+        };
+        let Some(x) = (facing - z * facing.dot(&z)).try_normalize(1e-9) else {
+            return Self::pointing(tip_m, edge_direction);
+        };
+        let frame = nalgebra::Matrix3::from_columns(&[x, z.cross(&x), z]);
+        Self {
+            tip_m,
+            orientation: UnitQuaternion::from_rotation_matrix(
+                &nalgebra::Rotation3::from_matrix_unchecked(frame),
+            ),
+        }
+    }
 }
 
 /// The blade at one instant.
@@ -40,6 +62,9 @@ pub struct Blade {
     pub back: Vec3,
     /// Unit direction from P to P'.
     pub edge: Vec3,
+    /// Unit direction across the blade's flat from its edge to its back (perpendicular to
+    /// `edge`).
+    pub toward_back: Vec3,
 }
 
 impl Blade {
@@ -50,6 +75,7 @@ impl Blade {
             tip: pose.tip_m,
             back: pose.tip_m + edge * tool.blade_length_m,
             edge,
+            toward_back: pose.orientation * -Vec3::x(),
         }
     }
 
@@ -90,5 +116,15 @@ mod tests {
         );
         let n = tilted.plane_normal(&Vec3::z()).unwrap();
         assert!((n.norm() - 1.0).abs() < 1e-12 && n.dot(&tilted.edge).abs() < 1e-12);
+        // The back is across the edge, behind it: a blade held upright to cut along +x
+        // (the default pose) has its back toward −x.
+        assert!(tilted.toward_back.dot(&tilted.edge).abs() < 1e-12);
+        assert!((b.toward_back + Vec3::x()).norm() < 1e-12);
+        // Held to cut along +y, leaning forward: the back is behind, square to the edge.
+        let edge = Vec3::new(0.0, 1.0, 1.0);
+        let turned = Blade::at(&ToolPose::facing(Vec3::zeros(), edge, Vec3::y()), &tool);
+        assert!((turned.edge - edge.normalize()).norm() < 1e-12);
+        let back = Vec3::new(0.0, -1.0, 1.0).normalize();
+        assert!((turned.toward_back - back).norm() < 1e-12);
     }
 }

@@ -1078,7 +1078,9 @@ pub fn incise(
     };
     // Columns below the lips: evenly spaced, as many as the denser lip has vertices.
     let n_cols = upper_chain.len().max(lower_chain.len());
-    let min_depth = 0.5 * spacing;
+    // A wall has at least two rows (super::wound): shallower than a column gap, its cells
+    // would be slivers (a stab's slit rises to the surface at its end).
+    let min_depth = (0.5 * spacing).max(length / (n_cols - 1).max(1) as f64);
     let other_skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && !in_region[t])
         .collect();

@@ -150,9 +150,22 @@ mod tests {
             .collect()
     }
 
+    /// A stroke begun with a stab, as the tracker gets it: a blade `width` wide went in
+    /// point first at the path's start `width` along it, its flat's floor rising at 45°
+    /// toward the start.
+    fn stab_start(path: &mut [PathSample], width: f64) {
+        let start = path[0].surface;
+        for s in path.iter_mut() {
+            let behind = (width - (s.surface - start).norm()).max(0.0);
+            let cut = s.bottom - s.surface;
+            let depth = cut.norm();
+            s.bottom = s.surface + cut * ((depth - behind).max(0.0) / depth);
+        }
+    }
+
     /// Strokes one after another on every organ — a first cut, then one along it deeper,
     /// across it or beside it, then one more anywhere through the middle — opened as the
-    /// tracker opens them: the surface stays closed, edge-manifold and oriented after every
+    /// tracker opens them (half of the first strokes begun with a stab): the surface stays closed, edge-manifold and oriented after every
     /// stroke, no vertex is left unused, the new triangles have angles ≥ 15°, and a pass
     /// along a wound deeper than its walls takes them down (and mostly opens it wider).
     /// (Before the walls' columns were averaged over the depth, short deep pieces of
@@ -181,7 +194,10 @@ mod tests {
                 let half = (0.1 + 0.15 * next()) * size;
                 let depth = (0.2 + 0.3 * next()) * 0.01;
                 let bend = if trial % 2 == 0 { 0.2 * half } else { 0.0 };
-                let first = stroke(&mesh, centre, angle, half, 0.0, bend, depth, step);
+                let mut first = stroke(&mesh, centre, angle, half, 0.0, bend, depth, step);
+                if trial % 2 == 1 {
+                    stab_start(&mut first, 0.008);
+                }
                 let second = match trial % 3 {
                     0 => stroke(&mesh, centre, angle, half, 0.0, bend, depth + 0.005, step),
                     1 => {

@@ -33,6 +33,24 @@ impl SweptSurface {
         }
         added
     }
+
+    /// Appends the part of the blade's flat between `tip` and `top` (up its edge): what a
+    /// blade pushed in point first slits. The flat reaches `width` behind the edge along
+    /// `toward_back` (unit, across the edge), narrowing at 45° to the tip — a scalpel's
+    /// point, as the cutting stage's crack share counts it. Returns the triangles added.
+    pub fn add_blade_flat(&mut self, tip: Vec3, top: Vec3, toward_back: Vec3, width: f64) -> usize {
+        let up = top - tip;
+        let reach = up.norm().min(width);
+        let Some(up) = up.try_normalize(1e-12) else {
+            return 0;
+        };
+        let across = toward_back * reach;
+        // Past a blade width up, the back runs parallel to the edge; below, it is the
+        // point's 45° taper (when the flat is shorter than its width, this corner is the
+        // slit's end and the second triangle is empty).
+        let corner = tip + up * reach + across;
+        self.add_sweep(tip, top, corner, top + across)
+    }
 }
 
 /// Removes every neighbour pair whose rest segment meets `triangle`; the points whose lists

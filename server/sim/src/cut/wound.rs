@@ -303,7 +303,14 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
                             // Keep the two fronts in step down the wall.
                             fa < fb
                         } else {
-                            shape(tri_a(j), out) >= shape(tri_b(k), out)
+                            // The cell's better diagonal: each choice is followed by the
+                            // other column's step, so weigh both triangles (the first
+                            // alone picked a fine triangle and left a sliver beside it
+                            // where the floor falls steeply).
+                            let then_b = [grid[a][j + 1], grid[b][k], grid[b][k + 1]];
+                            let then_a = [grid[a][j], grid[b][k + 1], grid[a][j + 1]];
+                            shape(tri_a(j), out).min(shape(then_b, out))
+                                >= shape(tri_b(k), out).min(shape(then_a, out))
                         }
                     }
                 };

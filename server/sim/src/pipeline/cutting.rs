@@ -91,6 +91,9 @@ pub struct CutTick {
     /// The blade opens no new cut (friction only): it is pulling back along its edge, or
     /// moving back along the cut it made.
     pub withdrawing: bool,
+    /// Pushed in point first, the slit its flat opened at the surface (rest space, from the
+    /// edge's entry to the blade's back), when Σ grew by it this tick.
+    pub slit_rest: Option<Vec3>,
 }
 
 /// The dent is a smooth patch this many rupture displacements wide (at least one support
@@ -161,6 +164,9 @@ pub struct CuttingStage {
     steady: SteadyMotion,
     /// Where it was when Σ last grew.
     last_sweep_at: Option<Vec3>,
+    /// While the blade goes in point first, the normal of its flat (rest): the plane that
+    /// parts left from right when the motion, along the edge, defines none.
+    plunge_normal: Option<Vec3>,
     /// The blade's recent steady displacements, each weighed down by the travel since (m):
     /// its direction is `direction`.
     recent_motion: Vec3,
@@ -221,6 +227,7 @@ impl CuttingStage {
                 .max(kernel.support_m),
             steady: SteadyMotion::new(force.motion_deadband_m),
             last_sweep_at: None,
+            plunge_normal: None,
             recent_motion: Vec3::zeros(),
             direction: Vec3::zeros(),
             awake: vec![false; n],
@@ -411,12 +418,23 @@ impl CuttingStage {
 
         // Σ grows while cutting.
         let sigma_before = self.sigma.triangles.len();
+        let mut slit_rest = None;
+        self.plunge_normal = None;
         match (force.phase, edge_rest) {
             (CutPhase::Cutting, Some([tip, entry])) => {
                 // Σ reaches a quarter spacing above the surface, so that no pair or surface
                 // vertex near the top sees across it through rounding.
                 let up = (entry - tip).try_normalize(1e-12).unwrap_or_else(Vec3::z);
                 let edge = [tip, entry + up * (0.25 * self.spacing_m)];
+                // Going in point first (within 60° of it), the edge sweeps nothing; the
+                // blade's flat slits the tissue behind it.
+                let flat = blade
+                    .filter(|_| self.direction.dot(&up) < -0.5)
+                    .and_then(|b| {
+                        (b.toward_back - up * b.toward_back.dot(&up)).try_normalize(1e-6)
+                    });
+                // Left is on the left of a blade cutting edge first (toward −back).
+                self.plunge_normal = flat.map(|back| back.cross(&up));
                 let at = self.steady.position();
                 match self.last_sweep {
                     // Moving back along its cut the blade is on Σ: the sweep goes on from
@@ -434,6 +452,11 @@ impl CuttingStage {
                             && self.moved_steadily_since(self.last_sweep_at)
                         {
                             self.sigma.add_sweep(last[0], last[1], edge[0], edge[1]);
+                            if let Some(back) = flat {
+                                let width = self.tool.blade_width_m;
+                                self.sigma.add_blade_flat(edge[0], edge[1], back, width);
+                                slit_rest = Some(back * (entry - tip).norm().min(width));
+                            }
                             (self.last_sweep, self.last_sweep_at) = (Some(edge), at);
                         }
                     }
@@ -539,6 +562,7 @@ impl CuttingStage {
             pairs_removed,
             points_changed: self.changed.len(),
             withdrawing,
+            slit_rest,
         }
     }
 
@@ -799,15 +823,16 @@ impl CuttingStage {
         });
         // Left/right (physics.md §4.4): the sign of φ(X) = n_b·(X − P), n_b the blade
         // plane's normal, up the edge × the way it moves (+ is the left hand of someone
-        // looking along the cut with the edge pointing up). Undefined while plunging.
-        // Only while the blade moves across its edge: plunging or lifting (the edge along
-        // the motion) leaves the plane undefined, and pulling back would flip it.
+        // looking along the cut with the edge pointing up), while the blade moves across
+        // its edge; plunging, the plane of its flat; lifting leaves the plane undefined
+        // (pulling back would flip it).
         let up = (edge[1] - edge[0])
             .try_normalize(1e-12)
             .unwrap_or_else(Vec3::z);
         let across = up.cross(&self.direction);
-        let normal =
-            (across.norm() > 0.5 && self.direction.dot(&up) <= 0.7).then(|| across.normalize());
+        let normal = (across.norm() > 0.5 && self.direction.dot(&up) <= 0.7)
+            .then(|| across.normalize())
+            .or(self.plunge_normal);
         for r in 0..self.candidates.len() {
             let i = self.candidates[r];
             self.wake(i);

@@ -15,6 +15,7 @@
 
 use serde::Serialize;
 
+use crate::cut::wound::first_hit;
 use crate::cut::{FaceKind, IncisionParams, PathSample, Wound, open_stroke};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
@@ -71,6 +72,11 @@ pub struct IncisionTracker {
     front: Option<PathSample>,
     /// Pieces the last applied run of this stroke opened over intact skin.
     opened_pieces: usize,
+    /// The slit the blade's flat opened behind the path's first sample, pushed in point
+    /// first there (rest, from the edge to the back), and how much it grew since the last
+    /// run (m): a stroke that only stabbed is drawn when it ends.
+    slit: Option<Vec3>,
+    slit_since_run_m: f64,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -108,6 +114,8 @@ impl IncisionTracker {
             deepened_since_run_m: 0.0,
             front: None,
             opened_pieces: 0,
+            slit: None,
+            slit_since_run_m: 0.0,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -117,12 +125,14 @@ impl IncisionTracker {
 
     /// One tick: `edge` is the blade's rest-space (tip, entry) while it cuts, `None`
     /// otherwise; `direction` is the blade's latest motion; a `withdrawing` blade neither
-    /// extends nor deepens the path. Returns whether the surface was re-meshed.
+    /// extends nor deepens the path; `slit` is what its flat slit at the surface, going in
+    /// point first. Returns whether the surface was re-meshed.
     pub fn update(
         &mut self,
         edge: Option<[Vec3; 2]>,
         direction: Vec3,
         withdrawing: bool,
+        slit: Option<Vec3>,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
@@ -141,7 +151,8 @@ impl IncisionTracker {
                 self.samples.push(front);
                 self.added_since_run += 1;
             }
-            let rerun = self.samples.len() >= 2 && (self.added_since_run > 0 || self.deepened());
+            let rerun = (self.samples.len() >= 2 || self.slit.is_some())
+                && (self.added_since_run > 0 || self.deepened() || self.slit_since_run_m > 0.0);
             let changed = rerun && self.run(surface, inputs);
             self.base = None;
             self.samples.clear();
@@ -149,6 +160,8 @@ impl IncisionTracker {
             self.added_since_run = 0;
             self.deepened_since_run_m = 0.0;
             self.opened_pieces = 0;
+            self.slit = None;
+            self.slit_since_run_m = 0.0;
             return changed;
         };
         if self.base.is_none() {
@@ -162,6 +175,17 @@ impl IncisionTracker {
         if withdrawing {
             return false;
         }
+        // Pushed in point first where the path starts, the blade's flat slits behind its
+        // edge: the path starts that far back (`stroke_path`). The slit is drawn when the
+        // blade moves on or leaves: while it is in, the blade fills it. (Drawn as it grew,
+        // the short, steep slits of a blade going in made wall cells under 15°.)
+        if let (Some(v), true) = (slit, self.samples.len() <= 1) {
+            let grown = v.norm() - self.slit.map_or(0.0, |s| s.norm());
+            if grown > 0.0 {
+                self.slit = Some(v);
+                self.slit_since_run_m += grown;
+            }
+        }
         match self.samples.last_mut() {
             Some(last) if (entry - last.surface).norm() < self.sample_step_m => {
                 let (depth, was) = ((tip - entry).norm(), (last.bottom - last.surface).norm());
@@ -171,8 +195,13 @@ impl IncisionTracker {
                         self.deepened_since_run_m += depth - was;
                     }
                 }
+                // Ahead along the path: a blade going in point first moves the entry only
+                // as the surface gives under it.
                 let step = entry - last.surface;
-                let ahead = step.dot(&direction) >= 0.5 * step.norm();
+                let plunging = (tip - entry)
+                    .try_normalize(1e-12)
+                    .is_some_and(|down| down.dot(&direction) > 0.5);
+                let ahead = !plunging && step.dot(&direction) >= 0.5 * step.norm();
                 if ahead
                     && self
                         .front
@@ -270,20 +299,66 @@ impl IncisionTracker {
         &self.samples
     }
 
+    /// The stroke's path on `mesh`: its samples, after the slit the blade's flat opened
+    /// behind the first one (unless the path then ran back over it), sampled as the path
+    /// is. Each slit sample is where the flat, a distance x behind the edge, meets the
+    /// surface (up the edge from the blade's depth: in the flat's plane, so the slit runs
+    /// straight on a faceted, sloping surface); its floor is the point's 45° taper, x up
+    /// the edge from the tip, and the slit ends where that comes up through the surface.
+    fn stroke_path(&self, mesh: &TriMesh) -> Vec<PathSample> {
+        let mut path = Vec::with_capacity(self.samples.len() + 16);
+        if let (Some(slit), Some(first)) = (self.slit, self.samples.first()) {
+            let onward = self.samples.get(1).map(|s| s.surface - first.surface);
+            let cut = first.bottom - first.surface;
+            if let (true, Some(up)) = (
+                onward.is_none_or(|o| o.dot(&slit) < 0.0),
+                (-cut).try_normalize(1e-12),
+            ) {
+                let everything: Vec<usize> = (0..mesh.triangles.len()).collect();
+                let (length, depth) = (slit.norm(), cut.norm());
+                let n = (length / self.sample_step_m).ceil().max(1.0) as usize;
+                for k in (1..=n).rev() {
+                    let behind = slit * (k as f64 / n as f64);
+                    let below = first.bottom + behind;
+                    let Some(rise) = first_hit(mesh, &everything, &below, &up, 2.0 * depth) else {
+                        continue;
+                    };
+                    // Where the surface falls away behind the blade, the flat's back is
+                    // out of the tissue: the slit ends where its floor comes up through.
+                    let surface = below + up * rise;
+                    let deep = rise - behind.norm();
+                    if deep > 0.0 {
+                        path.push(PathSample {
+                            surface,
+                            bottom: surface - up * deep,
+                        });
+                    }
+                }
+            }
+        }
+        path.extend_from_slice(&self.samples);
+        path
+    }
+
     /// Recomputes the stroke's incision from the base surface.
     fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        let Some(base) = &mut self.base else {
+        let Some(base) = &self.base else {
             return false;
         };
+        let path = self.stroke_path(&base.mesh);
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
+        self.slit_since_run_m = 0.0;
         self.stats.runs += 1;
+        let Some(base) = &mut self.base else {
+            return false;
+        };
         let outcome = open_stroke(
             &base.mesh,
             &base.kinds,
             &base.wounds,
-            &self.samples,
+            &path,
             0.5 * self.rerun_step_m,
             &self.params,
         );

@@ -235,6 +235,7 @@ impl Simulation {
                     edge,
                     stage.direction(),
                     tick.withdrawing,
+                    tick.slit_rest,
                     &mut self.surface,
                     &IncisionInputs {
                         rest_points: self.solver.rest(),

@@ -13,12 +13,16 @@
 //! t_s = 0.0
 //! tip_mm = [-30.0, 0.0, 40.0]
 //! edge = [0.0, 0.0, 1.0]     # from the tip toward the back of the blade (any length)
+//! facing = [1.0, 0.0, 0.0]   # optional: where the sharp side faces (across the edge)
 //!
 //! [[keyframe]]
 //! t_s = 3.0
 //! tip_mm = [-30.0, 0.0, 25.0]
 //! ```
-//! A keyframe without `edge` keeps the previous one's. The same in CSV (`.csv`):
+//! A keyframe without `edge` (or `facing`) keeps the previous one's. Without any `facing`
+//! the blade's flat is the plane of the edge and the x axis turned with the edge (for an
+//! upright blade: facing +x); it matters for a stab, whose slit runs from the edge back
+//! across the flat. The same in CSV (`.csv`, without `facing`):
 //!
 //! ```text
 //! t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z
@@ -101,6 +105,7 @@ struct RawKeyframe {
     t_s: f64,
     tip_mm: [f64; 3],
     edge: Option<[f64; 3]>,
+    facing: Option<[f64; 3]>,
 }
 
 impl CutScript {
@@ -158,6 +163,7 @@ impl CutScript {
                 t_s: number(0)?,
                 tip_mm: [number(1)?, number(2)?, number(3)?],
                 edge,
+                facing: None,
             });
         }
         Self::from_raw(&RawScript { keyframe }, file)
@@ -203,6 +209,7 @@ impl CutScript {
         }
         let mut keyframes = Vec::with_capacity(raw.keyframe.len());
         let mut edge: Option<Vec3> = None;
+        let mut facing: Option<Vec3> = None;
         for (index, k) in raw.keyframe.iter().enumerate() {
             if !k.t_s.is_finite() || k.t_s < 0.0 || k.t_s > 86_400.0 {
                 return Err(invalid(
@@ -246,9 +253,28 @@ impl CutScript {
                     "the first keyframe needs an edge direction".into(),
                 ));
             };
+            if let Some(f) = k.facing {
+                let f = Vec3::from(f);
+                let square = f - e * (f.dot(&e) / e.norm_squared());
+                if !f.iter().all(|c| c.is_finite()) || square.norm() < 1e-3 * f.norm() {
+                    return Err(invalid(
+                        index,
+                        format!(
+                            "facing = {:?} must be a direction across the edge {:?}",
+                            k.facing.unwrap_or_default(),
+                            e.as_slice()
+                        ),
+                    ));
+                }
+                facing = Some(f);
+            }
+            let tip = Vec3::from(k.tip_mm) * 1e-3;
             keyframes.push(Keyframe {
                 t_s: k.t_s,
-                pose: ToolPose::pointing(Vec3::from(k.tip_mm) * 1e-3, e),
+                pose: match facing {
+                    Some(f) => ToolPose::facing(tip, e, f),
+                    None => ToolPose::pointing(tip, e),
+                },
             });
         }
         Ok(Self {
@@ -297,10 +323,11 @@ impl CutScript {
         let up = Vec3::z();
         let mut keyframes = Vec::with_capacity(samples + 4);
         let mut t = 0.0;
+        // The blade faces along the stroke (its back trails), as a hand holds it.
         let mut push = |tip: Vec3, t: f64| {
             keyframes.push(Keyframe {
                 t_s: t,
-                pose: ToolPose::pointing(tip, up),
+                pose: ToolPose::facing(tip, up, axis),
             })
         };
         let top_at = |s: f64| {
@@ -439,6 +466,11 @@ mod tests {
         let good = "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 10]\nedge = [0, 0, 1]\n\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n";
         let s = CutScript::from_toml(good, "a.toml").expect("valid");
         assert!((s.pose_at(0.5).tip_m.z - 0.005).abs() < 1e-12);
+        // A blade turned to face +y keeps facing it (its back toward -y).
+        let turned = good.replace("edge = [0, 0, 1]", "edge = [0, 0, 1]\nfacing = [0, 3, 0]");
+        let s = CutScript::from_toml(&turned, "a.toml").expect("valid");
+        let blade = crate::cut::Blade::at(&s.pose_at(0.5), &crate::scene::ToolSpec::default());
+        assert!((blade.toward_back + Vec3::y()).norm() < 1e-12, "{blade:?}");
         let cases = [
             (
                 "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\n",
@@ -461,6 +493,10 @@ mod tests {
                 "must be finite",
             ),
             ("[[keyframe]]\nt_s = 0\ntip = [0, 0, 0]\n", "unknown field"),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [0, 0, -2]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 1: facing = [0.0, 0.0, -2.0] must be a direction across the edge",
+            ),
         ];
         for (text, want) in cases {
             let e = CutScript::from_toml(text, "s.toml")
