@@ -617,22 +617,34 @@ fn sawing_deeper_in_one_stroke() {
     ]);
     let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert_one_incision(&sim);
+    assert_walls_reach(&sim, &scene, top - 10.0);
+    assert_sound_surface(&sim);
+}
+
+/// The wall corners of the drawn wound, in rest space (mm).
+fn wall_corners_mm(sim: &Simulation) -> Vec<Vec3> {
+    let surface = sim.current_surface();
+    corners_of_kind(&surface.rest_mesh(), &surface.kinds, FaceKind::Wall)
+        .map(|p| p * 1e3)
+        .collect()
+}
+
+/// The smallest and largest x of `points`.
+fn x_span(points: &[Vec3]) -> (f64, f64) {
+    points.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(p.x), hi.max(p.x))
+    })
+}
+
+/// The run opened exactly one incision, and no piece of it was refused.
+fn assert_one_incision(sim: &Simulation) {
     let incisions = sim.incisions().expect("cutting scene");
     assert_eq!(
         (incisions.incisions, incisions.refused),
         (1, 0),
         "{incisions:?}"
     );
-    assert_walls_reach(&sim, &scene, top - 10.0);
-    assert_sound_surface(&sim);
-}
-
-/// The wall corners of the drawn wound, in rest space (mm), and the top of the organ.
-fn wall_corners_mm(sim: &Simulation) -> Vec<Vec3> {
-    let surface = sim.current_surface();
-    corners_of_kind(&surface.rest_mesh(), &surface.kinds, FaceKind::Wall)
-        .map(|p| p * 1e3)
-        .collect()
 }
 
 #[test]
@@ -680,18 +692,11 @@ fn a_stab_slits_as_wide_as_the_blade() {
         "{} triangles of Σ, {cut} pairs cut, {fading} fading",
         cutting.sigma.triangles.len(),
     );
-    let incisions = sim.incisions().expect("cutting scene");
-    assert_eq!(
-        (incisions.incisions, incisions.refused),
-        (1, 0),
-        "{incisions:?}"
-    );
+    assert_one_incision(&sim);
     // The slit runs from the edge back one blade width, as deep as the blade went at the
     // edge and shallower behind it (the point narrows at 45°).
     let walls = wall_corners_mm(&sim);
-    let span = walls.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
-        (lo.min(p.x), hi.max(p.x))
-    });
+    let span = x_span(&walls);
     assert!(
         (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - x).abs() < 2.0,
         "walls from x = {:.1} to {:.1} mm",
@@ -734,16 +739,9 @@ fn a_stab_then_a_slide_is_one_incision() {
     ]);
     let (sim, trace) = calm_run(&scene, &s, 200);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
-    let incisions = sim.incisions().expect("cutting scene");
-    assert_eq!(
-        (incisions.incisions, incisions.refused),
-        (1, 0),
-        "{incisions:?}"
-    );
+    assert_one_incision(&sim);
     let walls = wall_corners_mm(&sim);
-    let span = walls.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
-        (lo.min(p.x), hi.max(p.x))
-    });
+    let span = x_span(&walls);
     assert!(
         (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - (x + 25.0)).abs() < 2.5,
         "walls from x = {:.1} to {:.1} mm",
@@ -806,12 +804,7 @@ fn sawing_to_and_fro_in_a_cut() {
     assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[11999]);
     // One incision along all of it: the path folded back on itself is no path (the
     // incision used to be refused: "a lip crosses the region boundary").
-    let incisions = sim.incisions().expect("cutting scene");
-    assert_eq!(
-        (incisions.incisions, incisions.refused),
-        (1, 0),
-        "{incisions:?}"
-    );
+    assert_one_incision(&sim);
     assert_sound_surface(&sim);
 }
 

@@ -320,7 +320,9 @@ impl IncisionTracker {
                 for k in (1..=n).rev() {
                     let behind = slit * (k as f64 / n as f64);
                     let below = first.bottom + behind;
-                    let Some(rise) = first_hit(mesh, &everything, &below, &up, 2.0 * depth) else {
+                    // (Reaching a surface that rises behind the blade as steeply as 60°.)
+                    let reach = depth + 2.0 * length;
+                    let Some(rise) = first_hit(mesh, &everything, &below, &up, reach) else {
                         continue;
                     };
                     // Where the surface falls away behind the blade, the flat's back is

@@ -22,7 +22,8 @@
 //! A keyframe without `edge` (or `facing`) keeps the previous one's. Without any `facing`
 //! the blade's flat is the plane of the edge and the x axis turned with the edge (for an
 //! upright blade: facing +x); it matters for a stab, whose slit runs from the edge back
-//! across the flat. The same in CSV (`.csv`, without `facing`):
+//! across the flat. The same in CSV (`.csv`; `facing` in three more columns,
+//! `facing_x,facing_y,facing_z`, when the header has them):
 //!
 //! ```text
 //! t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z
@@ -47,6 +48,8 @@ pub const DEFAULT_DEPTH_M: f64 = 0.010;
 pub const MAX_KEYFRAMES: usize = 100_000;
 /// The header line of a CSV script.
 pub const CSV_HEADER: &str = "t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z";
+/// The columns a CSV script may add after [`CSV_HEADER`]: where the blade faces.
+pub const CSV_FACING_COLUMNS: &str = "facing_x,facing_y,facing_z";
 
 /// One keyframe.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -119,8 +122,9 @@ impl CutScript {
     }
 
     /// Parses a CSV script: a header line `t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z`
-    /// then one keyframe per line; the edge columns may be left empty to keep the previous
-    /// keyframe's. `file` names it in messages.
+    /// (optionally followed by `,facing_x,facing_y,facing_z`) then one keyframe per line;
+    /// the edge (and facing) columns may be left empty to keep the previous keyframe's.
+    /// `file` names it in messages.
     pub fn from_csv(text: &str, file: &str) -> Result<Self, ScriptError> {
         let parse_error = |line: usize, message: String| ScriptError::Parse {
             file: file.to_string(),
@@ -131,19 +135,28 @@ impl CutScript {
             .enumerate()
             .filter(|(_, l)| !l.trim().is_empty());
         let header = lines.next().map(|(_, l)| l.trim()).unwrap_or("");
-        if header != CSV_HEADER {
-            return Err(parse_error(1, format!("the header must be `{CSV_HEADER}`")));
-        }
+        let columns = match header.strip_prefix(CSV_HEADER) {
+            Some("") => 7,
+            Some(rest) if rest.strip_prefix(',') == Some(CSV_FACING_COLUMNS) => 10,
+            _ => {
+                return Err(parse_error(
+                    1,
+                    format!(
+                        "the header must be `{CSV_HEADER}`, or that and `,{CSV_FACING_COLUMNS}`"
+                    ),
+                ));
+            }
+        };
         let mut keyframe = Vec::new();
         for (n, line) in lines {
             if keyframe.len() > MAX_KEYFRAMES {
                 break;
             }
             let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-            if cells.len() != 7 {
+            if cells.len() != columns {
                 return Err(parse_error(
                     n + 1,
-                    format!("7 columns expected, found {}", cells.len()),
+                    format!("{columns} columns expected, found {}", cells.len()),
                 ));
             }
             let number = |k: usize| {
@@ -154,16 +167,19 @@ impl CutScript {
                     )
                 })
             };
-            let edge = if cells[4..].iter().all(|c| c.is_empty()) {
-                None
-            } else {
-                Some([number(4)?, number(5)?, number(6)?])
+            // Three columns from `k`: all empty keeps the previous keyframe's.
+            let direction = |k: usize| {
+                if cells[k..k + 3].iter().all(|c| c.is_empty()) {
+                    Ok(None)
+                } else {
+                    Ok(Some([number(k)?, number(k + 1)?, number(k + 2)?]))
+                }
             };
             keyframe.push(RawKeyframe {
                 t_s: number(0)?,
                 tip_mm: [number(1)?, number(2)?, number(3)?],
-                edge,
-                facing: None,
+                edge: direction(4)?,
+                facing: if columns == 10 { direction(7)? } else { None },
             });
         }
         Self::from_raw(&RawScript { keyframe }, file)
@@ -254,19 +270,21 @@ impl CutScript {
                 ));
             };
             if let Some(f) = k.facing {
-                let f = Vec3::from(f);
+                facing = Some(Vec3::from(f));
+            }
+            // (Checked on every keyframe: a kept `facing` must also be across a new edge.)
+            if let Some(f) = facing {
                 let square = f - e * (f.dot(&e) / e.norm_squared());
                 if !f.iter().all(|c| c.is_finite()) || square.norm() < 1e-3 * f.norm() {
                     return Err(invalid(
                         index,
                         format!(
                             "facing = {:?} must be a direction across the edge {:?}",
-                            k.facing.unwrap_or_default(),
+                            f.as_slice(),
                             e.as_slice()
                         ),
                     ));
                 }
-                facing = Some(f);
             }
             let tip = Vec3::from(k.tip_mm) * 1e-3;
             keyframes.push(Keyframe {
@@ -446,6 +464,12 @@ mod tests {
         let a = CutScript::from_toml(toml, "a.toml").unwrap();
         let b = CutScript::from_csv(&csv, "a.csv").unwrap();
         assert_eq!(a.keyframes, b.keyframes);
+        let facing = toml.replace("edge = [0, 0, 1]", "edge = [0, 0, 1]\nfacing = [0, 1, 0]");
+        let csv =
+            format!("{CSV_HEADER},{CSV_FACING_COLUMNS}\n0,0,0,10,0,0,1,0,1,0\n1,0,0,0,,,,,,\n");
+        let a = CutScript::from_toml(&facing, "a.toml").unwrap();
+        let b = CutScript::from_csv(&csv, "a.csv").unwrap();
+        assert_eq!(a.keyframes, b.keyframes);
         for (text, expected) in [
             ("t,x\n".to_string(), "line 1: the header"),
             (format!("{CSV_HEADER}\n0,0,0\n"), "line 2: 7 columns"),
@@ -496,6 +520,10 @@ mod tests {
             (
                 "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [0, 0, -2]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
                 "keyframe 1: facing = [0.0, 0.0, -2.0] must be a direction across the edge",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [1, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\nedge = [2, 0, 0]\n",
+                "keyframe 2: facing = [1.0, 0.0, 0.0] must be a direction across the edge [2.0, 0.0, 0.0]",
             ),
         ];
         for (text, want) in cases {
