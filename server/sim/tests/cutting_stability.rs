@@ -687,6 +687,7 @@ fn a_stab_slits_as_wide_as_the_blade() {
     let cutting = sim.cutting().expect("cutting scene");
     // Pairs across the slit are cut, or fading near its edges (crack fronts).
     let (cut, fading) = (cutting.pairs_removed_total, cutting.transparent_pairs());
+    println!("{cut} pairs cut, {fading} fading");
     assert!(
         cutting.sigma.triangles.len() > 4 && cut + fading > 20,
         "{} triangles of Σ, {cut} pairs cut, {fading} fading",
@@ -802,6 +803,16 @@ fn sawing_to_and_fro_in_a_cut() {
         }
     }
     assert_eq!(trace.ticks.sigma[9500], trace.ticks.sigma[11999]);
+    // The wound runs from where the blade went back to, past its slit, to where it went
+    // forward to: nothing drawn beyond (a slit kept from the first entry used to be drawn
+    // behind the path's new start).
+    let span = x_span(&wall_corners_mm(&sim));
+    assert!(
+        (span.0 + 30.0).abs() < 2.5 && (span.1 + 10.0).abs() < 2.5,
+        "walls from x = {:.1} to {:.1} mm",
+        span.0,
+        span.1
+    );
     // One incision along all of it: the path folded back on itself is no path (the
     // incision used to be refused: "a lip crosses the region boundary").
     assert_one_incision(&sim);

@@ -151,16 +151,20 @@ mod tests {
     }
 
     /// A stroke begun with a stab, as the tracker gets it: a blade `width` wide went in
-    /// point first at the path's start `width` along it, its flat's floor rising at 45°
-    /// toward the start.
-    fn stab_start(path: &mut [PathSample], width: f64) {
-        let start = path[0].surface;
+    /// point first at the path's start, as deep as the path, and the slit its flat made
+    /// (min(depth, width) long) is the path's first stretch, its floor rising at 45° toward
+    /// the start; where the floor reaches the surface the slit, and the path, begin.
+    fn stab_start(path: &mut Vec<PathSample>, width: f64) {
+        let Some(depth) = path.first().map(|s| (s.bottom - s.surface).norm()) else {
+            return;
+        };
+        let (start, slit) = (path[0].surface, depth.min(width));
         for s in path.iter_mut() {
-            let behind = (width - (s.surface - start).norm()).max(0.0);
+            let behind = (slit - (s.surface - start).norm()).max(0.0);
             let cut = s.bottom - s.surface;
-            let depth = cut.norm();
-            s.bottom = s.surface + cut * ((depth - behind).max(0.0) / depth);
+            s.bottom = s.surface + cut * ((depth - behind) / depth.max(1e-12)).max(0.0);
         }
+        path.retain(|s| (s.bottom - s.surface).norm() > 0.0);
     }
 
     /// Strokes one after another on every organ — a first cut (half of them begun with a

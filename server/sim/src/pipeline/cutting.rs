@@ -470,6 +470,7 @@ impl CuttingStage {
         let fade_m = 0.5 * self.transparency * self.kernel.support_m;
         let material = self.material_points as u32;
         let mut body_pairs_removed = 0;
+        let front = self.last_sweep;
         for t in new_sigma.clone() {
             let (transparent, changed) = (&mut self.transparent, &mut self.changed);
             visit_crossing_pairs(
@@ -481,9 +482,15 @@ impl CuttingStage {
                 &mut self.candidates,
                 |neighbours, i, j, crossing| {
                     // Near the front a body pair fades out as the blade moves on (below);
-                    // a virtual point's pair is cut at once (the node is released anyway).
+                    // a virtual point's pair is cut at once (the node is released anyway),
+                    // and so is one crossing as far behind the edge as a pair is faded out
+                    // (the back of a stab's slit, up to a blade width behind it).
                     let body = i < material && j < material;
-                    if body && fade_m > 0.0 && transparent.len() < MAX_TRANSPARENT_PAIRS {
+                    let behind = front.is_some_and(|[a, b]| {
+                        distance_sq_to_segment(&crossing, &a, &b) >= fade_m * fade_m
+                    });
+                    if body && fade_m > 0.0 && !behind && transparent.len() < MAX_TRANSPARENT_PAIRS
+                    {
                         if !transparent.iter().any(|p| p.i == i && p.j == j) {
                             transparent.push(TransparentPair {
                                 i,

@@ -270,6 +270,8 @@ impl IncisionTracker {
             return false;
         }
         if at_start {
+            // The path now starts elsewhere, over any slit made where it started.
+            self.slit = None;
             self.samples.insert(0, sample);
         } else {
             self.front = None;
@@ -304,8 +306,8 @@ impl IncisionTracker {
     /// is. Each slit sample is where the flat, a distance x behind the edge, meets the
     /// surface (up the edge from the blade's depth: in the flat's plane, so the slit runs
     /// straight on a faceted, sloping surface); its floor is the point's 45° taper, x up
-    /// the edge from the tip, and the slit ends where that comes up through the surface.
-    fn stroke_path(&self, mesh: &TriMesh) -> Vec<PathSample> {
+    /// the edge from the tip.
+    fn stroke_path(&self, mesh: &TriMesh, kinds: &[FaceKind]) -> Vec<PathSample> {
         let mut path = Vec::with_capacity(self.samples.len() + 16);
         if let (Some(slit), Some(first)) = (self.slit, self.samples.first()) {
             let onward = self.samples.get(1).map(|s| s.surface - first.surface);
@@ -314,28 +316,33 @@ impl IncisionTracker {
                 onward.is_none_or(|o| o.dot(&slit) < 0.0),
                 (-cut).try_normalize(1e-12),
             ) {
-                let everything: Vec<usize> = (0..mesh.triangles.len()).collect();
+                let (skin, wound): (Vec<usize>, Vec<usize>) =
+                    (0..mesh.triangles.len()).partition(|&t| kinds[t] == FaceKind::Skin);
                 let (length, depth) = (slit.norm(), cut.norm());
+                // (Reaching a surface that rises behind the blade as steeply as 60°.)
+                let reach = depth + 2.0 * length;
                 let n = (length / self.sample_step_m).ceil().max(1.0) as usize;
-                for k in (1..=n).rev() {
+                // From the edge back: the slit ends where its floor comes up through a
+                // surface falling away behind the blade, or at an earlier wound.
+                for k in 1..=n {
                     let behind = slit * (k as f64 / n as f64);
                     let below = first.bottom + behind;
-                    // (Reaching a surface that rises behind the blade as steeply as 60°.)
-                    let reach = depth + 2.0 * length;
-                    let Some(rise) = first_hit(mesh, &everything, &below, &up, reach) else {
-                        continue;
+                    let Some(rise) = first_hit(mesh, &skin, &below, &up, reach) else {
+                        break;
                     };
-                    // Where the surface falls away behind the blade, the flat's back is
-                    // out of the tissue: the slit ends where its floor comes up through.
-                    let surface = below + up * rise;
                     let deep = rise - behind.norm();
-                    if deep > 0.0 {
-                        path.push(PathSample {
-                            surface,
-                            bottom: surface - up * deep,
-                        });
+                    if deep <= 0.0
+                        || first_hit(mesh, &wound, &below, &up, reach).is_some_and(|w| w < rise)
+                    {
+                        break;
                     }
+                    let surface = below + up * rise;
+                    path.push(PathSample {
+                        surface,
+                        bottom: surface - up * deep,
+                    });
                 }
+                path.reverse();
             }
         }
         path.extend_from_slice(&self.samples);
@@ -347,7 +354,7 @@ impl IncisionTracker {
         let Some(base) = &self.base else {
             return false;
         };
-        let path = self.stroke_path(&base.mesh);
+        let path = self.stroke_path(&base.mesh, &base.kinds);
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
