@@ -164,9 +164,6 @@ pub struct CuttingStage {
     steady: SteadyMotion,
     /// Where it was when Σ last grew.
     last_sweep_at: Option<Vec3>,
-    /// While the blade goes in point first, the normal of its flat (rest): the plane that
-    /// parts left from right when the motion, along the edge, defines none.
-    plunge_normal: Option<Vec3>,
     /// The blade's recent steady displacements, each weighed down by the travel since (m):
     /// its direction is `direction`.
     recent_motion: Vec3,
@@ -227,7 +224,6 @@ impl CuttingStage {
                 .max(kernel.support_m),
             steady: SteadyMotion::new(force.motion_deadband_m),
             last_sweep_at: None,
-            plunge_normal: None,
             recent_motion: Vec3::zeros(),
             direction: Vec3::zeros(),
             awake: vec![false; n],
@@ -419,7 +415,9 @@ impl CuttingStage {
         // Σ grows while cutting.
         let sigma_before = self.sigma.triangles.len();
         let mut slit_rest = None;
-        self.plunge_normal = None;
+        // While the blade goes in point first, the normal of its flat: the plane that parts
+        // left from right when the motion, along the edge, defines none.
+        let mut plunge_normal = None;
         match (force.phase, edge_rest) {
             (CutPhase::Cutting, Some([tip, entry])) => {
                 // Σ reaches a quarter spacing above the surface, so that no pair or surface
@@ -434,7 +432,7 @@ impl CuttingStage {
                         (b.toward_back - up * b.toward_back.dot(&up)).try_normalize(1e-6)
                     });
                 // Left is on the left of a blade cutting edge first (toward −back).
-                self.plunge_normal = flat.map(|back| back.cross(&up));
+                plunge_normal = flat.map(|back| back.cross(&up));
                 let at = self.steady.position();
                 match self.last_sweep {
                     // Moving back along its cut the blade is on Σ: the sweep goes on from
@@ -546,7 +544,7 @@ impl CuttingStage {
                 }
             };
             if due {
-                self.mark_affected(&edge, solver.rest(), grid);
+                self.mark_affected(&edge, plunge_normal, solver.rest(), grid);
                 self.last_mark = Some((edge, self.tick));
             }
         } else {
@@ -816,8 +814,15 @@ impl CuttingStage {
         }
     }
 
-    /// Wakes every point within R_aff of the rest edge.
-    fn mark_affected(&mut self, edge: &[Vec3; 2], rest: &[Vec3], grid: &RestGrid) {
+    /// Wakes every point within R_aff of the rest edge; `plunge_normal` is the blade's
+    /// flat's while it goes in point first.
+    fn mark_affected(
+        &mut self,
+        edge: &[Vec3; 2],
+        plunge_normal: Option<Vec3>,
+        rest: &[Vec3],
+        grid: &RestGrid,
+    ) {
         let centre = (edge[0] + edge[1]) * 0.5;
         let reach = (edge[0] - edge[1]).norm() * 0.5 + self.r_aff;
         let r2 = self.r_aff * self.r_aff;
@@ -839,7 +844,7 @@ impl CuttingStage {
         let across = up.cross(&self.direction);
         let normal = (across.norm() > 0.5 && self.direction.dot(&up) <= 0.7)
             .then(|| across.normalize())
-            .or(self.plunge_normal);
+            .or(plunge_normal);
         for r in 0..self.candidates.len() {
             let i = self.candidates[r];
             self.wake(i);

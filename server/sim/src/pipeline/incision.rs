@@ -73,10 +73,10 @@ pub struct IncisionTracker {
     /// Pieces the last applied run of this stroke opened over intact skin.
     opened_pieces: usize,
     /// The slit the blade's flat opened behind the path's first sample, pushed in point
-    /// first there (rest, from the edge to the back), and how much it grew since the last
-    /// run (m): a stroke that only stabbed is drawn when it ends.
+    /// first there (rest, from the edge to the back), and whether it grew since the last
+    /// run: a stroke that only stabbed is drawn when it ends.
     slit: Option<Vec3>,
-    slit_since_run_m: f64,
+    slit_grew: bool,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -115,7 +115,7 @@ impl IncisionTracker {
             front: None,
             opened_pieces: 0,
             slit: None,
-            slit_since_run_m: 0.0,
+            slit_grew: false,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -152,7 +152,7 @@ impl IncisionTracker {
                 self.added_since_run += 1;
             }
             let rerun = (self.samples.len() >= 2 || self.slit.is_some())
-                && (self.added_since_run > 0 || self.deepened() || self.slit_since_run_m > 0.0);
+                && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
             let changed = rerun && self.run(surface, inputs);
             self.base = None;
             self.samples.clear();
@@ -161,7 +161,7 @@ impl IncisionTracker {
             self.deepened_since_run_m = 0.0;
             self.opened_pieces = 0;
             self.slit = None;
-            self.slit_since_run_m = 0.0;
+            self.slit_grew = false;
             return changed;
         };
         if self.base.is_none() {
@@ -179,12 +179,11 @@ impl IncisionTracker {
         // edge: the path starts that far back (`stroke_path`). The slit is drawn when the
         // blade moves on or leaves: while it is in, the blade fills it. (Drawn as it grew,
         // the short, steep slits of a blade going in made wall cells under 15°.)
-        if let (Some(v), true) = (slit, self.samples.len() <= 1) {
-            let grown = v.norm() - self.slit.map_or(0.0, |s| s.norm());
-            if grown > 0.0 {
-                self.slit = Some(v);
-                self.slit_since_run_m += grown;
-            }
+        if let (Some(v), true) = (slit, self.samples.len() <= 1)
+            && self.slit.is_none_or(|s| v.norm() > s.norm())
+        {
+            self.slit = Some(v);
+            self.slit_grew = true;
         }
         match self.samples.last_mut() {
             Some(last) if (entry - last.surface).norm() < self.sample_step_m => {
@@ -358,7 +357,7 @@ impl IncisionTracker {
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
-        self.slit_since_run_m = 0.0;
+        self.slit_grew = false;
         self.stats.runs += 1;
         let Some(base) = &mut self.base else {
             return false;
