@@ -110,6 +110,15 @@ pub struct Incised {
     pub length_m: f64,
 }
 
+/// A vertex map through two edits: `source` maps the vertices after the second edit to
+/// those before it, `earlier` those to the vertices before the first.
+pub(crate) fn source_through(source: &[Option<u32>], earlier: &[Option<u32>]) -> Vec<Option<u32>> {
+    source
+        .iter()
+        .map(|s| s.and_then(|v| earlier[v as usize]))
+        .collect()
+}
+
 /// Why an incision could not be made (the surface is left as it was).
 #[derive(Debug, Clone, PartialEq, Error)]
 #[non_exhaustive]

@@ -6,7 +6,9 @@ use crate::geometry::TriMesh;
 use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::Vec3;
 
-use super::incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
+use super::incision::{
+    FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise, source_through,
+};
 use super::wound::{Wound, deepen};
 
 /// What opening a stroke's path did.
@@ -90,11 +92,7 @@ pub fn open_stroke(
                 }
             }
         };
-        source = out
-            .source
-            .iter()
-            .map(|s| s.and_then(|v| source[v as usize]))
-            .collect();
+        source = source_through(&out.source, &source);
         outcome.lip_max_turn_deg = outcome.lip_max_turn_deg.max(out.lip_max_turn_deg);
         outcome.min_angle_deg = outcome.min_angle_deg.min(out.min_angle_deg);
         outcome.opening_m = outcome.opening_m.max(out.opening_m);

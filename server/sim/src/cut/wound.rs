@@ -20,7 +20,7 @@ use crate::geometry::predicates::{line_triangle, nearest_on_segment};
 use crate::geometry::triangle_angles_deg;
 use crate::math::{Aabb, Vec3};
 
-use super::incision::{FaceKind, Incised, IncisionParams, PathSample, incise};
+use super::incision::{FaceKind, Incised, IncisionParams, PathSample, incise, source_through};
 
 /// One column of a wound's walls.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -502,11 +502,7 @@ pub fn deepen(
             continue;
         }
         if let Some(mut wider) = reopen(&result, *w, params) {
-            wider.source = wider
-                .source
-                .iter()
-                .map(|s| s.and_then(|v| result.source[v as usize]))
-                .collect();
+            wider.source = source_through(&wider.source, &result.source);
             // The figures cover every deepened wound, not only the reopened one.
             if deeper.len() > 1 {
                 wider.min_angle_deg = wider.min_angle_deg.min(result.min_angle_deg);
@@ -559,11 +555,7 @@ fn reopen(surface: &Incised, w: usize, params: &IncisionParams) -> Option<Incise
         .collect();
     let mesh = TriMesh::new(closed.positions, closed.triangles);
     let mut out = incise(&mesh, &closed.kinds, &others, &path, params).ok()?;
-    out.source = out
-        .source
-        .iter()
-        .map(|s| s.and_then(|v| closed.source[v as usize]))
-        .collect();
+    out.source = source_through(&out.source, &closed.source);
     // The reopened wound back in its place (unless another lost its record on the way).
     let reopened = out.wounds.pop()?;
     if out.wounds.len() != others.len() {
