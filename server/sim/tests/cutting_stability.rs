@@ -860,5 +860,57 @@ fn a_raked_blade_cuts_by_its_vertical_depth() {
             "tick {k} at {x} mm: {f:?}, expected about {expected} N"
         );
     }
+    // The drawn walls reach the blade's vertical depth, not the length of edge in the
+    // tissue (they went √2 × as deep, along the surface normal).
+    assert_walls_reach(&sim, &scene, z);
+    assert_sound_surface(&sim);
+}
+
+#[test]
+fn a_blade_tilted_sideways_cuts_leaning_walls() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    // The edge leans 30° toward −y, the tip 8.66 mm below the top (10 mm of edge in the
+    // tissue): Σ leans, and so must the walls drawn in it — they went straight down the
+    // surface normal from where the edge enters, 5 mm off the tip's track.
+    let lean = 30f64.to_radians();
+    let back = Vec3::new(0.0, -lean.sin(), lean.cos());
+    let z = top - 10.0 * lean.cos();
+    let pose = |t_s: f64, tip: [f64; 3]| Keyframe {
+        t_s,
+        pose: ToolPose::facing(Vec3::from(tip) * 1e-3, back, Vec3::x()),
+    };
+    let s = CutScript {
+        keyframes: vec![
+            pose(0.0, [-30.0, 0.0, top + 5.0]),
+            pose(3.0, [-30.0, 0.0, z]),
+            pose(9.0, [0.0, 0.0, z]),
+            pose(12.0, [0.0, 0.0, top + 5.0]),
+        ],
+        description: "tilted".into(),
+    };
+    let (sim, trace) = calm_run(&scene, &s, 0);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert_one_incision(&sim);
+    let corners = wall_corners_mm(&sim);
+    for x in [-20.0, -10.0] {
+        let near: Vec<&Vec3> = corners.iter().filter(|p| (p.x - x).abs() < 2.0).collect();
+        let deepest = near
+            .iter()
+            .min_by(|a, b| a.z.total_cmp(&b.z))
+            .expect("walls");
+        assert!(
+            (deepest.z - z).abs() < 1.0 && deepest.y.abs() < 1.0,
+            "at x = {x} mm the walls' deepest corner is {deepest:?}, the tip ran at y = 0, \
+             z = {z} mm"
+        );
+        // Every wall corner lies in Σ, within the opening of it.
+        let normal = Vec3::new(0.0, lean.cos(), lean.sin());
+        let opening = sim.incisions().expect("cutting scene").opening_m * 1e3;
+        for p in &near {
+            let off = (*p - Vec3::new(x, 0.0, z)).dot(&normal).abs();
+            assert!(off < opening + 0.5, "wall corner {p:?} is {off} mm off Σ");
+        }
+    }
     assert_sound_surface(&sim);
 }

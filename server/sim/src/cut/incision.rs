@@ -367,6 +367,68 @@ pub fn corners_of_kind<'a>(
         .flat_map(|(t, _)| t.map(|v| mesh.positions[v as usize]))
 }
 
+/// The blade's cut below each sample, square to the path: a vector from the surface point
+/// down to the floor of the cut, in the cut surface. The cut surface Σ is ruled by the
+/// blade's edge (entry → tip) at each sample, and its floor is the polyline through the
+/// samples' `bottom`s (the tip's track; a stab's taper). The vector goes from the surface
+/// point along the edge's part square to the path, to where it meets that floor; where it
+/// meets none (beyond the floor's ends), it is the edge's part square to the path. A raked
+/// blade's tip runs ahead of its entry point, so its edge in the tissue is longer than the
+/// cut below the entry (√2× at 45°) and leans along the path; a blade tilted sideways cuts
+/// a leaning wall, and the vector leans with it.
+pub(crate) fn tracks_across(samples: &[PathSample]) -> Vec<Vec3> {
+    let n = samples.len();
+    (0..n)
+        .map(|i| {
+            let s = &samples[i];
+            let track = s.bottom - s.surface;
+            let chord = samples[(i + 1).min(n - 1)].surface - samples[i.saturating_sub(1)].surface;
+            let square = match chord.try_normalize(1e-12) {
+                Some(t) => track - t * track.dot(&t),
+                None => track,
+            };
+            let Some(dir) = square.try_normalize(1e-12) else {
+                return square;
+            };
+            // The floor segment the column passes closest to, if it passes within a fifth
+            // of the edge's length in the tissue.
+            let meets = samples
+                .windows(2)
+                .filter_map(|w| {
+                    let (depth, gap) =
+                        line_meets_segment(&s.surface, &dir, &w[0].bottom, &w[1].bottom);
+                    (depth > 0.0).then_some((depth, gap))
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .filter(|&(_, gap)| gap <= 0.2 * track.norm());
+            match meets {
+                Some((depth, _)) => dir * depth.min(track.norm()),
+                None => square,
+            }
+        })
+        .collect()
+}
+
+/// Where the line `origin + s dir` (`dir` a unit vector) passes closest to the segment
+/// a–b: s, and the distance between them there.
+fn line_meets_segment(origin: &Vec3, dir: &Vec3, a: &Vec3, b: &Vec3) -> (f64, f64) {
+    let (e, w) = (b - a, origin - a);
+    let (along, e_sq) = (dir.dot(&e), e.norm_squared());
+    let (d, f) = (dir.dot(&w), e.dot(&w));
+    let denom = e_sq - along * along;
+    let r = if denom > 1e-12 * e_sq.max(1e-300) {
+        ((f - d * along) / denom).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let s = r * along - d;
+    (s, (w + dir * s - e * r).norm())
+}
+
+/// Largest lean of a wound wall from the surface normal (degrees). A blade held flatter
+/// than this cuts a flap thinner than the lips' opening; its walls are drawn at this lean.
+const MAX_WALL_LEAN_DEG: f64 = 60.0;
+
 /// Largest turn of a lip from one segment to the next on a curved path (degrees), unless
 /// that would take segments shorter than a quarter of the spacing.
 const LIP_TURN_DEG: f64 = 10.0;
@@ -493,22 +555,17 @@ pub fn incise(
         e1,
         e2: n_bar.cross(&e1),
     };
+    let across = tracks_across(&samples);
     let (points2, tracks) = smooth_path(
         &samples
             .iter()
             .map(|s| frame.project(&s.surface))
             .collect::<Vec<_>>(),
-        &samples
-            .iter()
-            .map(|s| s.bottom - s.surface)
-            .collect::<Vec<_>>(),
+        &across,
     );
     let path2 = ArcPolyline::new(points2);
     let length = path2.length();
-    let depth_max = samples
-        .iter()
-        .map(|s| (s.bottom - s.surface).norm())
-        .fold(0.0, f64::max);
+    let depth_max = across.iter().map(|t| t.norm()).fold(0.0, f64::max);
     let w_wanted = (params.opening_ratio * length).min(params.gape_factor * depth_max);
     let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
 
@@ -1093,21 +1150,24 @@ pub fn incise(
     let other_skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && !in_region[t])
         .collect();
-    // Columns go straight into the tissue: along the inward surface normal (averaged over
-    // the region near the path), square to the path, so that the wall's cells stay
-    // rectangles where the surface slopes along the cut. The blade's own track sets the
-    // depth. The normal and the path's direction are averaged along the path over the
-    // depth: columns a fraction of a millimetre apart that lean by a degree more than their
-    // neighbours (the path crosses a facet edge between them) would cross a few
-    // millimetres down in a short, deep cut, and a wall does not bend on a scale shorter
-    // than its depth.
+    // Columns go into the tissue the way the blade cut, square to the path: along its
+    // track below the path (`tracks_across`), so that the walls lie in the cut surface Σ —
+    // a blade held upright on a sloping surface cuts upright walls, one tilted sideways
+    // cuts leaning ones — and the wall's cells stay rectangles where the surface slopes
+    // along the cut. Where the track says nothing (the ends of a stab's slit rise to the
+    // surface), they go along the inward surface normal. Both are averaged along the path
+    // over the depth: columns a fraction of a millimetre apart that lean by a degree more
+    // than their neighbours (the path crosses a facet edge between them, or the hand
+    // wavers) would cross a few millimetres down in a short, deep cut, and a wall does not
+    // bend on a scale shorter than its depth.
     let params_of = |c: usize| c as f64 / (n_cols - 1) as f64;
     let tops: Vec<Vec3> = (0..n_cols)
         .map(|c| lift(path2.at(params_of(c) * length)))
         .collect();
-    let depths: Vec<f64> = (0..n_cols)
-        .map(|c| bottom_at(params_of(c) * length).norm().max(min_depth))
+    let cuts: Vec<Vec3> = (0..n_cols)
+        .map(|c| bottom_at(params_of(c) * length))
         .collect();
+    let depths: Vec<f64> = cuts.iter().map(|t| t.norm().max(min_depth)).collect();
     let normals: Vec<Vec3> = tops
         .iter()
         .map(|top| {
@@ -1123,6 +1183,7 @@ pub fn incise(
         .collect();
     let window = depths.iter().copied().fold(0.0, f64::max);
     let delta = window.max(0.5 * spacing);
+    let max_lean = MAX_WALL_LEAN_DEG.to_radians();
     let mut columns = Vec::with_capacity(n_cols);
     for c in 0..n_cols {
         let param = params_of(c);
@@ -1130,15 +1191,26 @@ pub fn incise(
         let top = tops[c];
         let tangent =
             lift(path2.at((u + delta).min(length))) - lift(path2.at((u - delta).max(0.0)));
-        let normal: Vec3 = (0..n_cols)
-            .filter(|&k| (params_of(k) - param).abs() * length <= window)
-            .map(|k| normals[k])
-            .sum();
-        let inward = -normal.try_normalize(1e-300).unwrap_or(n_bar);
-        let inward = tangent
-            .try_normalize(1e-300)
-            .and_then(|t| (inward - t * inward.dot(&t)).try_normalize(1e-9))
-            .unwrap_or(inward);
+        let square = |v: Vec3| match tangent.try_normalize(1e-300) {
+            Some(t) => (v - t * v.dot(&t)).try_normalize(1e-9),
+            None => v.try_normalize(1e-9),
+        };
+        let near = |k: &usize| (params_of(*k) - param).abs() * length <= window;
+        let normal: Vec3 = (0..n_cols).filter(near).map(|k| normals[k]).sum();
+        let straight_in = -normal.try_normalize(1e-300).unwrap_or(n_bar);
+        let straight_in = square(straight_in).unwrap_or(straight_in);
+        let cut: Vec3 = (0..n_cols).filter(near).map(|k| cuts[k]).sum();
+        let inward = match square(cut) {
+            Some(along_cut) if along_cut.dot(&straight_in) >= max_lean.cos() => along_cut,
+            // Flatter than the largest lean: turned up to it, in the plane the two span.
+            Some(along_cut) if along_cut.dot(&straight_in) > 0.0 => {
+                let side = (along_cut - straight_in * along_cut.dot(&straight_in))
+                    .try_normalize(1e-9)
+                    .unwrap_or(straight_in);
+                straight_in * max_lean.cos() + side * max_lean.sin()
+            }
+            _ => straight_in,
+        };
         let mut depth = depths[c];
         // A thin part: stop the wall short of the far side of the organ.
         if let Some(hit) = first_hit(mesh, &other_skin, &top, &inward, depth + spacing) {
@@ -1230,8 +1302,9 @@ mod tests {
         let path = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
         let out = incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
         check(&out, "liver");
-        // w_o = min(0.15 × 60 mm, 0.3 × 10 mm) = 3 mm.
-        assert!((out.opening_m - 0.003).abs() < 1e-9, "{}", out.opening_m);
+        // w_o = min(0.15 × 60 mm, 0.3 × 10 mm) = 3 mm (the depth square to the path: 10 mm
+        // down × the cosine of the top's slope along it, a few degrees).
+        assert!((out.opening_m - 0.003).abs() < 1e-5, "{}", out.opening_m);
         assert!((out.depth_m - 0.01).abs() < 1e-3, "{}", out.depth_m);
         assert!(out.lip_max_turn_deg < 20.0, "{}", out.lip_max_turn_deg);
         // The volume shrinks by about the trough: two walls of 60 mm × 10 mm, 3 mm apart
@@ -1261,6 +1334,74 @@ mod tests {
 
     /// A curved stroke sampled every quarter edge (a half circle of 12 mm radius on the
     /// liver, 10 mm deep): the lips follow a smooth curve, not the samples' polygon.
+    #[test]
+    fn the_cut_below_a_path_runs_square_to_it_down_to_the_tips_track() {
+        let along = |xs: &[f64], surface: &dyn Fn(f64) -> Vec3, tip: &dyn Fn(f64) -> Vec3| {
+            let samples: Vec<PathSample> = xs
+                .iter()
+                .map(|&x| PathSample {
+                    surface: surface(x),
+                    bottom: tip(x),
+                })
+                .collect();
+            tracks_across(&samples)
+        };
+        let xs: Vec<f64> = (0..8).map(|k| k as f64 * 0.004).collect();
+        // An upright blade moving level under a top rising at slope 0.1: the cut square
+        // to the path is 10 mm × cos α.
+        let (slope, depth) = (0.1f64, 0.01);
+        let top = |x: f64| Vec3::new(x, 0.0, slope * x);
+        let cuts = along(&xs, &top, &|x| top(x) - Vec3::z() * depth);
+        let cos = 1.0 / (1.0 + slope * slope).sqrt();
+        for c in &cuts {
+            assert!((c.norm() - depth * cos).abs() < 1e-12, "{c:?}");
+            assert!(c.dot(&Vec3::new(1.0, 0.0, slope)).abs() < 1e-12, "{c:?}");
+        }
+        // Raked at 45°, tip first, the tip 10 mm below a level top: its edge is 14 mm
+        // long in the tissue and its tip 10 mm ahead; the cut below the entry is 10 mm
+        // straight down.
+        let level = |x: f64| Vec3::new(x, 0.0, 0.0);
+        let raked = along(&xs, &level, &|x| Vec3::new(x + depth, 0.0, -depth));
+        for c in &raked {
+            assert!((c - Vec3::new(0.0, 0.0, -depth)).norm() < 1e-12, "{c:?}");
+        }
+        // The same over the rising top: each column, square to the path, reaches the
+        // tip's level track (h / cos α for a height h above it) where the track lies
+        // under it (not under the first entries, 10 mm behind the tip's start).
+        let raked = along(&xs, &top, &|x| Vec3::new(x + depth, 0.0, -depth));
+        for (c, &x) in raked.iter().zip(&xs).filter(|(_, x)| **x >= depth) {
+            let height = slope * x + depth;
+            assert!((c.norm() - height / cos).abs() < 1e-9, "at {x}: {c:?}");
+            assert!(((top(x) + c).z + depth).abs() < 1e-9, "at {x}: {c:?}");
+        }
+    }
+
+    #[test]
+    fn walls_lean_with_a_tilted_blade_up_to_the_largest_lean() {
+        let liver = BuiltinMesh::Liver.generate();
+        let kinds = vec![FaceKind::Skin; liver.triangles.len()];
+        for (tilt_deg, lean_deg) in [(30.0f64, 30.0), (75.0, MAX_WALL_LEAN_DEG)] {
+            let tilt = tilt_deg.to_radians();
+            let edge = Vec3::new(0.0, -tilt.sin(), -tilt.cos()) * 0.01;
+            let path: Vec<PathSample> = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01)
+                .into_iter()
+                .map(|s| PathSample {
+                    surface: s.surface,
+                    bottom: s.surface + edge,
+                })
+                .collect();
+            let out =
+                incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+            check(&out, &format!("blade tilted {tilt_deg}°"));
+            // Square to the path, leaning toward −y as the blade does (the liver's top is
+            // nearly level across the path here: within a few degrees).
+            for col in &out.wounds[0].columns {
+                let lean = col.inward.y.atan2(-col.inward.z).to_degrees();
+                assert!((lean + lean_deg).abs() < 5.0, "{col:?}: {lean}°");
+            }
+        }
+    }
+
     #[test]
     fn a_curved_incision_has_smooth_lips() {
         let liver = BuiltinMesh::Liver.generate();

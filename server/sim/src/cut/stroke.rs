@@ -115,7 +115,7 @@ mod tests {
 
     /// A path on the top of `mesh` through `centre` at `angle`, `half` long either side,
     /// `offset` to its left, bowed by `bend` in the middle, sampled every `step` as the
-    /// tracker samples it, `depth` deep.
+    /// tracker samples it, `depth` deep, by an upright blade.
     #[allow(clippy::too_many_arguments)]
     fn stroke(
         mesh: &TriMesh,
@@ -127,7 +127,35 @@ mod tests {
         depth: f64,
         step: f64,
     ) -> Vec<PathSample> {
+        tilted_stroke(
+            mesh,
+            centre,
+            angle,
+            [half, offset, bend],
+            depth,
+            step,
+            [0.0, 0.0],
+        )
+    }
+
+    /// [`stroke`] by a blade tilted sideways (its tip toward the path's left) and raked
+    /// (its tip ahead of where the edge enters) by `tilt` (radians), its tip `depth` below
+    /// the top.
+    fn tilted_stroke(
+        mesh: &TriMesh,
+        centre: [f64; 2],
+        angle: f64,
+        [half, offset, bend]: [f64; 3],
+        depth: f64,
+        step: f64,
+        tilt: [f64; 2],
+    ) -> Vec<PathSample> {
         let (c, s) = (angle.cos(), angle.sin());
+        let edge = Vec3::new(
+            c * tilt[1].tan() - s * tilt[0].tan(),
+            s * tilt[1].tan() + c * tilt[0].tan(),
+            -1.0,
+        );
         let n = ((2.0 * half / step).ceil() as usize).max(2);
         (0..=n)
             .filter_map(|k| {
@@ -142,7 +170,7 @@ mod tests {
                 let surface = Vec3::new(x, y, top);
                 Some(PathSample {
                     surface,
-                    bottom: surface - Vec3::z() * depth,
+                    bottom: surface + edge * depth,
                 })
             })
             .collect()
@@ -167,11 +195,13 @@ mod tests {
 
     /// Strokes one after another on every organ — a first cut (half of them begun with a
     /// stab), then one along it deeper, across it or beside it, then one more anywhere
-    /// through the middle — opened as the tracker opens them: the surface stays closed,
-    /// edge-manifold and oriented after every stroke, no vertex is left unused, the new
-    /// triangles have angles ≥ 15°, and a pass along a wound deeper than its walls takes
-    /// them down (and mostly opens it wider). (With the stabs, greedy wall zips made 10°
-    /// cells under the tapered slit.)
+    /// through the middle by a blade tilted and raked at random — opened as the tracker
+    /// opens them: the surface stays closed, edge-manifold and oriented after every
+    /// stroke, no vertex is left unused, the new triangles have angles ≥ 15°, and a pass
+    /// along a wound deeper than its walls takes them down (and mostly opens it wider).
+    /// (With the stabs, greedy wall zips made 10° cells under the tapered slit; with the
+    /// tilted blades, in a 540-stroke run, a crossing pass deepening a wound's end column
+    /// made 13.5° cells.)
     /// (Before the walls' columns were averaged over the depth, short deep pieces of
     /// crossing cuts on the cerebroma made wall slivers down to 0.4°.)
     #[test]
@@ -213,8 +243,21 @@ mod tests {
                         stroke(&mesh, centre, angle, half, beside, bend, depth, step)
                     }
                 };
+                // The last by a blade tilted sideways up to 40° and raked up to 45°.
                 let third_angle = next() * std::f64::consts::TAU;
-                let third = stroke(&mesh, centre, third_angle, half, 0.0, 0.0, 0.008, step);
+                let tilt = [
+                    (next() - 0.5) * 80f64.to_radians(),
+                    next() * 45f64.to_radians(),
+                ];
+                let third = tilted_stroke(
+                    &mesh,
+                    centre,
+                    third_angle,
+                    [half, 0.0, 0.0],
+                    0.008,
+                    step,
+                    tilt,
+                );
                 for (k, path) in [first, second, third].iter().enumerate() {
                     let name = format!("{} trial {trial} stroke {k}", organ.name());
                     let before = wounds.iter().map(Wound::depth_m).fold(0.0, f64::max);
@@ -234,8 +277,10 @@ mod tests {
                     changed += 1;
                     assert!(
                         outcome.min_angle_deg >= 15.0,
-                        "{name}: {}",
-                        outcome.min_angle_deg
+                        "{name}: {} (last stroke's blade tilted {:.1}° sideways, raked {:.1}°)",
+                        outcome.min_angle_deg,
+                        tilt[0].to_degrees(),
+                        tilt[1].to_degrees()
                     );
                     if deeper_pass {
                         assert_eq!(out.wounds.len(), wounds.len(), "{name}: a new wound");
