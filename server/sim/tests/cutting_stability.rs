@@ -914,3 +914,26 @@ fn a_blade_tilted_sideways_cuts_leaning_walls() {
     }
     assert_sound_surface(&sim);
 }
+
+#[test]
+fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
+    // The shoulder's default stroke goes in point first where its top slopes, so the skin
+    // region around the slit is narrow there. The lips' room used to be the path's nearest
+    // approach to the region's boundary anywhere, and the narrow start capped the whole
+    // wound: half-opening 2.09 mm where k_open × 10 mm deep is 3 mm (physics.md §5.1,
+    // w_o = min(0.15 L, k_open d), k_open = 0.3).
+    let scene = scene("shoulder");
+    let script = CutScript::default_for(&scene.model.surface).expect("default stroke");
+    let (sim, trace) = calm_run(&scene, &script, 0);
+    assert_eq!(trace.ruptures, 1, "{trace:?}");
+    assert_one_incision(&sim);
+    let incisions = sim.incisions().expect("cutting scene");
+    let wanted = 0.3 * incisions.depth_m.min(0.010);
+    assert!(
+        incisions.opening_m > 0.9 * wanted,
+        "half-opening {} mm, k_open × depth {} mm",
+        incisions.opening_m * 1e3,
+        wanted * 1e3
+    );
+    assert_sound_surface(&sim);
+}

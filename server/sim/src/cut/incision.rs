@@ -705,27 +705,6 @@ pub fn incise(
         {
             return Err(IncisionError::PathOutsideRegion);
         }
-        let margin = (0..boundary2.len())
-            .flat_map(|i| {
-                let (a, b) = (boundary2[i], boundary2[(i + 1) % boundary2.len()]);
-                path2
-                    .points
-                    .windows(2)
-                    .map(move |w| {
-                        // Segment–segment distance via endpoint distances (no crossing: the path
-                        // is inside R).
-                        dist_sq_point_segment_2d(w[0], a, b)
-                            .min(dist_sq_point_segment_2d(w[1], a, b))
-                            .min(dist_sq_point_segment_2d(a, w[0], w[1]))
-                            .min(dist_sq_point_segment_2d(b, w[0], w[1]))
-                    })
-                    .collect::<Vec<_>>()
-            })
-            .fold(f64::INFINITY, f64::min)
-            .sqrt();
-        let w_o = w_wanted.min(0.45 * margin).max(0.0);
-
-        // Lips.
         // At least eight segments per lip, so that even a short lip turns smoothly.
         // Lip segments no longer than three quarters of the depth either: the walls below are
         // gridded at the lips' spacing with rows about as tall, and a shallow wall under long
@@ -737,6 +716,29 @@ pub fn incise(
             .min((0.75 * depth_max).max(0.25 * spacing))
             .min(turn_step.max(0.25 * spacing));
         let m = ((length / lip_step).ceil() as usize).clamp(8, 400);
+        // Room for the lips: at every point of the path the lip stays within 0.45 of the
+        // way to R's boundary. The parabola is scaled as a whole to fit where it binds, so
+        // its shape is kept; near the ends it is narrow, and so may R be (a stab's slit on
+        // a sloping start has a narrow region: a cap by the path's nearest approach to the
+        // boundary anywhere narrowed the whole shoulder wound, 3.06 → 2.09 mm).
+        let room = |c: [f64; 2]| {
+            (0..boundary2.len())
+                .map(|i| {
+                    let (a, b) = (boundary2[i], boundary2[(i + 1) % boundary2.len()]);
+                    dist_sq_point_segment_2d(c, a, b)
+                })
+                .fold(f64::INFINITY, f64::min)
+                .sqrt()
+        };
+        let w_o = (1..m)
+            .map(|r| {
+                let x = r as f64 / m as f64;
+                0.45 * room(path2.at(x * length)) / (4.0 * x * (1.0 - x))
+            })
+            .fold(w_wanted, f64::min)
+            .max(0.0);
+
+        // Lips.
         let mut centre = Vec::with_capacity(m + 1);
         let mut upper = Vec::with_capacity(m + 1);
         let mut lower = Vec::with_capacity(m + 1);
