@@ -516,8 +516,20 @@ pub fn incise(
         let [a, b, c] = mesh.corners(t);
         (a + b + c) / 3.0
     };
+    // Far enough for the region to give the widest opening the path may have its room
+    // (below: the lips stay within 0.45 of the way to the region's boundary); on a fine
+    // mesh two and a half edges are not enough (the cerebroma's 2.1 mm edges held its
+    // wounds to a 1.9 mm half-opening, where 0.3 × 9 mm deep wants 2.7).
+    let widest = (params.opening_ratio * path_length).min(
+        params.gape_factor
+            * samples
+                .iter()
+                .map(|s| (s.bottom - s.surface).norm())
+                .fold(0.0, f64::max),
+    );
+    let reach = (2.5 * global_edge).max(widest / 0.45 + 1.5 * global_edge);
     let candidates: Vec<usize> = (0..mesh.triangles.len())
-        .filter(|&t| kinds[t] == FaceKind::Skin && near_path(&centroid(t), 2.5 * global_edge))
+        .filter(|&t| kinds[t] == FaceKind::Skin && near_path(&centroid(t), reach))
         .collect();
     let mut normal_sum = Vec3::zeros();
     let mut edge_sum = 0.0;
@@ -580,18 +592,25 @@ pub fn incise(
     let facing = |t: usize| facing_at(t, 0.2);
     let facing_well = |t: usize| facing_at(t, 0.6);
     let tri2 = |t: usize| mesh.triangles[t].map(|v| frame.project(&mesh.positions[v as usize]));
-    let touch = w_wanted + 0.1 * edge;
+    // The core: the triangles under the opening (steep ones too), and those within the
+    // room the lips need (0.45 of the way to the region's boundary, below) that face n̄
+    // well — a steep face there (the end of the cerebroma, 72° to n̄) would only be
+    // distorted by the projection (16.5° skin triangles when it was let in).
+    let under = w_wanted + 0.1 * edge;
+    let room_for_lips = w_wanted / 0.45 - 0.5 * edge;
     let mut in_region = vec![false; mesh.triangles.len()];
     let mut core_vertices = HashSet::new();
     for &t in &candidates {
-        if !facing(t) {
-            continue;
-        }
+        let reach = match (facing_well(t), facing(t)) {
+            (true, _) => under.max(room_for_lips),
+            (false, true) => under,
+            (false, false) => continue,
+        };
         let tri = tri2(t);
         let touches = path2
             .points
             .windows(2)
-            .any(|w| dist_sq_segment_triangle_2d(&tri, w[0], w[1]) < touch * touch);
+            .any(|w| dist_sq_segment_triangle_2d(&tri, w[0], w[1]) < reach * reach);
         if touches {
             in_region[t] = true;
             core_vertices.extend(mesh.triangles[t]);
@@ -1402,6 +1421,24 @@ mod tests {
                 assert!((lean + lean_deg).abs() < 5.0, "{col:?}: {lean}°");
             }
         }
+    }
+
+    #[test]
+    fn a_fine_mesh_gives_the_lips_their_full_opening() {
+        // The cerebroma's 2.1 mm edges: a region of two and a half edges around the path
+        // held a 9 mm deep cut's half-opening to 1.9 mm, where k_open × 9 mm is 2.7.
+        let mesh = BuiltinMesh::Cerebroma.generate();
+        let kinds = vec![FaceKind::Skin; mesh.triangles.len()];
+        let path = top_path(&mesh, [-0.015, 0.0], [0.015, 0.0], 0.009);
+        let out = incise(&mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+        check(&out, "cerebroma");
+        // (The depth square to the path: a little under 9 mm where the top slopes.)
+        let wanted = 0.3 * 0.009;
+        assert!(
+            out.opening_m > 0.97 * wanted && out.opening_m <= wanted,
+            "{}",
+            out.opening_m
+        );
     }
 
     #[test]
