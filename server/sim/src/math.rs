@@ -75,6 +75,18 @@ impl Aabb {
         (0..3).any(|a| self.min[a] > self.max[a])
     }
 
+    /// Squared distance from `p` to the box (0 inside).
+    pub fn distance_sq(&self, p: &Vec3) -> f64 {
+        (0..3)
+            .map(|a| {
+                (self.min[a] - p[a])
+                    .max(p[a] - self.max[a])
+                    .max(0.0)
+                    .powi(2)
+            })
+            .sum()
+    }
+
     /// The box grown by `margin` on every side.
     pub fn expanded(&self, margin: f64) -> Aabb {
         Aabb {

@@ -182,15 +182,28 @@ impl SurfaceEmbedding {
     ) -> Vec<(u32, f64)> {
         let mut radius = kernel.support_m;
         let mut found = Vec::new();
+        // Each blocker with its box; those within the search radius are tested against
+        // every point found (a few hundred cut triangles against each of tens of points
+        // was most of a re-mesh on a fine model).
+        let boxed: Vec<(&[Vec3; 3], Vec3, Vec3)> = blockers
+            .iter()
+            .map(|t| (t, t[0].inf(&t[1]).inf(&t[2]), t[0].sup(&t[1]).sup(&t[2])))
+            .collect();
+        let mut within = Vec::with_capacity(boxed.len());
         for _ in 0..4 {
             let wider = Kernel { support_m: radius };
+            within.clear();
+            within.extend(boxed.iter().filter(|(_, lo, hi)| {
+                (0..3)
+                    .map(|a| (lo[a] - x[a]).max(x[a] - hi[a]).max(0.0).powi(2))
+                    .sum::<f64>()
+                    <= radius * radius
+            }));
             grid.for_each_within(positions, x, radius, |k, d2| {
                 let w = wider.weight_sq(d2);
                 let p = &positions[k as usize];
                 if w > 0.0
-                    && !blockers.iter().any(|tri| {
-                        let lo = tri[0].inf(&tri[1]).inf(&tri[2]);
-                        let hi = tri[0].sup(&tri[1]).sup(&tri[2]);
+                    && !within.iter().any(|(tri, lo, hi)| {
                         (0..3).all(|a| x[a].min(p[a]) <= hi[a] && x[a].max(p[a]) >= lo[a])
                             && segment_meets_triangle(x, p, tri)
                     })
