@@ -133,9 +133,13 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
             let asked = std::time::Instant::now();
             let mut got = false;
             while !got && asked.elapsed() < std::time::Duration::from_millis(100) {
+                // The force of this tick answers the pose sent before it (this one is read
+                // on the next tick). (The force's `tick` is the station clock, and `pose_seq`
+                // the pose it answers: waiting for `tick` ≥ k never succeeded, and every tick
+                // sat out the 100 ms, 300 s for the test.)
                 while let Ok(Some(f)) = forces.receive() {
                     received += 1;
-                    got |= f.tick as usize >= k;
+                    got |= f.pose_seq as usize + 1 >= k;
                 }
                 if !got {
                     std::thread::sleep(std::time::Duration::from_micros(20));

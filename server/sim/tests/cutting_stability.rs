@@ -920,7 +920,7 @@ fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
     // The shoulder's default stroke goes in point first where its top slopes, so the skin
     // region around the slit is narrow there. The lips' room used to be the path's nearest
     // approach to the region's boundary anywhere, and the narrow start capped the whole
-    // wound: half-opening 2.09 mm where k_open × 10 mm deep is 3 mm (physics.md §5.1,
+    // wound: half-opening 2.35 mm where k_open × 10 mm deep is 3 mm (physics.md §5.1,
     // w_o = min(0.15 L, k_open d), k_open = 0.3).
     let scene = scene("shoulder");
     let script = CutScript::default_for(&scene.model.surface).expect("default stroke");

@@ -352,20 +352,20 @@ pub(crate) fn first_hit(
         .min_by(f64::total_cmp)
 }
 
-/// The depth `path` cut (m, square to the path: `depths` from [`tracks_across`]) at its
-/// point nearest `x`, if that point is within `across` of `x` — or within `along` where it
-/// is an end of the path (beside it, not ahead of it).
-fn path_depth_near(
+/// The cut `path` made (m: from the surface down to its floor, square to the path; `cuts`
+/// from [`tracks_across`]) at its point nearest `x`, if that point is within `across` of
+/// `x` — or within `along` where it is an end of the path (beside it, not ahead of it).
+fn path_cut_near(
     path: &[PathSample],
-    depths: &[f64],
+    cuts: &[Vec3],
     x: &Vec3,
     across: f64,
     along: f64,
-) -> Option<f64> {
+) -> Option<Vec3> {
     if let [only] = path {
-        return ((x - only.surface).norm() <= along).then_some(depths[0]);
+        return ((x - only.surface).norm() <= along).then_some(cuts[0]);
     }
-    let (distance, at_end, d) = path
+    let (distance, at_end, cut) = path
         .windows(2)
         .enumerate()
         .map(|(i, w)| {
@@ -373,10 +373,10 @@ fn path_depth_near(
             let f = nearest_on_segment(x, &a, &b);
             let at_end = (i == 0 && f == 0.0) || (i + 2 == path.len() && f == 1.0);
             let distance = (x - (a + (b - a) * f)).norm();
-            (distance, at_end, depths[i] * (1.0 - f) + depths[i + 1] * f)
+            (distance, at_end, cuts[i] * (1.0 - f) + cuts[i + 1] * f)
         })
         .min_by(|p, q| p.0.total_cmp(&q.0))?;
-    (distance <= if at_end { along } else { across }).then_some(d)
+    (distance <= if at_end { along } else { across }).then_some(cut)
 }
 
 /// Where a deeper pass ends or crosses a wound, the new floor meets the old one in a step;
@@ -416,7 +416,7 @@ pub fn deepen(
     let skin: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin)
         .collect();
-    let depths: Vec<f64> = tracks_across(path).iter().map(|t| t.norm()).collect();
+    let cuts = tracks_across(path);
     let mut deeper: Vec<(usize, Wound)> = Vec::new();
     for (w, wound) in wounds.iter().enumerate() {
         // Across the wound, anywhere over the lid (with a quarter spacing for the entry's
@@ -427,9 +427,12 @@ pub fn deepen(
         let mut changed = false;
         let mut new = wound.clone();
         for col in &mut new.columns {
-            let Some(depth) = path_depth_near(path, &depths, &col.top, across, along) else {
+            // As far down this column as the pass cut (a pass leaning against the wound's
+            // walls reaches less far along them than its edge is long).
+            let Some(cut) = path_cut_near(path, &cuts, &col.top, across, along) else {
                 continue;
             };
+            let depth = cut.dot(&col.inward).max(0.0);
             if depth <= col.depth + 0.25 * wound.spacing_m {
                 continue;
             }
