@@ -819,27 +819,33 @@ fn sawing_to_and_fro_in_a_cut() {
     assert_sound_surface(&sim);
 }
 
+/// Down at x = −30 mm from 5 mm above `top_mm` to the tip height `z_mm` in 3 s, 30 mm along
+/// +x in 6 s and out in 3 s, the blade held as `pose` has it at each tip position (m).
+fn in_along_and_out(top_mm: f64, z_mm: f64, pose: impl Fn(Vec3) -> ToolPose) -> CutScript {
+    let frame = |t_s: f64, tip: [f64; 3]| Keyframe {
+        t_s,
+        pose: pose(Vec3::from(tip) * 1e-3),
+    };
+    CutScript {
+        keyframes: vec![
+            frame(0.0, [-30.0, 0.0, top_mm + 5.0]),
+            frame(3.0, [-30.0, 0.0, z_mm]),
+            frame(9.0, [0.0, 0.0, z_mm]),
+            frame(12.0, [0.0, 0.0, top_mm + 5.0]),
+        ],
+        description: "in, along and out".into(),
+    }
+}
+
 #[test]
 fn a_raked_blade_cuts_by_its_vertical_depth() {
     let scene = scene("liver");
     let top = top_mm(&scene, -30.0, 0.0);
     let spec = &scene.spec.force;
     let z = top - 10.0;
-    // A scalpel held the usual way, handle back at 45°, tip first: in, 30 mm forward, out.
+    // A scalpel held the usual way, handle back at 45°, tip first.
     let back = Vec3::new(-1.0, 0.0, 1.0).normalize();
-    let pose = |t_s: f64, tip: [f64; 3]| Keyframe {
-        t_s,
-        pose: ToolPose::pointing(Vec3::from(tip) * 1e-3, back),
-    };
-    let s = CutScript {
-        keyframes: vec![
-            pose(0.0, [-30.0, 0.0, top + 5.0]),
-            pose(3.0, [-30.0, 0.0, z]),
-            pose(9.0, [0.0, 0.0, z]),
-            pose(12.0, [0.0, 0.0, top + 5.0]),
-        ],
-        description: "raked".into(),
-    };
+    let s = in_along_and_out(top, z, |tip| ToolPose::pointing(tip, back));
     let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     // The new crack per millimetre forward is the vertical depth v the edge sweeps, with
@@ -876,19 +882,7 @@ fn a_blade_tilted_sideways_cuts_leaning_walls() {
     let lean = 30f64.to_radians();
     let back = Vec3::new(0.0, -lean.sin(), lean.cos());
     let z = top - 10.0 * lean.cos();
-    let pose = |t_s: f64, tip: [f64; 3]| Keyframe {
-        t_s,
-        pose: ToolPose::facing(Vec3::from(tip) * 1e-3, back, Vec3::x()),
-    };
-    let s = CutScript {
-        keyframes: vec![
-            pose(0.0, [-30.0, 0.0, top + 5.0]),
-            pose(3.0, [-30.0, 0.0, z]),
-            pose(9.0, [0.0, 0.0, z]),
-            pose(12.0, [0.0, 0.0, top + 5.0]),
-        ],
-        description: "tilted".into(),
-    };
+    let s = in_along_and_out(top, z, |tip| ToolPose::facing(tip, back, Vec3::x()));
     let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert_one_incision(&sim);

@@ -1219,11 +1219,11 @@ pub fn incise(
     // a blade held upright on a sloping surface cuts upright walls, one tilted sideways
     // cuts leaning ones — and the wall's cells stay rectangles where the surface slopes
     // along the cut. Where the blade's cut sums to nothing over the window below, they go
-    // along the inward surface normal. Both are averaged along the path
-    // over the depth: columns a fraction of a millimetre apart that lean by a degree more
-    // than their neighbours (the path crosses a facet edge between them, or the hand
-    // wavers) would cross a few millimetres down in a short, deep cut, and a wall does not
-    // bend on a scale shorter than its depth.
+    // along the inward surface normal. Both are averaged along the path over the depth:
+    // columns a fraction of a millimetre apart that lean by a degree more than their
+    // neighbours (the path crosses a facet edge between them, or the hand wavers) would
+    // cross a few millimetres down in a short, deep cut, and a wall does not bend on a
+    // scale shorter than its depth.
     let params_of = |c: usize| c as f64 / (n_cols - 1) as f64;
     let tops: Vec<Vec3> = (0..n_cols)
         .map(|c| lift(path2.at(params_of(c) * length)))
@@ -1401,8 +1401,6 @@ mod tests {
         );
     }
 
-    /// A curved stroke sampled every quarter edge (a half circle of 12 mm radius on the
-    /// liver, 10 mm deep): the lips follow a smooth curve, not the samples' polygon.
     #[test]
     fn the_cut_below_a_path_runs_square_to_it_down_to_the_tips_track() {
         let along = |xs: &[f64], surface: &dyn Fn(f64) -> Vec3, tip: &dyn Fn(f64) -> Vec3| {
@@ -1498,6 +1496,8 @@ mod tests {
         assert!(out.opening_m > 0.97 * wanted, "{}", out.opening_m);
     }
 
+    /// A curved stroke sampled every quarter edge (a half circle of 12 mm radius on the
+    /// liver, 10 mm deep): the lips follow a smooth curve, not the samples' polygon.
     #[test]
     fn a_curved_incision_has_smooth_lips() {
         let liver = BuiltinMesh::Liver.generate();
