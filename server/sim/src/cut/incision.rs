@@ -194,7 +194,8 @@ fn cross2(a: [f64; 2], b: [f64; 2]) -> f64 {
     a[0] * b[1] - a[1] * b[0]
 }
 
-fn dist_sq_point_segment_2d(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+/// Where on the segment a–b the point p is nearest (t in [0, 1]) and its squared distance.
+fn nearest_on_segment_2d(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> (f64, f64) {
     let ab = sub2(b, a);
     let ap = sub2(p, a);
     let len2 = ab[0] * ab[0] + ab[1] * ab[1];
@@ -204,7 +205,11 @@ fn dist_sq_point_segment_2d(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
         0.0
     };
     let d = [ap[0] - t * ab[0], ap[1] - t * ab[1]];
-    d[0] * d[0] + d[1] * d[1]
+    (t, d[0] * d[0] + d[1] * d[1])
+}
+
+fn dist_sq_point_segment_2d(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    nearest_on_segment_2d(p, a, b).1
 }
 
 /// Barycentric coordinates of p in the 2D triangle.
@@ -538,13 +543,9 @@ pub fn incise(
     // (below: the lips stay within 0.45 of the way to the region's boundary); on a fine
     // mesh two and a half edges are not enough (the cerebroma's 2.1 mm edges held its
     // wounds to a 1.9 mm half-opening, where 0.3 × 9 mm deep wants 2.7).
-    let widest = (params.opening_ratio * path_length).min(
-        params.gape_factor
-            * samples
-                .iter()
-                .map(|s| (s.bottom - s.surface).norm())
-                .fold(0.0, f64::max),
-    );
+    let across = tracks_across(&samples);
+    let depth_max = across.iter().map(|t| t.norm()).fold(0.0, f64::max);
+    let widest = (params.opening_ratio * path_length).min(params.gape_factor * depth_max);
     let reach = (2.5 * global_edge).max(widest / 0.45 + 1.5 * global_edge);
     let candidates: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && near_path(&centroid(t), reach))
@@ -585,7 +586,6 @@ pub fn incise(
         e1,
         e2: n_bar.cross(&e1),
     };
-    let across = tracks_across(&samples);
     let (points2, tracks) = smooth_path(
         &samples
             .iter()
@@ -595,7 +595,6 @@ pub fn incise(
     );
     let path2 = ArcPolyline::new(points2);
     let length = path2.length();
-    let depth_max = across.iter().map(|t| t.norm()).fold(0.0, f64::max);
     let w_wanted = (params.opening_ratio * length).min(params.gape_factor * depth_max);
     let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
 
@@ -776,16 +775,8 @@ pub fn incise(
                 .windows(2)
                 .zip(path2.arc.windows(2))
                 .map(|(w, a)| {
-                    let seg = sub2(w[1], w[0]);
-                    let len_sq = seg[0] * seg[0] + seg[1] * seg[1];
-                    let off = sub2(b, w[0]);
-                    let t = if len_sq > 0.0 {
-                        ((off[0] * seg[0] + off[1] * seg[1]) / len_sq).clamp(0.0, 1.0)
-                    } else {
-                        0.0
-                    };
-                    let gap = [off[0] - t * seg[0], off[1] - t * seg[1]];
-                    (gap[0] * gap[0] + gap[1] * gap[1], a[0] + t * (a[1] - a[0]))
+                    let (t, d_sq) = nearest_on_segment_2d(b, w[0], w[1]);
+                    (d_sq, a[0] + t * (a[1] - a[0]))
                 })
                 .min_by(|p, q| p.0.total_cmp(&q.0))?;
             let x = u / length;

@@ -10,7 +10,7 @@ use super::neighbours::{Kernel, RestGrid};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{segment_crosses_triangle, segment_meets_triangle};
-use crate::math::Vec3;
+use crate::math::{Aabb, Vec3};
 
 /// Embedding weights of every surface vertex, in compressed rows.
 #[derive(Debug, Clone, PartialEq)]
@@ -171,40 +171,36 @@ impl SurfaceEmbedding {
     }
 
     /// Kernel weights of a new vertex at `x` over the points within the support whose rest
-    /// segment to it crosses none of `blockers` (the cut surface). The support widens up to
-    /// three times when nothing is visible; the nearest point is the last resort.
+    /// segment to it crosses none of `blockers` (the cut surface, each triangle with its
+    /// box). The support widens up to three times when nothing is visible; the nearest
+    /// point is the last resort.
     pub fn row_for(
         x: &Vec3,
         positions: &[Vec3],
         grid: &RestGrid,
         kernel: &Kernel,
-        blockers: &[[Vec3; 3]],
+        blockers: &[([Vec3; 3], Aabb)],
     ) -> Vec<(u32, f64)> {
         let mut radius = kernel.support_m;
         let mut found = Vec::new();
-        // Each blocker with its box; those within the search radius are tested against
-        // every point found (a few hundred cut triangles against each of tens of points
-        // was most of a re-mesh on a fine model).
-        let boxed: Vec<(&[Vec3; 3], Vec3, Vec3)> = blockers
-            .iter()
-            .map(|t| (t, t[0].inf(&t[1]).inf(&t[2]), t[0].sup(&t[1]).sup(&t[2])))
-            .collect();
-        let mut within = Vec::with_capacity(boxed.len());
+        // Only the blockers whose box comes within the search radius can hide a point
+        // found, and only those are tested against each of them (every cut triangle
+        // against each of tens of points was most of a re-mesh on a fine model).
+        let mut within = Vec::with_capacity(blockers.len());
         for _ in 0..4 {
             let wider = Kernel { support_m: radius };
             within.clear();
-            within.extend(boxed.iter().filter(|(_, lo, hi)| {
-                (0..3)
-                    .map(|a| (lo[a] - x[a]).max(x[a] - hi[a]).max(0.0).powi(2))
-                    .sum::<f64>()
-                    <= radius * radius
-            }));
+            within.extend(
+                blockers
+                    .iter()
+                    .filter(|(_, b)| b.distance_sq(x) <= radius * radius),
+            );
             grid.for_each_within(positions, x, radius, |k, d2| {
                 let w = wider.weight_sq(d2);
                 let p = &positions[k as usize];
                 if w > 0.0
-                    && !within.iter().any(|(tri, lo, hi)| {
-                        (0..3).all(|a| x[a].min(p[a]) <= hi[a] && x[a].max(p[a]) >= lo[a])
+                    && !within.iter().any(|(tri, b)| {
+                        (0..3).all(|a| x[a].min(p[a]) <= b.max[a] && x[a].max(p[a]) >= b.min[a])
                             && segment_meets_triangle(x, p, tri)
                     })
                 {

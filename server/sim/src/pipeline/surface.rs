@@ -463,16 +463,12 @@ impl CurrentSurface {
         let nv = incised.mesh.positions.len();
         let mut rows = Vec::with_capacity(nv);
         let mut base_to_new = vec![None; base_to_current.len()];
-        let reach = 3.5 * self.support_m;
         // Vertices follow the body's points only: the virtual points after them are no
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
         let body = &rest_points[..self.followed.len()];
-        // Only the cut triangles near a vertex can hide a point from it: those whose box
-        // comes within reach (a box test per triangle; the exact distance to each of a
-        // few hundred triangles for each of a few hundred new vertices took 10 ms of a
-        // cerebroma re-mesh).
-        let boxes: Vec<Aabb> = sigma.iter().map(Aabb::around).collect();
-        let mut near: Vec<[Vec3; 3]> = Vec::new();
+        // The cut triangles with their boxes, made once for all new vertices.
+        let blockers: Vec<([Vec3; 3], Aabb)> =
+            sigma.iter().map(|t| (*t, Aabb::around(t))).collect();
         for v in 0..nv {
             let x = incised.mesh.positions[v];
             let carried = incised.source[v].and_then(|b| {
@@ -481,17 +477,7 @@ impl CurrentSurface {
             });
             rows.push(match carried {
                 Some(c) => self.embedding.row(c as usize),
-                None => {
-                    near.clear();
-                    near.extend(
-                        sigma
-                            .iter()
-                            .zip(&boxes)
-                            .filter(|(_, b)| b.distance_sq(&x) < reach * reach)
-                            .map(|(t, _)| *t),
-                    );
-                    SurfaceEmbedding::row_for(&x, body, grid, &self.kernel, &near)
-                }
+                None => SurfaceEmbedding::row_for(&x, body, grid, &self.kernel, &blockers),
             });
         }
         self.embedding = SurfaceEmbedding::from_rows(&rows, self.embedding.widened);
