@@ -206,34 +206,87 @@ mod tests {
     /// crossing cuts on the cerebroma made wall slivers down to 0.4°.)
     #[test]
     fn random_strokes_over_earlier_wounds_keep_the_surface_sound() {
-        let mut next = uniform(0x9e37_79b9_7f4a_7c15u64);
-        let params = IncisionParams::default();
-        let (mut strokes, mut changed, mut deepened, mut widened) = (0, 0, 0, 0);
-        for organ in [
+        let organs = [
             BuiltinMesh::Liver,
             BuiltinMesh::Shoulder,
             BuiltinMesh::Cerebroma,
-        ] {
-            let original = organ.generate();
+        ]
+        .map(|organ| (organ.name().to_string(), organ.generate(), 1.0));
+        let tallies = random_strokes(&organs, 20, true);
+        let sum = |f: fn(&Tally) -> usize| tallies.iter().map(f).sum::<usize>();
+        let (changed, deepened, widened) =
+            (sum(|t| t.changed), sum(|t| t.deepened), sum(|t| t.widened));
+        for ((name, ..), tally) in organs.iter().zip(&tallies) {
+            println!("{name}: {tally}");
+        }
+        assert!(
+            changed >= 100 && deepened >= 15 && 2 * widened >= deepened,
+            "{changed} {deepened} {widened}"
+        );
+    }
+
+    /// What a run of [`random_strokes`] did.
+    #[derive(Debug, Default)]
+    struct Tally {
+        strokes: usize,
+        changed: usize,
+        deepened: usize,
+        widened: usize,
+        /// Strokes whose new triangles had an angle under 15° (name, smallest angle),
+        /// when not `strict_angles`.
+        small_angles: Vec<(String, f64)>,
+    }
+
+    impl std::fmt::Display for Tally {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(
+                f,
+                "{} strokes, {} changed the surface, {} deepened a wound, {} of those opened \
+                 it wider, {} with angles under 15°",
+                self.strokes,
+                self.changed,
+                self.deepened,
+                self.widened,
+                self.small_angles.len()
+            )
+        }
+    }
+
+    /// `trials` sets of three strokes on each (name, surface, depth scale), checked as
+    /// [`random_strokes_over_earlier_wounds_keep_the_surface_sound`] says; angles under 15°
+    /// fail it only if `strict_angles` (otherwise they are counted). One tally per organ.
+    fn random_strokes(
+        organs: &[(String, TriMesh, f64)],
+        trials: usize,
+        strict_angles: bool,
+    ) -> Vec<Tally> {
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15u64);
+        let params = IncisionParams::default();
+        let mut tallies = Vec::with_capacity(organs.len());
+        for (organ, original, depth_scale) in organs {
+            let mut tally = Tally::default();
             let edge = original.mean_edge_length();
             let (step, margin) = (0.25 * edge, 0.5 * edge);
             let bb = original.bbox();
             let size = (bb.max[0] - bb.min[0]).min(bb.max[1] - bb.min[1]);
             let centre = [0.5 * (bb.max[0] + bb.min[0]), 0.5 * (bb.max[1] + bb.min[1])];
-            for trial in 0..20 {
+            for trial in 0..trials {
                 let mut mesh = original.clone();
                 let mut kinds = vec![FaceKind::Skin; mesh.triangles.len()];
                 let mut wounds: Vec<Wound> = Vec::new();
                 let angle = next() * std::f64::consts::TAU;
                 let half = (0.1 + 0.15 * next()) * size;
-                let depth = (0.2 + 0.3 * next()) * 0.01;
+                let depth = (0.2 + 0.3 * next()) * 0.01 * depth_scale;
                 let bend = if trial % 2 == 0 { 0.2 * half } else { 0.0 };
                 let mut first = stroke(&mesh, centre, angle, half, 0.0, bend, depth, step);
                 if trial % 2 == 1 {
-                    stab_start(&mut first, 0.008);
+                    stab_start(&mut first, 0.008 * depth_scale);
                 }
                 let second = match trial % 3 {
-                    0 => stroke(&mesh, centre, angle, half, 0.0, bend, depth + 0.005, step),
+                    0 => {
+                        let deeper = depth + 0.005 * depth_scale;
+                        stroke(&mesh, centre, angle, half, 0.0, bend, deeper, step)
+                    }
                     1 => {
                         let across = angle + std::f64::consts::FRAC_PI_2;
                         stroke(&mesh, centre, across, half, 0.0, 0.0, depth + 0.004, step)
@@ -254,43 +307,64 @@ mod tests {
                     centre,
                     third_angle,
                     [half, 0.0, 0.0],
-                    0.008,
+                    0.008 * depth_scale,
                     step,
                     tilt,
                 );
                 for (k, path) in [first, second, third].iter().enumerate() {
-                    let name = format!("{} trial {trial} stroke {k}", organ.name());
+                    // A blade drawn along a surface leaves no gaps in its path: a vertical
+                    // cast that misses a steep part (the deltoid's sheet) is no stroke.
+                    let gap = path
+                        .windows(2)
+                        .any(|w| (w[1].surface - w[0].surface).xy().norm() > 2.0 * step);
+                    if gap {
+                        continue;
+                    }
+                    let name = format!("{organ} trial {trial} stroke {k}");
                     let before = wounds.iter().map(Wound::depth_m).fold(0.0, f64::max);
                     let was_open = wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max);
                     let outcome = open_stroke(&mesh, &kinds, &wounds, path, margin, &params);
-                    strokes += 1;
-                    // A pass along an open wound, 5 mm deeper than it, must deepen it.
-                    let deeper_pass = k == 1 && trial % 3 == 0 && !wounds.is_empty();
+                    tally.strokes += 1;
+                    // A pass along an open wound, 5 mm deeper than it, must deepen it
+                    // (where the organ is thick enough: a thin part stops the walls short).
+                    let thick = path.get(path.len() / 2).is_some_and(|s| {
+                        vertical_extent(&mesh, s.surface.x, s.surface.y).is_some_and(
+                            |(top, bottom)| top - bottom > 2.0 * (s.bottom - s.surface).norm(),
+                        )
+                    });
+                    let deeper_pass = k == 1 && trial % 3 == 0 && !wounds.is_empty() && thick;
                     assert!(
                         !deeper_pass || outcome.surface.is_some(),
-                        "{name}: the deeper pass changed nothing"
+                        "{name}: the deeper pass changed nothing ({:?})",
+                        outcome.refusals
                     );
                     let Some(out) = outcome.surface else {
                         continue;
                     };
                     check_topology(&out, &name);
-                    changed += 1;
-                    assert!(
-                        outcome.min_angle_deg >= 15.0,
-                        "{name}: {} (last stroke's blade tilted {:.1}° sideways, raked {:.1}°)",
-                        outcome.min_angle_deg,
-                        tilt[0].to_degrees(),
-                        tilt[1].to_degrees()
-                    );
+                    tally.changed += 1;
+                    if outcome.min_angle_deg < 15.0 {
+                        assert!(
+                            !strict_angles,
+                            "{name}: {} (last stroke's blade tilted {:.1}° sideways, raked \
+                             {:.1}°)",
+                            outcome.min_angle_deg,
+                            tilt[0].to_degrees(),
+                            tilt[1].to_degrees()
+                        );
+                        tally
+                            .small_angles
+                            .push((name.clone(), outcome.min_angle_deg));
+                    }
                     if deeper_pass {
                         assert_eq!(out.wounds.len(), wounds.len(), "{name}: a new wound");
                         let after = out.wounds.iter().map(Wound::depth_m).fold(0.0, f64::max);
                         // (A thin part stops the walls short of its far side.)
                         assert!(after > before + 0.001, "{name}: {before} → {after}");
-                        deepened += 1;
+                        tally.deepened += 1;
                         let open = out.wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max);
                         if open > was_open + 1e-6 {
-                            widened += 1;
+                            tally.widened += 1;
                         }
                     }
                     mesh = out.mesh;
@@ -298,14 +372,82 @@ mod tests {
                     wounds = out.wounds;
                 }
             }
+            tallies.push(tally);
         }
-        println!(
-            "{strokes} strokes, {changed} changed the surface, {deepened} deepened a wound, \
-             {widened} of those opened it wider"
-        );
-        assert!(
-            changed >= 100 && deepened >= 15 && 2 * widened >= deepened,
-            "{changed} {deepened} {widened}"
-        );
+        tallies
+    }
+
+    /// The same on the real organ meshes of ../shared/meshes, whose triangles are as
+    /// irregular as a scan leaves them, with strokes and depths scaled to the organ (a
+    /// tumour 12 mm across takes strokes a few millimetres deep). Every stroke leaves the
+    /// surface sound. The 15° bound is not met everywhere on them (docs/CUTTING.md, "Not
+    /// done yet": a region triangulated in one plane and lifted back onto a strongly curved
+    /// surface, and triangles beside it fanned where the refinement split its boundary
+    /// close to a corner), so it is held here as the share of opening strokes that miss it
+    /// and their smallest angle. Measured at 100 trials (strokes opened; under 15°;
+    /// smallest): pig liver lobe (24 mm edges) 266 of 300, 3, 7.2°; sphere 268 of 300,
+    /// none; tumour 264 of 300, 18, 10.9°; deltoid (a muscle sheet, strongly curved across
+    /// the strokes) 121 of 265, 106, 0.2° — not bounded here.
+    #[test]
+    #[ignore = "reads ../shared/meshes"]
+    fn shared_meshes_take_random_strokes() {
+        use crate::geometry::LengthUnit;
+        use crate::progress::Silent;
+        use crate::scene::{build_scene, for_mesh_file};
+        // (file, units, smallest share of strokes that open, largest share of those under
+        // 15°, smallest angle allowed)
+        let meshes = [
+            (
+                "pig_liver_lobe0_surface500.obj",
+                LengthUnit::M,
+                0.8,
+                0.03,
+                7.0,
+            ),
+            ("sofa_sphere_05.obj", LengthUnit::Mm, 0.8, 0.0, 15.0),
+            (
+                "liver_tumour_PPP_Tumor.obj",
+                LengthUnit::Cm,
+                0.7,
+                0.10,
+                10.0,
+            ),
+            ("deltoid_tri.obj", LengthUnit::Mm, 0.25, 1.0, 0.0),
+        ];
+        let organs: Vec<(String, TriMesh, f64)> = meshes
+            .iter()
+            .map(|&(file, units, ..)| {
+                let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("../../../shared/meshes")
+                    .join(file);
+                let bytes = std::fs::read(&path).unwrap_or_else(|e| {
+                    panic!("{}: {e} (is ../shared beside the project?)", path.display())
+                });
+                let spec = for_mesh_file(path, units);
+                let scene = build_scene(&spec, Some(&bytes), &mut Silent).expect(file);
+                let bb = scene.model.surface.bbox();
+                let size = (bb.max[0] - bb.min[0]).min(bb.max[1] - bb.min[1]);
+                (
+                    file.to_string(),
+                    scene.model.surface,
+                    (size / 0.04).min(1.0),
+                )
+            })
+            .collect();
+        let tallies = random_strokes(&organs, 20, false);
+        for ((file, _, opens, share, smallest), tally) in meshes.iter().zip(&tallies) {
+            println!("{file}: {tally}");
+            let worst = tally.small_angles.iter().map(|s| s.1).fold(180.0, f64::min);
+            assert!(
+                tally.changed as f64 >= opens * tally.strokes as f64,
+                "{file}: {tally}"
+            );
+            assert!(
+                tally.small_angles.len() as f64 <= share * tally.changed as f64
+                    && worst >= *smallest,
+                "{file}: {tally}: {:?}",
+                tally.small_angles
+            );
+        }
     }
 }
