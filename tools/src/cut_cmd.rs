@@ -9,7 +9,7 @@ use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
 use scalpel_sim::cut::FaceKind;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
-use scalpel_sim::scene::BuiltScene;
+use scalpel_sim::scene::{BuiltScene, Features};
 
 use crate::cutrun::{self, CutMetrics, CutRun};
 use crate::plot::{self, Series};
@@ -54,7 +54,15 @@ pub fn run(
     mesh_format: &str,
     json: bool,
 ) -> anyhow::Result<()> {
-    let spec = load::resolve(target)?;
+    let mut spec = load::resolve(target)?;
+    if load::is_bare_mesh(target) {
+        // Asked to cut a mesh file, cut it as a cutting station would (a scene file
+        // chooses its features itself).
+        let station = Features::CUTTING_STATION;
+        spec.features.cutting = true;
+        spec.features.virtual_points = station.virtual_points;
+        spec.features.ripple = station.ripple;
+    }
     if !spec.features.cutting {
         bail!(
             "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma",

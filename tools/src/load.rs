@@ -2,7 +2,7 @@
 //! files (the sim does no I/O), build with progress, and time every stage.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -23,6 +23,16 @@ pub struct TimedScene {
     pub build_ms: f64,
     /// Wall time per stage (ms), by stage name.
     pub stages_ms: BTreeMap<&'static str, f64>,
+}
+
+/// Whether `target` names a bare mesh file (not a built-in scene or a scene file): its
+/// scene has every feature off until a command says what it is for.
+pub fn is_bare_mesh(target: &TargetArgs) -> bool {
+    scene::builtin(&target.target).is_none()
+        && !Path::new(&target.target)
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        && MeshFormat::from_file_name(&target.target).is_ok()
 }
 
 /// Resolves a built-in scene name, a scene file or a mesh file into a scene spec, applying

@@ -366,6 +366,43 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert_eq!(metrics, m);
 }
 
+/// A mesh file is cut as a cutting station would cut it (its bare scene has cutting off):
+/// the liver written out as an OBJ in millimetres, the short cut.
+#[test]
+fn cut_takes_a_bare_mesh_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let liver = scalpel_sim::scene::BuiltinMesh::Liver.generate();
+    let mut obj = String::new();
+    for p in &liver.positions {
+        obj += &format!("v {} {} {}\n", p.x * 1e3, p.y * 1e3, p.z * 1e3);
+    }
+    for t in &liver.triangles {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let mesh = dir.path().join("organ.obj");
+    std::fs::write(&mesh, obj).unwrap();
+    let script = dir.path().join("short.toml");
+    std::fs::write(&script, SHORT_CUT).unwrap();
+    let out = dir.path().join("out");
+    let m = ok_json(&[
+        "cut",
+        mesh.to_str().unwrap(),
+        "--units",
+        "mm",
+        "--script",
+        script.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(m["incisions"], 1, "{m}");
+    assert!(m["closed"].as_bool().unwrap() && m["manifold"].as_bool().unwrap());
+    assert!(
+        (m["peak_force_n"].as_f64().unwrap() - 3.0).abs() < 0.1,
+        "{m}"
+    );
+}
+
 #[test]
 fn cut_refuses_scenes_that_do_not_cut_and_bad_scripts() {
     let dir = tempfile::tempdir().unwrap();

@@ -313,7 +313,8 @@ impl CutScript {
 
     /// A straight stroke along the surface's long horizontal axis through its centre, at
     /// most `length_m` long (and 60 % of the organ), `depth_m` deep (at most 30 % of the
-    /// thickness at the centre), at `speed` m/s, following the top surface.
+    /// thickness at the centre), at `speed` m/s, following the top surface. A shape with no
+    /// surface above its centre is cut on the nearby part of its top that has the room.
     pub fn stroke_for(
         surface: &TriMesh,
         length_m: f64,
@@ -330,11 +331,28 @@ impl CutScript {
             Vec3::y()
         };
         let along = axis.dot(&size);
-        let length = length_m.min(0.6 * along);
-        let (top, bottom) = vertical_extent(surface, centre.x, centre.y).ok_or_else(|| {
-            ScriptError::NoSurface("no surface above the centre of the bounding box".into())
-        })?;
-        let depth = depth_m.min(0.3 * (top - bottom));
+        // Through the middle of the top seen from above: the centre of the bounding box, or
+        // on a shape with nothing above it (a muscle sheet curved round a joint) the point
+        // of the top nearest to it; the stroke stays where the top goes on smoothly.
+        let wanted = length_m.min(0.6 * along);
+        let (centre, half_room) = match vertical_extent(surface, centre.x, centre.y) {
+            Some(_) => (
+                centre,
+                smooth_top_room(surface, &centre, &axis, 0.5 * wanted),
+            ),
+            None => roomiest_top_near(surface, &centre, &axis, 0.5 * wanted)
+                .ok_or_else(|| ScriptError::NoSurface("no surface facing up to cut into".into()))?,
+        };
+        let length = wanted.min(2.0 * half_room);
+        let crossings = vertical_crossings(surface, centre.x, centre.y);
+        let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
+            return Err(ScriptError::NoSurface(
+                "no surface above the centre of the bounding box".into(),
+            ));
+        };
+        // A third of the shape's height there, and no more than half the tissue under the
+        // top (down to the next surface: a sheet can fold back under itself).
+        let depth = depth_m.min(0.3 * (top - bottom)).min(0.5 * (top - below));
         let clearance = 0.005;
         let start = centre - axis * (length * 0.5);
         let samples = ((length / 0.005).ceil() as usize).max(2);
@@ -420,8 +438,16 @@ impl CutScript {
 
 /// Highest and lowest crossing of the vertical line through (x, y) with the surface.
 pub fn vertical_extent(surface: &TriMesh, x: f64, y: f64) -> Option<(f64, f64)> {
-    let mut top = f64::NEG_INFINITY;
-    let mut bottom = f64::INFINITY;
+    let z = vertical_crossings(surface, x, y);
+    match (z.first(), z.last()) {
+        (Some(&top), Some(&bottom)) if top > bottom => Some((top, bottom)),
+        _ => None,
+    }
+}
+
+/// Heights where the vertical line through (x, y) meets the surface, highest first.
+fn vertical_crossings(surface: &TriMesh, x: f64, y: f64) -> Vec<f64> {
+    let mut z = Vec::new();
     for t in 0..surface.triangles.len() {
         let [a, b, c] = surface.corners(t);
         let d = (b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y);
@@ -431,18 +457,111 @@ pub fn vertical_extent(surface: &TriMesh, x: f64, y: f64) -> Option<(f64, f64)> 
         let u = ((x - a.x) * (c.y - a.y) - (c.x - a.x) * (y - a.y)) / d;
         let v = ((b.x - a.x) * (y - a.y) - (x - a.x) * (b.y - a.y)) / d;
         if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
-            let z = a.z + u * (b.z - a.z) + v * (c.z - a.z);
-            top = top.max(z);
-            bottom = bottom.min(z);
+            z.push(a.z + u * (b.z - a.z) + v * (c.z - a.z));
         }
     }
-    (top > bottom).then_some((top, bottom))
+    z.sort_by(|p, q| q.total_cmp(p));
+    z
+}
+
+/// Of the upward-facing triangles (normal within 45° of +z) nearest to `x` seen from above,
+/// the centroid where the top goes on smoothly furthest along `axis` (up to `wanted` either
+/// way), with that reach.
+fn roomiest_top_near(surface: &TriMesh, x: &Vec3, axis: &Vec3, wanted: f64) -> Option<(Vec3, f64)> {
+    let mut tops: Vec<Vec3> = (0..surface.triangles.len())
+        .filter(|&t| {
+            surface
+                .doubled_area_normal(t)
+                .try_normalize(1e-300)
+                .is_some_and(|n| n.z > std::f64::consts::FRAC_1_SQRT_2)
+        })
+        .map(|t| {
+            let [a, b, c] = surface.corners(t);
+            (a + b + c) / 3.0
+        })
+        .collect();
+    tops.sort_by(|p, q| (p - x).xy().norm().total_cmp(&(q - x).xy().norm()));
+    let mut best: Option<(Vec3, f64)> = None;
+    // The nearest few dozen: the first with room for the whole stroke, or the roomiest.
+    for c in tops.into_iter().take(48) {
+        let room = smooth_top_room(surface, &c, axis, wanted);
+        if best.is_none_or(|(_, r)| room > r) {
+            best = Some((c, room));
+        }
+        if room >= wanted {
+            break;
+        }
+    }
+    best
+}
+
+/// How far (up to `wanted`) either way along `axis` from `centre` the top goes on without a
+/// gap or a step (checked every millimetre: a step of more than 2 mm per millimetre is the
+/// edge of a fold, not the slope of the top).
+fn smooth_top_room(surface: &TriMesh, centre: &Vec3, axis: &Vec3, wanted: f64) -> f64 {
+    const STEP_M: f64 = 0.001;
+    let top = |s: f64| {
+        let x = centre + axis * s;
+        vertical_extent(surface, x.x, x.y).map(|(top, _)| top)
+    };
+    let steps = (wanted / STEP_M).floor() as usize;
+    let reach = |sign: f64| {
+        let mut last = top(0.0);
+        for k in 1..=steps {
+            let here = top(sign * k as f64 * STEP_M);
+            match (last, here) {
+                (Some(a), Some(b)) if (b - a).abs() <= 2.0 * STEP_M => last = here,
+                _ => return (k - 1) as f64 * STEP_M,
+            }
+        }
+        wanted
+    };
+    reach(1.0).min(reach(-1.0))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scene::BuiltinMesh;
+
+    /// A ring (80 mm across, a 20 mm tube) has nothing above its centre: the default stroke
+    /// goes onto the top of the ring near it, as long as the top there goes on smoothly,
+    /// and no deeper than half the tube.
+    #[test]
+    fn a_shape_with_nothing_above_its_centre_is_cut_on_its_top_nearby() {
+        let (big, small, n) = (0.04, 0.01, 48);
+        let at = |i: usize, j: usize| {
+            let (u, v) = (
+                std::f64::consts::TAU * (i % n) as f64 / n as f64,
+                std::f64::consts::TAU * (j % n) as f64 / n as f64,
+            );
+            Vec3::new(
+                (big + small * v.cos()) * u.cos(),
+                (big + small * v.cos()) * u.sin(),
+                small * v.sin(),
+            )
+        };
+        let positions: Vec<Vec3> = (0..n * n).map(|k| at(k / n, k % n)).collect();
+        let id = |i: usize, j: usize| ((i % n) * n + j % n) as u32;
+        let mut triangles = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        let ring = TriMesh::new(positions, triangles);
+        assert!(vertical_extent(&ring, 0.0, 0.0).is_none());
+        let s = CutScript::default_for(&ring).expect("a stroke");
+        let mid = s.pose_at(0.5 * s.duration_s());
+        let (top, bottom) = vertical_extent(&ring, mid.tip_m.x, mid.tip_m.y).expect("on the ring");
+        let depth = top - mid.tip_m.z;
+        assert!(
+            depth > 0.001 && depth <= 0.5 * (top - bottom) + 1e-9,
+            "{depth}"
+        );
+        assert!(s.description.contains("mm stroke"), "{}", s.description);
+    }
 
     #[test]
     fn default_liver_cut_is_the_papers_stroke() {
