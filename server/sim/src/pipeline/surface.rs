@@ -216,6 +216,23 @@ impl CurrentSurface {
         p: &[Vec3],
         moved: &[u32],
     ) -> usize {
+        let count = self.place_followers(op, rest_points, p, moved);
+        for &t in &self.triangle_list {
+            let t = t as usize;
+            self.bvh.update(t, &self.mesh.corners(t));
+        }
+        count
+    }
+
+    /// [`Self::follow`] without the BVH: the vertices move, `triangle_list` lists the
+    /// triangles they moved.
+    fn place_followers(
+        &mut self,
+        op: &MlsOperator,
+        rest_points: &[Vec3],
+        p: &[Vec3],
+        moved: &[u32],
+    ) -> usize {
         self.vertex_list.clear();
         for &k in moved {
             let k = k as usize;
@@ -270,9 +287,7 @@ impl CurrentSurface {
             }
         }
         for &t in &self.triangle_list {
-            let t = t as usize;
-            self.triangle_flag[t] = false;
-            self.bvh.update(t, &self.mesh.corners(t));
+            self.triangle_flag[t as usize] = false;
         }
         self.vertex_list.len()
     }
@@ -488,7 +503,8 @@ impl CurrentSurface {
         self.rebuild_indices(rest_points.len());
         let all: Vec<u32> = (0..rest_points.len() as u32).collect();
         self.followed.iter_mut().for_each(|f| *f = STALE);
-        self.follow(op, rest_points, p, &all);
+        // Every vertex moves: one BVH built over where they are, not refitted one by one.
+        self.place_followers(op, rest_points, p, &all);
         self.bvh = TriangleBvh::build(&self.mesh);
         base_to_new
     }
@@ -514,7 +530,6 @@ impl CurrentSurface {
         self.vertex_list = Vec::with_capacity(nv);
         self.triangle_flag = vec![false; self.mesh.triangles.len()];
         self.triangle_list = Vec::with_capacity(self.mesh.triangles.len());
-        self.bvh = TriangleBvh::build(&self.mesh);
     }
 
     /// Whether vertex `v`'s embedding crosses `cut` (for tests).
