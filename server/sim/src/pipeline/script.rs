@@ -332,8 +332,9 @@ impl CutScript {
         };
         let along = axis.dot(&size);
         // Through the middle of the top seen from above: the centre of the bounding box, or
-        // on a shape with nothing above it (a muscle sheet curved round a joint) the point
-        // of the top nearest to it; the stroke stays where the top goes on smoothly.
+        // on a shape with nothing above it (a muscle sheet curved round a joint) a point of
+        // the top near it with room for the stroke; the stroke stays where the top goes on
+        // smoothly.
         let wanted = length_m.min(0.6 * along);
         let (centre, half_room) = match vertical_extent(surface, centre.x, centre.y) {
             Some(_) => (
@@ -344,10 +345,18 @@ impl CutScript {
                 .ok_or_else(|| ScriptError::NoSurface("no surface facing up to cut into".into()))?,
         };
         let length = wanted.min(2.0 * half_room);
+        if length < 0.25 * wanted {
+            return Err(ScriptError::NoSurface(format!(
+                "the top near the centre goes on smoothly for {:.0} mm at most, too short for \
+                 a {:.0} mm stroke",
+                length * 1e3,
+                wanted * 1e3
+            )));
+        }
         let crossings = vertical_crossings(surface, centre.x, centre.y);
         let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
             return Err(ScriptError::NoSurface(
-                "no surface above the centre of the bounding box".into(),
+                "no tissue under the top at the stroke's centre".into(),
             ));
         };
         // A third of the shape's height there, and no more than half the tissue under the
