@@ -65,7 +65,7 @@ pub fn run(
     }
     if !spec.features.cutting {
         bail!(
-            "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma",
+            "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma, and any mesh file",
             spec.name
         );
     }

@@ -49,7 +49,7 @@ pub fn resolve(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
             let text = std::fs::read_to_string(&path)
                 .with_context(|| format!("cannot read scene file {}", path.display()))?;
             SceneSpec::from_toml(&text, &path)?
-        } else if MeshFormat::from_file_name(&target.target).is_ok() {
+        } else if is_bare_mesh(target) {
             scene::for_mesh_file(path, target.units.into())
         } else if !path.exists() && path.extension().is_none() {
             bail!(

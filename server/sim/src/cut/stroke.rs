@@ -218,6 +218,7 @@ mod tests {
             (sum(|t| t.changed), sum(|t| t.deepened), sum(|t| t.widened));
         for ((name, ..), tally) in organs.iter().zip(&tallies) {
             println!("{name}: {tally}");
+            assert_eq!(tally.skipped, 0, "{name}: {tally}");
         }
         assert!(
             changed >= 100 && deepened >= 15 && 2 * widened >= deepened,
@@ -235,15 +236,18 @@ mod tests {
         /// Strokes whose new triangles had an angle under 15° (name, smallest angle),
         /// when not `strict_angles`.
         small_angles: Vec<(String, f64)>,
+        /// Strokes left out: their path has a gap (a vertical cast missed the surface).
+        skipped: usize,
     }
 
     impl std::fmt::Display for Tally {
         fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
             write!(
                 f,
-                "{} strokes, {} changed the surface, {} deepened a wound, {} of those opened \
-                 it wider, {} with angles under 15°",
+                "{} strokes ({} with gaps left out), {} changed the surface, {} deepened a \
+                 wound, {} of those opened it wider, {} with angles under 15°",
                 self.strokes,
+                self.skipped,
                 self.changed,
                 self.deepened,
                 self.widened,
@@ -289,7 +293,8 @@ mod tests {
                     }
                     1 => {
                         let across = angle + std::f64::consts::FRAC_PI_2;
-                        stroke(&mesh, centre, across, half, 0.0, 0.0, depth + 0.004, step)
+                        let deeper = depth + 0.004 * depth_scale;
+                        stroke(&mesh, centre, across, half, 0.0, 0.0, deeper, step)
                     }
                     _ => {
                         let beside = (0.3 + 1.2 * next()) * margin;
@@ -314,10 +319,13 @@ mod tests {
                 for (k, path) in [first, second, third].iter().enumerate() {
                     // A blade drawn along a surface leaves no gaps in its path: a vertical
                     // cast that misses a steep part (the deltoid's sheet) is no stroke.
+                    // (Samples are at most a step apart, and more than three quarters of
+                    // one: a missing one leaves a gap of 1.5 steps or more.)
                     let gap = path
                         .windows(2)
-                        .any(|w| (w[1].surface - w[0].surface).xy().norm() > 2.0 * step);
+                        .any(|w| (w[1].surface - w[0].surface).xy().norm() > 1.5 * step);
                     if gap {
+                        tally.skipped += 1;
                         continue;
                     }
                     let name = format!("{organ} trial {trial} stroke {k}");
@@ -332,7 +340,8 @@ mod tests {
                             |(top, bottom)| top - bottom > 2.0 * (s.bottom - s.surface).norm(),
                         )
                     });
-                    let deeper_pass = k == 1 && trial % 3 == 0 && !wounds.is_empty() && thick;
+                    let deeper_pass =
+                        k == 1 && trial % 3 == 0 && !wounds.is_empty() && (thick || strict_angles);
                     assert!(
                         !deeper_pass || outcome.surface.is_some(),
                         "{name}: the deeper pass changed nothing ({:?})",
@@ -386,10 +395,11 @@ mod tests {
     /// close to a corner), so it is held here as the share of opening strokes that miss it
     /// and their smallest angle. Measured at 100 trials (strokes opened; under 15°;
     /// smallest): pig liver lobe (24 mm edges) 266 of 300, 3, 7.2°; sphere 268 of 300,
-    /// none; tumour 264 of 300, 18, 10.9°; deltoid (a muscle sheet, strongly curved across
-    /// the strokes) 121 of 265, 106, 0.2° — not bounded here. The scans' own triangles are
-    /// no better: under 15° are 42 of the pig liver's 500 (down to 6.0°; 7.18° is one of
-    /// them), 3 of the tumour's 592 (10.6°), 862 of the deltoid's 2672 (1.1°).
+    /// none; tumour 264 of 300, 16, 10.9°; deltoid (a muscle sheet, strongly curved across
+    /// the strokes) 121 of 265 (35 more had gaps), 106, 0.2° — not bounded here. The scans'
+    /// own triangles are no better: under 15° are 42 of the pig liver's 500 (down to 6.0°;
+    /// 7.18° is one of them), 3 of the tumour's 592 (10.6°), 862 of the deltoid's 2672
+    /// (1.1°). The bounds below hold at 20 trials, one random sequence across the meshes.
     #[test]
     #[ignore = "reads ../shared/meshes"]
     fn shared_meshes_take_random_strokes() {
@@ -441,7 +451,7 @@ mod tests {
             println!("{file}: {tally}");
             let worst = tally.small_angles.iter().map(|s| s.1).fold(180.0, f64::min);
             assert!(
-                tally.changed as f64 >= opens * tally.strokes as f64,
+                tally.strokes >= 45 && tally.changed as f64 >= opens * tally.strokes as f64,
                 "{file}: {tally}"
             );
             assert!(

@@ -336,12 +336,15 @@ impl CutScript {
         // the top near it with room for the stroke; the stroke stays where the top goes on
         // smoothly.
         let wanted = length_m.min(0.6 * along);
-        let (centre, half_room) = match vertical_extent(surface, centre.x, centre.y) {
-            Some(_) => (
+        let over_centre = vertical_extent(surface, centre.x, centre.y).map(|_| {
+            (
                 centre,
                 smooth_top_room(surface, &centre, &axis, 0.5 * wanted),
-            ),
-            None => roomiest_top_near(surface, &centre, &axis, 0.5 * wanted)
+            )
+        });
+        let (centre, half_room) = match over_centre {
+            Some(found) if found.1 >= 0.125 * wanted => found,
+            _ => roomiest_top_near(surface, &centre, &axis, 0.5 * wanted)
                 .ok_or_else(|| ScriptError::NoSurface("no surface facing up to cut into".into()))?,
         };
         let length = wanted.min(2.0 * half_room);
@@ -454,8 +457,11 @@ pub fn vertical_extent(surface: &TriMesh, x: f64, y: f64) -> Option<(f64, f64)> 
     }
 }
 
-/// Heights where the vertical line through (x, y) meets the surface, highest first.
+/// Heights where the vertical line through (x, y) meets the surface, highest first; a line
+/// through a shared edge or vertex meets it once (the block's centre is a grid vertex).
 fn vertical_crossings(surface: &TriMesh, x: f64, y: f64) -> Vec<f64> {
+    let bbox = surface.bbox();
+    let tolerance = 1e-9 * (Vec3::from(bbox.max) - Vec3::from(bbox.min)).norm();
     let mut z = Vec::new();
     for t in 0..surface.triangles.len() {
         let [a, b, c] = surface.corners(t);
@@ -470,6 +476,7 @@ fn vertical_crossings(surface: &TriMesh, x: f64, y: f64) -> Vec<f64> {
         }
     }
     z.sort_by(|p, q| q.total_cmp(p));
+    z.dedup_by(|lower, upper| *upper - *lower <= tolerance);
     z
 }
 
@@ -562,14 +569,35 @@ mod tests {
         let ring = TriMesh::new(positions, triangles);
         assert!(vertical_extent(&ring, 0.0, 0.0).is_none());
         let s = CutScript::default_for(&ring).expect("a stroke");
-        let mid = s.pose_at(0.5 * s.duration_s());
-        let (top, bottom) = vertical_extent(&ring, mid.tip_m.x, mid.tip_m.y).expect("on the ring");
-        let depth = top - mid.tip_m.z;
-        assert!(
-            depth > 0.001 && depth <= 0.5 * (top - bottom) + 1e-9,
-            "{depth}"
-        );
-        assert!(s.description.contains("mm stroke"), "{}", s.description);
+        // Along the cut (between going down and coming up), the tip is under the ring's top
+        // all the way, and as deep below it as at the start.
+        let cut = &s.keyframes[1..s.keyframes.len() - 1];
+        let depth_at = |k: &Keyframe| {
+            let (top, bottom) =
+                vertical_extent(&ring, k.pose.tip_m.x, k.pose.tip_m.y).expect("over the ring");
+            (top - k.pose.tip_m.z, top - bottom)
+        };
+        let (depth, thickness) = depth_at(&cut[0]);
+        assert!(depth > 0.001 && depth <= 0.5 * thickness + 1e-9, "{depth}");
+        for k in cut {
+            assert!((depth_at(k).0 - depth).abs() < 1e-9, "{}", s.description);
+        }
+        let travel = (cut[cut.len() - 1].pose.tip_m - cut[0].pose.tip_m).norm();
+        assert!(travel > 0.015, "{}", s.description);
+    }
+
+    /// The block's and the beam's centres are grid vertices of their meshes: a vertical line
+    /// there meets six triangles at each face, once.
+    #[test]
+    fn a_stroke_through_a_shared_vertex_is_as_deep_as_the_rule_says() {
+        for (organ, depth_mm) in [(BuiltinMesh::Block, 9.0), (BuiltinMesh::Beam, 3.0)] {
+            let s = CutScript::default_for(&organ.generate()).expect("a stroke");
+            assert!(
+                s.description.contains(&format!("{depth_mm:.1} mm deep")),
+                "{}",
+                s.description
+            );
+        }
     }
 
     #[test]
