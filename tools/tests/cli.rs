@@ -1,6 +1,6 @@
 //! The `scalpel` binary as a user runs it: reports, exports, and clear failures.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use scalpel_sim::geometry::{LengthUnit, MeshFormat, ValidationOptions, import_mesh, validate};
@@ -299,23 +299,29 @@ t_s = 4.9
 tip_mm = [10.0, 0.0, 27.0]
 "#;
 
-#[test]
-fn cut_writes_forces_mesh_render_and_metrics() {
-    let dir = tempfile::tempdir().unwrap();
-    let script = dir.path().join("short.toml");
+/// `scalpel cut TARGET` with the short script into `dir`/out, with `extra` arguments: the
+/// metrics it printed, and the output folder.
+fn short_cut(dir: &Path, target: &str, extra: &[&str]) -> (serde_json::Value, PathBuf) {
+    let script = dir.join("short.toml");
     std::fs::write(&script, SHORT_CUT).unwrap();
-    let out = dir.path().join("out");
-    let m = ok_json(&[
+    let out = dir.join("out");
+    let mut args = vec![
         "cut",
-        "liver",
+        target,
         "--script",
         script.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-        "--mesh-format",
-        "ply",
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    (ok_json(&args), out)
+}
+
+#[test]
+fn cut_writes_forces_mesh_render_and_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let (m, out) = short_cut(dir.path(), "liver", &["--mesh-format", "ply"]);
     for key in [
         "steps",
         "surface_ms",
@@ -381,20 +387,7 @@ fn cut_takes_a_bare_mesh_file() {
     }
     let mesh = dir.path().join("organ.obj");
     std::fs::write(&mesh, obj).unwrap();
-    let script = dir.path().join("short.toml");
-    std::fs::write(&script, SHORT_CUT).unwrap();
-    let out = dir.path().join("out");
-    let m = ok_json(&[
-        "cut",
-        mesh.to_str().unwrap(),
-        "--units",
-        "mm",
-        "--script",
-        script.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
+    let (m, _) = short_cut(dir.path(), mesh.to_str().unwrap(), &["--units", "mm"]);
     assert_eq!(m["incisions"], 1, "{m}");
     assert!(m["closed"].as_bool().unwrap() && m["manifold"].as_bool().unwrap());
     assert!(

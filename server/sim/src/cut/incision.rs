@@ -1460,13 +1460,20 @@ mod tests {
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
 
+    /// A straight incision across the top of the untouched `mesh` from `from` to `to` (x, y
+    /// in m), `depth` deep, checked sound.
+    fn incision_across(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Incised {
+        let kinds = vec![FaceKind::Skin; mesh.triangles.len()];
+        let path = top_path(mesh, from, to, depth);
+        let out = incise(mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+        check(&out, "incision");
+        out
+    }
+
     #[test]
     fn straight_incision_on_the_liver_is_closed_manifold_and_well_shaped() {
         let liver = BuiltinMesh::Liver.generate();
-        let kinds = vec![FaceKind::Skin; liver.triangles.len()];
-        let path = top_path(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
-        let out = incise(&liver, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
-        check(&out, "liver");
+        let out = incision_across(&liver, [-0.03, 0.0], [0.03, 0.0], 0.01);
         // w_o = min(0.15 × 60 mm, 0.3 × 10 mm) = 3 mm (the depth square to the path: 10 mm
         // down × the cosine of the top's slope along it, a few degrees).
         assert!((out.opening_m - 0.003).abs() < 1e-5, "{}", out.opening_m);
@@ -1582,11 +1589,8 @@ mod tests {
     fn a_fine_mesh_gives_the_lips_their_full_opening() {
         // The cerebroma's 2.1 mm edges: a region of two and a half edges around the path
         // held a 9 mm deep cut's half-opening to 1.9 mm, where k_open × 9 mm is 2.7.
-        let mesh = BuiltinMesh::Cerebroma.generate();
-        let kinds = vec![FaceKind::Skin; mesh.triangles.len()];
-        let path = top_path(&mesh, [-0.015, 0.0], [0.015, 0.0], 0.009);
-        let out = incise(&mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
-        check(&out, "cerebroma");
+        let cerebroma = BuiltinMesh::Cerebroma.generate();
+        let out = incision_across(&cerebroma, [-0.015, 0.0], [0.015, 0.0], 0.009);
         // (The depth square to the path: a little under 9 mm where the top slopes.)
         let wanted = 0.3 * 0.009;
         assert!(out.opening_m > 0.97 * wanted, "{}", out.opening_m);
@@ -1631,11 +1635,8 @@ mod tests {
         // The liver's 17.7 mm edges: walls were at least half the lips' spacing deep, so a
         // 2.5 mm cut was drawn 4.1 mm deep (a scanned liver's 24 mm edges drew a 3.4 mm
         // cut 6 mm deep).
-        let mesh = BuiltinMesh::Liver.generate();
-        let kinds = vec![FaceKind::Skin; mesh.triangles.len()];
-        let path = top_path(&mesh, [-0.02, 0.0], [0.02, 0.0], 0.0025);
-        let out = incise(&mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
-        check(&out, "liver");
+        let liver = BuiltinMesh::Liver.generate();
+        let out = incision_across(&liver, [-0.02, 0.0], [0.02, 0.0], 0.0025);
         assert!(out.depth_m < 0.0026, "{}", out.depth_m);
     }
 
