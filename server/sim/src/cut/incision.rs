@@ -74,6 +74,13 @@ pub struct IncisionParams {
     pub refine_angle_deg: f64,
 }
 
+impl IncisionParams {
+    /// The widest half-opening physics.md §5.1 gives a path `length` long, `depth` deep.
+    fn opening_for(&self, length: f64, depth: f64) -> f64 {
+        (self.opening_ratio * length).min(self.gape_factor * depth)
+    }
+}
+
 impl Default for IncisionParams {
     fn default() -> Self {
         Self {
@@ -456,6 +463,11 @@ const MAX_WALL_LEAN_DEG: f64 = 60.0;
 /// that would take segments shorter than a quarter of the spacing.
 const LIP_TURN_DEG: f64 = 10.0;
 
+/// The lips stay within this fraction of the way from the path to the region's boundary
+/// (the region's reach, the part of it the lips' room takes in, and the opening's cap all
+/// follow from it).
+const LIP_ROOM: f64 = 0.45;
+
 /// The path through its samples as a smooth curve, and the blade's track (tip − entry)
 /// along it: quadratic Bézier pieces from the middle of one segment to the middle of the
 /// next with the sample between as control point (a uniform quadratic B-spline, extended
@@ -644,8 +656,8 @@ pub fn incise(
     // wounds to a 1.9 mm half-opening, where 0.3 × 9 mm deep wants 2.7).
     let across = tracks_across(&samples);
     let depth_max = across.iter().map(|t| t.norm()).fold(0.0, f64::max);
-    let widest = (params.opening_ratio * path_length).min(params.gape_factor * depth_max);
-    let reach = (2.5 * global_edge).max(widest / 0.45 + 1.5 * global_edge);
+    let widest = params.opening_for(path_length, depth_max);
+    let reach = (2.5 * global_edge).max(widest / LIP_ROOM + 1.5 * global_edge);
     let candidates: Vec<usize> = (0..mesh.triangles.len())
         .filter(|&t| kinds[t] == FaceKind::Skin && near_path(&centroid(t), reach))
         .collect();
@@ -694,7 +706,7 @@ pub fn incise(
     );
     let path2 = ArcPolyline::new(points2);
     let length = path2.length();
-    let w_wanted = (params.opening_ratio * length).min(params.gape_factor * depth_max);
+    let w_wanted = params.opening_for(length, depth_max);
     let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
 
     // Region R: skin facing n̄ within reach of the opening, plus its one-ring.
@@ -713,7 +725,7 @@ pub fn incise(
     // well — a steep face there (the end of the cerebroma, 72° to n̄) would only be
     // distorted by the projection (16.5° skin triangles when it was let in).
     let under = w_wanted + 0.1 * edge;
-    let room_for_lips = w_wanted / 0.45 - 0.5 * edge;
+    let room_for_lips = w_wanted / LIP_ROOM - 0.5 * edge;
     let mut in_region = vec![false; mesh.triangles.len()];
     let mut core_vertices = HashSet::new();
     for &t in &candidates {
@@ -882,12 +894,12 @@ pub fn incise(
                 })
                 .min_by(|p, q| p.0.total_cmp(&q.0))?;
             let x = u / length;
-            (x > 0.0 && x < 1.0).then(|| 0.45 * d_sq.sqrt() / (4.0 * x * (1.0 - x)))
+            (x > 0.0 && x < 1.0).then(|| LIP_ROOM * d_sq.sqrt() / (4.0 * x * (1.0 - x)))
         });
         let w_o = (1..m)
             .map(|r| {
                 let x = r as f64 / m as f64;
-                0.45 * room(path2.at(x * length)) / (4.0 * x * (1.0 - x))
+                LIP_ROOM * room(path2.at(x * length)) / (4.0 * x * (1.0 - x))
             })
             .chain(beside)
             .fold(w_wanted, f64::min)
@@ -1349,32 +1361,39 @@ pub fn incise(
         let param = params_of(c);
         let u = param * length;
         let top = tops[c];
-        let tangent =
-            lift(path2.at((u + delta).min(length))) - lift(path2.at((u - delta).max(0.0)));
-        let square = |v: Vec3| match tangent.try_normalize(1e-300) {
+        let tangent = (lift(path2.at((u + delta).min(length)))
+            - lift(path2.at((u - delta).max(0.0))))
+        .try_normalize(1e-300);
+        let square = |v: Vec3| match tangent {
             Some(t) => (v - t * v.dot(&t)).try_normalize(1e-9),
             None => v.try_normalize(1e-9),
         };
-        let near = |k: &usize| (params_of(*k) - param).abs() * length <= window;
-        let normal: Vec3 = (0..n_cols).filter(near).map(|k| normals[k]).sum();
+        // The surface normals and the cuts of the columns within the window, summed.
+        let (mut normal, mut cut) = (Vec3::zeros(), Vec3::zeros());
+        for k in (0..n_cols).filter(|k| (params_of(*k) - param).abs() * length <= window) {
+            normal += normals[k];
+            cut += cuts[k];
+        }
         let straight_in = -normal.try_normalize(1e-300).unwrap_or(n_bar);
         let straight_in = square(straight_in).unwrap_or(straight_in);
-        let cut: Vec3 = (0..n_cols).filter(near).map(|k| cuts[k]).sum();
         let (inward, shorten) = match square(cut) {
-            Some(along_cut) if along_cut.dot(&straight_in) >= max_lean.cos() => (along_cut, 1.0),
-            // Flatter than the largest lean: turned up to it, in the plane the two span, and
-            // shortened to reach as far below the surface as the cut does (at its full
-            // length it would end in tissue the blade never reached).
-            Some(along_cut) if along_cut.dot(&straight_in) > 0.0 => {
-                let side = (along_cut - straight_in * along_cut.dot(&straight_in))
-                    .try_normalize(1e-9)
-                    .unwrap_or(straight_in);
-                (
-                    straight_in * max_lean.cos() + side * max_lean.sin(),
-                    along_cut.dot(&straight_in) / max_lean.cos(),
-                )
-            }
-            _ => (straight_in, 1.0),
+            Some(along_cut) => match along_cut.dot(&straight_in) {
+                cos if cos >= max_lean.cos() => (along_cut, 1.0),
+                // Flatter than the largest lean: turned up to it, in the plane the two
+                // span, and shortened to reach as far below the surface as the cut does (at
+                // its full length it would end in tissue the blade never reached).
+                cos if cos > 0.0 => {
+                    let side = (along_cut - straight_in * cos)
+                        .try_normalize(1e-9)
+                        .unwrap_or(straight_in);
+                    (
+                        straight_in * max_lean.cos() + side * max_lean.sin(),
+                        cos / max_lean.cos(),
+                    )
+                }
+                _ => (straight_in, 1.0),
+            },
+            None => (straight_in, 1.0),
         };
         let mut depth = (depths[c] * shorten).max(min_depth);
         // A thin part: stop the wall short of the far side of the organ.

@@ -8,7 +8,7 @@
 //! need their MLS rows recomputed.
 
 use crate::geometry::predicates::segment_meets_triangle;
-use crate::math::Vec3;
+use crate::math::{Aabb, Vec3};
 use crate::model::{Neighbourhoods, RestGrid};
 
 /// Σ as a triangle soup in rest coordinates.
@@ -16,6 +16,10 @@ use crate::model::{Neighbourhoods, RestGrid};
 pub struct SweptSurface {
     /// Triangles (m, rest space).
     pub triangles: Vec<[Vec3; 3]>,
+    /// Each triangle's box: Σ only grows, and the queries for the part of Σ near a point
+    /// (the crack share every cutting tick, new wound vertices and virtual points at every
+    /// re-mesh) test these first.
+    pub boxes: Vec<Aabb>,
 }
 
 impl SweptSurface {
@@ -28,6 +32,7 @@ impl SweptSurface {
             let scale = (tri[1] - tri[0]).norm().max((tri[2] - tri[0]).norm());
             if area2 > 1e-12 * scale * scale && area2 > 0.0 {
                 self.triangles.push(tri);
+                self.boxes.push(Aabb::around(&tri));
                 added += 1;
             }
         }

@@ -179,7 +179,8 @@ impl SurfaceEmbedding {
         positions: &[Vec3],
         grid: &RestGrid,
         kernel: &Kernel,
-        blockers: &[([Vec3; 3], Aabb)],
+        blockers: &[[Vec3; 3]],
+        blocker_boxes: &[Aabb],
     ) -> Vec<(u32, f64)> {
         let mut radius = kernel.support_m;
         let mut found = Vec::new();
@@ -193,6 +194,7 @@ impl SurfaceEmbedding {
             within.extend(
                 blockers
                     .iter()
+                    .zip(blocker_boxes)
                     .filter(|(_, b)| b.distance_sq(x) <= radius * radius),
             );
             grid.for_each_within(positions, x, radius, |k, d2| {
@@ -200,8 +202,7 @@ impl SurfaceEmbedding {
                 let p = &positions[k as usize];
                 if w > 0.0
                     && !within.iter().any(|(tri, b)| {
-                        (0..3).all(|a| x[a].min(p[a]) <= b.max[a] && x[a].max(p[a]) >= b.min[a])
-                            && segment_meets_triangle(x, p, tri)
+                        b.overlaps(&Aabb::around([x, p])) && segment_meets_triangle(x, p, tri)
                     })
                 {
                     found.push((k, w));

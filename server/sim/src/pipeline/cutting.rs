@@ -727,8 +727,8 @@ impl CuttingStage {
         let region = Aabb::around([&a, &b, &probe]).expanded(pad);
         self.probe_candidates.clear();
         let mut overflow = false;
-        for (t, tri) in self.sigma.triangles.iter().enumerate() {
-            if Aabb::around(tri).overlaps(&region) {
+        for (t, b) in self.sigma.boxes.iter().enumerate() {
+            if b.overlaps(&region) {
                 if self.probe_candidates.len() == MAX_PROBE_CANDIDATES {
                     overflow = true;
                     break;

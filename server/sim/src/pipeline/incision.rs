@@ -16,7 +16,7 @@
 use serde::Serialize;
 
 use crate::cut::wound::first_hit;
-use crate::cut::{FaceKind, IncisionParams, PathSample, Wound, open_stroke};
+use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface, Wound, open_stroke};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
@@ -88,7 +88,7 @@ pub struct IncisionInputs<'a> {
     /// Their grid.
     pub grid: &'a RestGrid,
     /// The cut surface Σ so far.
-    pub sigma: &'a [[Vec3; 3]],
+    pub sigma: &'a SweptSurface,
     /// The MLS operator (to place new vertices).
     pub op: &'a MlsOperator,
     /// Current positions of the points.

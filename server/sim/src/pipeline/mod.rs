@@ -240,7 +240,7 @@ impl Simulation {
                     &IncisionInputs {
                         rest_points: self.solver.rest(),
                         grid: &self.grid,
-                        sigma: &stage.sigma.triangles,
+                        sigma: &stage.sigma,
                         op: self.solver.operator(),
                         positions: self.solver.positions(),
                     },
@@ -251,7 +251,7 @@ impl Simulation {
                 changed.clear();
                 vp.place(
                     &self.surface,
-                    &stage.sigma.triangles,
+                    &stage.sigma,
                     tick.edge_rest.map(|e| (e, stage.affected_radius())),
                     &mut self.solver,
                     &mut self.neighbours,

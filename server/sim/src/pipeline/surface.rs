@@ -7,11 +7,11 @@
 //! cut surface Σ (its weights toward them drop to zero).
 
 use crate::cut::incision::corners_of_kind;
-use crate::cut::{Blade, FaceKind, Incised, Wound, segment_meets_triangle};
+use crate::cut::{Blade, FaceKind, Incised, SweptSurface, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
-use crate::math::{Aabb, Mat3, Vec3};
+use crate::math::{Mat3, Vec3};
 use crate::mls::MlsOperator;
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
@@ -471,7 +471,7 @@ impl CurrentSurface {
         base_to_current: &[Option<u32>],
         rest_points: &[Vec3],
         grid: &RestGrid,
-        sigma: &[[Vec3; 3]],
+        sigma: &SweptSurface,
         op: &MlsOperator,
         p: &[Vec3],
     ) -> Vec<Option<u32>> {
@@ -482,8 +482,6 @@ impl CurrentSurface {
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
         let body = &rest_points[..self.followed.len()];
         // The cut triangles with their boxes, made once for all new vertices.
-        let blockers: Vec<([Vec3; 3], Aabb)> =
-            sigma.iter().map(|t| (*t, Aabb::around(t))).collect();
         for v in 0..nv {
             let x = incised.mesh.positions[v];
             let carried = incised.source[v].and_then(|b| {
@@ -492,7 +490,14 @@ impl CurrentSurface {
             });
             rows.push(match carried {
                 Some(c) => self.embedding.row(c as usize),
-                None => SurfaceEmbedding::row_for(&x, body, grid, &self.kernel, &blockers),
+                None => SurfaceEmbedding::row_for(
+                    &x,
+                    body,
+                    grid,
+                    &self.kernel,
+                    &sigma.triangles,
+                    &sigma.boxes,
+                ),
             });
         }
         self.embedding = SurfaceEmbedding::from_rows(&rows, self.embedding.widened);

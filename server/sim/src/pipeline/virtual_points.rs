@@ -21,7 +21,7 @@
 
 use serde::Serialize;
 
-use crate::cut::FaceKind;
+use crate::cut::{FaceKind, SweptSurface};
 use crate::geometry::predicates::{distance_sq_to_segment, segment_meets_triangle};
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
@@ -132,7 +132,7 @@ impl VirtualPoints {
     pub fn place(
         &mut self,
         surface: &CurrentSurface,
-        sigma: &[[Vec3; 3]],
+        sigma: &SweptSurface,
         clear: Option<([Vec3; 2], f64)>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
@@ -164,11 +164,11 @@ impl VirtualPoints {
             let x = surface.rest_positions()[vertex as usize] + inset;
             // Only the cut triangles within h of the node can hide a point from it.
             near_sigma.clear();
-            near_sigma.extend(sigma.iter().filter(|t| {
-                let lo = t[0].inf(&t[1]).inf(&t[2]);
-                let hi = t[0].sup(&t[1]).sup(&t[2]);
-                (0..3).all(|a| x[a] >= lo[a] - h && x[a] <= hi[a] + h)
-            }));
+            near_sigma.extend(
+                (sigma.triangles.iter().zip(&sigma.boxes))
+                    .filter(|(_, b)| b.expanded(h).contains(&x))
+                    .map(|(t, _)| t),
+            );
             candidates.clear();
             let rest = solver.rest();
             grid.for_each_within(rest, &x, h, |i, _| {
