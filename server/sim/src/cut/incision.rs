@@ -803,9 +803,15 @@ pub fn incise(
         }
         let mut next: HashMap<u32, u32> = HashMap::new();
         let mut pinched = false;
-        for &(a, b) in &directed {
-            if !directed.contains(&(b, a)) && next.insert(a, b).is_some() {
-                pinched = true;
+        // In the region's order, not the set's: at a pinch, which edge `next` keeps decides
+        // the loops reported, and a set's order changes from run to run.
+        for &t in &region {
+            let tri = mesh.triangles[t];
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if !directed.contains(&(b, a)) && next.insert(a, b).is_some() {
+                    pinched = true;
+                }
             }
         }
         let mut loops = Vec::new();
