@@ -200,10 +200,11 @@ impl SurfaceEmbedding {
             grid.for_each_within(positions, x, radius, |k, d2| {
                 let w = wider.weight_sq(d2);
                 let p = &positions[k as usize];
+                let segment = Aabb::around([x, p]);
                 if w > 0.0
-                    && !within.iter().any(|(tri, b)| {
-                        b.overlaps(&Aabb::around([x, p])) && segment_meets_triangle(x, p, tri)
-                    })
+                    && !within
+                        .iter()
+                        .any(|(tri, b)| b.overlaps(&segment) && segment_meets_triangle(x, p, tri))
                 {
                     found.push((k, w));
                 }
