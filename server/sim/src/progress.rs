@@ -9,6 +9,8 @@ pub enum BuildStage {
     LoadMesh,
     /// Mesh validation and repairs.
     Validate,
+    /// Remeshing a surface with poor triangles.
+    Remesh,
     /// Choosing the spacing for a target point count.
     SolveSpacing,
     /// Cell-clipped volumes and point selection.
@@ -25,6 +27,7 @@ impl BuildStage {
         match self {
             Self::LoadMesh => "load_mesh",
             Self::Validate => "validate",
+            Self::Remesh => "remesh",
             Self::SolveSpacing => "solve_spacing",
             Self::Sample => "sample",
             Self::Neighbours => "neighbours",

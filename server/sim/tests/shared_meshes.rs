@@ -1,12 +1,14 @@
 //! The real organ meshes in ../shared/meshes import, validate and build into models.
 //! They are data outside the project, so these tests are ignored by default; `.ci/run` runs
-//! them with `cargo test -- --ignored shared_`.
+//! them with `cargo test -- --ignored shared_`. These check the import as it is
+//! (`remesh = "off"`); what the default remeshing makes of them is checked in
+//! `geometry::remesh`.
 
 use std::path::PathBuf;
 
 use scalpel_sim::geometry::{LengthUnit, MeshWarning};
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{build_scene, for_mesh_file};
+use scalpel_sim::scene::{RemeshRule, build_scene, for_mesh_file};
 
 fn shared(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -24,7 +26,8 @@ fn check(
     let path = shared(name);
     let bytes = std::fs::read(&path)
         .unwrap_or_else(|e| panic!("{}: {e} (is ../shared beside the project?)", path.display()));
-    let spec = for_mesh_file(path, units);
+    let mut spec = for_mesh_file(path, units);
+    spec.mesh.remesh = RemeshRule::Off;
     let scene =
         build_scene(&spec, Some(&bytes), &mut Silent).unwrap_or_else(|e| panic!("{name}: {e}"));
     assert_eq!(scene.mesh_stats.triangles, triangles, "{name}");

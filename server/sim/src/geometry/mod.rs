@@ -1,11 +1,13 @@
 //! Surface geometry: the triangle mesh, import from files, validation, and the procedural
 //! organs used by the built-in scenes.
 
+pub mod halfedge;
 pub mod import;
 mod mesh;
 pub mod organs;
 pub mod parry_adapter;
 pub mod predicates;
+pub mod remesh;
 pub mod topology;
 pub mod validate;
 

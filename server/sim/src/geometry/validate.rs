@@ -12,6 +12,7 @@ use thiserror::Error;
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{disjoint_triangles_intersect, segment_crosses_triangle};
+use crate::geometry::remesh::RemeshReport;
 use crate::geometry::topology::{EdgeTable, triangle_neighbours};
 use crate::math::{Aabb, Vec3};
 
@@ -80,6 +81,15 @@ pub enum MeshWarning {
         /// Bounding-box diagonal in metres.
         diagonal_m: f64,
     },
+    /// The surface was remeshed to even triangles ([`crate::geometry::remesh`]).
+    Remeshed(RemeshReport),
+    /// Remeshing was asked for but its surface failed validation; the mesh was kept.
+    RemeshRefused {
+        /// The edge length asked for (m).
+        target_edge_m: f64,
+        /// Why the remeshed surface was rejected.
+        reason: String,
+    },
 }
 
 impl fmt::Display for MeshWarning {
@@ -118,6 +128,29 @@ impl fmt::Display for MeshWarning {
                 f,
                 "the mesh is {:.4} m across; if that is not the organ's size, set the units (m, cm, mm)",
                 diagonal_m
+            ),
+            Self::Remeshed(r) => write!(
+                f,
+                "remeshed to {:.2} mm edges (it had angles under 15°; `remesh = \"off\"` keeps it \
+                 as it is): {} → {} triangles, smallest angle {:.1}° → {:.1}°, {} → {} triangles \
+                 under 15°, original vertices within {:.2} mm of the new surface, volume {:+.2} %",
+                r.target_edge_m * 1e3,
+                r.triangles_before,
+                r.triangles_after,
+                r.min_angle_before_deg,
+                r.min_angle_after_deg,
+                r.under_15_before,
+                r.under_15_after,
+                r.max_deviation_m * 1e3,
+                100.0 * r.volume_change
+            ),
+            Self::RemeshRefused {
+                target_edge_m,
+                reason,
+            } => write!(
+                f,
+                "remeshing to {:.2} mm edges was not applied, the mesh is used as it is: {reason}",
+                target_edge_m * 1e3
             ),
         }
     }

@@ -4,9 +4,10 @@
 use thiserror::Error;
 
 use super::{MeshSource, SceneSpec};
+use crate::geometry::remesh::remesh_isotropic;
 use crate::geometry::{
-    MeshFormat, MeshImportError, MeshStats, MeshValidationError, MeshWarning, ValidationOptions,
-    import_mesh, validate,
+    MeshFormat, MeshImportError, MeshStats, MeshValidationError, MeshWarning, ValidatedMesh,
+    ValidationOptions, import_mesh, validate,
 };
 use crate::model::{CoupledModel, ModelBuildError};
 use crate::progress::{BuildObserver, BuildStage};
@@ -52,6 +53,47 @@ pub enum SceneBuildError {
     },
 }
 
+/// `validated` remeshed to edges of `target_m`, validated again, with a warning that says
+/// what changed; as it was, with a warning that says why, if the remeshed surface fails
+/// validation (a fold in a part thinner than the edges).
+fn remeshed(
+    validated: ValidatedMesh,
+    target_m: f64,
+    source: &str,
+    options: &ValidationOptions,
+) -> ValidatedMesh {
+    let outcome = remesh_isotropic(&validated.mesh, target_m)
+        .map_err(|e| e.to_string())
+        .and_then(|(mesh, report)| {
+            validate(mesh, source, options)
+                .map(|v| (v, report))
+                .map_err(|e| e.to_string())
+        });
+    let mut warnings = validated.warnings.clone();
+    match outcome {
+        Ok((again, report)) => {
+            warnings.push(MeshWarning::Remeshed(report));
+            // (Observations of the shape, such as its size, are made again: once is enough.)
+            for w in again.warnings {
+                if !warnings.contains(&w) {
+                    warnings.push(w);
+                }
+            }
+            ValidatedMesh { warnings, ..again }
+        }
+        Err(reason) => {
+            warnings.push(MeshWarning::RemeshRefused {
+                target_edge_m: target_m,
+                reason,
+            });
+            ValidatedMesh {
+                warnings,
+                ..validated
+            }
+        }
+    }
+}
+
 /// Builds `spec`. For a file mesh, `mesh_bytes` holds the file's content (the sim does no
 /// I/O); for a built-in shape it is ignored.
 pub fn build_scene(
@@ -87,7 +129,11 @@ pub fn build_scene(
         max_triangles: spec.mesh.limits.max_triangles,
         check_self_intersections: spec.mesh.check_self_intersections,
     };
-    let validated = validate(mesh, &source, &options)?;
+    let mut validated = validate(mesh, &source, &options)?;
+    if let Some(target) = spec.mesh.remesh.target_for(&validated.mesh) {
+        observer.stage(BuildStage::Remesh);
+        validated = remeshed(validated, target, &source, &options);
+    }
 
     let model = CoupledModel::build(
         validated.mesh,

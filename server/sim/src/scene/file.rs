@@ -8,7 +8,7 @@ use std::path::Path;
 use serde::Deserialize;
 use thiserror::Error;
 
-use super::{BuiltinMesh, MeshSource, SceneSpec, builtin, for_mesh_file};
+use super::{BuiltinMesh, MeshSource, RemeshRule, SceneSpec, builtin, for_mesh_file};
 use crate::geometry::LengthUnit;
 use crate::model::{MAX_POINTS, SpacingRule};
 
@@ -62,6 +62,15 @@ struct RawMesh {
     max_triangles: Option<usize>,
     max_file_mb: Option<f64>,
     check_self_intersections: Option<bool>,
+    remesh: Option<RawRemesh>,
+}
+
+/// `remesh = "auto"`, `"off"`, or a target edge length in mm.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum RawRemesh {
+    Word(String),
+    EdgeMm(f64),
 }
 
 #[derive(Debug, Deserialize)]
@@ -593,6 +602,21 @@ fn apply_mesh(
     if let Some(c) = m.check_self_intersections {
         spec.mesh.check_self_intersections = c;
     }
+    match &m.remesh {
+        None => {}
+        Some(RawRemesh::Word(w)) if w == "auto" => spec.mesh.remesh = RemeshRule::Auto,
+        Some(RawRemesh::Word(w)) if w == "off" => spec.mesh.remesh = RemeshRule::Off,
+        Some(RawRemesh::Word(w)) => {
+            return Err(check.fail(
+                "mesh.remesh",
+                format!("\"{w}\" is not a choice; give \"auto\", \"off\" or an edge length in mm"),
+            ));
+        }
+        Some(RawRemesh::EdgeMm(mm)) => {
+            let mm = check.check("mesh.remesh", *mm, Limit::positive(1e4, "mm"))?;
+            spec.mesh.remesh = RemeshRule::EdgeM(mm * MM);
+        }
+    }
     Ok(())
 }
 
@@ -698,10 +722,11 @@ mod tests {
             max_triangles,
             max_file_mb,
             check_self_intersections,
+            remesh,
         } = mesh.expect("[mesh]");
         assert!(builtin.is_none() && file.is_some() && units.is_some() && scale.is_some());
         assert!(rotate_deg.is_some() && translate_mm.is_some() && max_triangles.is_some());
-        assert!(max_file_mb.is_some() && check_self_intersections.is_some());
+        assert!(max_file_mb.is_some() && check_self_intersections.is_some() && remesh.is_some());
         let RawMaterial {
             youngs_modulus_kpa,
             poisson_ratio,

@@ -52,6 +52,39 @@ pub struct MeshSpec {
     pub limits: ImportLimits,
     /// Whether validation searches for self-intersections.
     pub check_self_intersections: bool,
+    /// Whether the surface is remeshed to even triangles after validation.
+    pub remesh: RemeshRule,
+}
+
+/// When a validated surface is remeshed ([`crate::geometry::remesh`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RemeshRule {
+    /// Never: the triangles are used as they come.
+    Off,
+    /// When a triangle has an angle under 15° (the cutting code's own bound), to the
+    /// smaller of the mean edge length and the volume-to-area ratio (half the mean
+    /// thickness: a thin part keeps triangles narrower than itself).
+    Auto,
+    /// Always, to edges of this length (m).
+    EdgeM(f64),
+}
+
+/// Smallest triangle angle [`RemeshRule::Auto`] leaves alone (degrees).
+pub const REMESH_BELOW_DEG: f64 = 15.0;
+
+impl RemeshRule {
+    /// The edge length to remesh `mesh` to, if it is to be remeshed.
+    pub fn target_for(self, mesh: &TriMesh) -> Option<f64> {
+        match self {
+            Self::Off => None,
+            Self::EdgeM(m) => Some(m),
+            Self::Auto => (mesh.min_angle_deg() < REMESH_BELOW_DEG).then(|| {
+                let half_thickness = mesh.signed_volume().abs() / mesh.area();
+                mesh.mean_edge_length().min(half_thickness)
+            }),
+        }
+    }
 }
 
 /// The mesh source.
@@ -372,6 +405,7 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
             transform: Transform::default(),
             limits: ImportLimits::default(),
             check_self_intersections: true,
+            remesh: RemeshRule::Auto,
         },
         material,
         sampling: SamplingParams {
@@ -401,6 +435,7 @@ pub fn for_mesh_file(path: PathBuf, units: LengthUnit) -> SceneSpec {
             transform: Transform::default(),
             limits: ImportLimits::default(),
             check_self_intersections: true,
+            remesh: RemeshRule::Auto,
         },
         material: Material::LIVER,
         sampling: SamplingParams::default(),
