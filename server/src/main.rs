@@ -128,6 +128,10 @@ fn run() -> anyhow::Result<()> {
             },
             params.frame_hz
         );
+        // Repairs of the surface, and a scan remeshed on loading, said once.
+        for w in &scene.mesh_warnings {
+            println!("  mesh: {w}");
+        }
     }
     let stop = Arc::new(AtomicBool::new(false));
     let on_signal = stop.clone();

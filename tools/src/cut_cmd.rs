@@ -71,6 +71,10 @@ pub fn run(
     }
     let timed = load::build_with_progress(&spec)?;
     let scene = &timed.scene;
+    // (On stderr: what was done to the surface before cutting it, such as a scan remeshed.)
+    for w in &scene.mesh_warnings {
+        eprintln!("mesh: {w}");
+    }
     let script = script_for(scene, script_file)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let run = run_with_progress(scene, &script);
