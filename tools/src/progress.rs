@@ -8,9 +8,10 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use scalpel_sim::progress::BuildStage;
 
-const STAGES: [BuildStage; 6] = [
+const STAGES: [BuildStage; 7] = [
     BuildStage::LoadMesh,
     BuildStage::Validate,
+    BuildStage::Remesh,
     BuildStage::SolveSpacing,
     BuildStage::Sample,
     BuildStage::Neighbours,

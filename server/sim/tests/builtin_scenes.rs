@@ -1,9 +1,9 @@
 //! The built-in scenes: the paper's Table 1 counts (within 3 %), sizes, mesh quality, exact
 //! volume totals, and what the validation scenes need (points on the faces of the beam).
 
-use scalpel_sim::geometry::{ValidationOptions, validate};
+use scalpel_sim::geometry::{MeshWarning, ValidationOptions, validate};
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{BUILTIN_SCENES, BuiltScene, build_scene, builtin};
+use scalpel_sim::scene::{BUILTIN_SCENES, BuiltScene, RemeshRule, build_scene, builtin};
 
 fn build(name: &str) -> BuiltScene {
     build_scene(&builtin(name).expect("built-in"), None, &mut Silent)
@@ -54,6 +54,7 @@ fn organ_sizes_match_the_paper() {
 fn every_builtin_is_closed_smooth_and_volume_exact() {
     for name in BUILTIN_SCENES {
         let s = build(name);
+        // (No repairs, and not remeshed: `remesh = "auto"` leaves good triangles alone.)
         assert!(s.mesh_warnings.is_empty(), "{name}: {:?}", s.mesh_warnings);
         assert!(
             s.mesh_stats.min_angle_deg >= 20.0,
@@ -146,4 +147,28 @@ fn builds_are_deterministic() {
     assert_eq!(a.model.points, b.model.points);
     assert_eq!(a.model.neighbours, b.model.neighbours);
     assert_eq!(a.model.embedding, b.model.embedding);
+}
+
+#[test]
+fn an_asked_for_remesh_is_made_and_one_too_fine_is_refused() {
+    let mut spec = builtin("liver").unwrap();
+    spec.mesh.remesh = RemeshRule::EdgeM(0.012);
+    let s = build_scene(&spec, None, &mut Silent).unwrap();
+    let [MeshWarning::Remeshed(r)] = &s.mesh_warnings[..] else {
+        panic!("{:?}", s.mesh_warnings)
+    };
+    assert_eq!(
+        (r.triangles_before, r.triangles_after),
+        (508, s.mesh_stats.triangles)
+    );
+    assert!(r.triangles_after > 700, "{r:?}");
+    // A thousand times finer would be about 10⁹ triangles: refused before any work, and
+    // the surface kept as it is.
+    spec.mesh.remesh = RemeshRule::EdgeM(1.2e-5);
+    let s = build_scene(&spec, None, &mut Silent).unwrap();
+    let [MeshWarning::RemeshRefused { reason, .. }] = &s.mesh_warnings[..] else {
+        panic!("{:?}", s.mesh_warnings)
+    };
+    assert!(reason.contains("mesh.max_triangles"), "{reason}");
+    assert_eq!(s.mesh_stats.triangles, 508);
 }

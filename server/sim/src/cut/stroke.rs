@@ -419,7 +419,7 @@ mod tests {
             ),
             ("sofa_sphere_05.obj", LengthUnit::Mm, 0.8, 0.0, 15.0),
             ("liver_tumour_PPP_Tumor.obj", LengthUnit::Cm, 0.8, 0.0, 15.0),
-            ("deltoid_tri.obj", LengthUnit::Mm, 0.25, 1.0, 0.0),
+            ("deltoid_tri.obj", LengthUnit::Mm, 0.4, 1.0, 0.0),
         ];
         let organs: Vec<(String, TriMesh, f64)> = meshes
             .iter()

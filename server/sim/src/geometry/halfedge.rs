@@ -53,6 +53,7 @@ impl HalfEdgeMesh {
         let mut face = Vec::with_capacity(n);
         let mut out = vec![NONE; mesh.positions.len()];
         let mut by_ends: HashMap<(u32, u32), u32> = HashMap::with_capacity(n);
+        let mut ends = Vec::with_capacity(n);
         for (t, tri) in mesh.triangles.iter().enumerate() {
             for k in 0..3 {
                 let h = (3 * t + k) as u32;
@@ -61,15 +62,17 @@ impl HalfEdgeMesh {
                 next.push((3 * t + (k + 1) % 3) as u32);
                 face.push(t as u32);
                 out[a as usize] = h;
+                ends.push((a, b));
                 if by_ends.insert((a, b), h).is_some() {
                     return Err(HalfEdgeError::NotManifold { edge: [a, b] });
                 }
             }
         }
+        // (In half-edge order, so an error names the same edge every run.)
         let mut twin = vec![NONE; n];
-        for (&(a, b), &h) in &by_ends {
+        for (h, &(a, b)) in ends.iter().enumerate() {
             match by_ends.get(&(b, a)) {
-                Some(&t) => twin[h as usize] = t,
+                Some(&t) => twin[h] = t,
                 None => return Err(HalfEdgeError::NotManifold { edge: [a, b] }),
             }
         }
@@ -133,6 +136,7 @@ impl HalfEdgeMesh {
             // Into v along the previous edge of h's face, then out along the next face.
             h = self.next[self.twin[h as usize] as usize];
             if h == start || into.len() > self.to.len() {
+                debug_assert!(h == start, "vertex {v}: its fan does not close");
                 break;
             }
         }
@@ -146,7 +150,9 @@ impl HalfEdgeMesh {
         loop {
             n += 1;
             h = self.next[self.twin[h as usize] as usize];
-            if h == start {
+            // (A fan longer than the whole mesh is a broken structure, not a vertex.)
+            if h == start || n > self.to.len() {
+                debug_assert!(h == start, "vertex {v}: its fan does not close");
                 return n;
             }
         }
@@ -156,7 +162,7 @@ impl HalfEdgeMesh {
     pub fn find(&self, a: u32, b: u32) -> Option<u32> {
         let start = self.out[a as usize];
         let mut h = start;
-        loop {
+        for _ in 0..self.to.len() {
             if self.to[h as usize] == b {
                 return Some(h);
             }
@@ -165,6 +171,8 @@ impl HalfEdgeMesh {
                 return None;
             }
         }
+        debug_assert!(false, "vertex {a}: its fan does not close");
+        None
     }
 
     /// The corners of `h`'s face starting at `h`'s tail.
@@ -327,5 +335,61 @@ impl HalfEdgeMesh {
             .map(|&h| self.face_corners(h).map(|v| index[v as usize]))
             .collect();
         TriMesh::new(positions, triangles)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::organs::box_mesh;
+
+    /// Marks follow the edges: a split marked edge leaves two marked halves and unmarked
+    /// spokes; a collapse glues each removed face's two outer edges into one, marked if
+    /// either was; a flip leaves its new edge unmarked.
+    #[test]
+    fn marks_follow_splits_collapses_and_flips() {
+        let mut hm = HalfEdgeMesh::new(&box_mesh(Vec3::new(1.0, 1.0, 1.0), [2, 2, 2])).unwrap();
+        let mut scratch = Vec::new();
+        let h = 0;
+        let (a, b) = (hm.tail(h), hm.head(h));
+        let t = hm.twin(h);
+        hm.marked[h as usize] = true;
+        hm.marked[t as usize] = true;
+        let m = hm.split(h, 0.5 * (hm.pos[a as usize] + hm.pos[b as usize]));
+        let marked_at = |hm: &HalfEdgeMesh, v: u32, scratch: &mut Vec<u32>| {
+            hm.outgoing(v, scratch);
+            let mut ends: Vec<u32> = scratch
+                .iter()
+                .filter(|&&o| hm.marked[o as usize])
+                .map(|&o| hm.head(o))
+                .collect();
+            ends.sort_unstable();
+            ends
+        };
+        let mut ab = vec![a, b];
+        ab.sort_unstable();
+        assert_eq!(marked_at(&hm, m, &mut scratch), ab);
+        assert_eq!(hm.valence(m), 4);
+        // Collapse a spoke m → c: the face (a, m, c)'s outer edges c–a and a–m are glued
+        // into one, marked because a–m was.
+        let spoke = hm.find(m, hm.opposite(h)).unwrap();
+        let c = hm.head(spoke);
+        assert!(hm.can_collapse(spoke, &mut scratch));
+        let at = hm.pos[c as usize];
+        hm.collapse(spoke, at, &mut scratch);
+        assert!(hm.find(a, c).is_some_and(|e| hm.marked[e as usize]));
+        assert!(hm.find(c, a).is_some_and(|e| hm.marked[e as usize]));
+        // Flip an unmarked edge: its new edge is unmarked.
+        let e = (0..hm.half_edge_slots() as u32)
+            .find(|&e| hm.alive(e) && !hm.marked[e as usize] && hm.can_flip(e))
+            .unwrap();
+        hm.flip(e);
+        assert!(!hm.marked[e as usize] && !hm.marked[hm.twin(e) as usize]);
+        let out = hm.to_trimesh();
+        let check = crate::geometry::topology::check_surface(&out.triangles, out.positions.len());
+        assert!(
+            check.closed && check.manifold && check.oriented,
+            "{check:?}"
+        );
     }
 }

@@ -9,15 +9,17 @@
 //! triangles it does not split, so on such a surface the remeshed region inherits angles
 //! far below the 15° the cutting code holds itself to, and the path's splits meet needles
 //! it cannot place a lip point in. Remeshing once at import gives the cut a surface it can
-//! work with. It never moves a vertex off the original surface, and flips only across bends
-//! of at most 30°, so the shape is kept to within a fraction of the target length (the
-//! report says how close).
+//! work with. Vertices are put back onto the original surface after every move (except
+//! where two creases are zipped, and by the final offset that restores the volume), and
+//! flips cross bends of at most 30°, so the shape is kept to within a fraction of the target
+//! length; the report says how close, both ways.
 
 use serde::Serialize;
 
 use super::halfedge::{HalfEdgeError, HalfEdgeMesh, NONE};
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::closest_point_on_triangle;
+use crate::geometry::topology::triangle_components;
 use crate::geometry::{TriMesh, triangle_angles_deg};
 use crate::math::Vec3;
 
@@ -34,6 +36,9 @@ const MAX_FLIP_BEND_DEG: f64 = 30.0;
 /// a vertex where creases end or meet does not move.
 const CREASE_BEND_DEG: f64 = 45.0;
 
+/// Largest move that restores a component's volume, in target edge lengths.
+const MAX_VOLUME_OFFSET: f64 = 0.1;
+
 /// Largest turn of a triangle's normal that a collapse or a relaxing move may cause
 /// (degrees): more and the surface starts to fold.
 const MAX_TURN_DEG: f64 = 30.0;
@@ -43,7 +48,7 @@ const MAX_TURN_DEG: f64 = 30.0;
 pub struct RemeshReport {
     /// Target edge length (m).
     pub target_edge_m: f64,
-    /// Triangles before and after.
+    /// Triangles before.
     pub triangles_before: usize,
     /// Triangles after.
     pub triangles_after: usize,
@@ -55,7 +60,7 @@ pub struct RemeshReport {
     pub under_15_before: usize,
     /// Triangles with an angle under 15° after.
     pub under_15_after: usize,
-    /// Farthest any original vertex lies from the new surface (m).
+    /// Farthest any vertex of either surface lies from the other (m).
     pub max_deviation_m: f64,
     /// Relative change of the enclosed volume.
     pub volume_change: f64,
@@ -66,6 +71,8 @@ struct Reference<'a> {
     mesh: &'a TriMesh,
     bvh: TriangleBvh,
     normals: Vec<Vec3>,
+    /// First search radius for the nearest triangle: its mean edge length.
+    reach: f64,
 }
 
 impl<'a> Reference<'a> {
@@ -81,13 +88,39 @@ impl<'a> Reference<'a> {
             mesh,
             bvh: TriangleBvh::build(mesh),
             normals,
+            reach: mesh.mean_edge_length().max(1e-9),
         }
+    }
+
+    /// The triangle nearest to `p` and its point nearest to `p`.
+    fn nearest(&self, p: &Vec3) -> Option<(usize, Vec3)> {
+        let mut r = self.reach;
+        // (Doubling from the mean edge: 40 times covers any mesh.)
+        for _ in 0..40 {
+            let mut best: Option<(f64, usize, Vec3)> = None;
+            self.bvh
+                .for_each_overlapping(&(p - Vec3::repeat(r)), &(p + Vec3::repeat(r)), |t| {
+                    let q = closest_point_on_triangle(p, &self.mesh.corners(t));
+                    let d = (q - p).norm_squared();
+                    if best.is_none_or(|(bd, ..)| d < bd) {
+                        best = Some((d, t, q));
+                    }
+                });
+            if let Some((d, t, q)) = best
+                && d <= r * r
+            {
+                return Some((t, q));
+            }
+            r *= 2.0;
+        }
+        None
     }
 
     /// The nearest point of the original surface to `p` on a sheet facing the way `n`
     /// does (so a vertex on one side of a thin part is not pulled onto the other side),
-    /// searched within `reach` and then twice, four and eight times as far.
-    fn project(&self, p: &Vec3, n: &Vec3, reach: f64) -> Vec3 {
+    /// searched within `reach` and then twice, four and eight times as far; `None` if
+    /// there is none.
+    fn project(&self, p: &Vec3, n: &Vec3, reach: f64) -> Option<Vec3> {
         let mut r = reach;
         for _ in 0..4 {
             let lo = p - Vec3::repeat(r);
@@ -106,11 +139,11 @@ impl<'a> Reference<'a> {
             if let Some((d, q)) = best
                 && d <= r * r
             {
-                return q;
+                return Some(q);
             }
             r *= 2.0;
         }
-        *p
+        None
     }
 }
 
@@ -132,7 +165,7 @@ pub fn remesh_isotropic(
     }
     flip_to_larger_angles(&mut hm);
     let mut out = hm.to_trimesh();
-    restore_volume(&mut out, mesh.signed_volume());
+    restore_volume(&mut out, mesh, &reference, MAX_VOLUME_OFFSET * target_m);
     let report = report(mesh, &out, target_m);
     Ok((out, report))
 }
@@ -214,14 +247,30 @@ fn split_long_edges(hm: &mut HalfEdgeMesh, high: f64, reference: &Reference<'_>)
             let n = normal(hm, h) + normal(hm, hm.twin(h));
             let mid = 0.5 * (a + b);
             let half = 0.5 * (b - a).norm();
-            let q = reference.project(&mid, &n, half);
-            hm.split(h, if (q - mid).norm() <= half { q } else { mid });
+            let at = reference
+                .project(&mid, &n, half)
+                .filter(|q| (q - mid).norm() <= half && !split_folds(hm, h, *q))
+                .unwrap_or(mid);
+            hm.split(h, at);
             split += 1;
         }
         if split == 0 {
             break;
         }
     }
+}
+
+/// Whether splitting `h` at `p` would turn one of the four new faces by more than
+/// [`MAX_TURN_DEG`] from the face it is cut from (at the midpoint none turns: they lie in
+/// the old faces).
+fn split_folds(hm: &HalfEdgeMesh, h: u32, p: Vec3) -> bool {
+    [h, hm.twin(h)].into_iter().any(|e| {
+        let old = normal(hm, e);
+        // The face (a, b, c) of e (a → b) becomes (a, p, c) and (p, b, c).
+        let [a, b, c] = hm.face_corners(e).map(|v| hm.pos[v as usize]);
+        let halves = [(p - a).cross(&(c - a)), (b - p).cross(&(c - p))];
+        halves.iter().any(|n| turned(&old, n))
+    })
 }
 
 /// Collapses every edge shorter than `low` into its midpoint where that keeps the surface a
@@ -240,21 +289,20 @@ fn collapse_short_edges(hm: &mut HalfEdgeMesh, low: f64, high: f64, scratch: &mu
         let goes = |f: Freedom| f == Freedom::Free || (f == Freedom::Crease && along);
         let (fa, fb) = (freedom(hm, ta, scratch), freedom(hm, tb, scratch));
         let (pa, pb) = (hm.pos[ta as usize], hm.pos[tb as usize]);
-        // Two creases closer than half the target length (a thin rim's two edges) are
+        // Two creases closer than 0.4 of the target length (a thin rim's two edges) are
         // zipped into one: the band between them cannot hold good triangles. And an edge
-        // under a quarter of it goes whatever its ends are: two corners that close are one
-        // at this resolution.
+        // under 0.2 of it goes whatever its ends are: two corners that close are one at
+        // this resolution.
         let short = length(hm, e);
         let zip = !along && fa == Freedom::Crease && fb == Freedom::Crease && short < 0.5 * low;
+        // (Both ends may go only if both are free or both on the crease the edge runs along:
+        // a marked edge has no free end.)
         let (h, p) = match (goes(fa), goes(fb)) {
             (false, false) if zip || short < 0.25 * low => (e, 0.5 * (pa + pb)),
             (false, false) => continue,
             (true, false) => (e, pb),
             (false, true) => (hm.twin(e), pa),
-            (true, true) if fa == fb => (e, 0.5 * (pa + pb)),
-            // One free, one on a crease: into the crease.
-            (true, true) if fb == Freedom::Crease => (e, pb),
-            (true, true) => (hm.twin(e), pa),
+            (true, true) => (e, 0.5 * (pa + pb)),
         };
         if !hm.can_collapse(h, scratch) {
             continue;
@@ -354,7 +402,10 @@ fn relax(hm: &mut HalfEdgeMesh, reference: &Reference<'_>, target: f64, scratch:
             / scratch.len() as f64;
         let step = centroid - p;
         let moved = p + step - n * n.dot(&step);
-        let q = reference.project(&moved, &n, target);
+        // (Nowhere on the surface facing its way within reach: it stays.)
+        let Some(q) = reference.project(&moved, &n, target) else {
+            continue;
+        };
         let folds = scratch
             .iter()
             .any(|&o| turned(&normal(hm, o), &face_normal(hm, o, (v, q))));
@@ -395,55 +446,77 @@ fn flip_to_larger_angles(hm: &mut HalfEdgeMesh) {
     }
 }
 
-/// Moves every vertex along its normal by the same distance so that the enclosed volume is
-/// `volume` again: vertices on the original's flat faces cut its curved parts short (a
-/// tumour 12 mm across lost 2 % of its volume, and so of its mass, at 1.2 mm edges).
-fn restore_volume(mesh: &mut TriMesh, volume: f64) {
-    let area = mesh.area();
-    if area == 0.0 {
-        return;
+/// Moves the vertices of each component of `mesh` along their normals by the same distance
+/// so that it encloses the volume of the part of `original` it was made from again:
+/// vertices on the original's flat faces cut its curved parts short (a tumour 12 mm across
+/// lost 2 % of its volume, and so of its mass, at 1.2 mm edges). The move is at most
+/// `limit`: more could turn a thin part inside out.
+fn restore_volume(mesh: &mut TriMesh, original: &TriMesh, reference: &Reference<'_>, limit: f64) {
+    let volumes = |m: &TriMesh, component: &[u32], count: usize| {
+        let (mut volume, mut area) = (vec![0.0; count], vec![0.0; count]);
+        for (t, &c) in component.iter().enumerate() {
+            let [a, b, d] = m.corners(t);
+            volume[c as usize] += a.dot(&b.cross(&d)) / 6.0;
+            area[c as usize] += 0.5 * m.doubled_area_normal(t).norm();
+        }
+        (volume, area)
+    };
+    let (was, was_count) = triangle_components(&original.triangles);
+    let (was_volume, _) = volumes(original, &was, was_count);
+    let (now, now_count) = triangle_components(&mesh.triangles);
+    let (now_volume, now_area) = volumes(mesh, &now, now_count);
+    // Each component's offset, against the original component nearest to its first vertex.
+    let mut offset = vec![0.0; now_count];
+    let mut seen = vec![false; now_count];
+    for (t, &c) in now.iter().enumerate() {
+        let c = c as usize;
+        if std::mem::replace(&mut seen[c], true) || now_area[c] == 0.0 {
+            continue;
+        }
+        let first = mesh.positions[mesh.triangles[t][0] as usize];
+        if let Some((from, _)) = reference.nearest(&first) {
+            let deficit = was_volume[was[from] as usize] - now_volume[c];
+            offset[c] = (deficit / now_area[c]).clamp(-limit, limit);
+        }
     }
-    let offset = (volume - mesh.signed_volume()) / area;
     let mut normals = vec![Vec3::zeros(); mesh.positions.len()];
+    let mut vertex_component = vec![0u32; mesh.positions.len()];
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let n = mesh.doubled_area_normal(t);
         for &v in tri {
             normals[v as usize] += n;
+            vertex_component[v as usize] = now[t];
         }
     }
-    for (p, n) in mesh.positions.iter_mut().zip(&normals) {
+    for ((p, n), c) in mesh
+        .positions
+        .iter_mut()
+        .zip(&normals)
+        .zip(&vertex_component)
+    {
         if let Some(n) = n.try_normalize(1e-300) {
-            *p += n * offset;
+            *p += n * offset[*c as usize];
         }
     }
 }
 
-/// Measures of the remeshing: counts, angles, volume, and how far the original vertices
-/// lie from the new surface.
+/// Measures of the remeshing: counts, angles, volume, and how far the vertices of each
+/// surface lie from the other.
 fn report(before: &TriMesh, after: &TriMesh, target: f64) -> RemeshReport {
     let under_15 = |m: &TriMesh| {
         (0..m.triangles.len())
             .filter(|&t| min_angle(m.corners(t)) < 15.0)
             .count()
     };
-    let bvh = TriangleBvh::build(after);
-    let max_deviation_m = before
-        .positions
-        .iter()
-        .map(|p| {
-            let mut r = target;
-            loop {
-                let mut best = f64::INFINITY;
-                bvh.for_each_overlapping(&(p - Vec3::repeat(r)), &(p + Vec3::repeat(r)), |t| {
-                    best = best.min((closest_point_on_triangle(p, &after.corners(t)) - p).norm());
-                });
-                if best <= r || r > 1e3 {
-                    break best;
-                }
-                r *= 2.0;
-            }
-        })
-        .fold(0.0, f64::max);
+    let farthest = |points: &[Vec3], from: &TriMesh| {
+        let surface = Reference::new(from);
+        points
+            .iter()
+            .filter_map(|p| surface.nearest(p).map(|(_, q)| (q - p).norm()))
+            .fold(0.0, f64::max)
+    };
+    let max_deviation_m =
+        farthest(&before.positions, after).max(farthest(&after.positions, before));
     let (v0, v1) = (before.signed_volume(), after.signed_volume());
     RemeshReport {
         target_edge_m: target,

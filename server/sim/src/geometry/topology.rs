@@ -94,6 +94,33 @@ pub fn triangle_neighbours(triangles: &[[u32; 3]], table: &EdgeTable) -> Vec<[u3
     nb
 }
 
+/// Each triangle's component (triangles joined through shared edges), numbered in the
+/// order of their first triangles, and the number of components. For closed,
+/// edge-manifold meshes.
+pub fn triangle_components(triangles: &[[u32; 3]]) -> (Vec<u32>, usize) {
+    let nb = triangle_neighbours(triangles, &EdgeTable::build(triangles));
+    let mut component = vec![u32::MAX; triangles.len()];
+    let mut count = 0;
+    let mut stack = Vec::new();
+    for seed in 0..triangles.len() {
+        if component[seed] != u32::MAX {
+            continue;
+        }
+        component[seed] = count;
+        stack.push(seed as u32);
+        while let Some(t) = stack.pop() {
+            for n in nb[t as usize] {
+                if n != u32::MAX && component[n as usize] == u32::MAX {
+                    component[n as usize] = count;
+                    stack.push(n);
+                }
+            }
+        }
+        count += 1;
+    }
+    (component, count as usize)
+}
+
 /// Topological soundness of a triangle set (a whole surface or part of one).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct SurfaceCheck {

@@ -92,6 +92,24 @@ pub enum MeshWarning {
     },
 }
 
+impl MeshWarning {
+    /// Whether the mesh was changed to mend it (rather than observed, or remeshed).
+    pub fn is_repair(&self) -> bool {
+        match self {
+            Self::MergedDuplicateVertices { .. }
+            | Self::DroppedUnusedVertices { .. }
+            | Self::RemovedCollapsedTriangles { .. }
+            | Self::RepairedZeroAreaTriangles { .. }
+            | Self::ReorientedTriangles { .. }
+            | Self::FlippedInvertedComponent { .. } => true,
+            Self::SeveralComponents { .. }
+            | Self::SuspiciousSize { .. }
+            | Self::Remeshed(_)
+            | Self::RemeshRefused { .. } => false,
+        }
+    }
+}
+
 impl fmt::Display for MeshWarning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -131,9 +149,9 @@ impl fmt::Display for MeshWarning {
             ),
             Self::Remeshed(r) => write!(
                 f,
-                "remeshed to {:.2} mm edges (it had angles under 15°; `remesh = \"off\"` keeps it \
-                 as it is): {} → {} triangles, smallest angle {:.1}° → {:.1}°, {} → {} triangles \
-                 under 15°, original vertices within {:.2} mm of the new surface, volume {:+.2} %",
+                "remeshed to {:.2} mm edges (mesh.remesh; \"off\" keeps the triangles as they \
+                 are): {} → {} triangles, smallest angle {:.1}° → {:.1}°, {} → {} triangles under \
+                 15°, the two surfaces within {:.2} mm of each other, volume {:+.2} %",
                 r.target_edge_m * 1e3,
                 r.triangles_before,
                 r.triangles_after,

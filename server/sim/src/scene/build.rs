@@ -53,32 +53,45 @@ pub enum SceneBuildError {
     },
 }
 
-/// `validated` remeshed to edges of `target_m`, validated again, with a warning that says
-/// what changed; as it was, with a warning that says why, if the remeshed surface fails
-/// validation (a fold in a part thinner than the edges).
+/// `validated` remeshed to edges of `target_m`, validated again (self-intersections
+/// included, whatever the scene says), with a warning that says what changed; as it was,
+/// with a warning that says why, if the remeshed surface would have more than
+/// `options.max_triangles` triangles, fails validation, or needed repairs (the remesher's
+/// surface must need none).
 fn remeshed(
     validated: ValidatedMesh,
     target_m: f64,
     source: &str,
     options: &ValidationOptions,
 ) -> ValidatedMesh {
-    let outcome = remesh_isotropic(&validated.mesh, target_m)
-        .map_err(|e| e.to_string())
-        .and_then(|(mesh, report)| {
-            validate(mesh, source, options)
-                .map(|v| (v, report))
-                .map_err(|e| e.to_string())
-        });
+    let strict = ValidationOptions {
+        check_self_intersections: true,
+        ..options.clone()
+    };
+    // (An equilateral triangle of side L has area √3/4·L².)
+    let expected = validated.mesh.area() / (3f64.sqrt() / 4.0 * target_m * target_m);
+    let outcome = if expected > options.max_triangles as f64 {
+        Err(format!(
+            "about {expected:.0} triangles, over the limit of {} (mesh.max_triangles); give a \
+             longer edge",
+            options.max_triangles
+        ))
+    } else {
+        remesh_isotropic(&validated.mesh, target_m)
+            .map_err(|e| e.to_string())
+            .and_then(|(mesh, report)| {
+                let again = validate(mesh, source, &strict).map_err(|e| e.to_string())?;
+                match again.warnings.iter().find(|w| w.is_repair()) {
+                    Some(w) => Err(format!("its surface needed a repair ({w})")),
+                    None => Ok((again, report)),
+                }
+            })
+    };
     let mut warnings = validated.warnings.clone();
     match outcome {
+        // (Observations of the shape, such as its size, were made on the first pass.)
         Ok((again, report)) => {
             warnings.push(MeshWarning::Remeshed(report));
-            // (Observations of the shape, such as its size, are made again: once is enough.)
-            for w in again.warnings {
-                if !warnings.contains(&w) {
-                    warnings.push(w);
-                }
-            }
             ValidatedMesh { warnings, ..again }
         }
         Err(reason) => {

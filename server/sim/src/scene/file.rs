@@ -681,12 +681,36 @@ mod tests {
                 "extends = \"liver\"\n[mesh]\nscale = [1, 0, 1]\n",
                 "mesh.scale",
             ),
+            (
+                "extends = \"liver\"\n[mesh]\nremesh = \"always\"\n",
+                "mesh.remesh",
+            ),
+            ("extends = \"liver\"\n[mesh]\nremesh = 0\n", "mesh.remesh"),
+            (
+                "extends = \"liver\"\n[mesh]\nremesh = -2.5\n",
+                "mesh.remesh",
+            ),
         ] {
             match parse(text) {
                 Err(SceneError::Invalid { key: k, .. }) => assert_eq!(k, key, "{text}"),
                 other => panic!("{text}: expected an Invalid error on {key}, got {other:?}"),
             }
         }
+    }
+
+    #[test]
+    fn remesh_takes_a_word_or_an_edge_length_in_mm() {
+        let rule = |value: &str| {
+            parse(&format!("extends = \"liver\"\n[mesh]\nremesh = {value}\n"))
+                .map(|s| s.mesh.remesh)
+        };
+        assert_eq!(rule("\"off\""), Ok(RemeshRule::Off));
+        assert_eq!(rule("\"auto\""), Ok(RemeshRule::Auto));
+        assert_eq!(rule("2.5"), Ok(RemeshRule::EdgeM(0.0025)));
+        assert_eq!(rule("3"), Ok(RemeshRule::EdgeM(0.003)));
+        // Neither a word nor a number: the parser's message, with the line.
+        let e = rule("true").unwrap_err().to_string();
+        assert!(e.contains("line 3"), "{e}");
     }
 
     /// The complete example in docs/SCENES.md lists every key with its real default.

@@ -64,7 +64,8 @@ pub enum RemeshRule {
     Off,
     /// When a triangle has an angle under 15° (the cutting code's own bound), to the
     /// smaller of the mean edge length and the volume-to-area ratio (half the mean
-    /// thickness: a thin part keeps triangles narrower than itself).
+    /// thickness: a thin part keeps triangles narrower than itself), but no less than 0.4
+    /// of the mean edge (at most about six times the triangles).
     Auto,
     /// Always, to edges of this length (m).
     EdgeM(f64),
@@ -81,7 +82,8 @@ impl RemeshRule {
             Self::EdgeM(m) => Some(m),
             Self::Auto => (mesh.min_angle_deg() < REMESH_BELOW_DEG).then(|| {
                 let half_thickness = mesh.signed_volume().abs() / mesh.area();
-                mesh.mean_edge_length().min(half_thickness)
+                let edge = mesh.mean_edge_length();
+                edge.min(half_thickness).max(0.4 * edge)
             }),
         }
     }
