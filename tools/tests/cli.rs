@@ -400,7 +400,7 @@ fn cut_takes_a_bare_mesh_file() {
 /// scanned pig liver lobe, and the deltoid sheet (nothing above its centre: the stroke
 /// goes onto its top nearby). Both are remeshed on loading (angles under 15°). The
 /// stroke's plunge ruptures the liver's capsule at the rupture force; the deltoid, sampled
-/// coarsely (7.5 mm spacing), gives way under the 3 mm plunge (1.3 mm of indentation at
+/// coarsely (8.1 mm spacing), gives way under the 3 mm plunge (1.3 mm of indentation at
 /// 2.7 N), and the blade goes in as it moves on. Ignored in a plain `cargo test`; CI runs
 /// it.
 #[test]
