@@ -181,14 +181,26 @@ impl HalfEdgeMesh {
         [self.tail(h), self.to[h as usize], self.to[n as usize]]
     }
 
-    /// Splits the edge of `h` at `p`: its two faces become four. Returns the new vertex.
-    pub fn split(&mut self, h: u32, p: Vec3) -> u32 {
+    /// The two faces of the edge `h` (a → b): `f0 = (a, b, c)` with half-edges h, h1, h2
+    /// and `f1 = (b, a, d)` with t (h's twin), t1, t2; as `(t, [h1, h2, t1, t2], [a, b, c,
+    /// d], [f0, f1])`.
+    fn diamond(&self, h: u32) -> (u32, [u32; 4], [u32; 4], [u32; 2]) {
         let t = self.twin[h as usize];
         let (h1, t1) = (self.next[h as usize], self.next[t as usize]);
         let (h2, t2) = (self.next[h1 as usize], self.next[t1 as usize]);
-        let (a, b) = (self.tail(h), self.to[h as usize]);
-        let (c, d) = (self.to[h1 as usize], self.to[t1 as usize]);
-        let (f0, f1) = (self.face[h as usize], self.face[t as usize]);
+        let ends = [self.tail(h), self.to[h as usize]];
+        let facing = [self.to[h1 as usize], self.to[t1 as usize]];
+        (
+            t,
+            [h1, h2, t1, t2],
+            [ends[0], ends[1], facing[0], facing[1]],
+            [self.face[h as usize], self.face[t as usize]],
+        )
+    }
+
+    /// Splits the edge of `h` at `p`: its two faces become four. Returns the new vertex.
+    pub fn split(&mut self, h: u32, p: Vec3) -> u32 {
+        let (t, [h1, h2, t1, t2], [a, b, c, d], [f0, f1]) = self.diamond(h);
         let m = self.pos.len() as u32;
         self.pos.push(p);
         let (f2, f3) = (self.face_he.len() as u32, self.face_he.len() as u32 + 1);
@@ -243,15 +255,9 @@ impl HalfEdgeMesh {
     /// Collapses `h`'s edge into its head, moved to `p`: the tail and the edge's two faces
     /// go. Check [`Self::can_collapse`] first.
     pub fn collapse(&mut self, h: u32, p: Vec3, scratch: &mut Vec<u32>) {
-        let t = self.twin[h as usize];
-        let (a, b) = (self.tail(h), self.to[h as usize]);
-        let (h1, t1) = (self.next[h as usize], self.next[t as usize]);
-        let (h2, t2) = (self.next[h1 as usize], self.next[t1 as usize]);
-        let (c, d) = (self.to[h1 as usize], self.to[t1 as usize]);
-        // f0 = (a, b, c): h, h1, h2; f1 = (b, a, d): t, t1, t2. Their outer neighbours:
-        // x c→b, y a→c, z d→a, w b→d.
+        let (t, [h1, h2, t1, t2], [a, b, c, d], [f0, f1]) = self.diamond(h);
+        // Their outer neighbours: x c→b, y a→c, z d→a, w b→d.
         let [x, y, z, w] = [h1, h2, t1, t2].map(|e| self.twin[e as usize]);
-        let (f0, f1) = (self.face[h as usize], self.face[t as usize]);
         // Everything that pointed at a now points at b (a tail is its twin's head).
         self.outgoing(a, scratch);
         for &o in scratch.iter() {
@@ -292,12 +298,7 @@ impl HalfEdgeMesh {
 
     /// Turns `h`'s edge to join the two vertices facing it. Check [`Self::can_flip`] first.
     pub fn flip(&mut self, h: u32) {
-        let t = self.twin[h as usize];
-        let (h1, t1) = (self.next[h as usize], self.next[t as usize]);
-        let (h2, t2) = (self.next[h1 as usize], self.next[t1 as usize]);
-        let (a, b) = (self.tail(h), self.to[h as usize]);
-        let (c, d) = (self.to[h1 as usize], self.to[t1 as usize]);
-        let (f0, f1) = (self.face[h as usize], self.face[t as usize]);
+        let (t, [h1, h2, t1, t2], [a, b, c, d], [f0, f1]) = self.diamond(h);
         // f0 = (c, d, b): h c→d, t2 d→b, h1 b→c.  f1 = (d, c, a): t d→c, h2 c→a, t1 a→d.
         self.to[h as usize] = d;
         self.to[t as usize] = c;
