@@ -189,6 +189,7 @@ enum Freedom {
     Corner,
 }
 
+/// Where `v` may go, by the creases at it.
 fn freedom(hm: &HalfEdgeMesh, v: u32, scratch: &mut Vec<u32>) -> Freedom {
     hm.outgoing(v, scratch);
     match scratch.iter().filter(|&&o| hm.marked[o as usize]).count() {
