@@ -23,6 +23,10 @@ use crate::geometry::topology::triangle_components;
 use crate::geometry::{TriMesh, triangle_angles_deg};
 use crate::math::Vec3;
 
+/// A triangle with an angle under this (degrees) is poor: the incision holds the triangles
+/// it makes to it, and a scan with such triangles is remeshed (`mesh.remesh = "auto"`).
+pub const POOR_ANGLE_DEG: f64 = 15.0;
+
 /// Rounds of split, collapse, flip and relax.
 const ROUNDS: usize = 10;
 
@@ -506,7 +510,7 @@ fn restore_volume(mesh: &mut TriMesh, original: &TriMesh, reference: &Reference<
 fn report(before: &TriMesh, after: &TriMesh, target: f64) -> RemeshReport {
     let under_15 = |m: &TriMesh| {
         (0..m.triangles.len())
-            .filter(|&t| min_angle(m.corners(t)) < 15.0)
+            .filter(|&t| min_angle(m.corners(t)) < POOR_ANGLE_DEG)
             .count()
     };
     let farthest = |points: &[Vec3], from: &TriMesh| {

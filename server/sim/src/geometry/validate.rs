@@ -83,7 +83,8 @@ pub enum MeshWarning {
     },
     /// The surface was remeshed to even triangles ([`crate::geometry::remesh`]).
     Remeshed(RemeshReport),
-    /// Remeshing was asked for but its surface failed validation; the mesh was kept.
+    /// Remeshing was due but not applied (too many triangles, or its surface failed
+    /// validation or needed a repair); the mesh was kept.
     RemeshRefused {
         /// The edge length asked for (m).
         target_edge_m: f64,

@@ -59,7 +59,7 @@ pub enum SceneBuildError {
 /// `options.max_triangles` triangles, fails validation, or needed repairs (the remesher's
 /// surface must need none).
 fn remeshed(
-    validated: ValidatedMesh,
+    mut validated: ValidatedMesh,
     target_m: f64,
     source: &str,
     options: &ValidationOptions,
@@ -87,7 +87,7 @@ fn remeshed(
                 }
             })
     };
-    let mut warnings = validated.warnings.clone();
+    let mut warnings = std::mem::take(&mut validated.warnings);
     match outcome {
         // (Observations of the shape, such as its size, were made on the first pass.)
         Ok((again, report)) => {
@@ -143,7 +143,7 @@ pub fn build_scene(
         check_self_intersections: spec.mesh.check_self_intersections,
     };
     let mut validated = validate(mesh, &source, &options)?;
-    if let Some(target) = spec.mesh.remesh.target_for(&validated.mesh) {
+    if let Some(target) = spec.mesh.remesh.target_for(&validated.stats) {
         observer.stage(BuildStage::Remesh);
         validated = remeshed(validated, target, &source, &options);
     }

@@ -14,7 +14,8 @@ pub use build::{BuiltScene, SceneBuildError, build_scene};
 pub use file::SceneError;
 
 use crate::geometry::organs;
-use crate::geometry::{ImportLimits, LengthUnit, TriMesh};
+use crate::geometry::remesh::POOR_ANGLE_DEG;
+use crate::geometry::{ImportLimits, LengthUnit, MeshStats, TriMesh};
 use crate::math::Vec3;
 use crate::model::{SamplingParams, SpacingRule};
 
@@ -71,18 +72,16 @@ pub enum RemeshRule {
     EdgeM(f64),
 }
 
-/// Smallest triangle angle [`RemeshRule::Auto`] leaves alone (degrees).
-pub const REMESH_BELOW_DEG: f64 = 15.0;
-
 impl RemeshRule {
-    /// The edge length to remesh `mesh` to, if it is to be remeshed.
-    pub fn target_for(self, mesh: &TriMesh) -> Option<f64> {
+    /// The edge length to remesh a surface with these measures to, if it is to be
+    /// remeshed.
+    pub fn target_for(self, stats: &MeshStats) -> Option<f64> {
         match self {
             Self::Off => None,
             Self::EdgeM(m) => Some(m),
-            Self::Auto => (mesh.min_angle_deg() < REMESH_BELOW_DEG).then(|| {
-                let half_thickness = mesh.signed_volume().abs() / mesh.area();
-                let edge = mesh.mean_edge_length();
+            Self::Auto => (stats.min_angle_deg < POOR_ANGLE_DEG).then(|| {
+                let half_thickness = stats.volume_m3.abs() / stats.area_m2;
+                let edge = stats.mean_edge_m;
                 edge.min(half_thickness).max(0.4 * edge)
             }),
         }
