@@ -729,6 +729,13 @@ pub fn incise(
     let length = path2.length();
     let w_wanted = params.opening_for(length, depth_max);
     let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
+    // How fast the lips must turn: the path's turning at the lips' own spacing, averaged
+    // over it, so that a jog of the entry point (its rest-space mapping hops by a fraction
+    // of a millimetre as the tissue gives) does not step the whole lip, and the walls
+    // gridded at its step, finely (the tumour's default stroke, 0.2 mm aside within 0.4 mm:
+    // 4042 wall triangles for an 8.7 mm cut). The lips still follow the path itself, jog
+    // included.
+    let turn_rate = path2.averaged(0.5 * spacing).max_turn_rate(spacing);
 
     // Region R: skin facing n̄ within reach of the opening, plus its one-ring.
     // Triangles under the opening may be steep; the ring around them must face n̄ well, or
@@ -887,13 +894,7 @@ pub fn incise(
         // gridded at the lips' spacing with rows about as tall, and a shallow wall under long
         // segments would be all slivers.
         // And short enough on a curved path that a lip turns by at most LIP_TURN_DEG from
-        // one segment to the next — the path's turning at the lips' own spacing: averaged
-        // over it, so that a jog of the entry point (its rest-space mapping hops by a
-        // fraction of a millimetre as the tissue gives) does not step the whole lip, and the
-        // walls gridded at its step, finely (the tumour's default stroke, 0.2 mm aside within
-        // 0.4 mm: 4042 wall triangles for an 8.7 mm cut). The lips still follow the path
-        // itself, jog included.
-        let turn_rate = path2.averaged(0.5 * spacing).max_turn_rate(spacing);
+        // one segment to the next (`turn_rate`, above).
         let turn_step = LIP_TURN_DEG.to_radians() / turn_rate.max(1e-300);
         let lip_step = spacing
             .min((0.75 * depth_max).max(0.25 * spacing))
