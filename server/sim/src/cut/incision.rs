@@ -38,7 +38,9 @@ use crate::geometry::predicates::distance_sq_to_segment;
 use crate::geometry::{angle_deg, triangle_angles_deg};
 use crate::math::Vec3;
 
-use super::wound::{Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, first_hit};
+use super::wound::{
+    Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms, first_hit,
+};
 
 /// What a surface triangle is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -627,6 +629,80 @@ fn flip_to_surface_quality(
         }
         if !flipped {
             break;
+        }
+    }
+}
+
+/// Triangles covering a triangle of the surface (`corners`) whose edges got new vertices
+/// (`splits[e]` on the edge from corner e to e + 1, in order; `ring` all of them around):
+/// a fan from the corner opposite a lone split edge, or from a new vertex inside the
+/// triangle (pushed onto `positions` with no source) — whichever candidate has the larger
+/// smallest angle. Candidates inside are a barycentric grid in twelfths (55 points; a few
+/// such triangles per incision), so a short piece can get a near apex.
+fn fan_split_triangle(
+    positions: &mut Vec<Vec3>,
+    source: &mut Vec<Option<u32>>,
+    corners: [u32; 3],
+    splits: &[Vec<u32>; 3],
+    ring: &[u32],
+) -> Vec<[u32; 3]> {
+    let at = |v: u32, positions: &[Vec3]| positions[v as usize];
+    let [pa, pb, pc] = corners.map(|v| at(v, positions));
+    let worst_from = |apex: Vec3, positions: &[Vec3]| {
+        (0..ring.len())
+            .map(|i| {
+                let (u, w) = (ring[i], ring[(i + 1) % ring.len()]);
+                triangle_angles_deg([at(u, positions), at(w, positions), apex])
+                    .into_iter()
+                    .fold(180.0, f64::min)
+            })
+            .fold(180.0, f64::min)
+    };
+    let split_edges: Vec<usize> = (0..3).filter(|&e| !splits[e].is_empty()).collect();
+    // The lone split edge's opposite corner, its triangles all but the ring's edges at it.
+    let apex_fan = (split_edges.len() == 1).then(|| {
+        let e = split_edges[0];
+        let apex = corners[(e + 2) % 3];
+        let mut chain = vec![corners[e]];
+        chain.extend(splits[e].iter().copied());
+        chain.push(corners[(e + 1) % 3]);
+        let fan: Vec<[u32; 3]> = chain.windows(2).map(|w| [w[0], w[1], apex]).collect();
+        let worst = fan
+            .iter()
+            .map(|t| {
+                triangle_angles_deg(t.map(|v| at(v, positions)))
+                    .into_iter()
+                    .fold(180.0, f64::min)
+            })
+            .fold(180.0, f64::min);
+        (worst, fan)
+    });
+    let centroid = (pa + pb + pc) / 3.0;
+    // Points of a barycentric grid strictly inside (a fan from any of them is valid: the
+    // ring is the triangle itself).
+    const STEPS: usize = 12;
+    let mut inside = Vec::with_capacity(STEPS * STEPS / 2);
+    for i in 1..STEPS {
+        for j in 1..STEPS - i {
+            let (u, v) = (i as f64 / STEPS as f64, j as f64 / STEPS as f64);
+            inside.push(pa * u + pb * v + pc * (1.0 - u - v));
+        }
+    }
+    let best_inside = inside
+        .into_iter()
+        .map(|p| (worst_from(p, positions), p))
+        .max_by(|x, y| x.0.total_cmp(&y.0));
+    match (apex_fan, best_inside) {
+        (Some((worst, fan)), Some((inner, _))) if worst >= inner => fan,
+        (Some((_, fan)), None) => fan,
+        (_, best) => {
+            let p = best.map_or(centroid, |b| b.1);
+            positions.push(p);
+            source.push(None);
+            let c = (positions.len() - 1) as u32;
+            (0..ring.len())
+                .map(|i| [ring[i], ring[(i + 1) % ring.len()], c])
+                .collect()
         }
     }
 }
@@ -1261,30 +1337,18 @@ pub fn incise(
             out_kinds.push(kinds[t]);
             continue;
         }
-        // The polygon around the triangle with the new vertices on its edges.
+        // The polygon around the triangle with the new vertices on its edges, fanned from
+        // the point that gives the best smallest angle: the corner opposite a lone split
+        // edge, or a new vertex inside (the triangle is flat, so the fan keeps its shape).
+        // A split piece much shorter than the triangle is tall fans from the corner into a
+        // needle (the tumour's 1.2 mm skin triangles split 0.25 mm from a corner: 9.1°);
+        // from a point nearer the split edge it does not.
         let mut ring = Vec::new();
         for e in 0..3 {
             ring.push(corners[e]);
             ring.extend(splits[e].iter().copied());
         }
-        let fan: Vec<[u32; 3]> = if split_edges == 1 {
-            // Fan from the corner opposite the split edge.
-            let e = (0..3).find(|&e| !splits[e].is_empty()).unwrap_or(0);
-            let apex = corners[(e + 2) % 3];
-            let mut chain = vec![corners[e]];
-            chain.extend(splits[e].iter().copied());
-            chain.push(corners[(e + 1) % 3]);
-            chain.windows(2).map(|w| [w[0], w[1], apex]).collect()
-        } else {
-            // Fan from a new vertex at the centroid.
-            let [pa, pb, pc] = corners.map(|v| positions[v as usize]);
-            positions.push((pa + pb + pc) / 3.0);
-            source.push(None);
-            let c = (positions.len() - 1) as u32;
-            (0..ring.len())
-                .map(|i| [ring[i], ring[(i + 1) % ring.len()], c])
-                .collect()
-        };
+        let fan = fan_split_triangle(&mut positions, &mut source, corners, &splits, &ring);
         for f in fan {
             created.push(triangles.len() as u32);
             triangles.push(f);
@@ -1441,6 +1505,7 @@ pub fn incise(
             depth,
         });
     }
+    even_out_bottoms(&mut columns);
     let wound = Wound {
         upper: upper_chain,
         lower: lower_chain,
@@ -1521,6 +1586,72 @@ mod tests {
         let out = incise(mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
         check(&out, "incision");
         out
+    }
+
+    /// A triangle 1.4 mm on a side whose edge was split 0.25 mm from a corner (the
+    /// tumour's default cut) fanned from its far corner has a 9° cell; the fan is now
+    /// made from a point inside, over 14°. The cells cover the triangle exactly, facing
+    /// its way; an edge split in the middle still fans from the corner (30°, no new vertex).
+    #[test]
+    fn a_split_next_to_a_corner_is_not_fanned_into_a_needle() {
+        let side = 0.0014;
+        let corners_at = [
+            Vec3::zeros(),
+            Vec3::new(side, 0.0, 0.0),
+            Vec3::new(0.5 * side, 0.5 * 3f64.sqrt() * side, 0.0),
+        ];
+        let smallest = |positions: &[Vec3], fan: &[[u32; 3]]| {
+            fan.iter()
+                .flat_map(|t| triangle_angles_deg(t.map(|v| positions[v as usize])))
+                .fold(180.0, f64::min)
+        };
+        let area_normal = |positions: &[Vec3], fan: &[[u32; 3]]| {
+            fan.iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|v| positions[v as usize]);
+                    (b - a).cross(&(c - a))
+                })
+                .fold(Vec3::zeros(), |s, n| {
+                    assert!(n.z > 0.0, "a cell faces the other way");
+                    s + n
+                })
+        };
+        let whole = (corners_at[1] - corners_at[0]).cross(&(corners_at[2] - corners_at[0]));
+        for (pieces, smallest_wanted, new_vertices) in
+            [(vec![0.25e-3, 0.68e-3], 14.0, 1), (vec![0.7e-3], 29.9, 0)]
+        {
+            let mut positions = corners_at.to_vec();
+            let mut split = Vec::new();
+            for x in pieces {
+                positions.push(Vec3::new(x, 0.0, 0.0));
+                split.push((positions.len() - 1) as u32);
+            }
+            let mut source: Vec<Option<u32>> = vec![None; positions.len()];
+            let splits = [split.clone(), Vec::new(), Vec::new()];
+            let mut ring = vec![0];
+            ring.extend(&split);
+            ring.extend([1, 2]);
+            let before = positions.len();
+            let fan = fan_split_triangle(&mut positions, &mut source, [0, 1, 2], &splits, &ring);
+            let from_corner: Vec<[u32; 3]> = [0]
+                .iter()
+                .chain(&split)
+                .chain(&[1])
+                .copied()
+                .collect::<Vec<_>>()
+                .windows(2)
+                .map(|w| [w[0], w[1], 2])
+                .collect();
+            assert!(
+                smallest(&positions, &fan) >= smallest_wanted,
+                "{} (from the far corner {})",
+                smallest(&positions, &fan),
+                smallest(&positions, &from_corner)
+            );
+            assert_eq!(positions.len() - before, new_vertices);
+            assert_eq!(source.len(), positions.len());
+            assert!((area_normal(&positions, &fan) - whole).norm() < 1e-12 * whole.norm());
+        }
     }
 
     #[test]
