@@ -677,27 +677,25 @@ fn fan_split_triangle(
             .fold(180.0, f64::min);
         (worst, fan)
     });
-    let centroid = (pa + pb + pc) / 3.0;
-    // Points of a barycentric grid strictly inside (a fan from any of them is valid: the
-    // ring is the triangle itself).
+    // The best of a barycentric grid's points strictly inside (a fan from any of them is
+    // valid: the ring is the triangle itself); the centroid is one of them.
     const STEPS: usize = 12;
-    let mut inside = Vec::with_capacity(STEPS * STEPS / 2);
+    let centroid = (pa + pb + pc) / 3.0;
+    let mut inner = (worst_from(centroid, positions), centroid);
     for i in 1..STEPS {
         for j in 1..STEPS - i {
             let (u, v) = (i as f64 / STEPS as f64, j as f64 / STEPS as f64);
-            inside.push(pa * u + pb * v + pc * (1.0 - u - v));
+            let p = pa * u + pb * v + pc * (1.0 - u - v);
+            let worst = worst_from(p, positions);
+            if worst > inner.0 {
+                inner = (worst, p);
+            }
         }
     }
-    let best_inside = inside
-        .into_iter()
-        .map(|p| (worst_from(p, positions), p))
-        .max_by(|x, y| x.0.total_cmp(&y.0));
-    match (apex_fan, best_inside) {
-        (Some((worst, fan)), Some((inner, _))) if worst >= inner => fan,
-        (Some((_, fan)), None) => fan,
-        (_, best) => {
-            let p = best.map_or(centroid, |b| b.1);
-            positions.push(p);
+    match apex_fan {
+        Some((worst, fan)) if worst >= inner.0 => fan,
+        _ => {
+            positions.push(inner.1);
             source.push(None);
             let c = (positions.len() - 1) as u32;
             (0..ring.len())
