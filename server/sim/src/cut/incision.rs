@@ -1503,7 +1503,20 @@ pub fn incise(
             depth,
         });
     }
-    even_out_bottoms(&mut columns);
+    // A column turned toward a new bottom may now run toward the far side of a thin part.
+    if even_out_bottoms(&mut columns) {
+        for col in &mut columns {
+            if let Some(hit) = first_hit(
+                mesh,
+                &other_skin,
+                &col.top,
+                &col.inward,
+                col.depth + spacing,
+            ) {
+                col.depth = col.depth.min(0.7 * hit);
+            }
+        }
+    }
     let wound = Wound {
         upper: upper_chain,
         lower: lower_chain,

@@ -174,11 +174,11 @@ fn min_angle_deg(corners: [Vec3; 3]) -> f64 {
 /// (a raked blade's walls lie in Σ), and where that turns quickly two neighbouring bottoms
 /// nearly meet (the tumour's default cut: 0.06 mm apart under tops 0.39 mm apart, 9.6°
 /// wall cells). The end columns stay; the others keep their tops and point at their new
-/// bottoms, which lie on the same curve.
-pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) {
+/// bottoms, which lie on the same curve. Whether any column changed.
+pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> bool {
     let n = columns.len();
     if n < 3 {
-        return;
+        return false;
     }
     let bottoms: Vec<Vec3> = columns.iter().map(WallColumn::bottom).collect();
     let top_gaps: Vec<f64> = columns
@@ -191,7 +191,7 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) {
         bottom_gaps.iter().sum::<f64>(),
     );
     if top_len <= 0.0 || bottom_len <= 0.0 {
-        return;
+        return false;
     }
     let scale = bottom_len / top_len;
     if top_gaps
@@ -199,7 +199,7 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) {
         .zip(&bottom_gaps)
         .all(|(t, b)| *b >= 0.5 * t * scale)
     {
-        return;
+        return false;
     }
     let mut arc = Vec::with_capacity(n);
     arc.push(0.0);
@@ -222,6 +222,7 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) {
             columns[c].depth = down.norm();
         }
     }
+    true
 }
 
 /// Rows of a column `depth` deep, for cells about `cell` tall.
@@ -749,7 +750,7 @@ mod tests {
         let gap = |c: &[WallColumn], k: usize| (c[k + 1].bottom() - c[k].bottom()).norm();
         assert!(gap(&original, 4) < 0.0001);
         let mut columns = original.clone();
-        even_out_bottoms(&mut columns);
+        assert!(even_out_bottoms(&mut columns));
         let old_bottoms: Vec<Vec3> = original.iter().map(WallColumn::bottom).collect();
         let bottom_len: f64 = (0..10).map(|k| gap(&original, k)).sum();
         for k in 0..10 {
@@ -768,7 +769,7 @@ mod tests {
         // Even bottoms: nothing to do.
         let even: Vec<WallColumn> = (0..11).map(|k| column(0.001 * k as f64, 0.0)).collect();
         let mut kept = even.clone();
-        even_out_bottoms(&mut kept);
+        assert!(!even_out_bottoms(&mut kept));
         assert_eq!(kept, even);
     }
 
