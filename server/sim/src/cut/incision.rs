@@ -633,12 +633,19 @@ fn flip_to_surface_quality(
     }
 }
 
+/// A corner fan whose smallest angle is at least this is kept without a search.
+const FAN_FAIR_DEG: f64 = 20.0;
+/// A new vertex inside must beat the corner fan's smallest angle by this much.
+const FAN_GAIN_DEG: f64 = 2.0;
+
 /// Triangles covering a triangle of the surface (`corners`) whose edges got new vertices
 /// (`splits[e]` on the edge from corner e to e + 1, in order; `ring` all of them around):
 /// a fan from the corner opposite a lone split edge, or from a new vertex inside the
 /// triangle (pushed onto `positions` with no source) — whichever candidate has the larger
-/// smallest angle. Candidates inside are a barycentric grid in twelfths (55 points; a few
-/// such triangles per incision), so a short piece can get a near apex.
+/// smallest angle (the corner kept unless its fan is under [`FAN_FAIR_DEG`] and the
+/// inside point gains [`FAN_GAIN_DEG`]). Candidates inside are a barycentric grid in
+/// twelfths (55 points; a few such triangles per incision), so a short piece can get a
+/// near apex.
 fn fan_split_triangle(
     positions: &mut Vec<Vec3>,
     source: &mut Vec<Option<u32>>,
@@ -677,6 +684,13 @@ fn fan_split_triangle(
             .fold(180.0, f64::min);
         (worst, fan)
     });
+    // A corner fan of fair cells is kept as it is (no new vertex on skin the cut did not
+    // reach, no search).
+    if let Some((worst, fan)) = &apex_fan
+        && *worst >= FAN_FAIR_DEG
+    {
+        return fan.clone();
+    }
     // The best of a barycentric grid's points strictly inside (a fan from any of them is
     // valid: the ring is the triangle itself); the centroid is one of them.
     const STEPS: usize = 12;
@@ -693,7 +707,7 @@ fn fan_split_triangle(
         }
     }
     match apex_fan {
-        Some((worst, fan)) if worst >= inner.0 => fan,
+        Some((worst, fan)) if worst + FAN_GAIN_DEG >= inner.0 => fan,
         _ => {
             positions.push(inner.1);
             source.push(None);
@@ -1628,41 +1642,46 @@ mod tests {
                 })
         };
         let whole = (corners_at[1] - corners_at[0]).cross(&(corners_at[2] - corners_at[0]));
-        for (pieces, smallest_wanted, new_vertices) in
-            [(vec![0.25e-3, 0.68e-3], 14.0, 1), (vec![0.7e-3], 29.9, 0)]
-        {
+        // (split points as fractions along edges 0, 1, 2; smallest angle wanted; new
+        // vertices): next to a corner on the first edge and on the second, in the middle,
+        // and 0.14 mm from a corner on both its edges (fanned from the centroid before: 5.8°;
+        // 10.9° now).
+        let cases: [([&[f64]; 3], f64, usize); 4] = [
+            ([&[0.25 / 1.4, 0.68 / 1.4], &[], &[]], 14.0, 1),
+            ([&[], &[0.18, 0.5], &[]], 14.0, 1),
+            ([&[0.5], &[], &[]], 29.9, 0),
+            ([&[0.1, 0.5], &[], &[0.5, 0.9]], 10.5, 1),
+        ];
+        for (fractions, smallest_wanted, new_vertices) in cases {
             let mut positions = corners_at.to_vec();
-            let mut split = Vec::new();
-            for x in pieces {
-                positions.push(Vec3::new(x, 0.0, 0.0));
-                split.push((positions.len() - 1) as u32);
+            let mut splits: [Vec<u32>; 3] = Default::default();
+            let mut ring = Vec::new();
+            for e in 0..3 {
+                ring.push(e as u32);
+                for &f in fractions[e] {
+                    let (a, b) = (corners_at[e], corners_at[(e + 1) % 3]);
+                    positions.push(a + (b - a) * f);
+                    splits[e].push((positions.len() - 1) as u32);
+                    ring.push((positions.len() - 1) as u32);
+                }
             }
             let mut source: Vec<Option<u32>> = vec![None; positions.len()];
-            let splits = [split.clone(), Vec::new(), Vec::new()];
-            let mut ring = vec![0];
-            ring.extend(&split);
-            ring.extend([1, 2]);
             let before = positions.len();
             let fan = fan_split_triangle(&mut positions, &mut source, [0, 1, 2], &splits, &ring);
-            let from_corner: Vec<[u32; 3]> = [0]
-                .iter()
-                .chain(&split)
-                .chain(&[1])
-                .copied()
-                .collect::<Vec<_>>()
-                .windows(2)
-                .map(|w| [w[0], w[1], 2])
-                .collect();
             assert!(
                 smallest(&positions, &fan) >= smallest_wanted,
-                "{} (from the far corner {})",
-                smallest(&positions, &fan),
-                smallest(&positions, &from_corner)
+                "{fractions:?}: {}",
+                smallest(&positions, &fan)
             );
-            assert_eq!(positions.len() - before, new_vertices);
+            assert_eq!(positions.len() - before, new_vertices, "{fractions:?}");
             assert_eq!(source.len(), positions.len());
             assert!((area_normal(&positions, &fan) - whole).norm() < 1e-12 * whole.norm());
         }
+        // The far corner's fan of the first case, for the record: 9.6°.
+        let mut positions = corners_at.to_vec();
+        positions.extend([0.25e-3, 0.68e-3].map(|x| Vec3::new(x, 0.0, 0.0)));
+        let from_corner = [[0, 3, 2], [3, 4, 2], [4, 1, 2]];
+        assert!(smallest(&positions, &from_corner) < 10.0);
     }
 
     #[test]

@@ -169,60 +169,96 @@ fn min_angle_deg(corners: [Vec3; 3]) -> f64 {
         .fold(180.0, f64::min)
 }
 
-/// Spreads the columns' bottoms along the curve through them as their tops are spread
-/// along the path, where the bottoms bunch up: columns lean with the cut's own direction
-/// (a raked blade's walls lie in Σ), and where that turns quickly two neighbouring bottoms
-/// nearly meet (the tumour's default cut: 0.06 mm apart under tops 0.39 mm apart, 9.6°
-/// wall cells). The end columns stay; the others keep their tops and point at their new
-/// bottoms, which lie on the same curve. Whether any column changed.
+/// Largest turn of a column toward its spread-out bottom ([`even_out_bottoms`]): the
+/// columns lean with the cut's own direction, and a small turn keeps the wall near Σ and
+/// within the walls' largest lean (plus this).
+const SPREAD_MAX_TURN_DEG: f64 = 15.0;
+
+/// Spreads the columns' bottoms where they bunch up: columns lean with the cut's own
+/// direction (a raked blade's walls lie in Σ), and where that turns quickly two
+/// neighbouring bottoms nearly meet (the tumour's default cut: 0.06 mm apart under tops
+/// 0.39 mm apart, 9.6° wall cells). A gap is bunched when it is under half its share of
+/// the bottom curve from the column before it to the one after the next; over each such
+/// stretch (overlapping ones merged) the inner columns' bottoms are put on that curve as
+/// their tops are spread along the path, each column turning at most
+/// [`SPREAD_MAX_TURN_DEG`] toward its place (short of it if need be). Tops, the end
+/// columns and the columns outside the stretches stay. Whether any column changed.
 pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> bool {
     let n = columns.len();
     if n < 3 {
         return false;
     }
     let bottoms: Vec<Vec3> = columns.iter().map(WallColumn::bottom).collect();
-    let top_gaps: Vec<f64> = columns
-        .windows(2)
-        .map(|w| (w[1].top - w[0].top).norm())
-        .collect();
-    let bottom_gaps: Vec<f64> = bottoms.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
-    let (top_len, bottom_len) = (
-        top_gaps.iter().sum::<f64>(),
-        bottom_gaps.iter().sum::<f64>(),
-    );
-    if top_len <= 0.0 || bottom_len <= 0.0 {
-        return false;
-    }
-    let scale = bottom_len / top_len;
-    if top_gaps
-        .iter()
-        .zip(&bottom_gaps)
-        .all(|(t, b)| *b >= 0.5 * t * scale)
-    {
-        return false;
-    }
-    let mut arc = Vec::with_capacity(n);
-    arc.push(0.0);
-    for g in &bottom_gaps {
-        arc.push(arc[arc.len() - 1] + g);
-    }
-    let mut along_top = 0.0;
-    for c in 1..n - 1 {
-        along_top += top_gaps[c - 1];
-        let target = along_top * scale;
-        let i = arc.partition_point(|&a| a <= target).clamp(1, n - 1) - 1;
-        let f = ((target - arc[i]) / (arc[i + 1] - arc[i]).max(1e-300)).clamp(0.0, 1.0);
-        let bottom = bottoms[i] * (1.0 - f) + bottoms[i + 1] * f;
-        let down = bottom - columns[c].top;
-        // (A bottom that would turn its column by more than 60° is left where it was.)
-        if let Some(inward) = down.try_normalize(1e-12)
-            && inward.dot(&columns[c].inward) > 0.5
-        {
-            columns[c].inward = inward;
-            columns[c].depth = down.norm();
+    let tops: Vec<Vec3> = columns.iter().map(|c| c.top).collect();
+    let top_gap = |k: usize| (tops[k + 1] - tops[k]).norm();
+    let bottom_gap = |k: usize| (bottoms[k + 1] - bottoms[k]).norm();
+    // The stretches [a, b] of columns around bunched gaps.
+    let mut stretches: Vec<(usize, usize)> = Vec::new();
+    for k in 0..n - 1 {
+        let (a, b) = (k.saturating_sub(1), (k + 2).min(n - 1));
+        let (over_tops, over_bottoms) = (
+            (a..b).map(top_gap).sum::<f64>(),
+            (a..b).map(bottom_gap).sum::<f64>(),
+        );
+        if over_tops <= 0.0 || bottom_gap(k) >= 0.5 * top_gap(k) * over_bottoms / over_tops {
+            continue;
+        }
+        match stretches.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => stretches.push((a, b)),
         }
     }
-    true
+    let max_turn_cos = SPREAD_MAX_TURN_DEG.to_radians().cos();
+    let mut changed = false;
+    for (a, b) in stretches {
+        let mut arc = vec![0.0];
+        for k in a..b {
+            arc.push(arc[arc.len() - 1] + bottom_gap(k));
+        }
+        let scale = arc[arc.len() - 1] / (a..b).map(top_gap).sum::<f64>();
+        let mut along_top = 0.0;
+        for c in a + 1..b {
+            along_top += top_gap(c - 1);
+            let target = along_top * scale;
+            let i = arc
+                .partition_point(|&x| x <= target)
+                .clamp(1, arc.len() - 1)
+                - 1;
+            let f = ((target - arc[i]) / (arc[i + 1] - arc[i]).max(1e-300)).clamp(0.0, 1.0);
+            let place = bottoms[a + i] * (1.0 - f) + bottoms[a + i + 1] * f;
+            let (top, old, inward) = (tops[c], bottoms[c], columns[c].inward);
+            let turned_ok = |t: f64| {
+                (old + (place - old) * t - top)
+                    .try_normalize(1e-12)
+                    .is_some_and(|d| d.dot(&inward) >= max_turn_cos)
+            };
+            // As far toward its place as the turn allows (bisection: the turn grows with
+            // the way gone, for a place not behind the top).
+            let t = if turned_ok(1.0) {
+                1.0
+            } else {
+                let (mut lo, mut hi) = (0.0, 1.0);
+                for _ in 0..30 {
+                    let mid = 0.5 * (lo + hi);
+                    if turned_ok(mid) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                lo
+            };
+            let down = old + (place - old) * t - top;
+            if t > 0.0
+                && let Some(dir) = down.try_normalize(1e-12)
+            {
+                columns[c].inward = dir;
+                columns[c].depth = down.norm();
+                changed = true;
+            }
+        }
+    }
+    changed
 }
 
 /// Rows of a column `depth` deep, for cells about `cell` tall.
@@ -729,48 +765,109 @@ mod tests {
     use crate::scene::BuiltinMesh;
 
     /// Columns whose lean turns quickly bring two bottoms within 0.04 of a gap of each
-    /// other; spread out, every bottom gap is at least half an even share of the bottom
-    /// curve, the new bottoms lie on the old bottom curve, the end columns and all tops
-    /// are kept. Evenly spread bottoms are left alone.
+    /// other — on a straight path, and on a curved one whose bottoms are spread more widely
+    /// than its tops: spread out, the bunched gap is at least a third of the others, the
+    /// bottoms stay in order along the path, on the old bottom curve where they reached
+    /// their place, and every column turns by at most 15°; columns away from the bunch,
+    /// the end columns and all tops are kept. Evenly spread bottoms are left alone. On a
+    /// shallow wall the way to its place would turn a column by more: it goes as far as 15°.
     #[test]
     fn bunched_column_bottoms_are_spread_along_their_curve() {
-        let column = |x: f64, lean: f64| WallColumn {
-            param: x / 0.01,
-            top: Vec3::new(x, 0.0, 0.0),
-            inward: Vec3::new(lean, 0.0, -1.0).normalize(),
-            depth: 0.003 * (1.0 + lean * lean).sqrt(),
+        let column = |top: Vec3, lean: Vec3, depth: f64| WallColumn {
+            param: 0.0,
+            top,
+            inward: (lean - Vec3::z()).normalize(),
+            depth: depth * (1.0 + lean.norm_squared()).sqrt(),
         };
-        // Tops 1 mm apart; the leans put the bottoms of columns 4 and 5 0.04 mm apart.
-        let leans = [0.0, 0.0, 0.0, 0.0, 0.16, -0.16, 0.0, 0.0, 0.0, 0.0, 0.0];
-        let original: Vec<WallColumn> = leans
-            .iter()
-            .enumerate()
-            .map(|(k, &lean)| column(0.001 * k as f64, lean))
-            .collect();
         let gap = |c: &[WallColumn], k: usize| (c[k + 1].bottom() - c[k].bottom()).norm();
-        assert!(gap(&original, 4) < 0.0001);
-        let mut columns = original.clone();
-        assert!(even_out_bottoms(&mut columns));
-        let old_bottoms: Vec<Vec3> = original.iter().map(WallColumn::bottom).collect();
-        let bottom_len: f64 = (0..10).map(|k| gap(&original, k)).sum();
-        for k in 0..10 {
-            assert!(gap(&columns, k) >= 0.5 * bottom_len / 10.0, "gap {k}");
+        let turn = |a: &WallColumn, b: &WallColumn| a.inward.angle(&b.inward).to_degrees();
+        // Tops 1 mm apart along x, or on a 10 mm arc; 3 mm deep, leaning outward on the
+        // arc (bottoms further apart than tops); columns 4 and 5 lean toward each other.
+        for curved in [false, true] {
+            let original: Vec<WallColumn> = (0..11)
+                .map(|k| {
+                    let (top, out) = if curved {
+                        let a = 0.1 * k as f64;
+                        (
+                            Vec3::new(0.01 * a.sin(), 0.01 * a.cos(), 0.0),
+                            Vec3::new(a.sin(), a.cos(), 0.0),
+                        )
+                    } else {
+                        (Vec3::new(0.001 * k as f64, 0.0, 0.0), Vec3::zeros())
+                    };
+                    let tangent = out
+                        .cross(&Vec3::z())
+                        .try_normalize(1e-12)
+                        .unwrap_or(Vec3::x());
+                    // (0.48 mm along the path either way, 0.51 on the arc, whose bottoms
+                    // are 6 % further apart.)
+                    let toward = if curved { 0.17 } else { 0.16 };
+                    let lean = match k {
+                        4 => tangent * toward,
+                        5 => -tangent * toward,
+                        _ => Vec3::zeros(),
+                    } + out * 0.2;
+                    column(top, lean, 0.003)
+                })
+                .collect();
+            assert!(gap(&original, 4) < 0.0001, "curved {curved}");
+            let mut columns = original.clone();
+            assert!(even_out_bottoms(&mut columns));
+            let others = (0..10).filter(|&k| k != 4).map(|k| gap(&original, k));
+            let least_other = others.fold(f64::INFINITY, f64::min);
+            assert!(gap(&columns, 4) >= least_other / 3.0, "curved {curved}");
+            let old_bottoms: Vec<Vec3> = original.iter().map(WallColumn::bottom).collect();
+            let mut along = f64::NEG_INFINITY;
+            for (k, c) in columns.iter().enumerate() {
+                assert_eq!(c.top, original[k].top);
+                assert!(turn(c, &original[k]) <= 15.0 + 1e-9, "column {k}");
+                // In order: each bottom further along the path than the one before.
+                let a = if curved {
+                    c.bottom().x.atan2(c.bottom().y)
+                } else {
+                    c.bottom().x
+                };
+                assert!(a > along, "column {k} out of order");
+                along = a;
+                if turn(c, &original[k]) < 15.0 - 1e-6 {
+                    let on_curve = old_bottoms
+                        .windows(2)
+                        .map(|w| distance_sq_to_segment(&c.bottom(), &w[0], &w[1]).sqrt())
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(on_curve < 1e-12, "column {k} off the curve by {on_curve}");
+                }
+            }
+            for k in [0, 1, 2, 7, 8, 9, 10] {
+                assert_eq!(columns[k], original[k], "column {k} moved");
+            }
         }
-        for (k, c) in columns.iter().enumerate() {
-            assert_eq!(c.top, original[k].top);
-            let on_curve = old_bottoms
-                .windows(2)
-                .map(|w| distance_sq_to_segment(&c.bottom(), &w[0], &w[1]).sqrt())
-                .fold(f64::INFINITY, f64::min);
-            assert!(on_curve < 1e-12, "column {k} off the curve by {on_curve}");
-        }
-        assert_eq!(columns[0], original[0]);
-        assert_eq!(columns[10], original[10]);
         // Even bottoms: nothing to do.
-        let even: Vec<WallColumn> = (0..11).map(|k| column(0.001 * k as f64, 0.0)).collect();
+        let even: Vec<WallColumn> = (0..11)
+            .map(|k| column(Vec3::new(0.001 * k as f64, 0.0, 0.0), Vec3::zeros(), 0.003))
+            .collect();
         let mut kept = even.clone();
         assert!(!even_out_bottoms(&mut kept));
         assert_eq!(kept, even);
+        // A wall 0.5 mm deep whose two middle bottoms crossed 0.8 mm along the path: the way
+        // back under their tops is a turn of about 60°; they turn 15° toward it.
+        let mut shallow: Vec<WallColumn> = (0..11)
+            .map(|k| {
+                let lean = match k {
+                    4 => Vec3::x() * 1.6,
+                    5 => -Vec3::x() * 1.6,
+                    _ => Vec3::zeros(),
+                };
+                column(Vec3::new(0.001 * k as f64, 0.0, 0.0), lean, 0.0005)
+            })
+            .collect();
+        let before = shallow.clone();
+        assert!(even_out_bottoms(&mut shallow));
+        for k in [4, 5] {
+            assert!(
+                (turn(&shallow[k], &before[k]) - 15.0).abs() < 1e-6,
+                "column {k}"
+            );
+        }
     }
 
     /// The liver with a 60 mm incision 4 mm deep along y = 0.
