@@ -35,7 +35,7 @@ use thiserror::Error;
 
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
-use crate::geometry::{angle_deg, triangle_angles_deg};
+use crate::geometry::{angle_deg, triangle_min_angle_deg};
 use crate::math::Vec3;
 
 use super::wound::{
@@ -564,11 +564,7 @@ fn flip_to_surface_quality(
         }
     }
     let corners = |tri: [u32; 3]| tri.map(|v| positions[v as usize]);
-    let smallest = |tri: [u32; 3]| {
-        triangle_angles_deg(corners(tri))
-            .into_iter()
-            .fold(180.0, f64::min)
-    };
+    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(corners(tri));
     let normal = |tri: [u32; 3]| {
         let [a, b, c] = corners(tri);
         (b - a).cross(&(c - a)).try_normalize(1e-300)
@@ -639,7 +635,7 @@ const FAN_FAIR_DEG: f64 = 20.0;
 const FAN_GAIN_DEG: f64 = 2.0;
 
 /// Triangles covering a triangle of the surface (`corners`) whose edges got new vertices
-/// (`splits[e]` on the edge from corner e to e + 1, in order; `ring` all of them around):
+/// (`splits[e]` on the edge from corner e to e + 1, in order):
 /// a fan from the corner opposite a lone split edge, or from a new vertex inside the
 /// triangle (pushed onto `positions` with no source) — whichever candidate has the larger
 /// smallest angle (the corner kept unless its fan is under [`FAN_FAIR_DEG`] and the
@@ -651,17 +647,18 @@ fn fan_split_triangle(
     source: &mut Vec<Option<u32>>,
     corners: [u32; 3],
     splits: &[Vec<u32>; 3],
-    ring: &[u32],
 ) -> Vec<[u32; 3]> {
+    // The polygon around the triangle with the new vertices on its edges.
+    let ring: Vec<u32> = (0..3)
+        .flat_map(|e| std::iter::once(corners[e]).chain(splits[e].iter().copied()))
+        .collect();
     let at = |v: u32, positions: &[Vec3]| positions[v as usize];
     let [pa, pb, pc] = corners.map(|v| at(v, positions));
     let worst_from = |apex: Vec3, positions: &[Vec3]| {
         (0..ring.len())
             .map(|i| {
                 let (u, w) = (ring[i], ring[(i + 1) % ring.len()]);
-                triangle_angles_deg([at(u, positions), at(w, positions), apex])
-                    .into_iter()
-                    .fold(180.0, f64::min)
+                triangle_min_angle_deg([at(u, positions), at(w, positions), apex])
             })
             .fold(180.0, f64::min)
     };
@@ -676,21 +673,16 @@ fn fan_split_triangle(
         let fan: Vec<[u32; 3]> = chain.windows(2).map(|w| [w[0], w[1], apex]).collect();
         let worst = fan
             .iter()
-            .map(|t| {
-                triangle_angles_deg(t.map(|v| at(v, positions)))
-                    .into_iter()
-                    .fold(180.0, f64::min)
-            })
+            .map(|t| triangle_min_angle_deg(t.map(|v| at(v, positions))))
             .fold(180.0, f64::min);
         (worst, fan)
     });
     // A corner fan of fair cells is kept as it is (no new vertex on skin the cut did not
     // reach, no search).
-    if let Some((worst, fan)) = &apex_fan
-        && *worst >= FAN_FAIR_DEG
-    {
-        return fan.clone();
-    }
+    let apex_fan = match apex_fan {
+        Some((worst, fan)) if worst >= FAN_FAIR_DEG => return fan,
+        other => other,
+    };
     // The best of a barycentric grid's points strictly inside (a fan from any of them is
     // valid: the ring is the triangle itself); the centroid is one of them.
     const STEPS: usize = 12;
@@ -1349,18 +1341,12 @@ pub fn incise(
             out_kinds.push(kinds[t]);
             continue;
         }
-        // The polygon around the triangle with the new vertices on its edges, fanned from
-        // the point that gives the best smallest angle: the corner opposite a lone split
-        // edge, or a new vertex inside (the triangle is flat, so the fan keeps its shape).
-        // A split piece much shorter than the triangle is tall fans from the corner into a
-        // needle (the tumour's 1.2 mm skin triangles split 0.25 mm from a corner: 9.1°);
-        // from a point nearer the split edge it does not.
-        let mut ring = Vec::new();
-        for e in 0..3 {
-            ring.push(corners[e]);
-            ring.extend(splits[e].iter().copied());
-        }
-        let fan = fan_split_triangle(&mut positions, &mut source, corners, &splits, &ring);
+        // Fanned from the point that gives the best smallest angle: the corner opposite a
+        // lone split edge, or a new vertex inside (the triangle is flat, so the fan keeps
+        // its shape). A split piece much shorter than the triangle is tall fans from the
+        // corner into a needle (the tumour's 1.2 mm skin triangles split 0.25 mm from a
+        // corner: 9.1°); from a point nearer the split edge it does not.
+        let fan = fan_split_triangle(&mut positions, &mut source, corners, &splits);
         for f in fan {
             created.push(triangles.len() as u32);
             triangles.push(f);
@@ -1466,6 +1452,18 @@ pub fn incise(
     let window = depths.iter().copied().fold(0.0, f64::max);
     let delta = window.max(0.5 * spacing);
     let max_lean = MAX_WALL_LEAN_DEG.to_radians();
+    // A thin part: a wall stops short of the far side of the organ.
+    let held_short = |col: &mut WallColumn| {
+        if let Some(hit) = first_hit(
+            mesh,
+            &other_skin,
+            &col.top,
+            &col.inward,
+            col.depth + spacing,
+        ) {
+            col.depth = col.depth.min(0.7 * hit);
+        }
+    };
     let mut columns = Vec::with_capacity(n_cols);
     for c in 0..n_cols {
         let param = params_of(c);
@@ -1505,31 +1503,18 @@ pub fn incise(
             },
             None => (straight_in, 1.0),
         };
-        let mut depth = (depths[c] * shorten).max(min_depth);
-        // A thin part: stop the wall short of the far side of the organ.
-        if let Some(hit) = first_hit(mesh, &other_skin, &top, &inward, depth + spacing) {
-            depth = depth.min(0.7 * hit);
-        }
-        columns.push(WallColumn {
+        let mut column = WallColumn {
             param,
             top,
             inward,
-            depth,
-        });
+            depth: (depths[c] * shorten).max(min_depth),
+        };
+        held_short(&mut column);
+        columns.push(column);
     }
     // A column turned toward a new bottom may now run toward the far side of a thin part.
-    if even_out_bottoms(&mut columns) {
-        for col in &mut columns {
-            if let Some(hit) = first_hit(
-                mesh,
-                &other_skin,
-                &col.top,
-                &col.inward,
-                col.depth + spacing,
-            ) {
-                col.depth = col.depth.min(0.7 * hit);
-            }
-        }
+    for c in even_out_bottoms(&mut columns) {
+        held_short(&mut columns[c]);
     }
     let wound = Wound {
         upper: upper_chain,
@@ -1600,6 +1585,7 @@ pub fn incise(
 mod tests {
     use super::*;
     use crate::cut::checks::{check, check_topology, top_path, uniform};
+    use crate::geometry::triangle_angles_deg;
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
 
@@ -1655,19 +1641,16 @@ mod tests {
         for (fractions, smallest_wanted, new_vertices) in cases {
             let mut positions = corners_at.to_vec();
             let mut splits: [Vec<u32>; 3] = Default::default();
-            let mut ring = Vec::new();
             for e in 0..3 {
-                ring.push(e as u32);
                 for &f in fractions[e] {
                     let (a, b) = (corners_at[e], corners_at[(e + 1) % 3]);
                     positions.push(a + (b - a) * f);
                     splits[e].push((positions.len() - 1) as u32);
-                    ring.push((positions.len() - 1) as u32);
                 }
             }
             let mut source: Vec<Option<u32>> = vec![None; positions.len()];
             let before = positions.len();
-            let fan = fan_split_triangle(&mut positions, &mut source, [0, 1, 2], &splits, &ring);
+            let fan = fan_split_triangle(&mut positions, &mut source, [0, 1, 2], &splits);
             assert!(
                 smallest(&positions, &fan) >= smallest_wanted,
                 "{fractions:?}: {}",
@@ -1849,11 +1832,7 @@ mod tests {
         let cells = || vec![[0u32, 1, 2], [1, 0, 3]];
         let smallest = |p: &[Vec3], t: &[[u32; 3]]| {
             t.iter()
-                .map(|c| {
-                    triangle_angles_deg(c.map(|v| p[v as usize]))
-                        .into_iter()
-                        .fold(180.0, f64::min)
-                })
+                .map(|c| triangle_min_angle_deg(c.map(|v| p[v as usize])))
                 .fold(180.0, f64::min)
         };
         let skin = [FaceKind::Skin; 2];

@@ -17,7 +17,7 @@ use std::collections::{HashMap, HashSet};
 
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::{line_triangle, nearest_on_segment};
-use crate::geometry::triangle_angles_deg;
+use crate::geometry::triangle_min_angle_deg;
 use crate::math::{Aabb, Vec3};
 
 use super::incision::{
@@ -158,15 +158,13 @@ impl Assembly {
         self.created
             .iter()
             .filter(|&&t| self.kinds[t as usize] != FaceKind::Lid)
-            .map(|&t| min_angle_deg(self.triangles[t as usize].map(|v| self.positions[v as usize])))
+            .map(|&t| {
+                triangle_min_angle_deg(
+                    self.triangles[t as usize].map(|v| self.positions[v as usize]),
+                )
+            })
             .fold(180.0, f64::min)
     }
-}
-
-fn min_angle_deg(corners: [Vec3; 3]) -> f64 {
-    triangle_angles_deg(corners)
-        .into_iter()
-        .fold(180.0, f64::min)
 }
 
 /// Largest turn of a column toward its spread-out bottom ([`even_out_bottoms`]): the
@@ -182,11 +180,12 @@ const SPREAD_MAX_TURN_DEG: f64 = 15.0;
 /// stretch (overlapping ones merged) the inner columns' bottoms are put on that curve as
 /// their tops are spread along the path, each column turning at most
 /// [`SPREAD_MAX_TURN_DEG`] toward its place (short of it if need be). Tops, the end
-/// columns and the columns outside the stretches stay. Whether any column changed.
-pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> bool {
+/// columns and the columns outside the stretches stay. The columns that moved.
+pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> Vec<usize> {
     let n = columns.len();
+    let mut moved = Vec::new();
     if n < 3 {
-        return false;
+        return moved;
     }
     let bottoms: Vec<Vec3> = columns.iter().map(WallColumn::bottom).collect();
     let tops: Vec<Vec3> = columns.iter().map(|c| c.top).collect();
@@ -209,7 +208,6 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> bool {
         }
     }
     let max_turn_cos = SPREAD_MAX_TURN_DEG.to_radians().cos();
-    let mut changed = false;
     for (a, b) in stretches {
         let mut arc = vec![0.0];
         for k in a..b {
@@ -254,11 +252,11 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> bool {
             {
                 columns[c].inward = dir;
                 columns[c].depth = down.norm();
-                changed = true;
+                moved.push(c);
             }
         }
     }
-    changed
+    moved
 }
 
 /// Rows of a column `depth` deep, for cells about `cell` tall.
@@ -348,8 +346,9 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
             out.triangles.push(tri);
             out.kinds.push(FaceKind::Wall);
         };
-        let shape =
-            |t: [u32; 3], out: &Assembly| min_angle_deg(t.map(|v| out.positions[v as usize]));
+        let shape = |t: [u32; 3], out: &Assembly| {
+            triangle_min_angle_deg(t.map(|v| out.positions[v as usize]))
+        };
         // Between the lip and row 1: zip the two polylines together by parameter.
         let (mut i, mut k) = (0, 0);
         while i + 1 < lip.len() || k + 1 < n {
@@ -812,7 +811,7 @@ mod tests {
                 .collect();
             assert!(gap(&original, 4) < 0.0001, "curved {curved}");
             let mut columns = original.clone();
-            assert!(even_out_bottoms(&mut columns));
+            assert_eq!(even_out_bottoms(&mut columns), [4, 5]);
             let others = (0..10).filter(|&k| k != 4).map(|k| gap(&original, k));
             let least_other = others.fold(f64::INFINITY, f64::min);
             assert!(gap(&columns, 4) >= least_other / 3.0, "curved {curved}");
@@ -846,7 +845,7 @@ mod tests {
             .map(|k| column(Vec3::new(0.001 * k as f64, 0.0, 0.0), Vec3::zeros(), 0.003))
             .collect();
         let mut kept = even.clone();
-        assert!(!even_out_bottoms(&mut kept));
+        assert!(even_out_bottoms(&mut kept).is_empty());
         assert_eq!(kept, even);
         // A wall 0.5 mm deep whose two middle bottoms crossed 0.8 mm along the path: the way
         // back under their tops is a turn of about 60°; they turn 15° toward it.
@@ -861,7 +860,7 @@ mod tests {
             })
             .collect();
         let before = shallow.clone();
-        assert!(even_out_bottoms(&mut shallow));
+        assert!(!even_out_bottoms(&mut shallow).is_empty());
         for k in [4, 5] {
             assert!(
                 (turn(&shallow[k], &before[k]) - 15.0).abs() < 1e-6,

@@ -117,6 +117,13 @@ pub fn triangle_angles_deg([a, b, c]: [Vec3; 3]) -> [f64; 3] {
     ]
 }
 
+/// The smallest interior angle of the triangle with corners `[a, b, c]` in degrees.
+pub fn triangle_min_angle_deg(corners: [Vec3; 3]) -> f64 {
+    triangle_angles_deg(corners)
+        .into_iter()
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// Angle between two vectors in degrees; 0 if either is zero.
 pub fn angle_deg(u: Vec3, v: Vec3) -> f64 {
     let n = u.norm() * v.norm();

@@ -12,7 +12,7 @@ pub mod topology;
 pub mod validate;
 
 pub use import::{ImportLimits, LengthUnit, MeshFormat, MeshImportError, import_mesh};
-pub use mesh::{TriMesh, angle_deg, triangle_angles_deg};
+pub use mesh::{TriMesh, angle_deg, triangle_angles_deg, triangle_min_angle_deg};
 pub use validate::{
     MeshStats, MeshValidationError, MeshWarning, ValidatedMesh, ValidationOptions, validate,
 };

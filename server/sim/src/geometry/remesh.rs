@@ -20,7 +20,7 @@ use super::halfedge::{HalfEdgeError, HalfEdgeMesh, NONE};
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::closest_point_on_triangle;
 use crate::geometry::topology::triangle_components;
-use crate::geometry::{TriMesh, triangle_angles_deg};
+use crate::geometry::{TriMesh, triangle_min_angle_deg};
 use crate::math::Vec3;
 
 /// A triangle with an angle under this (degrees) is poor: the incision holds the triangles
@@ -420,13 +420,6 @@ fn relax(hm: &mut HalfEdgeMesh, reference: &Reference<'_>, target: f64, scratch:
     }
 }
 
-/// Smallest angle of a triangle given by its corners (degrees).
-fn min_angle(corners: [Vec3; 3]) -> f64 {
-    triangle_angles_deg(corners)
-        .into_iter()
-        .fold(f64::INFINITY, f64::min)
-}
-
 /// Flips edges where that raises the smaller of the two faces' smallest angles by more than
 /// half a degree, across bends of at most [`MAX_FLIP_BEND_DEG`]; a few passes.
 fn flip_to_larger_angles(hm: &mut HalfEdgeMesh) {
@@ -437,9 +430,10 @@ fn flip_to_larger_angles(hm: &mut HalfEdgeMesh) {
                 continue;
             }
             let corners = |e: u32| hm.face_corners(e).map(|v| hm.pos[v as usize]);
-            let before = min_angle(corners(h)).min(min_angle(corners(hm.twin(h))));
+            let before =
+                triangle_min_angle_deg(corners(h)).min(triangle_min_angle_deg(corners(hm.twin(h))));
             let [f0, f1] = flipped_corners(hm, h);
-            let after = min_angle(f0).min(min_angle(f1));
+            let after = triangle_min_angle_deg(f0).min(triangle_min_angle_deg(f1));
             if after > before + 0.5 {
                 hm.flip(h);
                 flipped += 1;
@@ -510,7 +504,7 @@ fn restore_volume(mesh: &mut TriMesh, original: &TriMesh, reference: &Reference<
 fn report(before: &TriMesh, after: &TriMesh, target: f64) -> RemeshReport {
     let under_15 = |m: &TriMesh| {
         (0..m.triangles.len())
-            .filter(|&t| min_angle(m.corners(t)) < POOR_ANGLE_DEG)
+            .filter(|&t| triangle_min_angle_deg(m.corners(t)) < POOR_ANGLE_DEG)
             .count()
     };
     let farthest = |points: &[Vec3], from: &TriMesh| {
