@@ -15,6 +15,10 @@
 //! 3. **Re-triangulation**: a constrained Delaunay triangulation of R with the lips as
 //!    constraints, refined (Ruppert/Chew, spade) to a minimum angle, boundary edges kept.
 //!    New vertices are lifted onto the original surface through the original triangles.
+//!    There, cells that lost much of their angle in the lift are mended: splits of R's
+//!    boundary and new vertices inside are collapsed into a neighbour where that helps
+//!    (super::collapse), the triangles beyond a split boundary are fanned (super::fan), and
+//!    pairs of cells are flipped.
 //! 4. **Wound walls** from each lip down to the cut's bottom curve (the blade tip's track),
 //!    two structured strips meeting at the bottom and at the two ends, material `Wall`.
 //! 5. **Lid**: the faces between the lips are kept as `Lid` faces: not drawn, but they
@@ -38,6 +42,8 @@ use crate::geometry::predicates::distance_sq_to_segment;
 use crate::geometry::{angle_deg, triangle_min_angle_deg};
 use crate::math::Vec3;
 
+use super::collapse::{SplitTriangle, collapse_boundary_splits, collapse_to_quality};
+use super::fan::plan_fan;
 use super::wound::{
     Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms, first_hit,
 };
@@ -629,88 +635,6 @@ fn flip_to_surface_quality(
     }
 }
 
-/// A corner fan whose smallest angle is at least this is kept without a search.
-const FAN_FAIR_DEG: f64 = 20.0;
-/// A new vertex inside must beat the corner fan's smallest angle by this much.
-const FAN_GAIN_DEG: f64 = 2.0;
-
-/// Triangles covering a triangle of the surface (`corners`) whose edges got new vertices
-/// (`splits[e]` on the edge from corner e to e + 1, in order):
-/// a fan from the corner opposite a lone split edge, or from a new vertex inside the
-/// triangle (pushed onto `positions` with no source) — whichever candidate has the larger
-/// smallest angle (the corner kept unless its fan is under [`FAN_FAIR_DEG`] and the
-/// inside point gains [`FAN_GAIN_DEG`]). Candidates inside are a barycentric grid in
-/// twelfths (55 points; a few such triangles per incision), so a short piece can get a
-/// near apex.
-fn fan_split_triangle(
-    positions: &mut Vec<Vec3>,
-    source: &mut Vec<Option<u32>>,
-    corners: [u32; 3],
-    splits: &[Vec<u32>; 3],
-) -> Vec<[u32; 3]> {
-    // The polygon around the triangle with the new vertices on its edges.
-    let ring: Vec<u32> = (0..3)
-        .flat_map(|e| std::iter::once(corners[e]).chain(splits[e].iter().copied()))
-        .collect();
-    let at = |v: u32, positions: &[Vec3]| positions[v as usize];
-    let [pa, pb, pc] = corners.map(|v| at(v, positions));
-    let worst_from = |apex: Vec3, positions: &[Vec3]| {
-        (0..ring.len())
-            .map(|i| {
-                let (u, w) = (ring[i], ring[(i + 1) % ring.len()]);
-                triangle_min_angle_deg([at(u, positions), at(w, positions), apex])
-            })
-            .fold(180.0, f64::min)
-    };
-    let split_edges: Vec<usize> = (0..3).filter(|&e| !splits[e].is_empty()).collect();
-    // The lone split edge's opposite corner, its triangles all but the ring's edges at it.
-    let apex_fan = (split_edges.len() == 1).then(|| {
-        let e = split_edges[0];
-        let apex = corners[(e + 2) % 3];
-        let mut chain = vec![corners[e]];
-        chain.extend(splits[e].iter().copied());
-        chain.push(corners[(e + 1) % 3]);
-        let fan: Vec<[u32; 3]> = chain.windows(2).map(|w| [w[0], w[1], apex]).collect();
-        let worst = fan
-            .iter()
-            .map(|t| triangle_min_angle_deg(t.map(|v| at(v, positions))))
-            .fold(180.0, f64::min);
-        (worst, fan)
-    });
-    // A corner fan of fair cells is kept as it is (no new vertex on skin the cut did not
-    // reach, no search).
-    let apex_fan = match apex_fan {
-        Some((worst, fan)) if worst >= FAN_FAIR_DEG => return fan,
-        other => other,
-    };
-    // The best of a barycentric grid's points strictly inside (a fan from any of them is
-    // valid: the ring is the triangle itself); the centroid is one of them.
-    const STEPS: usize = 12;
-    let centroid = (pa + pb + pc) / 3.0;
-    let mut inner = (worst_from(centroid, positions), centroid);
-    for i in 1..STEPS {
-        for j in 1..STEPS - i {
-            let (u, v) = (i as f64 / STEPS as f64, j as f64 / STEPS as f64);
-            let p = pa * u + pb * v + pc * (1.0 - u - v);
-            let worst = worst_from(p, positions);
-            if worst > inner.0 {
-                inner = (worst, p);
-            }
-        }
-    }
-    match apex_fan {
-        Some((worst, fan)) if worst + FAN_GAIN_DEG >= inner.0 => fan,
-        _ => {
-            positions.push(inner.1);
-            source.push(None);
-            let c = (positions.len() - 1) as u32;
-            (0..ring.len())
-                .map(|i| [ring[i], ring[(i + 1) % ring.len()], c])
-                .collect()
-        }
-    }
-}
-
 /// Re-triangulates `mesh` around the path and opens the incision (see the module docs);
 /// `wounds` are the incisions already in `mesh`.
 pub fn incise(
@@ -1269,7 +1193,7 @@ pub fn incise(
             source.push(Some(v as u32));
         }
     }
-    let mut cdt_vertex = HashMap::new();
+    let mut cdt_vertex: HashMap<usize, u32> = HashMap::new();
     for vh in cdt.fixed_vertices() {
         let id = match cdt_to_mesh.get(&vh.index()) {
             Some(&v) => remap[v as usize],
@@ -1324,6 +1248,9 @@ pub fn incise(
         // The outside triangle runs the edge from b to a.
         split_of.insert((b, a), list.iter().rev().map(|&(_, id)| id).collect());
     }
+    // Triangles outside R whose edge was split are covered once R's boundary splits are
+    // settled (below).
+    let mut split_outside: Vec<SplitTriangle> = Vec::new();
     for (t, tri) in mesh.triangles.iter().enumerate() {
         if in_region[t] {
             continue;
@@ -1335,22 +1262,15 @@ pub fn incise(
                 .unwrap_or_default()
         });
         let corners = tri.map(|v| remap[v as usize]);
-        let split_edges = splits.iter().filter(|s| !s.is_empty()).count();
-        if split_edges == 0 {
+        if splits.iter().all(|s| s.is_empty()) {
             triangles.push(corners);
             out_kinds.push(kinds[t]);
-            continue;
-        }
-        // Fanned from the point that gives the best smallest angle: the corner opposite a
-        // lone split edge, or a new vertex inside (the triangle is flat, so the fan keeps
-        // its shape). A split piece much shorter than the triangle is tall fans from the
-        // corner into a needle (the tumour's 1.2 mm skin triangles split 0.25 mm from a
-        // corner: 9.1°); from a point nearer the split edge it does not.
-        let fan = fan_split_triangle(&mut positions, &mut source, corners, &splits);
-        for f in fan {
-            created.push(triangles.len() as u32);
-            triangles.push(f);
-            out_kinds.push(kinds[t]);
+        } else {
+            split_outside.push(SplitTriangle {
+                corners,
+                splits,
+                kind: kinds[t],
+            });
         }
     }
     for face in cdt.inner_faces() {
@@ -1372,8 +1292,89 @@ pub fn incise(
         triangles.push(vs.map(|v| cdt_vertex[&v.fix().index()]));
         out_kinds.push(kind);
     }
+    // Lifted onto a steep side, R's cells on a piece of its boundary split a fraction of a
+    // millimetre from a corner lose more than half their angle (the tumour's default cut:
+    // 27° in the plane, 10° on the surface), and the triangle beyond is fanned into
+    // needles: such splits are collapsed along their edge where that helps (super::collapse).
+    let mut gone: Vec<(u32, u32)> = collapse_boundary_splits(
+        &positions,
+        &mut triangles,
+        &mut out_kinds,
+        &mut created,
+        &mut split_outside,
+    );
+    // The triangles beyond R's split boundary, fanned from the point that gives the best
+    // smallest angle: the corner opposite a lone split edge, or a new vertex inside (the
+    // triangle is flat, so the fan keeps its shape). A split piece much shorter than the
+    // triangle is tall fans from the corner into a needle (the tumour's 1.2 mm skin
+    // triangles split 0.25 mm from a corner: 9.1°); from a point nearer the split edge it
+    // does not.
+    for out in split_outside {
+        for f in plan_fan(&positions, out.corners, &out.splits).commit(&mut positions, &mut source)
+        {
+            created.push(triangles.len() as u32);
+            triangles.push(f);
+            out_kinds.push(out.kind);
+        }
+    }
     flip_to_surface_quality(&positions, &mut triangles, &out_kinds, &created);
-
+    // R's own new vertices where their cells, lifted, came out poorly: collapsed into a
+    // neighbour where that helps.
+    let lip_handles: HashSet<usize> = upper_handles
+        .iter()
+        .chain(&lower_handles)
+        .map(|h| h.index())
+        .collect();
+    let steiner: HashSet<u32> = cdt_vertex
+        .iter()
+        .filter(|(h, _)| {
+            !cdt_to_mesh.contains_key(h) && !lip_handles.contains(h) && !on_segment.contains_key(h)
+        })
+        .map(|(_, &id)| id)
+        .collect();
+    gone.extend(collapse_to_quality(
+        &positions,
+        &mut triangles,
+        &mut out_kinds,
+        &mut created,
+        &steiner,
+    ));
+    if !gone.is_empty() {
+        let gone: HashSet<u32> = gone.iter().map(|&(v, _)| v).collect();
+        let mut new_id = vec![u32::MAX; positions.len()];
+        let mut next = 0;
+        for (v, id) in new_id.iter_mut().enumerate() {
+            if !gone.contains(&(v as u32)) {
+                *id = next;
+                next += 1;
+            }
+        }
+        let mut v = 0;
+        positions.retain(|_| {
+            v += 1;
+            !gone.contains(&(v as u32 - 1))
+        });
+        let mut v = 0;
+        source.retain(|_| {
+            v += 1;
+            !gone.contains(&(v as u32 - 1))
+        });
+        for tri in &mut triangles {
+            *tri = tri.map(|w| new_id[w as usize]);
+        }
+        cdt_vertex
+            .values_mut()
+            .for_each(|w| *w = new_id[*w as usize]);
+        for list in boundary_inserts
+            .values_mut()
+            .chain(upper_inserts.values_mut())
+            .chain(lower_inserts.values_mut())
+        {
+            list.retain(|&(_, w)| !gone.contains(&w));
+            list.iter_mut().for_each(|(_, w)| *w = new_id[*w as usize]);
+        }
+        boundary_inserts.retain(|_, list| !list.is_empty());
+    }
     // The lips as refined: (parameter along the lip in [0, 1], vertex).
     let chain = |handles: &[spade::handles::FixedVertexHandle],
                  inserts: &HashMap<usize, Vec<(f64, u32)>>| {
@@ -1585,7 +1586,6 @@ pub fn incise(
 mod tests {
     use super::*;
     use crate::cut::checks::{check, check_topology, top_path, uniform};
-    use crate::geometry::triangle_angles_deg;
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
 
@@ -1597,74 +1597,6 @@ mod tests {
         let out = incise(mesh, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
         check(&out, "incision");
         out
-    }
-
-    /// A triangle 1.4 mm on a side whose edge was split 0.25 mm from a corner (the
-    /// tumour's default cut) fanned from its far corner has a 9° cell; the fan is now
-    /// made from a point inside, over 14°. The cells cover the triangle exactly, facing
-    /// its way; an edge split in the middle still fans from the corner (30°, no new vertex).
-    #[test]
-    fn a_split_next_to_a_corner_is_not_fanned_into_a_needle() {
-        let side = 0.0014;
-        let corners_at = [
-            Vec3::zeros(),
-            Vec3::new(side, 0.0, 0.0),
-            Vec3::new(0.5 * side, 0.5 * 3f64.sqrt() * side, 0.0),
-        ];
-        let smallest = |positions: &[Vec3], fan: &[[u32; 3]]| {
-            fan.iter()
-                .flat_map(|t| triangle_angles_deg(t.map(|v| positions[v as usize])))
-                .fold(180.0, f64::min)
-        };
-        let area_normal = |positions: &[Vec3], fan: &[[u32; 3]]| {
-            fan.iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|v| positions[v as usize]);
-                    (b - a).cross(&(c - a))
-                })
-                .fold(Vec3::zeros(), |s, n| {
-                    assert!(n.z > 0.0, "a cell faces the other way");
-                    s + n
-                })
-        };
-        let whole = (corners_at[1] - corners_at[0]).cross(&(corners_at[2] - corners_at[0]));
-        // (split points as fractions along edges 0, 1, 2; smallest angle wanted; new
-        // vertices): next to a corner on the first edge and on the second, in the middle,
-        // and 0.14 mm from a corner on both its edges (fanned from the centroid before: 5.8°;
-        // 10.9° now).
-        let cases: [([&[f64]; 3], f64, usize); 4] = [
-            ([&[0.25 / 1.4, 0.68 / 1.4], &[], &[]], 14.0, 1),
-            ([&[], &[0.18, 0.5], &[]], 14.0, 1),
-            ([&[0.5], &[], &[]], 29.9, 0),
-            ([&[0.1, 0.5], &[], &[0.5, 0.9]], 10.5, 1),
-        ];
-        for (fractions, smallest_wanted, new_vertices) in cases {
-            let mut positions = corners_at.to_vec();
-            let mut splits: [Vec<u32>; 3] = Default::default();
-            for e in 0..3 {
-                for &f in fractions[e] {
-                    let (a, b) = (corners_at[e], corners_at[(e + 1) % 3]);
-                    positions.push(a + (b - a) * f);
-                    splits[e].push((positions.len() - 1) as u32);
-                }
-            }
-            let mut source: Vec<Option<u32>> = vec![None; positions.len()];
-            let before = positions.len();
-            let fan = fan_split_triangle(&mut positions, &mut source, [0, 1, 2], &splits);
-            assert!(
-                smallest(&positions, &fan) >= smallest_wanted,
-                "{fractions:?}: {}",
-                smallest(&positions, &fan)
-            );
-            assert_eq!(positions.len() - before, new_vertices, "{fractions:?}");
-            assert_eq!(source.len(), positions.len());
-            assert!((area_normal(&positions, &fan) - whole).norm() < 1e-12 * whole.norm());
-        }
-        // The far corner's fan of the first case, for the record: 9.6°.
-        let mut positions = corners_at.to_vec();
-        positions.extend([0.25e-3, 0.68e-3].map(|x| Vec3::new(x, 0.0, 0.0)));
-        let from_corner = [[0, 3, 2], [3, 4, 2], [4, 1, 2]];
-        assert!(smallest(&positions, &from_corner) < 10.0);
     }
 
     #[test]

@@ -3,6 +3,8 @@
 pub mod blade;
 #[cfg(test)]
 pub(crate) mod checks;
+mod collapse;
+mod fan;
 pub mod incision;
 pub mod stroke;
 pub mod swept;

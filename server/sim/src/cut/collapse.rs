@@ -1,0 +1,562 @@
+//! Edge collapses that remove a new vertex where it spoils the cells around it on the
+//! surface itself (physics.md §5.2, step 7).
+//!
+//! The incision region is triangulated to the angle limit in one projection plane; where
+//! the region runs onto a steep side (a tumour 12 mm across) the refinement may split an
+//! edge of its boundary a fraction of a millimetre from a corner, and the cells on that
+//! short piece, lifted back onto the steep face, lose more than half their smallest angle
+//! (the tumour's default cut: 27.4° in the plane, 10.3° on the surface). Collapsing the
+//! new vertex into its neighbour — along the boundary edge it lies on, so the triangles
+//! outside the region keep their plane — removes the short piece.
+
+use std::collections::{HashMap, HashSet};
+
+use crate::geometry::triangle_min_angle_deg;
+use crate::math::Vec3;
+
+use super::fan::plan_fan;
+use super::incision::FaceKind;
+
+/// Cells whose smallest angle is under this are worked on.
+const COLLAPSE_BELOW_DEG: f64 = 20.0;
+/// A collapse must raise the smallest angle around the vertex by this much.
+const COLLAPSE_GAIN_DEG: f64 = 1.0;
+/// Largest turn of a cell's normal that a collapse may cause (as for flips).
+const COLLAPSE_MAX_TURN_DEG: f64 = 30.0;
+
+/// Collapses vertices of `movable` (new vertices strictly inside the region, all of whose
+/// cells are created skin) into a neighbour where that raises the smallest angle around
+/// them, worst cells first. Removes the two
+/// cells on each collapsed edge from `triangles`, `kinds` and `created` (indices kept
+/// consistent) and returns the collapsed vertices with where they went; the caller drops
+/// them from its vertex arrays.
+pub(crate) fn collapse_to_quality(
+    positions: &[Vec3],
+    triangles: &mut Vec<[u32; 3]>,
+    kinds: &mut Vec<FaceKind>,
+    created: &mut Vec<u32>,
+    movable: &HashSet<u32>,
+) -> Vec<(u32, u32)> {
+    let at = |v: u32| positions[v as usize];
+    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(tri.map(at));
+    let normal = |tri: [u32; 3]| {
+        let [a, b, c] = tri.map(at);
+        (b - a).cross(&(c - a)).try_normalize(1e-300)
+    };
+    // Cells around every vertex of a created cell (an old vertex's old cells included: the
+    // link test needs its whole neighbourhood).
+    let mut star: HashMap<u32, Vec<u32>> = HashMap::new();
+    for &t in created.iter() {
+        for v in triangles[t as usize] {
+            star.entry(v).or_default();
+        }
+    }
+    for (t, tri) in triangles.iter().enumerate() {
+        for v in tri {
+            if let Some(list) = star.get_mut(v) {
+                list.push(t as u32);
+            }
+        }
+    }
+    let mut alive = vec![true; triangles.len()];
+    let neighbours = |v: u32, star: &HashMap<u32, Vec<u32>>, triangles: &[[u32; 3]]| {
+        let mut out: HashSet<u32> = HashSet::new();
+        for &t in &star[&v] {
+            out.extend(triangles[t as usize].iter().copied().filter(|&w| w != v));
+        }
+        out
+    };
+    let max_turn = COLLAPSE_MAX_TURN_DEG.to_radians().cos();
+    // The smallest angle around v after collapsing it into u, if the collapse is allowed.
+    let evaluate = |v: u32, u: u32, star: &HashMap<u32, Vec<u32>>, triangles: &[[u32; 3]]| {
+        let cells = &star[&v];
+        if cells.iter().any(|&t| kinds[t as usize] != FaceKind::Skin) {
+            return None;
+        }
+        let on_edge: Vec<u32> = cells
+            .iter()
+            .copied()
+            .filter(|&t| triangles[t as usize].contains(&u))
+            .collect();
+        if on_edge.len() != 2 {
+            return None;
+        }
+        // Link condition: v and u share exactly the two far corners of the cells on their
+        // edge, or the collapse would pinch the surface.
+        let apexes: HashSet<u32> = on_edge
+            .iter()
+            .flat_map(|&t| triangles[t as usize])
+            .filter(|&w| w != v && w != u)
+            .collect();
+        let common: HashSet<u32> = neighbours(v, star, triangles)
+            .intersection(&neighbours(u, star, triangles))
+            .copied()
+            .collect();
+        if common != apexes || apexes.len() != 2 {
+            return None;
+        }
+        let mut after = f64::INFINITY;
+        for &t in cells.iter().filter(|t| !on_edge.contains(t)) {
+            let old = triangles[t as usize];
+            let new = old.map(|w| if w == v { u } else { w });
+            let (Some(n_old), Some(n_new)) = (normal(old), normal(new)) else {
+                return None;
+            };
+            if n_old.dot(&n_new) < max_turn {
+                return None;
+            }
+            after = after.min(smallest(new));
+        }
+        Some(after)
+    };
+
+    let mut collapsed = Vec::new();
+    for _pass in 0..4 {
+        let mut worst: Vec<(f64, u32)> = created
+            .iter()
+            .filter(|&&t| alive[t as usize] && kinds[t as usize] == FaceKind::Skin)
+            .map(|&t| (smallest(triangles[t as usize]), t))
+            .filter(|&(a, _)| a < COLLAPSE_BELOW_DEG)
+            .collect();
+        worst.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut changed = false;
+        for (_, t) in worst {
+            if !alive[t as usize] {
+                continue;
+            }
+            let mut best: Option<(f64, u32, u32)> = None;
+            for v in triangles[t as usize] {
+                if !movable.contains(&v) {
+                    continue;
+                }
+                let before = star[&v]
+                    .iter()
+                    .map(|&c| smallest(triangles[c as usize]))
+                    .fold(f64::INFINITY, f64::min);
+                let mut targets: Vec<u32> = neighbours(v, &star, triangles).into_iter().collect();
+                targets.sort_unstable();
+                for u in targets {
+                    if let Some(after) = evaluate(v, u, &star, triangles)
+                        && after > before + COLLAPSE_GAIN_DEG
+                        && best.is_none_or(|b| after > b.0)
+                    {
+                        best = Some((after, v, u));
+                    }
+                }
+            }
+            let Some((_, v, u)) = best else {
+                continue;
+            };
+            // Apply: the cells on edge v–u go, the others take u for v.
+            let cells = star.remove(&v).unwrap_or_default();
+            for &c in &cells {
+                let tri = &mut triangles[c as usize];
+                if tri.contains(&u) {
+                    alive[c as usize] = false;
+                    for w in *tri {
+                        if let Some(list) = star.get_mut(&w) {
+                            list.retain(|&x| x != c);
+                        }
+                    }
+                } else {
+                    *tri = tri.map(|w| if w == v { u } else { w });
+                    star.get_mut(&u).expect("u has a star").push(c);
+                }
+            }
+            collapsed.push((v, u));
+            changed = true;
+        }
+        if !changed {
+            break;
+        }
+    }
+    drop_dead(triangles, kinds, created, &alive);
+    collapsed
+}
+
+/// A triangle outside the region whose edges got new vertices (`splits[e]` on the edge
+/// from corner e to e + 1, in order); covered by [`super::fan::plan_fan`] once the splits
+/// are settled.
+#[derive(Debug, Clone)]
+pub(crate) struct SplitTriangle {
+    pub corners: [u32; 3],
+    pub splits: [Vec<u32>; 3],
+    pub kind: FaceKind,
+}
+
+/// Collapses vertices the refinement put on the region's boundary into the next vertex
+/// along the same original edge where that raises the smallest angle of the region's cells
+/// around them together with the fan that will cover the skin triangle beyond (worst
+/// first). Sliding along the edge keeps the triangle beyond in its plane; its split is
+/// dropped from `outside`. Call before the triangles in `outside` are fanned: `triangles`
+/// holds the region's cells and the unsplit rest. Returns the collapsed vertices with where
+/// they went; the removed cells are dropped as in [`collapse_to_quality`].
+pub(crate) fn collapse_boundary_splits(
+    positions: &[Vec3],
+    triangles: &mut Vec<[u32; 3]>,
+    kinds: &mut Vec<FaceKind>,
+    created: &mut Vec<u32>,
+    outside: &mut [SplitTriangle],
+) -> Vec<(u32, u32)> {
+    let at = |v: u32| positions[v as usize];
+    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(tri.map(at));
+    let normal = |tri: [u32; 3]| {
+        let [a, b, c] = tri.map(at);
+        (b - a).cross(&(c - a)).try_normalize(1e-300)
+    };
+    let max_turn = COLLAPSE_MAX_TURN_DEG.to_radians().cos();
+    // The region's cells at each split vertex, and who owns each directed edge.
+    let mut cells_at: HashMap<u32, Vec<u32>> = HashMap::new();
+    for o in outside.iter() {
+        for &v in o.splits.iter().flatten() {
+            cells_at.entry(v).or_default();
+        }
+    }
+    for &t in created.iter() {
+        for v in triangles[t as usize] {
+            if let Some(list) = cells_at.get_mut(&v) {
+                list.push(t);
+            }
+        }
+    }
+    let mut owner: HashMap<(u32, u32), u32> = HashMap::new();
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+        }
+    }
+    let mut alive = vec![true; triangles.len()];
+    let mut collapsed = Vec::new();
+    for _pass in 0..8 {
+        // (quality around the split, triangle beyond, edge, index on the edge)
+        let mut worst: Vec<(Quality, usize, usize, usize)> = Vec::new();
+        for (o, out) in outside.iter().enumerate() {
+            if out.kind != FaceKind::Skin {
+                continue;
+            }
+            let fan = Quality::of(plan_fan(positions, out.corners, &out.splits).angles(positions));
+            for e in 0..3 {
+                for (i, &v) in out.splits[e].iter().enumerate() {
+                    let around = fan.with(
+                        cells_at[&v]
+                            .iter()
+                            .map(|&c| smallest(triangles[c as usize])),
+                    );
+                    if around.min < COLLAPSE_BELOW_DEG {
+                        worst.push((around, o, e, i));
+                    }
+                }
+            }
+        }
+        worst.sort_by(|a, b| a.0.min.total_cmp(&b.0.min));
+        let mut changed = false;
+        // One change per triangle beyond and pass: the indices of its splits move.
+        let mut touched: HashSet<usize> = HashSet::new();
+        for (before, o, e, i) in worst {
+            if touched.contains(&o) {
+                continue;
+            }
+            let out = &outside[o];
+            let chain = &out.splits[e];
+            let v = chain[i];
+            let prev = if i == 0 { out.corners[e] } else { chain[i - 1] };
+            let next = chain
+                .get(i + 1)
+                .copied()
+                .unwrap_or(out.corners[(e + 1) % 3]);
+            let mut fewer = out.splits.clone();
+            fewer[e].remove(i);
+            let fan_after = Quality::of(plan_fan(positions, out.corners, &fewer).angles(positions));
+            let cells = &cells_at[&v];
+            let mut best: Option<(Quality, u32)> = None;
+            'target: for u in [prev, next] {
+                let on_edge: Vec<u32> = cells
+                    .iter()
+                    .copied()
+                    .filter(|&c| triangles[c as usize].contains(&u))
+                    .collect();
+                if on_edge.len() != 1 || cells.iter().any(|&c| kinds[c as usize] != FaceKind::Skin)
+                {
+                    continue;
+                }
+                let mut after = fan_after;
+                let mut new_edges: HashSet<(u32, u32)> = HashSet::new();
+                for &c in cells.iter().filter(|&&c| c != on_edge[0]) {
+                    let old = triangles[c as usize];
+                    let new = old.map(|w| if w == v { u } else { w });
+                    let (Some(n_old), Some(n_new)) = (normal(old), normal(new)) else {
+                        continue 'target;
+                    };
+                    if n_old.dot(&n_new) < max_turn {
+                        continue 'target;
+                    }
+                    // Each directed edge once, or the surface would pinch at u.
+                    for k in 0..3 {
+                        let edge = (new[k], new[(k + 1) % 3]);
+                        let taken = owner.get(&edge).is_some_and(|&t| !cells.contains(&t));
+                        if taken || !new_edges.insert(edge) {
+                            continue 'target;
+                        }
+                    }
+                    after = after.with([smallest(new)]);
+                }
+                if after.improves_on(&before) && best.is_none_or(|b| after.improves_on(&b.0)) {
+                    best = Some((after, u));
+                }
+            }
+            let Some((_, u)) = best else {
+                continue;
+            };
+            touched.insert(o);
+            let cells = cells_at.remove(&v).unwrap_or_default();
+            for &c in &cells {
+                let tri = triangles[c as usize];
+                for k in 0..3 {
+                    owner.remove(&(tri[k], tri[(k + 1) % 3]));
+                }
+                if tri.contains(&u) {
+                    alive[c as usize] = false;
+                    continue;
+                }
+                let new = tri.map(|w| if w == v { u } else { w });
+                triangles[c as usize] = new;
+                for k in 0..3 {
+                    owner.insert((new[k], new[(k + 1) % 3]), c);
+                }
+                if let Some(list) = cells_at.get_mut(&u) {
+                    list.push(c);
+                }
+            }
+            if let Some(list) = cells_at.get_mut(&u) {
+                list.retain(|&c| alive[c as usize]);
+            }
+            outside[o].splits[e].remove(i);
+            collapsed.push((v, u));
+            changed = true;
+        }
+        if !changed {
+            break;
+        }
+    }
+    drop_dead(triangles, kinds, created, &alive);
+    collapsed
+}
+
+/// How far the cells of a neighbourhood are from the collapse limit.
+#[derive(Debug, Clone, Copy)]
+struct Quality {
+    /// The smallest angle (degrees).
+    min: f64,
+    /// The sum over cells of how far their smallest angle is under [`COLLAPSE_BELOW_DEG`].
+    deficit: f64,
+}
+
+impl Quality {
+    fn of(angles: impl IntoIterator<Item = f64>) -> Self {
+        Quality {
+            min: 180.0,
+            deficit: 0.0,
+        }
+        .with(angles)
+    }
+
+    fn with(mut self, angles: impl IntoIterator<Item = f64>) -> Self {
+        for a in angles {
+            self.min = self.min.min(a);
+            self.deficit += (COLLAPSE_BELOW_DEG - a).max(0.0);
+        }
+        self
+    }
+
+    /// A larger smallest angle, or the same one with cells nearer the limit elsewhere (a
+    /// triangle split several times next to a corner loses its needles one split at a time).
+    fn improves_on(&self, before: &Quality) -> bool {
+        self.min > before.min + COLLAPSE_GAIN_DEG
+            || (self.min >= before.min && self.deficit < before.deficit - COLLAPSE_GAIN_DEG)
+    }
+}
+
+/// Drops the cells not `alive` from `triangles` and `kinds`, keeping `created` pointing at
+/// the same cells.
+fn drop_dead(
+    triangles: &mut Vec<[u32; 3]>,
+    kinds: &mut Vec<FaceKind>,
+    created: &mut Vec<u32>,
+    alive: &[bool],
+) {
+    if alive.iter().all(|&a| a) {
+        return;
+    }
+    let mut new_index = vec![u32::MAX; triangles.len()];
+    let mut next = 0u32;
+    for (t, &keep) in alive.iter().enumerate() {
+        if keep {
+            new_index[t] = next;
+            next += 1;
+        }
+    }
+    let mut t = 0;
+    triangles.retain(|_| {
+        t += 1;
+        alive[t - 1]
+    });
+    let mut t = 0;
+    kinds.retain(|_| {
+        t += 1;
+        alive[t - 1]
+    });
+    created.retain(|&c| alive[c as usize]);
+    created.iter_mut().for_each(|c| *c = new_index[*c as usize]);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MM: f64 = 1e-3;
+
+    fn at(x: f64, y: f64) -> Vec3 {
+        Vec3::new(x * MM, y * MM, 0.0)
+    }
+
+    fn smallest_of(positions: &[Vec3], cells: &[[u32; 3]]) -> f64 {
+        cells
+            .iter()
+            .map(|c| triangle_min_angle_deg(c.map(|v| positions[v as usize])))
+            .fold(180.0, f64::min)
+    }
+
+    /// Region cells below the edge a–b of a 1.4 mm triangle beyond (a, b, c), the edge
+    /// split at the given fractions from a: the region's cells fan from d = (0.7, −1.2) mm.
+    fn split_edge(fractions: &[f64]) -> (Vec<Vec3>, Vec<[u32; 3]>, SplitTriangle) {
+        let mut positions = vec![at(0.0, 0.0), at(1.4, 0.0), at(0.7, 1.2), at(0.7, -1.2)];
+        let mut chain = vec![1u32]; // b … a, the region's side runs the edge backwards
+        let mut splits = Vec::new();
+        for &f in fractions {
+            positions.push(at(1.4 * f, 0.0));
+            splits.push((positions.len() - 1) as u32);
+        }
+        chain.extend(splits.iter().rev());
+        chain.push(0);
+        let cells = chain.windows(2).map(|w| [w[0], w[1], 3]).collect();
+        let beyond = SplitTriangle {
+            corners: [0, 1, 2],
+            splits: [splits, Vec::new(), Vec::new()],
+            kind: FaceKind::Skin,
+        };
+        (positions, cells, beyond)
+    }
+
+    #[test]
+    fn a_boundary_split_next_to_a_corner_is_collapsed_into_it() {
+        let (positions, mut triangles, beyond) = split_edge(&[0.1]);
+        let mut kinds = vec![FaceKind::Skin; triangles.len()];
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut outside = [beyond];
+        assert!(smallest_of(&positions, &triangles) < 7.0);
+        let gone = collapse_boundary_splits(
+            &positions,
+            &mut triangles,
+            &mut kinds,
+            &mut created,
+            &mut outside,
+        );
+        // v slid into a: the region's cell on the short piece went, the other took a.
+        assert_eq!(gone, vec![(4, 0)]);
+        assert_eq!(triangles, vec![[1, 0, 3]]);
+        assert_eq!((kinds.len(), created.clone()), (1, vec![0]));
+        assert!(outside[0].splits.iter().all(Vec::is_empty));
+        assert!(smallest_of(&positions, &triangles) > 49.0);
+    }
+
+    #[test]
+    fn splits_at_both_ends_of_an_edge_go_one_at_a_time() {
+        // Removing either alone leaves the other's needle: the smallest angle holds, the
+        // cells under the limit get fewer, and the second pass takes the other.
+        let (positions, mut triangles, beyond) = split_edge(&[0.08, 0.92]);
+        let mut kinds = vec![FaceKind::Skin; triangles.len()];
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut outside = [beyond];
+        let gone = collapse_boundary_splits(
+            &positions,
+            &mut triangles,
+            &mut kinds,
+            &mut created,
+            &mut outside,
+        );
+        assert_eq!(gone.len(), 2, "{gone:?}");
+        assert_eq!(triangles, vec![[1, 0, 3]]);
+    }
+
+    #[test]
+    fn a_middle_split_and_a_split_at_a_lid_stay() {
+        // In the middle: every cell is fair, nothing to gain.
+        let (positions, mut triangles, beyond) = split_edge(&[0.5]);
+        let mut kinds = vec![FaceKind::Skin; triangles.len()];
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut outside = [beyond];
+        let gone = collapse_boundary_splits(
+            &positions,
+            &mut triangles,
+            &mut kinds,
+            &mut created,
+            &mut outside,
+        );
+        assert!(gone.is_empty());
+        assert_eq!(triangles.len(), 2);
+        // Next to a corner, but one of its cells is the lid over an opening: not moved.
+        let (positions, mut triangles, beyond) = split_edge(&[0.1]);
+        let mut kinds = vec![FaceKind::Skin, FaceKind::Lid];
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut outside = [beyond];
+        let gone = collapse_boundary_splits(
+            &positions,
+            &mut triangles,
+            &mut kinds,
+            &mut created,
+            &mut outside,
+        );
+        assert!(gone.is_empty());
+        assert_eq!(outside[0].splits[0], vec![4]);
+    }
+
+    #[test]
+    fn a_vertex_inside_next_to_a_corner_is_collapsed_but_a_peak_is_not_flattened() {
+        // A 1 mm square fanned from a vertex 0.05 mm from its corner a.
+        let square = |peak: f64| {
+            vec![
+                at(0.0, 0.0),
+                at(1.0, 0.0),
+                at(1.0, 1.0),
+                at(0.0, 1.0),
+                Vec3::new(0.05 * MM, 0.05 * MM, peak * MM),
+            ]
+        };
+        let fan = vec![[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]];
+        let movable: HashSet<u32> = [4].into();
+        let run = |positions: &[Vec3]| {
+            let mut triangles = fan.clone();
+            let mut kinds = vec![FaceKind::Skin; 4];
+            let mut created = vec![0, 1, 2, 3];
+            let gone = collapse_to_quality(
+                positions,
+                &mut triangles,
+                &mut kinds,
+                &mut created,
+                &movable,
+            );
+            (gone, triangles, created)
+        };
+        let flat = square(0.0);
+        assert!(smallest_of(&flat, &fan) < 5.0);
+        let (gone, triangles, created) = run(&flat);
+        assert_eq!(gone, vec![(4, 0)]);
+        assert_eq!(triangles, vec![[1, 2, 0], [2, 3, 0]]);
+        assert_eq!(created, vec![0, 1]);
+        assert!(smallest_of(&flat, &triangles) > 44.9);
+        // The vertex on a peak 1 mm high: flattening it would turn cells by 46°.
+        let (gone, triangles, _) = run(&square(1.0));
+        assert!(gone.is_empty());
+        assert_eq!(triangles, fan);
+    }
+}
