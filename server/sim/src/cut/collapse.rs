@@ -1,5 +1,7 @@
 //! Edge collapses that remove a new vertex where it spoils the cells around it on the
-//! surface itself (physics.md §5.2, step 7).
+//! surface itself. physics.md §5.2 step 7 collapses tiny triangles away from the region's
+//! boundary; here the measure is the smallest angle on the surface, and a split of the
+//! boundary may slide along its edge (the triangle beyond is fanned afterwards).
 //!
 //! The incision region is triangulated to the angle limit in one projection plane; where
 //! the region runs onto a steep side (a tumour 12 mm across) the refinement may split an
@@ -219,10 +221,21 @@ pub(crate) fn collapse_boundary_splits(
             }
         }
     }
+    // The triangles beyond are not fanned yet: their rings stand for them (owner
+    // `BEYOND`), so a region cell cannot take an edge one of their cells will have.
+    const BEYOND: u32 = u32::MAX;
     let mut owner: HashMap<(u32, u32), u32> = HashMap::new();
     for (t, tri) in triangles.iter().enumerate() {
         for k in 0..3 {
             owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+        }
+    }
+    for out in outside.iter() {
+        let ring: Vec<u32> = (0..3)
+            .flat_map(|e| std::iter::once(out.corners[e]).chain(out.splits[e].iter().copied()))
+            .collect();
+        for k in 0..ring.len() {
+            owner.insert((ring[k], ring[(k + 1) % ring.len()]), BEYOND);
         }
     }
     let mut alive = vec![true; triangles.len()];
@@ -252,13 +265,20 @@ pub(crate) fn collapse_boundary_splits(
         let mut changed = false;
         // One change per triangle beyond and pass: the indices of its splits move.
         let mut touched: HashSet<usize> = HashSet::new();
-        for (before, o, e, i) in worst {
+        for (_, o, e, i) in worst {
             if touched.contains(&o) {
                 continue;
             }
             let out = &outside[o];
             let chain = &out.splits[e];
             let v = chain[i];
+            // As things are now: a collapse at a neighbouring split may have changed them.
+            let before =
+                Quality::of(plan_fan(positions, out.corners, &out.splits).angles(positions)).with(
+                    cells_at[&v]
+                        .iter()
+                        .map(|&c| smallest(triangles[c as usize])),
+                );
             let prev = if i == 0 { out.corners[e] } else { chain[i - 1] };
             let next = chain
                 .get(i + 1)
@@ -308,14 +328,25 @@ pub(crate) fn collapse_boundary_splits(
                 continue;
             };
             touched.insert(o);
+            // All the old edges out first, then the new ones in: a dead cell's edge may be
+            // the very edge a live one takes.
             let cells = cells_at.remove(&v).unwrap_or_default();
             for &c in &cells {
                 let tri = triangles[c as usize];
                 for k in 0..3 {
                     owner.remove(&(tri[k], tri[(k + 1) % 3]));
                 }
+            }
+            for &c in &cells {
+                let tri = triangles[c as usize];
                 if tri.contains(&u) {
+                    // Gone: out of every list it is on (a corner cell can hold two splits).
                     alive[c as usize] = false;
+                    for w in tri {
+                        if let Some(list) = cells_at.get_mut(&w) {
+                            list.retain(|&x| x != c);
+                        }
+                    }
                     continue;
                 }
                 let new = tri.map(|w| if w == v { u } else { w });
@@ -327,9 +358,17 @@ pub(crate) fn collapse_boundary_splits(
                     list.push(c);
                 }
             }
-            if let Some(list) = cells_at.get_mut(&u) {
-                list.retain(|&c| alive[c as usize]);
-            }
+            // The ring beyond loses v.
+            let next_at = |chain: &[u32]| chain.get(i + 1).copied();
+            let next = next_at(&outside[o].splits[e]).unwrap_or(outside[o].corners[(e + 1) % 3]);
+            let prev = if i == 0 {
+                outside[o].corners[e]
+            } else {
+                outside[o].splits[e][i - 1]
+            };
+            owner.remove(&(prev, v));
+            owner.remove(&(v, next));
+            owner.insert((prev, next), BEYOND);
             outside[o].splits[e].remove(i);
             collapsed.push((v, u));
             changed = true;
@@ -521,23 +560,74 @@ mod tests {
     }
 
     #[test]
-    fn a_vertex_inside_next_to_a_corner_is_collapsed_but_a_peak_is_not_flattened() {
+    fn splits_on_both_edges_at_a_corner_both_go() {
+        // R is the triangle (a, p, q) with a vertex e inside; its edges at a were split
+        // 0.1 of the way from a (v1 on a–q, v2 on p–a), one cell holds both splits, and
+        // the triangles beyond are long (a split fans them into needles). Once one split
+        // is gone, the corner cell must be gone from the other's cells too.
+        let positions = vec![
+            at(0.0, 0.0),    // 0 a
+            at(0.7, -1.2),   // 1 p
+            at(1.4, 0.0),    // 2 q
+            at(0.3, -0.25),  // 3 e
+            at(0.14, 0.0),   // 4 v1
+            at(0.07, -0.12), // 5 v2
+            at(0.7, 5.0),    // 6 beyond a–q
+            at(-4.5, -3.9),  // 7 beyond p–a
+        ];
+        let mut triangles = vec![[0, 5, 4], [4, 5, 3], [5, 1, 3], [3, 1, 2], [4, 3, 2]];
+        let mut kinds = vec![FaceKind::Skin; triangles.len()];
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut outside = [
+            SplitTriangle {
+                corners: [0, 2, 6],
+                splits: [vec![4], Vec::new(), Vec::new()],
+                kind: FaceKind::Skin,
+            },
+            SplitTriangle {
+                corners: [1, 0, 7],
+                splits: [vec![5], Vec::new(), Vec::new()],
+                kind: FaceKind::Skin,
+            },
+        ];
+        let gone = collapse_boundary_splits(
+            &positions,
+            &mut triangles,
+            &mut kinds,
+            &mut created,
+            &mut outside,
+        );
+        let mut gone_to: Vec<_> = gone.clone();
+        gone_to.sort_unstable();
+        assert_eq!(gone_to, vec![(4, 0), (5, 0)]);
+        // What is left is R fanned from e.
+        let mut cells: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| {
+                let k = (0..3).min_by_key(|&k| t[k]).unwrap();
+                [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+            })
+            .collect();
+        cells.sort_unstable();
+        assert_eq!(cells, vec![[0, 1, 3], [0, 3, 2], [1, 2, 3]]);
+        assert!(outside.iter().all(|o| o.splits.iter().all(Vec::is_empty)));
+    }
+
+    #[test]
+    fn a_vertex_inside_next_to_a_corner_is_collapsed_but_never_folds_a_cell() {
         // A 1 mm square fanned from a vertex 0.05 mm from its corner a.
-        let square = |peak: f64| {
-            vec![
-                at(0.0, 0.0),
-                at(1.0, 0.0),
-                at(1.0, 1.0),
-                at(0.0, 1.0),
-                Vec3::new(0.05 * MM, 0.05 * MM, peak * MM),
-            ]
-        };
-        let fan = vec![[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]];
+        let square = vec![
+            at(0.0, 0.0),
+            at(1.0, 0.0),
+            at(1.0, 1.0),
+            at(0.0, 1.0),
+            at(0.05, 0.05),
+        ];
         let movable: HashSet<u32> = [4].into();
-        let run = |positions: &[Vec3]| {
-            let mut triangles = fan.clone();
-            let mut kinds = vec![FaceKind::Skin; 4];
-            let mut created = vec![0, 1, 2, 3];
+        let run = |positions: &[Vec3], fan: &[[u32; 3]]| {
+            let mut triangles = fan.to_vec();
+            let mut kinds = vec![FaceKind::Skin; fan.len()];
+            let mut created: Vec<u32> = (0..fan.len() as u32).collect();
             let gone = collapse_to_quality(
                 positions,
                 &mut triangles,
@@ -547,16 +637,34 @@ mod tests {
             );
             (gone, triangles, created)
         };
-        let flat = square(0.0);
-        assert!(smallest_of(&flat, &fan) < 5.0);
-        let (gone, triangles, created) = run(&flat);
+        let fan = [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]];
+        assert!(smallest_of(&square, &fan) < 5.0);
+        let (gone, triangles, created) = run(&square, &fan);
         assert_eq!(gone, vec![(4, 0)]);
         assert_eq!(triangles, vec![[1, 2, 0], [2, 3, 0]]);
         assert_eq!(created, vec![0, 1]);
-        assert!(smallest_of(&flat, &triangles) > 44.9);
-        // The vertex on a peak 1 mm high: flattening it would turn cells by 46°.
-        let (gone, triangles, _) = run(&square(1.0));
-        assert!(gone.is_empty());
-        assert_eq!(triangles, fan);
+        assert!(smallest_of(&square, &triangles) > 44.9);
+        // An arrowhead (a, b, c, r, d with r reflex) fanned from v just below r: into a, b
+        // or c a cell would fold over (facing down, with fair angles); only r is allowed.
+        let arrow = vec![
+            at(0.0, 0.0), // 0 a
+            at(2.0, 0.0), // 1 b
+            at(2.0, 2.0), // 2 c
+            at(1.0, 0.6), // 3 r
+            at(0.0, 2.0), // 4 d
+            at(1.0, 0.3), // 5 v
+        ];
+        let movable: HashSet<u32> = [5].into();
+        let fan = [[0, 1, 5], [1, 2, 5], [2, 3, 5], [3, 4, 5], [4, 0, 5]];
+        let mut triangles = fan.to_vec();
+        let mut kinds = vec![FaceKind::Skin; fan.len()];
+        let mut created: Vec<u32> = (0..fan.len() as u32).collect();
+        assert!(smallest_of(&arrow, &fan) < 20.0);
+        let gone = collapse_to_quality(&arrow, &mut triangles, &mut kinds, &mut created, &movable);
+        assert_eq!(gone, vec![(5, 3)]);
+        for t in &triangles {
+            let [a, b, c] = t.map(|v| arrow[v as usize]);
+            assert!((b - a).cross(&(c - a)).z > 0.0, "{t:?} folded over");
+        }
     }
 }

@@ -16,9 +16,9 @@
 //!    constraints, refined (Ruppert/Chew, spade) to a minimum angle, boundary edges kept.
 //!    New vertices are lifted onto the original surface through the original triangles.
 //!    There, cells that lost much of their angle in the lift are mended: splits of R's
-//!    boundary and new vertices inside are collapsed into a neighbour where that helps
-//!    (super::collapse), the triangles beyond a split boundary are fanned (super::fan), and
-//!    pairs of cells are flipped.
+//!    boundary are collapsed along their edge where that helps (super::collapse), the
+//!    triangles beyond a split boundary are fanned (super::fan), pairs of cells are
+//!    flipped, and new vertices inside R are collapsed into a neighbour where that helps.
 //! 4. **Wound walls** from each lip down to the cut's bottom curve (the blade tip's track),
 //!    two structured strips meeting at the bottom and at the two ends, material `Wall`.
 //! 5. **Lid**: the faces between the lips are kept as `Lid` faces: not drawn, but they
@@ -1362,6 +1362,7 @@ pub fn incise(
         for tri in &mut triangles {
             *tri = tri.map(|w| new_id[w as usize]);
         }
+        cdt_vertex.retain(|_, w| !gone.contains(w));
         cdt_vertex
             .values_mut()
             .for_each(|w| *w = new_id[*w as usize]);
