@@ -45,7 +45,8 @@ use crate::math::Vec3;
 use super::collapse::{SplitTriangle, collapse_boundary_splits, collapse_to_quality};
 use super::fan::plan_fan;
 use super::wound::{
-    Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms, first_hit,
+    Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms,
+    first_hit, limit_slope,
 };
 
 /// What a surface triangle is.
@@ -1518,6 +1519,9 @@ pub fn incise(
     for c in even_out_bottoms(&mut columns) {
         held_short(&mut columns[c]);
     }
+    // Across a step in the floor taller than the columns are apart the walls' cells would
+    // be slivers: eased to 45° or less, never deeper than the cut (as a deeper pass's).
+    limit_slope(&mut columns, None, min_depth);
     let wound = Wound {
         upper: upper_chain,
         lower: lower_chain,

@@ -398,11 +398,12 @@ mod tests {
     /// (strokes opened; under 15°; smallest), remeshed — as they came: pig liver lobe 281
     /// of 300, none — 266, 3, 7.2°; sphere (not remeshed: 50° and up) 268 of 300, none;
     /// tumour 270 of 300, none — 264, 16, 10.9°; deltoid (a muscle sheet, strongly curved
-    /// across the strokes, whose ends run onto its steep sides) 134 of 265 (35 more had
-    /// gaps), 51, 0.63° (106 before outside triangles split next to a corner were fanned from a
-    /// point inside, 81 before such splits were collapsed) — 121, 106, 0.2°: not held to
-    /// 15° here (docs/CUTTING.md, "Real organ meshes"). The bounds below hold at 20 trials,
-    /// one random sequence across the meshes (deltoid: 11 of 26, 1.6°).
+    /// across the strokes, whose ends run onto its steep sides) 135 of 265 (35 more had
+    /// gaps), 39, 0.63° (106 before outside triangles split next to a corner were fanned from a
+    /// point inside, 81 before such splits were collapsed, 51 before a first incision's floor
+    /// was eased beside a shallow column) — 121, 106, 0.2°: not held to 15° here
+    /// (docs/CUTTING.md, "Real organ meshes"). The bounds below hold at 20 trials, one
+    /// random sequence across the meshes (deltoid: 7 of 26, 1.6°).
     #[test]
     #[ignore = "reads ../shared/meshes"]
     fn shared_meshes_take_random_strokes() {
@@ -421,7 +422,7 @@ mod tests {
             ),
             ("sofa_sphere_05.obj", LengthUnit::Mm, 0.8, 0.0, 15.0),
             ("liver_tumour_PPP_Tumor.obj", LengthUnit::Cm, 0.8, 0.0, 15.0),
-            ("deltoid_tri.obj", LengthUnit::Mm, 0.4, 0.5, 0.0),
+            ("deltoid_tri.obj", LengthUnit::Mm, 0.4, 0.35, 0.0),
         ];
         let organs: Vec<(String, TriMesh, f64)> = meshes
             .iter()

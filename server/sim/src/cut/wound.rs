@@ -477,16 +477,19 @@ fn path_cut_near(
 /// be at most half a gap deeper than its neighbour: the end column and the floor are shared
 /// by both walls, so the neighbour's last cell must fan from the end column's bottom up to
 /// the neighbour's last row (a crossing pass at a wound's end made 13.5° cells at 45°).
-fn limit_slope(columns: &mut [WallColumn], old: &[WallColumn], gap: f64) {
+/// A first incision's walls (`old` none) are eased the same way where a thin part stops a
+/// column at a fraction of a millimetre beside one several deep (the deltoid sheet).
+pub(crate) fn limit_slope(columns: &mut [WallColumn], old: Option<&[WallColumn]>, gap: f64) {
     let last = columns.len().saturating_sub(1);
     let step = |c: usize| if c == 0 || c == last { 0.5 * gap } else { gap };
+    let floor = |c: usize| old.map_or(0.0, |old| old[c].depth);
     for c in 1..columns.len() {
         let limit = columns[c - 1].depth + step(c);
-        columns[c].depth = columns[c].depth.min(limit).max(old[c].depth);
+        columns[c].depth = columns[c].depth.min(limit).max(floor(c));
     }
     for c in (0..last).rev() {
         let limit = columns[c + 1].depth + step(c);
-        columns[c].depth = columns[c].depth.min(limit).max(old[c].depth);
+        columns[c].depth = columns[c].depth.min(limit).max(floor(c));
     }
 }
 
@@ -540,7 +543,7 @@ pub fn deepen(
             }
         }
         if changed {
-            limit_slope(&mut new.columns, &wound.columns, wound.column_gap_m());
+            limit_slope(&mut new.columns, Some(&wound.columns), wound.column_gap_m());
         }
         // A wound whose record no longer matches its walls (it cannot happen as the
         // incisions keep their records, but a torn surface would be worse than a shallow
@@ -762,6 +765,39 @@ mod tests {
     use crate::geometry::predicates::distance_sq_to_segment;
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
+
+    /// A first incision's floor where a thin part stopped the end column 0.52 mm down
+    /// beside columns 3.7 mm deep, 1.84 mm apart (a deltoid stroke: 4.9° wall cells): eased
+    /// to 45°, never deeper than it was; a smooth floor is left alone.
+    #[test]
+    fn a_first_incisions_floor_is_eased_beside_a_shallow_end() {
+        let gap = 1.84e-3;
+        let columns = |depths_mm: &[f64]| -> Vec<WallColumn> {
+            depths_mm
+                .iter()
+                .enumerate()
+                .map(|(c, &d)| WallColumn {
+                    param: c as f64 / (depths_mm.len() - 1) as f64,
+                    top: Vec3::new(c as f64 * gap, 0.0, 0.0),
+                    inward: -Vec3::z(),
+                    depth: d * 1e-3,
+                })
+                .collect()
+        };
+        let depths = |c: &[WallColumn]| -> Vec<f64> {
+            c.iter().map(|c| (c.depth * 1e5).round() / 100.0).collect()
+        };
+        let mut cut = columns(&[2.81, 3.12, 3.26, 3.25, 3.29, 3.51, 3.65, 3.68, 3.69, 0.52]);
+        limit_slope(&mut cut, None, gap);
+        assert_eq!(
+            depths(&cut),
+            vec![2.81, 3.12, 3.26, 3.25, 3.29, 3.51, 3.65, 3.68, 2.36, 0.52]
+        );
+        let smooth = columns(&[1.0, 2.0, 3.0, 3.5, 3.5, 3.0, 2.0, 1.2]);
+        let mut eased = smooth.clone();
+        limit_slope(&mut eased, None, gap);
+        assert_eq!(eased, smooth);
+    }
 
     /// Columns whose lean turns quickly bring two bottoms within 0.04 of a gap of each
     /// other — on a straight path, and on a curved one whose bottoms are spread more widely
