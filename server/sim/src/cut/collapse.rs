@@ -26,12 +26,51 @@ const COLLAPSE_GAIN_DEG: f64 = 1.0;
 /// Largest turn of a cell's normal that a collapse may cause (as for flips).
 const COLLAPSE_MAX_TURN_DEG: f64 = 30.0;
 
+/// Smallest angle of the cell `tri` of `positions` (degrees).
+pub(crate) fn cell_min_angle_deg(positions: &[Vec3], tri: [u32; 3]) -> f64 {
+    triangle_min_angle_deg(tri.map(|v| positions[v as usize]))
+}
+
+/// Unit normal of the cell `tri` of `positions` (none if it has no area).
+pub(crate) fn cell_normal(positions: &[Vec3], tri: [u32; 3]) -> Option<Vec3> {
+    let [a, b, c] = tri.map(|v| positions[v as usize]);
+    (b - a).cross(&(c - a)).try_normalize(1e-300)
+}
+
+/// Keeps the items of `items` whose index `keep` says.
+fn retain_indexed<T>(items: &mut Vec<T>, keep: impl Fn(usize) -> bool) {
+    let mut i = 0;
+    items.retain(|_| {
+        i += 1;
+        keep(i - 1)
+    });
+}
+
+/// Drops the collapsed vertices `gone` from `positions` and `source`; the new id of every
+/// vertex (`u32::MAX` for the dropped ones).
+pub(crate) fn drop_vertices(
+    gone: &HashSet<u32>,
+    positions: &mut Vec<Vec3>,
+    source: &mut Vec<Option<u32>>,
+) -> Vec<u32> {
+    let mut new_id = vec![u32::MAX; positions.len()];
+    let mut next = 0;
+    for (v, id) in new_id.iter_mut().enumerate() {
+        if !gone.contains(&(v as u32)) {
+            *id = next;
+            next += 1;
+        }
+    }
+    retain_indexed(positions, |v| new_id[v] != u32::MAX);
+    retain_indexed(source, |v| new_id[v] != u32::MAX);
+    new_id
+}
+
 /// Collapses vertices of `movable` (new vertices strictly inside the region, all of whose
 /// cells are created skin) into a neighbour where that raises the smallest angle around
-/// them, worst cells first. Removes the two
-/// cells on each collapsed edge from `triangles`, `kinds` and `created` (indices kept
-/// consistent) and returns the collapsed vertices with where they went; the caller drops
-/// them from its vertex arrays.
+/// them, worst cells first. Removes the two cells on each collapsed edge from `triangles`,
+/// `kinds` and `created` (indices kept consistent) and returns the collapsed vertices with
+/// where they went; the caller drops them ([`drop_vertices`]).
 pub(crate) fn collapse_to_quality(
     positions: &[Vec3],
     triangles: &mut Vec<[u32; 3]>,
@@ -39,12 +78,8 @@ pub(crate) fn collapse_to_quality(
     created: &mut Vec<u32>,
     movable: &HashSet<u32>,
 ) -> Vec<(u32, u32)> {
-    let at = |v: u32| positions[v as usize];
-    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(tri.map(at));
-    let normal = |tri: [u32; 3]| {
-        let [a, b, c] = tri.map(at);
-        (b - a).cross(&(c - a)).try_normalize(1e-300)
-    };
+    let smallest = |tri: [u32; 3]| cell_min_angle_deg(positions, tri);
+    let normal = |tri: [u32; 3]| cell_normal(positions, tri);
     // Cells around every vertex of a created cell (an old vertex's old cells included: the
     // link test needs its whole neighbourhood).
     let mut star: HashMap<u32, Vec<u32>> = HashMap::new();
@@ -200,12 +235,8 @@ pub(crate) fn collapse_boundary_splits(
     created: &mut Vec<u32>,
     outside: &mut [SplitTriangle],
 ) -> Vec<(u32, u32)> {
-    let at = |v: u32| positions[v as usize];
-    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(tri.map(at));
-    let normal = |tri: [u32; 3]| {
-        let [a, b, c] = tri.map(at);
-        (b - a).cross(&(c - a)).try_normalize(1e-300)
-    };
+    let smallest = |tri: [u32; 3]| cell_min_angle_deg(positions, tri);
+    let normal = |tri: [u32; 3]| cell_normal(positions, tri);
     let max_turn = COLLAPSE_MAX_TURN_DEG.to_radians().cos();
     // The region's cells at each split vertex, and who owns each directed edge.
     let mut cells_at: HashMap<u32, Vec<u32>> = HashMap::new();
@@ -434,16 +465,8 @@ fn drop_dead(
             next += 1;
         }
     }
-    let mut t = 0;
-    triangles.retain(|_| {
-        t += 1;
-        alive[t - 1]
-    });
-    let mut t = 0;
-    kinds.retain(|_| {
-        t += 1;
-        alive[t - 1]
-    });
+    retain_indexed(triangles, |t| alive[t]);
+    retain_indexed(kinds, |t| alive[t]);
     created.retain(|&c| alive[c as usize]);
     created.iter_mut().for_each(|c| *c = new_index[*c as usize]);
 }
@@ -486,24 +509,43 @@ mod tests {
         (positions, cells, beyond)
     }
 
+    /// `collapse_boundary_splits` on the region cells `triangles` (skin but for `lids`)
+    /// and the triangles beyond: what went, and the cells left.
+    fn collapse_at_boundary(
+        positions: &[Vec3],
+        mut triangles: Vec<[u32; 3]>,
+        lids: &[usize],
+        outside: &mut [SplitTriangle],
+    ) -> (Vec<(u32, u32)>, Vec<[u32; 3]>) {
+        let mut kinds: Vec<FaceKind> = (0..triangles.len())
+            .map(|t| {
+                if lids.contains(&t) {
+                    FaceKind::Lid
+                } else {
+                    FaceKind::Skin
+                }
+            })
+            .collect();
+        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let gone =
+            collapse_boundary_splits(positions, &mut triangles, &mut kinds, &mut created, outside);
+        assert_eq!(
+            (kinds.len(), created.len()),
+            (triangles.len(), triangles.len())
+        );
+        assert!(created.iter().enumerate().all(|(i, &t)| t as usize == i));
+        (gone, triangles)
+    }
+
     #[test]
     fn a_boundary_split_next_to_a_corner_is_collapsed_into_it() {
-        let (positions, mut triangles, beyond) = split_edge(&[0.1]);
-        let mut kinds = vec![FaceKind::Skin; triangles.len()];
-        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let (positions, triangles, beyond) = split_edge(&[0.1]);
         let mut outside = [beyond];
         assert!(smallest_of(&positions, &triangles) < 7.0);
-        let gone = collapse_boundary_splits(
-            &positions,
-            &mut triangles,
-            &mut kinds,
-            &mut created,
-            &mut outside,
-        );
+        let (gone, triangles) = collapse_at_boundary(&positions, triangles, &[], &mut outside);
         // v slid into a: the region's cell on the short piece went, the other took a.
         assert_eq!(gone, vec![(4, 0)]);
         assert_eq!(triangles, vec![[1, 0, 3]]);
-        assert_eq!((kinds.len(), created.clone()), (1, vec![0]));
         assert!(outside[0].splits.iter().all(Vec::is_empty));
         assert!(smallest_of(&positions, &triangles) > 49.0);
     }
@@ -512,17 +554,8 @@ mod tests {
     fn splits_at_both_ends_of_an_edge_go_one_at_a_time() {
         // Removing either alone leaves the other's needle: the smallest angle holds, the
         // cells under the limit get fewer, and the second pass takes the other.
-        let (positions, mut triangles, beyond) = split_edge(&[0.08, 0.92]);
-        let mut kinds = vec![FaceKind::Skin; triangles.len()];
-        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
-        let mut outside = [beyond];
-        let gone = collapse_boundary_splits(
-            &positions,
-            &mut triangles,
-            &mut kinds,
-            &mut created,
-            &mut outside,
-        );
+        let (positions, triangles, beyond) = split_edge(&[0.08, 0.92]);
+        let (gone, triangles) = collapse_at_boundary(&positions, triangles, &[], &mut [beyond]);
         assert_eq!(gone.len(), 2, "{gone:?}");
         assert_eq!(triangles, vec![[1, 0, 3]]);
     }
@@ -530,31 +563,14 @@ mod tests {
     #[test]
     fn a_middle_split_and_a_split_at_a_lid_stay() {
         // In the middle: every cell is fair, nothing to gain.
-        let (positions, mut triangles, beyond) = split_edge(&[0.5]);
-        let mut kinds = vec![FaceKind::Skin; triangles.len()];
-        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
-        let mut outside = [beyond];
-        let gone = collapse_boundary_splits(
-            &positions,
-            &mut triangles,
-            &mut kinds,
-            &mut created,
-            &mut outside,
-        );
+        let (positions, triangles, beyond) = split_edge(&[0.5]);
+        let (gone, triangles) = collapse_at_boundary(&positions, triangles, &[], &mut [beyond]);
         assert!(gone.is_empty());
         assert_eq!(triangles.len(), 2);
         // Next to a corner, but one of its cells is the lid over an opening: not moved.
-        let (positions, mut triangles, beyond) = split_edge(&[0.1]);
-        let mut kinds = vec![FaceKind::Skin, FaceKind::Lid];
-        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
+        let (positions, triangles, beyond) = split_edge(&[0.1]);
         let mut outside = [beyond];
-        let gone = collapse_boundary_splits(
-            &positions,
-            &mut triangles,
-            &mut kinds,
-            &mut created,
-            &mut outside,
-        );
+        let (gone, _) = collapse_at_boundary(&positions, triangles, &[1], &mut outside);
         assert!(gone.is_empty());
         assert_eq!(outside[0].splits[0], vec![4]);
     }
@@ -575,31 +591,16 @@ mod tests {
             at(0.7, 5.0),    // 6 beyond a–q
             at(-4.5, -3.9),  // 7 beyond p–a
         ];
-        let mut triangles = vec![[0, 5, 4], [4, 5, 3], [5, 1, 3], [3, 1, 2], [4, 3, 2]];
-        let mut kinds = vec![FaceKind::Skin; triangles.len()];
-        let mut created: Vec<u32> = (0..triangles.len() as u32).collect();
-        let mut outside = [
-            SplitTriangle {
-                corners: [0, 2, 6],
-                splits: [vec![4], Vec::new(), Vec::new()],
-                kind: FaceKind::Skin,
-            },
-            SplitTriangle {
-                corners: [1, 0, 7],
-                splits: [vec![5], Vec::new(), Vec::new()],
-                kind: FaceKind::Skin,
-            },
-        ];
-        let gone = collapse_boundary_splits(
-            &positions,
-            &mut triangles,
-            &mut kinds,
-            &mut created,
-            &mut outside,
-        );
-        let mut gone_to: Vec<_> = gone.clone();
-        gone_to.sort_unstable();
-        assert_eq!(gone_to, vec![(4, 0), (5, 0)]);
+        let triangles = vec![[0, 5, 4], [4, 5, 3], [5, 1, 3], [3, 1, 2], [4, 3, 2]];
+        let beyond = |corners: [u32; 3], split: u32| SplitTriangle {
+            corners,
+            splits: [vec![split], Vec::new(), Vec::new()],
+            kind: FaceKind::Skin,
+        };
+        let mut outside = [beyond([0, 2, 6], 4), beyond([1, 0, 7], 5)];
+        let (mut gone, triangles) = collapse_at_boundary(&positions, triangles, &[], &mut outside);
+        gone.sort_unstable();
+        assert_eq!(gone, vec![(4, 0), (5, 0)]);
         // What is left is R fanned from e.
         let mut cells: Vec<[u32; 3]> = triangles
             .iter()

@@ -33,7 +33,7 @@ impl FanPlan {
     }
 
     /// The smallest angle of its cells (degrees).
-    pub(crate) fn worst(&self, positions: &[Vec3]) -> f64 {
+    fn worst(&self, positions: &[Vec3]) -> f64 {
         self.angles(positions).fold(180.0, f64::min)
     }
 

@@ -38,11 +38,14 @@ use spade::{
 use thiserror::Error;
 
 use crate::geometry::TriMesh;
+use crate::geometry::angle_deg;
 use crate::geometry::predicates::distance_sq_to_segment;
-use crate::geometry::{angle_deg, triangle_min_angle_deg};
 use crate::math::Vec3;
 
-use super::collapse::{SplitTriangle, collapse_boundary_splits, collapse_to_quality};
+use super::collapse::{
+    SplitTriangle, cell_min_angle_deg, cell_normal, collapse_boundary_splits, collapse_to_quality,
+    drop_vertices,
+};
 use super::fan::plan_fan;
 use super::wound::{
     Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms,
@@ -570,12 +573,8 @@ fn flip_to_surface_quality(
             owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
         }
     }
-    let corners = |tri: [u32; 3]| tri.map(|v| positions[v as usize]);
-    let smallest = |tri: [u32; 3]| triangle_min_angle_deg(corners(tri));
-    let normal = |tri: [u32; 3]| {
-        let [a, b, c] = corners(tri);
-        (b - a).cross(&(c - a)).try_normalize(1e-300)
-    };
+    let smallest = |tri: [u32; 3]| cell_min_angle_deg(positions, tri);
+    let normal = |tri: [u32; 3]| cell_normal(positions, tri);
     let max_bend = FLIP_MAX_BEND_DEG.to_radians().cos();
     let mut order: Vec<u32> = free.iter().copied().collect();
     order.sort_unstable();
@@ -1342,24 +1341,7 @@ pub fn incise(
     ));
     if !gone.is_empty() {
         let gone: HashSet<u32> = gone.iter().map(|&(v, _)| v).collect();
-        let mut new_id = vec![u32::MAX; positions.len()];
-        let mut next = 0;
-        for (v, id) in new_id.iter_mut().enumerate() {
-            if !gone.contains(&(v as u32)) {
-                *id = next;
-                next += 1;
-            }
-        }
-        let mut v = 0;
-        positions.retain(|_| {
-            v += 1;
-            !gone.contains(&(v as u32 - 1))
-        });
-        let mut v = 0;
-        source.retain(|_| {
-            v += 1;
-            !gone.contains(&(v as u32 - 1))
-        });
+        let new_id = drop_vertices(&gone, &mut positions, &mut source);
         for tri in &mut triangles {
             *tri = tri.map(|w| new_id[w as usize]);
         }
@@ -1519,10 +1501,7 @@ pub fn incise(
     for c in even_out_bottoms(&mut columns) {
         held_short(&mut columns[c]);
     }
-    // Across a step in the floor taller than the columns are apart the walls' cells would
-    // be slivers: eased to 45° or less, never deeper than the cut (as a deeper pass's).
-    limit_slope(&mut columns, None, min_depth);
-    let wound = Wound {
+    let mut wound = Wound {
         upper: upper_chain,
         lower: lower_chain,
         columns,
@@ -1530,6 +1509,10 @@ pub fn incise(
         length_m: length,
         spacing_m: spacing,
     };
+    // Across a step in the floor taller than the columns are apart the walls' cells would
+    // be slivers: eased to 45° or less, never deeper than the cut (as a deeper pass's).
+    let gap = wound.column_gap_m();
+    limit_slope(&mut wound.columns, None, gap);
     let mut assembly = Assembly {
         positions,
         source,
@@ -1769,7 +1752,7 @@ mod tests {
         let cells = || vec![[0u32, 1, 2], [1, 0, 3]];
         let smallest = |p: &[Vec3], t: &[[u32; 3]]| {
             t.iter()
-                .map(|c| triangle_min_angle_deg(c.map(|v| p[v as usize])))
+                .map(|&c| cell_min_angle_deg(p, c))
                 .fold(180.0, f64::min)
         };
         let skin = [FaceKind::Skin; 2];

@@ -95,7 +95,7 @@ impl Wound {
     }
 
     /// Distance between neighbouring columns (m).
-    fn column_gap_m(&self) -> f64 {
+    pub(crate) fn column_gap_m(&self) -> f64 {
         self.length_m / (self.columns.len() - 1).max(1) as f64
     }
 
