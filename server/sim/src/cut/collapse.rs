@@ -269,6 +269,16 @@ pub(crate) fn collapse_boundary_splits(
             owner.insert((ring[k], ring[(k + 1) % ring.len()]), BEYOND);
         }
     }
+    // The fan the triangle beyond gets with `splits`, and the region's cells at split v.
+    let around = |out: &SplitTriangle,
+                  splits: &[Vec<u32>; 3],
+                  v: Option<u32>,
+                  cells_at: &HashMap<u32, Vec<u32>>,
+                  triangles: &[[u32; 3]]| {
+        let cells = v.map_or(&[][..], |v| &cells_at[&v][..]);
+        Quality::of(plan_fan(positions, out.corners, splits).angles(positions))
+            .with(cells.iter().map(|&c| smallest(triangles[c as usize])))
+    };
     let mut alive = vec![true; triangles.len()];
     let mut collapsed = Vec::new();
     for _pass in 0..8 {
@@ -278,14 +288,9 @@ pub(crate) fn collapse_boundary_splits(
             if out.kind != FaceKind::Skin {
                 continue;
             }
-            let fan = Quality::of(plan_fan(positions, out.corners, &out.splits).angles(positions));
             for e in 0..3 {
                 for (i, &v) in out.splits[e].iter().enumerate() {
-                    let around = fan.with(
-                        cells_at[&v]
-                            .iter()
-                            .map(|&c| smallest(triangles[c as usize])),
-                    );
+                    let around = around(out, &out.splits, Some(v), &cells_at, triangles);
                     if around.min < COLLAPSE_BELOW_DEG {
                         worst.push((around, o, e, i));
                     }
@@ -304,12 +309,7 @@ pub(crate) fn collapse_boundary_splits(
             let chain = &out.splits[e];
             let v = chain[i];
             // As things are now: a collapse at a neighbouring split may have changed them.
-            let before =
-                Quality::of(plan_fan(positions, out.corners, &out.splits).angles(positions)).with(
-                    cells_at[&v]
-                        .iter()
-                        .map(|&c| smallest(triangles[c as usize])),
-                );
+            let before = around(out, &out.splits, Some(v), &cells_at, triangles);
             let prev = if i == 0 { out.corners[e] } else { chain[i - 1] };
             let next = chain
                 .get(i + 1)
@@ -317,7 +317,7 @@ pub(crate) fn collapse_boundary_splits(
                 .unwrap_or(out.corners[(e + 1) % 3]);
             let mut fewer = out.splits.clone();
             fewer[e].remove(i);
-            let fan_after = Quality::of(plan_fan(positions, out.corners, &fewer).angles(positions));
+            let fan_after = around(out, &fewer, None, &cells_at, triangles);
             let cells = &cells_at[&v];
             let mut best: Option<(Quality, u32)> = None;
             'target: for u in [prev, next] {
@@ -390,13 +390,6 @@ pub(crate) fn collapse_boundary_splits(
                 }
             }
             // The ring beyond loses v.
-            let next_at = |chain: &[u32]| chain.get(i + 1).copied();
-            let next = next_at(&outside[o].splits[e]).unwrap_or(outside[o].corners[(e + 1) % 3]);
-            let prev = if i == 0 {
-                outside[o].corners[e]
-            } else {
-                outside[o].splits[e][i - 1]
-            };
             owner.remove(&(prev, v));
             owner.remove(&(v, next));
             owner.insert((prev, next), BEYOND);
