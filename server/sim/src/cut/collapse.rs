@@ -46,6 +46,21 @@ fn retain_indexed<T>(items: &mut Vec<T>, keep: impl Fn(usize) -> bool) {
     });
 }
 
+/// The new index of every item `kept` says stays (`u32::MAX` for the others).
+fn renumbering(kept: &[bool]) -> Vec<u32> {
+    let mut next = 0;
+    kept.iter()
+        .map(|&k| {
+            if k {
+                next += 1;
+                next - 1
+            } else {
+                u32::MAX
+            }
+        })
+        .collect()
+}
+
 /// Drops the collapsed vertices `gone` from `positions` and `source`; the new id of every
 /// vertex (`u32::MAX` for the dropped ones).
 pub(crate) fn drop_vertices(
@@ -53,14 +68,10 @@ pub(crate) fn drop_vertices(
     positions: &mut Vec<Vec3>,
     source: &mut Vec<Option<u32>>,
 ) -> Vec<u32> {
-    let mut new_id = vec![u32::MAX; positions.len()];
-    let mut next = 0;
-    for (v, id) in new_id.iter_mut().enumerate() {
-        if !gone.contains(&(v as u32)) {
-            *id = next;
-            next += 1;
-        }
-    }
+    let kept: Vec<bool> = (0..positions.len())
+        .map(|v| !gone.contains(&(v as u32)))
+        .collect();
+    let new_id = renumbering(&kept);
     retain_indexed(positions, |v| new_id[v] != u32::MAX);
     retain_indexed(source, |v| new_id[v] != u32::MAX);
     new_id
@@ -184,22 +195,8 @@ pub(crate) fn collapse_to_quality(
             let Some((_, v, u)) = best else {
                 continue;
             };
-            // Apply: the cells on edge v–u go, the others take u for v.
             let cells = star.remove(&v).unwrap_or_default();
-            for &c in &cells {
-                let tri = &mut triangles[c as usize];
-                if tri.contains(&u) {
-                    alive[c as usize] = false;
-                    for w in *tri {
-                        if let Some(list) = star.get_mut(&w) {
-                            list.retain(|&x| x != c);
-                        }
-                    }
-                } else {
-                    *tri = tri.map(|w| if w == v { u } else { w });
-                    star.get_mut(&u).expect("u has a star").push(c);
-                }
-            }
+            collapse_cells(v, u, &cells, triangles, &mut alive, &mut star);
             collapsed.push((v, u));
             changed = true;
         }
@@ -368,25 +365,10 @@ pub(crate) fn collapse_boundary_splits(
                     owner.remove(&(tri[k], tri[(k + 1) % 3]));
                 }
             }
-            for &c in &cells {
-                let tri = triangles[c as usize];
-                if tri.contains(&u) {
-                    // Gone: out of every list it is on (a corner cell can hold two splits).
-                    alive[c as usize] = false;
-                    for w in tri {
-                        if let Some(list) = cells_at.get_mut(&w) {
-                            list.retain(|&x| x != c);
-                        }
-                    }
-                    continue;
-                }
-                let new = tri.map(|w| if w == v { u } else { w });
-                triangles[c as usize] = new;
+            for c in collapse_cells(v, u, &cells, triangles, &mut alive, &mut cells_at) {
+                let new = triangles[c as usize];
                 for k in 0..3 {
                     owner.insert((new[k], new[(k + 1) % 3]), c);
-                }
-                if let Some(list) = cells_at.get_mut(&u) {
-                    list.push(c);
                 }
             }
             // The ring beyond loses v.
@@ -403,6 +385,38 @@ pub(crate) fn collapse_boundary_splits(
     }
     drop_dead(triangles, kinds, created, &alive);
     collapsed
+}
+
+/// Collapses v into u over v's `cells`: the cells on edge v–u die and leave every list in
+/// `lists` they are on (a corner cell can hold two boundary splits), the others take u for v
+/// and join u's list (if it has one). The cells that took u.
+fn collapse_cells(
+    v: u32,
+    u: u32,
+    cells: &[u32],
+    triangles: &mut [[u32; 3]],
+    alive: &mut [bool],
+    lists: &mut HashMap<u32, Vec<u32>>,
+) -> Vec<u32> {
+    let mut kept = Vec::with_capacity(cells.len());
+    for &c in cells {
+        let tri = triangles[c as usize];
+        if tri.contains(&u) {
+            alive[c as usize] = false;
+            for w in tri {
+                if let Some(list) = lists.get_mut(&w) {
+                    list.retain(|&x| x != c);
+                }
+            }
+        } else {
+            triangles[c as usize] = tri.map(|w| if w == v { u } else { w });
+            if let Some(list) = lists.get_mut(&u) {
+                list.push(c);
+            }
+            kept.push(c);
+        }
+    }
+    kept
 }
 
 /// How far the cells of a neighbourhood are from the collapse limit.
@@ -450,14 +464,7 @@ fn drop_dead(
     if alive.iter().all(|&a| a) {
         return;
     }
-    let mut new_index = vec![u32::MAX; triangles.len()];
-    let mut next = 0u32;
-    for (t, &keep) in alive.iter().enumerate() {
-        if keep {
-            new_index[t] = next;
-            next += 1;
-        }
-    }
+    let new_index = renumbering(alive);
     retain_indexed(triangles, |t| alive[t]);
     retain_indexed(kinds, |t| alive[t]);
     created.retain(|&c| alive[c as usize]);
