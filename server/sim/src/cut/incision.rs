@@ -48,8 +48,8 @@ use super::collapse::{
 };
 use super::fan::plan_fan;
 use super::wound::{
-    Assembly, EdgeSplits, WallColumn, Wound, build_walls, carry_wounds, even_out_bottoms,
-    first_hit, limit_slope,
+    Assembly, EdgeSplits, WallColumn, Wound, build_walls_choosing_ends, carry_wounds,
+    even_out_bottoms, first_hit, limit_slope,
 };
 
 /// What a surface triangle is.
@@ -548,29 +548,42 @@ fn smooth_path(points: &[[f64; 2]], tracks: &[Vec3]) -> (Vec<[f64; 2]>, Vec<Vec3
 /// flip moves the surface no further than the bend between them.
 const FLIP_MAX_BEND_DEG: f64 = 30.0;
 
-/// Flips edges between two created skin triangles where that raises the smaller of their
-/// smallest angles as they lie on the surface. The region is triangulated to the angle
-/// limit in its projection onto n̄'s plane; lifted back onto a strongly curved surface (a
-/// tumour 12 mm across, the rim of a region on a scanned liver) a cell can lose more than
-/// half its smallest angle. Lips (skin against lid) and the region's unsplit boundary (skin
-/// against an old triangle) are never flipped; neither is a bend over
-/// [`FLIP_MAX_BEND_DEG`], nor a flip that would fold a cell over.
-fn flip_to_surface_quality(
+/// Flips edges between two created triangles of `kind` where that raises the smaller of
+/// their smallest angles as they lie on the surface. Skin: the region is triangulated to
+/// the angle limit in its projection onto n̄'s plane; lifted back onto a strongly curved
+/// surface (a tumour 12 mm across, the rim of a region on a scanned liver) a cell can lose
+/// more than half its smallest angle. Walls: their grid zips lips and columns spaced
+/// differently (a lip graded to quarter-spacing segments at its ends beside columns a
+/// gap apart). Edges against another kind or an old triangle (lips, the region's
+/// unsplit boundary, a wall's lip and the floor between the two walls, which meet there
+/// face to face) are never flipped; neither is a bend over [`FLIP_MAX_BEND_DEG`], nor a
+/// flip that would fold a cell over.
+pub(crate) fn flip_to_surface_quality(
     positions: &[Vec3],
     triangles: &mut [[u32; 3]],
     kinds: &[FaceKind],
     created: &[u32],
+    kind: FaceKind,
 ) {
     let free: HashSet<u32> = created
         .iter()
         .copied()
-        .filter(|&t| kinds[t as usize] == FaceKind::Skin)
+        .filter(|&t| kinds[t as usize] == kind)
         .collect();
-    // Every triangle's edges: a flip must not make an edge that is already there.
+    // The edges of every triangle at a vertex of those (a flip must not make an edge that
+    // is already there).
+    let mut at_free = vec![false; positions.len()];
+    for &t in &free {
+        for v in triangles[t as usize] {
+            at_free[v as usize] = true;
+        }
+    }
     let mut owner: HashMap<(u32, u32), u32> = HashMap::new();
     for (t, tri) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+        if tri.iter().any(|&v| at_free[v as usize]) {
+            for k in 0..3 {
+                owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+            }
         }
     }
     let smallest = |tri: [u32; 3]| cell_min_angle_deg(positions, tri);
@@ -1317,7 +1330,13 @@ pub fn incise(
             out_kinds.push(out.kind);
         }
     }
-    flip_to_surface_quality(&positions, &mut triangles, &out_kinds, &created);
+    flip_to_surface_quality(
+        &positions,
+        &mut triangles,
+        &out_kinds,
+        &created,
+        FaceKind::Skin,
+    );
     // R's own new vertices where their cells, lifted, came out poorly: collapsed into a
     // neighbour where that helps.
     let lip_handles: HashSet<usize> = upper_handles
@@ -1520,7 +1539,7 @@ pub fn incise(
         kinds: out_kinds,
         created,
     };
-    build_walls(&wound, &mut assembly);
+    build_walls_choosing_ends(&mut wound, None, &mut assembly);
     let min_angle = assembly.min_created_angle_deg();
     let depth_max_out = wound.depth_m();
     // R's boundary may run along an earlier wound's lip: the vertices put on it go into
@@ -1757,13 +1776,19 @@ mod tests {
         };
         let skin = [FaceKind::Skin; 2];
         let (flat, mut t) = (rhombus(0.0), cells());
-        flip_to_surface_quality(&flat, &mut t, &skin, &[0, 1]);
+        flip_to_surface_quality(&flat, &mut t, &skin, &[0, 1], FaceKind::Skin);
         assert!(smallest(&flat, &t) > 27.0, "{t:?}");
         let (bent, mut t) = (rhombus(0.25 * 3f64.sqrt()), cells());
-        flip_to_surface_quality(&bent, &mut t, &skin, &[0, 1]);
+        flip_to_surface_quality(&bent, &mut t, &skin, &[0, 1], FaceKind::Skin);
         assert_eq!(t, cells());
         let mut t = cells();
-        flip_to_surface_quality(&flat, &mut t, &[FaceKind::Skin, FaceKind::Lid], &[0, 1]);
+        flip_to_surface_quality(
+            &flat,
+            &mut t,
+            &[FaceKind::Skin, FaceKind::Lid],
+            &[0, 1],
+            FaceKind::Skin,
+        );
         assert_eq!(t, cells());
     }
 

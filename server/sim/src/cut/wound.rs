@@ -21,7 +21,8 @@ use crate::geometry::triangle_min_angle_deg;
 use crate::math::{Aabb, Vec3};
 
 use super::incision::{
-    FaceKind, Incised, IncisionParams, PathSample, incise, source_through, tracks_across,
+    FaceKind, Incised, IncisionParams, PathSample, flip_to_surface_quality, incise, source_through,
+    tracks_across,
 };
 
 /// One column of a wound's walls.
@@ -153,6 +154,37 @@ impl Assembly {
         (self.positions.len() - 1) as u32
     }
 
+    /// Where the surface is now, to measure or undo what is added after it.
+    fn mark(&self) -> AssemblyMark {
+        AssemblyMark {
+            positions: self.positions.len(),
+            triangles: self.triangles.len(),
+            created: self.created.len(),
+        }
+    }
+
+    /// Smallest angle of the drawn triangles created since `mark` (degrees).
+    fn min_angle_since_deg(&self, mark: &AssemblyMark) -> f64 {
+        self.created[mark.created..]
+            .iter()
+            .filter(|&&t| self.kinds[t as usize] != FaceKind::Lid)
+            .map(|&t| {
+                triangle_min_angle_deg(
+                    self.triangles[t as usize].map(|v| self.positions[v as usize]),
+                )
+            })
+            .fold(180.0, f64::min)
+    }
+
+    /// Back to what it was at `mark`.
+    fn truncate(&mut self, mark: AssemblyMark) {
+        self.positions.truncate(mark.positions);
+        self.source.truncate(mark.positions);
+        self.triangles.truncate(mark.triangles);
+        self.kinds.truncate(mark.triangles);
+        self.created.truncate(mark.created);
+    }
+
     /// Smallest angle of the created triangles that are drawn (degrees).
     pub fn min_created_angle_deg(&self) -> f64 {
         self.created
@@ -165,6 +197,13 @@ impl Assembly {
             })
             .fold(180.0, f64::min)
     }
+}
+
+/// A point in the assembly of a surface ([`Assembly::mark`]).
+struct AssemblyMark {
+    positions: usize,
+    triangles: usize,
+    created: usize,
 }
 
 /// Largest turn of a column toward its spread-out bottom ([`even_out_bottoms`]): the
@@ -259,8 +298,12 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> Vec<usize> {
     moved
 }
 
-/// Rows of a column `depth` deep, for cells about `cell` tall.
+/// Rows of a column `depth` deep, for cells about `cell` tall; none for an end column that
+/// ends at the surface ([`limit_slope`]).
 fn rows_for(depth: f64, cell: f64) -> usize {
+    if depth <= 0.0 {
+        return 0;
+    }
     // At least two rows: with one, the row under the lips would be the shared bottom row,
     // and both walls would fan the same triangles from the shared end vertices.
     ((depth / cell).round() as usize).clamp(2, 64)
@@ -269,14 +312,81 @@ fn rows_for(depth: f64, cell: f64) -> usize {
 /// Adds the wound's walls: from each lip down to the bottom curve, meeting at the bottom
 /// and at both ends (the end columns and the bottom vertices are shared by the two walls).
 pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
+    let mark = out.mark();
+    let columns = graded_columns(wound, &out.positions);
+    build_wall_grids(wound, &columns, out);
+    flip_to_surface_quality(
+        &out.positions,
+        &mut out.triangles,
+        &out.kinds,
+        &out.created[mark.created..],
+        FaceKind::Wall,
+    );
+}
+
+/// The wound's columns with columns added between each end column and the next where
+/// the lips start with segments shorter than half a gap (an incision grades its lips to
+/// quarter-spacing segments at the ends): at one, two, four… times the shorter first
+/// segment from the end while within 0.6 of a gap, their tops, directions and depths
+/// interpolated. Zipped to a row a gap away, those short lip segments would make
+/// slivers (11.6° at best after flips, 3.5° as gridded, on 0.24 mm segments beside
+/// columns 1.2 mm apart).
+fn graded_columns(wound: &Wound, positions: &[Vec3]) -> Vec<WallColumn> {
     let cols = &wound.columns;
+    let n = cols.len();
+    if n < 2 || wound.length_m <= 0.0 {
+        return cols.clone();
+    }
+    let gap = wound.column_gap_m();
+    // Between end column `end` and its neighbour `next`, at distances from the end.
+    let added = |end: usize, next: usize, first: f64| -> Vec<WallColumn> {
+        let mut out = Vec::new();
+        let mut at = first;
+        while first < 0.5 * gap && at <= 0.6 * gap {
+            let f = at / gap;
+            let (e, x) = (&cols[end], &cols[next]);
+            let inward = (e.inward * (1.0 - f) + x.inward * f)
+                .try_normalize(1e-12)
+                .unwrap_or(x.inward);
+            out.push(WallColumn {
+                param: e.param + (x.param - e.param) * f,
+                top: e.top * (1.0 - f) + x.top * f,
+                inward,
+                depth: e.depth * (1.0 - f) + x.depth * f,
+            });
+            at *= 2.0;
+        }
+        out
+    };
+    let segment = |lip: &[(f64, u32)], k: usize| {
+        (positions[lip[k].1 as usize] - positions[lip[k + 1].1 as usize]).norm()
+    };
+    let (upper, lower) = (&wound.upper, &wound.lower);
+    let first = segment(upper, 0).min(segment(lower, 0));
+    let last = segment(upper, upper.len() - 2).min(segment(lower, lower.len() - 2));
+    let mut graded = vec![cols[0]];
+    graded.extend(added(0, 1, first));
+    graded.extend_from_slice(&cols[1..n - 1]);
+    let mut tail = added(n - 1, n - 2, last);
+    tail.reverse();
+    graded.extend(tail);
+    graded.push(cols[n - 1]);
+    graded
+}
+
+/// The walls as their grids on `cols` give them (see [`build_walls`]).
+fn build_wall_grids(wound: &Wound, cols: &[WallColumn], out: &mut Assembly) {
     let n = cols.len();
     let cell = wound.column_gap_m().max(wound.spacing_m / 4.0);
     let rows: Vec<usize> = cols.iter().map(|c| rows_for(c.depth, cell)).collect();
     let a_id = wound.upper[0].1;
     let b_id = wound.upper[wound.upper.len() - 1].1;
-    // The end columns, rows 1 ..= rows, shared.
+    // The end columns, rows 1 ..= rows, shared. One that ends at the surface is the end
+    // vertex alone (its row 1 and bottom): the walls fan from it.
     let end_column = |id: u32, c: usize, out: &mut Assembly| {
+        if rows[c] == 0 {
+            return vec![id, id];
+        }
         let top = out.positions[id as usize];
         let mut ids = vec![id];
         for j in 1..=rows[c] {
@@ -287,11 +397,13 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
     };
     let end0 = end_column(a_id, 0, out);
     let end1 = end_column(b_id, n - 1, out);
-    let mut bottoms = vec![end0[rows[0]]];
+    let mut bottoms = vec![end0[end0.len() - 1]];
     for c in cols.iter().take(n - 1).skip(1) {
         bottoms.push(out.vertex(c.bottom()));
     }
-    bottoms.push(end1[rows[n - 1]]);
+    bottoms.push(end1[end1.len() - 1]);
+    // Rows the zips below step through (an end column at the surface: its one pseudo-row).
+    let zip_rows = |c: usize| rows[c].max(1);
     let end = |c: usize| c == 0 || c == n - 1;
 
     for (lip, side) in [(&wound.upper, 1.0), (&wound.lower, -1.0)] {
@@ -337,6 +449,10 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
         // Listed as the zips list them, a triangle between a lip and row 1 faces the lower
         // side, and one between two columns the upper side.
         let emit = |tri: [u32; 3], faces_lower: bool, out: &mut Assembly| {
+            // Stepping off or onto an end column at the surface (the end vertex twice).
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0] {
+                return;
+            }
             let tri = if faces_lower == (side > 0.0) {
                 tri
             } else {
@@ -356,7 +472,15 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
                 false
             } else if k + 1 == n {
                 true
-            } else if (lip[i + 1].0 - cols[k + 1].param).abs() > 0.5 / (n - 1) as f64 {
+            } else if k == 0 && rows[0] == 0 {
+                // An end column at the surface is left first and reached last: a lip step
+                // there would lay a cell along the lip from the end vertex.
+                false
+            } else if k + 2 == n && rows[n - 1] == 0 {
+                true
+            } else if (lip[i + 1].0 - cols[k + 1].param).abs()
+                > 0.5 * (cols[k + 1].param - cols[k].param)
+            {
                 // Keep the two fronts in step along the cut.
                 lip[i + 1].0 < cols[k + 1].param
             } else {
@@ -375,7 +499,7 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
         // together by depth fraction (they may have different numbers of rows).
         for a in 0..n - 1 {
             let b = a + 1;
-            let (ra, rb) = (rows[a], rows[b]);
+            let (ra, rb) = (zip_rows(a), zip_rows(b));
             let (mut j, mut k) = (1, 1);
             while j < ra || k < rb {
                 // A column may reach its bottom only after an end column beside it has:
@@ -493,6 +617,66 @@ pub(crate) fn limit_slope(columns: &mut [WallColumn], old: Option<&[WallColumn]>
     }
 }
 
+/// Depth, in column gaps, under which an end column may end at the surface
+/// ([`build_walls_choosing_ends`]).
+const SHALLOW_END: f64 = 0.75;
+
+/// Adds the wound's walls as [`build_walls`] does, after choosing for each end column
+/// shallower than [`SHALLOW_END`] gaps (a thin part, or a blade that barely reached below
+/// the surface there) whether it ends at the surface instead, the floor rising to the end
+/// vertex at 45° ([`limit_slope`]) and the walls fanning from it: an end column's rows
+/// (at least two) that short make slivers with the next column (4–14° on the deltoid),
+/// but a lip that starts with a short segment needs them. Of the ways, the one whose
+/// walls have the largest smallest angle, the wound's columns as they are on a tie. A
+/// column is never raised above `old`'s floor. The wound keeps the columns chosen.
+pub(crate) fn build_walls_choosing_ends(
+    wound: &mut Wound,
+    old: Option<&[WallColumn]>,
+    out: &mut Assembly,
+) {
+    let last = wound.columns.len().saturating_sub(1);
+    let gap = wound.column_gap_m();
+    // (Two columns: the walls need one below the surface.)
+    let shallow = |end: usize| {
+        last >= 2
+            && wound.columns[end].depth > 0.0
+            && wound.columns[end].depth < SHALLOW_END * gap
+            && old.is_none_or(|old| old[end].depth <= 0.0)
+    };
+    let ends: Vec<usize> = [0, last].into_iter().filter(|&e| shallow(e)).collect();
+    if ends.is_empty() {
+        build_walls(wound, out);
+        return;
+    }
+    let mut best: Option<(f64, Vec<WallColumn>)> = None;
+    for choice in 0..1usize << ends.len() {
+        let mut columns = wound.columns.clone();
+        for (k, &end) in ends.iter().enumerate() {
+            if choice & (1 << k) != 0 {
+                columns[end].depth = 0.0;
+            }
+        }
+        if choice != 0 {
+            limit_slope(&mut columns, old, gap);
+        }
+        let trial = Wound {
+            columns,
+            ..wound.clone()
+        };
+        let mark = out.mark();
+        build_walls(&trial, out);
+        let angle = out.min_angle_since_deg(&mark);
+        out.truncate(mark);
+        if best.as_ref().is_none_or(|(b, _)| angle > *b) {
+            best = Some((angle, trial.columns));
+        }
+    }
+    if let Some((_, columns)) = best {
+        wound.columns = columns;
+    }
+    build_walls(wound, out);
+}
+
 /// Takes the walls of `wounds` down where `path` cut deeper than them, and opens again
 /// the wounds deepened along at least half their columns (see the module docs). `None`
 /// when no wound is deepened by more than a quarter of its spacing.
@@ -572,11 +756,11 @@ pub fn deepen(
         .iter()
         .map(|w| w.renumbered(&new_id, &no_splits))
         .collect();
-    let carried = carried?;
+    let mut carried = carried?;
     let (mut depth_m, mut opening_m, mut length_m): (f64, f64, f64) = (0.0, 0.0, 0.0);
     for (w, _) in &deeper {
-        let wound = &carried[*w];
-        build_walls(wound, &mut out);
+        let wound = &mut carried[*w];
+        build_walls_choosing_ends(wound, Some(&wounds[*w].columns), &mut out);
         depth_m = depth_m.max(wound.depth_m());
         opening_m = opening_m.max(wound.opening_m);
         length_m = length_m.max(wound.length_m);
@@ -797,6 +981,176 @@ mod tests {
         let mut eased = smooth.clone();
         limit_slope(&mut eased, None, gap);
         assert_eq!(eased, smooth);
+    }
+
+    /// A straight wound 12 mm long along x with columns 1.2 mm apart straight down, `depths`
+    /// deep (mm), and lips 1 mm apart at most, with vertices at `params` along it: the
+    /// surface with the lips alone (no triangles yet).
+    fn straight_wound(depths_mm: &[f64], params: &[f64]) -> (Wound, Assembly) {
+        let length = 0.012;
+        let mut out = Assembly {
+            positions: Vec::new(),
+            source: Vec::new(),
+            triangles: Vec::new(),
+            kinds: Vec::new(),
+            created: Vec::new(),
+        };
+        let a = out.vertex(Vec3::zeros());
+        let b = out.vertex(Vec3::new(length, 0.0, 0.0));
+        let lip = |side: f64, out: &mut Assembly| -> Vec<(f64, u32)> {
+            params
+                .iter()
+                .map(|&t| match t {
+                    0.0 => (t, a),
+                    1.0 => (t, b),
+                    _ => {
+                        let half_opening = 0.0005 * 4.0 * t * (1.0 - t);
+                        (
+                            t,
+                            out.vertex(Vec3::new(t * length, side * half_opening, 0.0)),
+                        )
+                    }
+                })
+                .collect()
+        };
+        let upper = lip(1.0, &mut out);
+        let lower = lip(-1.0, &mut out);
+        let n = depths_mm.len();
+        let columns = depths_mm
+            .iter()
+            .enumerate()
+            .map(|(c, &d)| {
+                let param = c as f64 / (n - 1) as f64;
+                WallColumn {
+                    param,
+                    top: Vec3::new(param * length, 0.0, 0.0),
+                    inward: -Vec3::z(),
+                    depth: d * 1e-3,
+                }
+            })
+            .collect();
+        let wound = Wound {
+            upper,
+            lower,
+            columns,
+            opening_m: 0.0005,
+            length_m: length,
+            spacing_m: 0.0012,
+        };
+        (wound, out)
+    }
+
+    /// Lip vertices graded to 0.24 mm segments at the ends, as an incision grades them.
+    const GRADED_LIPS: [f64; 15] = [
+        0.0, 0.02, 0.04, 0.06, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.94, 0.96, 0.98, 1.0,
+    ];
+
+    /// Lip vertices at the columns.
+    const EVEN_LIPS: [f64; 11] = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0];
+
+    /// End columns 0.18 mm deep beside columns 1.2 mm apart (the deltoid's shallow ends).
+    const SHALLOW_ENDS: [f64; 11] = [0.18, 1.38, 2.5, 3.0, 3.0, 3.0, 3.0, 3.0, 2.5, 1.38, 0.18];
+
+    /// The walls of `wound` in `out` are two sheets hanging from its lips: every edge of
+    /// theirs is used once each way (a lip edge once), and every lip edge is used.
+    fn assert_sound_walls(wound: &Wound, out: &Assembly) {
+        let mut uses: HashMap<(u32, u32), usize> = HashMap::new();
+        for &t in &out.created {
+            let tri = out.triangles[t as usize];
+            assert!(
+                tri[0] != tri[1] && tri[1] != tri[2] && tri[2] != tri[0],
+                "{tri:?}"
+            );
+            for k in 0..3 {
+                *uses.entry((tri[k], tri[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        let lips: HashSet<(u32, u32)> = wound.lip_edges().collect();
+        for (&(u, v), &n) in &uses {
+            assert_eq!(n, 1, "edge {u}-{v} used {n} times one way");
+            let back = uses.contains_key(&(v, u));
+            assert_eq!(back, !lips.contains(&edge_key(u, v)), "edge {u}-{v}");
+        }
+        for (u, v) in lips {
+            assert!(uses.contains_key(&(u, v)) || uses.contains_key(&(v, u)));
+        }
+    }
+
+    /// Smallest angle of all the walls in `out` (degrees).
+    fn walls_min_angle(out: &Assembly) -> f64 {
+        let everything = AssemblyMark {
+            positions: 0,
+            triangles: 0,
+            created: 0,
+        };
+        out.min_angle_since_deg(&everything)
+    }
+
+    fn depths_mm(wound: &Wound) -> Vec<f64> {
+        wound
+            .columns
+            .iter()
+            .map(|c| (c.depth * 1e5).round() / 100.0)
+            .collect()
+    }
+
+    /// Shallow end columns under lips graded at the ends: as gridded on the wound's
+    /// columns the walls' end cells are slivers (3.5°: the end columns' two rows 0.09 mm
+    /// tall, and the short lip segments zipped to a row a gap away). With columns graded
+    /// like the lips near the ends and the walls flipped to their better diagonals, none
+    /// is under 19°, the walls are sound and the floor is kept.
+    #[test]
+    fn wall_columns_are_graded_like_the_lips_at_the_ends() {
+        let (wound, mut gridded) = straight_wound(&SHALLOW_ENDS, &GRADED_LIPS);
+        build_wall_grids(&wound, &wound.columns, &mut gridded);
+        assert_sound_walls(&wound, &gridded);
+        let before = walls_min_angle(&gridded);
+        assert!(before < 5.0, "{before}");
+
+        let (mut chosen, mut out) = straight_wound(&SHALLOW_ENDS, &GRADED_LIPS);
+        build_walls_choosing_ends(&mut chosen, None, &mut out);
+        assert_sound_walls(&chosen, &out);
+        let after = walls_min_angle(&out);
+        assert!(after >= 19.0, "{before}° → {after}°");
+        assert_eq!(depths_mm(&chosen), SHALLOW_ENDS);
+    }
+
+    /// Shallow end columns under lips with no short segments: as gridded (and flipped) the
+    /// end columns' rows make slivers; ended at the surface, the floor rising to the ends
+    /// at 45°, the walls fan from the end vertices with no cell under 18°. Ends deeper than
+    /// three quarters of a gap are kept (their rows make fine cells), as is a floor that
+    /// was deeper there before (a deeper pass never raises a wall).
+    #[test]
+    fn shallow_wall_ends_rise_to_the_surface_where_that_shapes_the_cells_better() {
+        let (wound, mut as_is) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
+        build_walls(&wound, &mut as_is);
+        assert_sound_walls(&wound, &as_is);
+        let before = walls_min_angle(&as_is);
+        assert!(before < 10.0, "{before}");
+
+        let (mut chosen, mut out) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
+        build_walls_choosing_ends(&mut chosen, None, &mut out);
+        assert_sound_walls(&chosen, &out);
+        let after = walls_min_angle(&out);
+        assert!(after >= 18.0, "{before}° → {after}°");
+        assert_eq!(
+            depths_mm(&chosen),
+            [0.0, 1.2, 2.4, 3.0, 3.0, 3.0, 3.0, 3.0, 2.4, 1.2, 0.0]
+        );
+
+        let deeper = [0.95, 1.38, 2.5, 3.0, 3.0, 3.0, 3.0, 3.0, 2.5, 1.38, 0.95];
+        let (mut kept, mut out) = straight_wound(&deeper, &EVEN_LIPS);
+        build_walls_choosing_ends(&mut kept, None, &mut out);
+        assert_sound_walls(&kept, &out);
+        assert_eq!(depths_mm(&kept), deeper);
+        let angle = walls_min_angle(&out);
+        assert!(angle >= 18.0, "{angle}");
+
+        let (mut held, mut out) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
+        let old = straight_wound(&[0.1; 11], &EVEN_LIPS).0.columns;
+        build_walls_choosing_ends(&mut held, Some(&old), &mut out);
+        assert_sound_walls(&held, &out);
+        assert_eq!(depths_mm(&held), SHALLOW_ENDS);
     }
 
     /// Columns whose lean turns quickly bring two bottoms within 0.04 of a gap of each
