@@ -404,7 +404,7 @@ mod tests {
     /// was eased beside a shallow column, 39 and 0.63° before the walls were graded like the
     /// lips at their ends, flipped, and let end at the surface where an end column is
     /// shallow) — 121, 106, 0.2°: not held to 15° here (docs/CUTTING.md, "Real organ
-    /// meshes"); what is left under 15° is skin. The bounds below hold at 20 trials, one
+    /// meshes"); what is left under 15° is skin but for one wall cell of 12.5°. The bounds below hold at 20 trials, one
     /// random sequence across the meshes (deltoid: 6 of 26, 5.0°).
     #[test]
     #[ignore = "reads ../shared/meshes"]
