@@ -47,6 +47,7 @@ use super::collapse::{
     drop_vertices,
 };
 use super::fan::plan_fan;
+use super::smooth::smooth_to_quality;
 use super::wound::{
     Assembly, EdgeSplits, WallColumn, Wound, build_walls_choosing_ends, carry_wounds,
     even_out_bottoms, first_hit, limit_slope,
@@ -1378,6 +1379,21 @@ pub fn incise(
         }
         boundary_inserts.retain(|_, list| !list.is_empty());
     }
+    // Those left whose cells are still poor on the surface: moved within their rings.
+    let steiner: HashSet<u32> = cdt_vertex
+        .iter()
+        .filter(|(h, _)| {
+            !cdt_to_mesh.contains_key(h) && !lip_handles.contains(h) && !on_segment.contains_key(h)
+        })
+        .map(|(_, &id)| id)
+        .collect();
+    smooth_to_quality(
+        &mut positions,
+        &triangles,
+        &steiner,
+        |p| frame.project(p),
+        lift,
+    );
     // The lips as refined: (parameter along the lip in [0, 1], vertex).
     let chain = |handles: &[spade::handles::FixedVertexHandle],
                  inserts: &HashMap<usize, Vec<(f64, u32)>>| {

@@ -6,6 +6,7 @@ pub(crate) mod checks;
 mod collapse;
 mod fan;
 pub mod incision;
+mod smooth;
 pub mod stroke;
 pub mod swept;
 pub mod wound;
