@@ -18,9 +18,11 @@
 //!    There, cells that lost much of their angle in the lift are mended: splits of R's
 //!    boundary are collapsed along their edge where that helps (super::collapse), the
 //!    triangles beyond a split boundary are fanned (super::fan), pairs of cells are
-//!    flipped, and new vertices inside R are collapsed into a neighbour where that helps.
+//!    flipped, new vertices inside R are collapsed into a neighbour where that helps, and
+//!    those left moved within their rings where their cells are still poor (super::smooth).
 //! 4. **Wound walls** from each lip down to the cut's bottom curve (the blade tip's track),
-//!    two structured strips meeting at the bottom and at the two ends, material `Wall`.
+//!    two structured strips meeting at the bottom and at the two ends, material `Wall`
+//!    (super::wound: gridded column by column, graded like the lips at the ends, flipped).
 //! 5. **Lid**: the faces between the lips are kept as `Lid` faces: not drawn, but they
 //!    close the envelope of the tissue for blade contact (a blade in its own cut is still
 //!    in the tissue, though it is outside the drawn surface).
@@ -556,15 +558,16 @@ const FLIP_MAX_BEND_DEG: f64 = 30.0;
 /// more than half its smallest angle. Walls: their grid zips lips and columns spaced
 /// differently (a lip graded to quarter-spacing segments at its ends beside columns a
 /// gap apart). Edges against another kind or an old triangle (lips, the region's
-/// unsplit boundary, a wall's lip and the floor between the two walls, which meet there
-/// face to face) are never flipped; neither is a bend over [`FLIP_MAX_BEND_DEG`], nor a
-/// flip that would fold a cell over.
+/// unsplit boundary, a wall's lip) are never flipped, nor those `kept` says (where the
+/// two walls meet face to face); neither is a bend over [`FLIP_MAX_BEND_DEG`], nor a flip
+/// that would fold a cell over.
 pub(crate) fn flip_to_surface_quality(
     positions: &[Vec3],
     triangles: &mut [[u32; 3]],
     kinds: &[FaceKind],
     created: &[u32],
     kind: FaceKind,
+    kept: impl Fn(u32, u32) -> bool,
 ) {
     let free: HashSet<u32> = created
         .iter()
@@ -601,7 +604,7 @@ pub(crate) fn flip_to_surface_quality(
                 let Some(&u) = owner.get(&(b, a)) else {
                     continue;
                 };
-                if u == t || !free.contains(&u) {
+                if u == t || !free.contains(&u) || kept(a, b) {
                     continue;
                 }
                 let other = triangles[u as usize];
@@ -1337,6 +1340,7 @@ pub fn incise(
         &out_kinds,
         &created,
         FaceKind::Skin,
+        |_, _| false,
     );
     // R's own new vertices where their cells, lifted, came out poorly: collapsed into a
     // neighbour where that helps.
@@ -1345,19 +1349,24 @@ pub fn incise(
         .chain(&lower_handles)
         .map(|h| h.index())
         .collect();
-    let steiner: HashSet<u32> = cdt_vertex
-        .iter()
-        .filter(|(h, _)| {
-            !cdt_to_mesh.contains_key(h) && !lip_handles.contains(h) && !on_segment.contains_key(h)
-        })
-        .map(|(_, &id)| id)
-        .collect();
+    // (New vertices of R off its boundary and the lips.)
+    let steiner_of = |cdt_vertex: &HashMap<usize, u32>| -> HashSet<u32> {
+        cdt_vertex
+            .iter()
+            .filter(|(h, _)| {
+                !cdt_to_mesh.contains_key(h)
+                    && !lip_handles.contains(h)
+                    && !on_segment.contains_key(h)
+            })
+            .map(|(_, &id)| id)
+            .collect()
+    };
     gone.extend(collapse_to_quality(
         &positions,
         &mut triangles,
         &mut out_kinds,
         &mut created,
-        &steiner,
+        &steiner_of(&cdt_vertex),
     ));
     if !gone.is_empty() {
         let gone: HashSet<u32> = gone.iter().map(|&(v, _)| v).collect();
@@ -1380,17 +1389,10 @@ pub fn incise(
         boundary_inserts.retain(|_, list| !list.is_empty());
     }
     // Those left whose cells are still poor on the surface: moved within their rings.
-    let steiner: HashSet<u32> = cdt_vertex
-        .iter()
-        .filter(|(h, _)| {
-            !cdt_to_mesh.contains_key(h) && !lip_handles.contains(h) && !on_segment.contains_key(h)
-        })
-        .map(|(_, &id)| id)
-        .collect();
     smooth_to_quality(
         &mut positions,
         &triangles,
-        &steiner,
+        &steiner_of(&cdt_vertex),
         |p| frame.project(p),
         lift,
     );
@@ -1775,7 +1777,8 @@ mod tests {
     #[test]
     fn skinny_pairs_are_flipped_but_not_across_a_fold_or_a_lip() {
         // A flat rhombus split along its long diagonal (14° corners): flipped to the short
-        // one (28°). The same bent 60° along the diagonal, or one cell a lid: left.
+        // one (28°), as skin or as wall. The same bent 60° along the diagonal, one cell a
+        // lid, or the diagonal an edge to keep (where two walls meet): left.
         let rhombus = |z: f64| {
             vec![
                 Vec3::new(-1.0, 0.0, 0.0),
@@ -1792,10 +1795,10 @@ mod tests {
         };
         let skin = [FaceKind::Skin; 2];
         let (flat, mut t) = (rhombus(0.0), cells());
-        flip_to_surface_quality(&flat, &mut t, &skin, &[0, 1], FaceKind::Skin);
+        flip_to_surface_quality(&flat, &mut t, &skin, &[0, 1], FaceKind::Skin, |_, _| false);
         assert!(smallest(&flat, &t) > 27.0, "{t:?}");
         let (bent, mut t) = (rhombus(0.25 * 3f64.sqrt()), cells());
-        flip_to_surface_quality(&bent, &mut t, &skin, &[0, 1], FaceKind::Skin);
+        flip_to_surface_quality(&bent, &mut t, &skin, &[0, 1], FaceKind::Skin, |_, _| false);
         assert_eq!(t, cells());
         let mut t = cells();
         flip_to_surface_quality(
@@ -1804,7 +1807,16 @@ mod tests {
             &[FaceKind::Skin, FaceKind::Lid],
             &[0, 1],
             FaceKind::Skin,
+            |_, _| false,
         );
+        assert_eq!(t, cells());
+        let wall = [FaceKind::Wall; 2];
+        let mut t = cells();
+        flip_to_surface_quality(&flat, &mut t, &wall, &[0, 1], FaceKind::Wall, |_, _| false);
+        assert!(smallest(&flat, &t) > 27.0, "{t:?}");
+        let mut t = cells();
+        let diagonal = |a: u32, b: u32| a.min(b) == 0 && a.max(b) == 1;
+        flip_to_surface_quality(&flat, &mut t, &wall, &[0, 1], FaceKind::Wall, diagonal);
         assert_eq!(t, cells());
     }
 
