@@ -187,15 +187,12 @@ impl Assembly {
 
     /// Smallest angle of the created triangles that are drawn (degrees).
     pub fn min_created_angle_deg(&self) -> f64 {
-        self.created
-            .iter()
-            .filter(|&&t| self.kinds[t as usize] != FaceKind::Lid)
-            .map(|&t| {
-                triangle_min_angle_deg(
-                    self.triangles[t as usize].map(|v| self.positions[v as usize]),
-                )
-            })
-            .fold(180.0, f64::min)
+        let start = AssemblyMark {
+            positions: 0,
+            triangles: 0,
+            created: 0,
+        };
+        self.min_angle_since_deg(&start)
     }
 }
 
@@ -1111,16 +1108,30 @@ mod tests {
         }
     }
 
-    /// Smallest angle of all the walls in `out` (degrees).
-    fn walls_min_angle(out: &Assembly) -> f64 {
-        let everything = AssemblyMark {
-            positions: 0,
-            triangles: 0,
-            created: 0,
-        };
-        out.min_angle_since_deg(&everything)
+    /// The smallest angle of the walls `build` gives the straight wound with its columns as
+    /// they are (checked sound).
+    fn walls_built_by(
+        depths_mm: &[f64],
+        lips: &[f64],
+        build: impl Fn(&Wound, &mut Assembly),
+    ) -> f64 {
+        let (wound, mut out) = straight_wound(depths_mm, lips);
+        build(&wound, &mut out);
+        assert_sound_walls(&wound, &out);
+        out.min_created_angle_deg()
     }
 
+    /// The straight wound as [`build_walls_choosing_ends`] leaves it, and its walls'
+    /// smallest angle (checked sound).
+    fn walls_chosen(depths_mm: &[f64], lips: &[f64], old: Option<&[WallColumn]>) -> (Wound, f64) {
+        let (mut wound, mut out) = straight_wound(depths_mm, lips);
+        build_walls_choosing_ends(&mut wound, old, &mut out);
+        assert_sound_walls(&wound, &out);
+        let angle = out.min_created_angle_deg();
+        (wound, angle)
+    }
+
+    /// The wound's column depths (mm, to a hundredth).
     fn depths_mm(wound: &Wound) -> Vec<f64> {
         wound
             .columns
@@ -1136,16 +1147,11 @@ mod tests {
     /// is under 19°, the walls are sound and the floor is kept.
     #[test]
     fn wall_columns_are_graded_like_the_lips_at_the_ends() {
-        let (wound, mut gridded) = straight_wound(&SHALLOW_ENDS, &GRADED_LIPS);
-        build_wall_grids(&wound, &wound.columns, &mut gridded);
-        assert_sound_walls(&wound, &gridded);
-        let before = walls_min_angle(&gridded);
+        let before = walls_built_by(&SHALLOW_ENDS, &GRADED_LIPS, |wound, out| {
+            build_wall_grids(wound, &wound.columns, out);
+        });
         assert!(before < 5.0, "{before}");
-
-        let (mut chosen, mut out) = straight_wound(&SHALLOW_ENDS, &GRADED_LIPS);
-        build_walls_choosing_ends(&mut chosen, None, &mut out);
-        assert_sound_walls(&chosen, &out);
-        let after = walls_min_angle(&out);
+        let (chosen, after) = walls_chosen(&SHALLOW_ENDS, &GRADED_LIPS, None);
         assert!(after >= 19.0, "{before}° → {after}°");
         assert_eq!(depths_mm(&chosen), SHALLOW_ENDS);
     }
@@ -1157,16 +1163,9 @@ mod tests {
     /// was deeper there before (a deeper pass never raises a wall).
     #[test]
     fn shallow_wall_ends_rise_to_the_surface_where_that_shapes_the_cells_better() {
-        let (wound, mut as_is) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
-        build_walls(&wound, &mut as_is);
-        assert_sound_walls(&wound, &as_is);
-        let before = walls_min_angle(&as_is);
+        let before = walls_built_by(&SHALLOW_ENDS, &EVEN_LIPS, build_walls);
         assert!(before < 10.0, "{before}");
-
-        let (mut chosen, mut out) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
-        build_walls_choosing_ends(&mut chosen, None, &mut out);
-        assert_sound_walls(&chosen, &out);
-        let after = walls_min_angle(&out);
+        let (chosen, after) = walls_chosen(&SHALLOW_ENDS, &EVEN_LIPS, None);
         assert!(after >= 18.0, "{before}° → {after}°");
         assert_eq!(
             depths_mm(&chosen),
@@ -1174,17 +1173,12 @@ mod tests {
         );
 
         let deeper = [0.95, 1.38, 2.5, 3.0, 3.0, 3.0, 3.0, 3.0, 2.5, 1.38, 0.95];
-        let (mut kept, mut out) = straight_wound(&deeper, &EVEN_LIPS);
-        build_walls_choosing_ends(&mut kept, None, &mut out);
-        assert_sound_walls(&kept, &out);
+        let (kept, angle) = walls_chosen(&deeper, &EVEN_LIPS, None);
         assert_eq!(depths_mm(&kept), deeper);
-        let angle = walls_min_angle(&out);
         assert!(angle >= 18.0, "{angle}");
 
-        let (mut held, mut out) = straight_wound(&SHALLOW_ENDS, &EVEN_LIPS);
         let old = straight_wound(&[0.1; 11], &EVEN_LIPS).0.columns;
-        build_walls_choosing_ends(&mut held, Some(&old), &mut out);
-        assert_sound_walls(&held, &out);
+        let (held, _) = walls_chosen(&SHALLOW_ENDS, &EVEN_LIPS, Some(&old));
         for (new, old) in held.columns.iter().zip(&old) {
             assert!(new.depth >= old.depth, "{:?}", depths_mm(&held));
         }
@@ -1212,7 +1206,7 @@ mod tests {
                 let (wound, mut out) = straight_wound_with(&depths, upper, lower, 0.0005);
                 build_walls(&wound, &mut out);
                 assert_sound_walls(&wound, &out);
-                let angle = walls_min_angle(&out);
+                let angle = out.min_created_angle_deg();
                 assert!(angle > 5.0, "{depths:?}: {angle}");
             }
         }
