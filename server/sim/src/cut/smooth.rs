@@ -21,6 +21,8 @@ const SMOOTH_BELOW_DEG: f64 = 20.0;
 const SMOOTH_GAIN_DEG: f64 = 1.0;
 /// Largest turn of a cell's normal that a move may cause (as for flips and collapses).
 const SMOOTH_MAX_TURN_DEG: f64 = 30.0;
+/// An equilateral triangle's height over its side.
+const HALF_SQRT_3: f64 = 0.866_025_403_784_438_6;
 /// Passes over the vertices (a move changes its neighbours' rings).
 const SMOOTH_PASSES: usize = 3;
 
@@ -115,8 +117,7 @@ pub(crate) fn smooth_to_quality(
                 let b = project(&positions[tri[(k + 2) % 3] as usize]);
                 // The apex of the equilateral triangle on (a, b), on v's side.
                 let mid = [0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])];
-                let h = 0.5 * 3f64.sqrt();
-                let perp = [-(b[1] - a[1]) * h, (b[0] - a[0]) * h];
+                let perp = [-(b[1] - a[1]) * HALF_SQRT_3, (b[0] - a[0]) * HALF_SQRT_3];
                 let apex = [mid[0] + sign * perp[0], mid[1] + sign * perp[1]];
                 for f in [0.5, 0.25] {
                     candidates.push([p0[0] + f * (apex[0] - p0[0]), p0[1] + f * (apex[1] - p0[1])]);

@@ -187,16 +187,12 @@ impl Assembly {
 
     /// Smallest angle of the created triangles that are drawn (degrees).
     pub fn min_created_angle_deg(&self) -> f64 {
-        let start = AssemblyMark {
-            positions: 0,
-            triangles: 0,
-            created: 0,
-        };
-        self.min_angle_since_deg(&start)
+        self.min_angle_since_deg(&AssemblyMark::default())
     }
 }
 
-/// A point in the assembly of a surface ([`Assembly::mark`]).
+/// A point in the assembly of a surface ([`Assembly::mark`]; the default: its start).
+#[derive(Default)]
 struct AssemblyMark {
     positions: usize,
     triangles: usize,
@@ -314,15 +310,14 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
     let shared = build_wall_grids(wound, &columns, out);
     // Where the two walls meet (the floor, the end columns) they face each other: an
     // edge there is never flipped, however flat a shallow, wide wound's V is.
-    let mut meet = vec![false; out.positions.len()];
-    shared.iter().for_each(|&v| meet[v as usize] = true);
+    let meet = |v: u32| shared.binary_search(&v).is_ok();
     flip_to_surface_quality(
         &out.positions,
         &mut out.triangles,
         &out.kinds,
         &out.created[mark.created..],
         FaceKind::Wall,
-        |a, b| meet[a as usize] && meet[b as usize],
+        |a, b| meet(a) && meet(b),
     );
 }
 
@@ -382,7 +377,7 @@ fn graded_columns(wound: &Wound, positions: &[Vec3]) -> Vec<WallColumn> {
 }
 
 /// The walls as their grids on `cols` give them (see [`build_walls`]); the vertices both
-/// walls share (the end columns' and the bottom's).
+/// walls share (the end columns' and the bottom's), sorted.
 fn build_wall_grids(wound: &Wound, cols: &[WallColumn], out: &mut Assembly) -> Vec<u32> {
     let n = cols.len();
     let cell = wound.column_gap_m().max(wound.spacing_m / 4.0);
@@ -668,27 +663,31 @@ pub(crate) fn build_walls_choosing_ends(
         build_walls(wound, out);
         return;
     }
+    let original = wound.columns.clone();
+    let ways = 1usize << ends.len();
     let mut best: Option<(f64, Vec<WallColumn>)> = None;
-    for choice in 0..1usize << ends.len() {
-        let mut columns = wound.columns.clone();
+    for way in 0..ways {
+        let mut columns = original.clone();
         for (k, &end) in ends.iter().enumerate() {
-            if choice & (1 << k) != 0 {
+            if way & (1 << k) != 0 {
                 columns[end].depth = 0.0;
             }
         }
-        if choice != 0 {
+        if way != 0 {
             limit_slope(&mut columns, old, gap);
         }
-        let trial = Wound {
-            columns,
-            ..wound.clone()
-        };
+        wound.columns = columns;
         let mark = out.mark();
-        build_walls(&trial, out);
+        build_walls(wound, out);
         let angle = out.min_angle_since_deg(&mark);
+        let better = best.as_ref().is_none_or(|(b, _)| angle > *b);
+        if better && way + 1 == ways {
+            // The last way tried is the best: its walls stay.
+            return;
+        }
         out.truncate(mark);
-        if best.as_ref().is_none_or(|(b, _)| angle > *b) {
-            best = Some((angle, trial.columns));
+        if better {
+            best = Some((angle, wound.columns.clone()));
         }
     }
     if let Some((_, columns)) = best {
