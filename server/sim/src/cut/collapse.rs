@@ -3,11 +3,12 @@
 //! boundary; here the measure is the smallest angle on the surface, and a split of the
 //! boundary may slide along its edge (the triangle beyond is fanned afterwards).
 //!
-//! The incision region is triangulated to the angle limit in one projection plane; where
-//! the region runs onto a steep side (a tumour 12 mm across) the refinement may split an
-//! edge of its boundary a fraction of a millimetre from a corner, and the cells on that
-//! short piece, lifted back onto the steep face, lose more than half their smallest angle
-//! (the tumour's default cut: 27.4° in the plane, 10.3° on the surface). Collapsing the
+//! The incision region is triangulated to the angle limit in its chart (super::chart: a
+//! conformal map, or where that fails the projection onto one plane); the refinement may
+//! split an edge of its boundary a fraction of a millimetre from a corner, and the cells on
+//! that short piece, lifted back onto a curved or steep face, lose much of their smallest
+//! angle (the tumour's default cut, in the projection the region was once triangulated in:
+//! 27.4° in the plane, 10.3° on the surface). Collapsing the
 //! new vertex into its neighbour — along the boundary edge it lies on, so the triangles
 //! outside the region keep their plane — removes the short piece.
 

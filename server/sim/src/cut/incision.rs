@@ -3,9 +3,12 @@
 //! Given the path the blade cut along the surface (rest space) and how deep it went, the
 //! skin around the path is re-triangulated with the wound opened between two lips:
 //!
-//! 1. **Region R**: the skin triangles the opening touches plus their one-ring, a disk
-//!    projected onto the plane ⊥ n̄ (area-weighted normal near the path) in coordinates
-//!    (s, t). Its boundary keeps the original vertices and edges (no T-junctions).
+//! 1. **Region R**: the skin triangles the opening touches plus their one-ring, chosen in
+//!    the plane ⊥ n̄ (area-weighted normal near the path), a disk laid flat in a conformal
+//!    chart of its own (super::chart) in coordinates (s, t) — turned to lie over that
+//!    plane, its angles kept, so R may also grow onto faces that do not face n̄ (a thin
+//!    part's rim) — or projected onto the plane where it has no such chart. Its boundary
+//!    keeps the original vertices and edges (no T-junctions).
 //! 2. **Lips**: offsets of the path by ±w(u) with the parabolic profile
 //!    `w(u) = 4 w_o (u/L)(1 − u/L)`. For a straight path these are exactly the paper's
 //!    quadratic Bézier curves A–C–B and A–D–B with `C, D = M ± 2 w_o e₂` (a symmetric
@@ -44,6 +47,7 @@ use crate::geometry::angle_deg;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 
+use super::chart::Chart;
 use super::collapse::{
     SplitTriangle, cell_min_angle_deg, cell_normal, collapse_boundary_splits, collapse_to_quality,
     drop_vertices,
@@ -553,9 +557,10 @@ const FLIP_MAX_BEND_DEG: f64 = 30.0;
 
 /// Flips edges between two created triangles of `kind` where that raises the smaller of
 /// their smallest angles as they lie on the surface. Skin: the region is triangulated to
-/// the angle limit in its projection onto n̄'s plane; lifted back onto a strongly curved
-/// surface (a tumour 12 mm across, the rim of a region on a scanned liver) a cell can lose
-/// more than half its smallest angle. Walls: their grid zips lips and columns spaced
+/// the angle limit in its chart; lifted back onto a strongly curved surface (a tumour
+/// 12 mm across, the rim of a region on a scanned liver) a cell can lose much of its
+/// smallest angle where the chart bends across the surface's own edges, and more than
+/// half where the region had to be projected onto n̄'s plane. Walls: their grid zips lips and columns spaced
 /// differently (a lip graded to quarter-spacing segments at its ends beside columns a
 /// gap apart). Edges against another kind or an old triangle (lips, the region's
 /// unsplit boundary, a wall's lip) are never flipped, nor those `kept` says (where the
@@ -739,28 +744,15 @@ pub fn incise(
         e1,
         e2: n_bar.cross(&e1),
     };
-    let (points2, tracks) = smooth_path(
-        &samples
-            .iter()
-            .map(|s| frame.project(&s.surface))
-            .collect::<Vec<_>>(),
-        &across,
-    );
-    let path2 = ArcPolyline::new(points2);
-    let length = path2.length();
-    let w_wanted = params.opening_for(length, depth_max);
-    let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
-    // How fast the lips must turn: the path's turning at the lips' own spacing, averaged
-    // over it, so that a jog of the entry point (its rest-space mapping hops by a fraction
-    // of a millimetre as the tissue gives) does not step the whole lip, and the walls
-    // gridded at its step, finely (the tumour's default stroke, 0.2 mm aside within 0.4 mm:
-    // 4042 wall triangles for an 8.7 mm cut). The lips still follow the path itself, jog
-    // included.
-    let turn_rate = path2.averaged(0.5 * spacing).max_turn_rate(spacing);
+    // The path projected onto n̄'s plane, to choose R by (R is laid flat in a chart of its
+    // own below, where the path is placed again).
+    let path_projected: Vec<[f64; 2]> = samples.iter().map(|s| frame.project(&s.surface)).collect();
+    let w_wanted = params.opening_for(ArcPolyline::new(path_projected.clone()).length(), depth_max);
 
     // Region R: skin facing n̄ within reach of the opening, plus its one-ring.
     // Triangles under the opening may be steep; the ring around them must face n̄ well, or
-    // their angles would change a lot between the projection and the surface.
+    // their angles would change a lot between the projection (where R is chosen, and
+    // triangulated if it has no chart) and the surface.
     let facing_at = |t: usize, min_cos: f64| {
         mesh.doubled_area_normal(t)
             .try_normalize(1e-300)
@@ -784,8 +776,7 @@ pub fn incise(
             (false, false) => continue,
         };
         let tri = tri2(t);
-        let touches = path2
-            .points
+        let touches = path_projected
             .windows(2)
             .any(|w| dist_sq_segment_triangle_2d(&tri, w[0], w[1]) < reach * reach);
         if touches {
@@ -820,9 +811,39 @@ pub fn incise(
     // drew more wounds on the deltoid scan, and more cells under 15° on every scan.
     let mut grown = in_region;
     let mut attempt = 0;
+    // R may grow into triangles beyond a split boundary that do not face n̄ well (the rim
+    // of a thin part, 80–130° from n̄ on the deltoid sheet): laid flat in its conformal
+    // chart they keep their angles. Where a region grown so cannot be triangulated (no
+    // disk, no chart, the path outside it, ...), R goes back to where it was before its
+    // first such growth and grows only into triangles facing n̄ well from there, as it
+    // always did.
+    let mut before_steep: Option<(Vec<bool>, usize)> = None;
+    let mut mended = 0;
+    let mut steep_growth = true;
+    macro_rules! or_fall_back {
+        ($result:expr) => {
+            match $result {
+                Ok(value) => value,
+                Err(error) => match before_steep.take() {
+                    Some((was, at)) => {
+                        grown = was;
+                        attempt = at;
+                        steep_growth = false;
+                        continue;
+                    }
+                    None => return Err(error),
+                },
+            }
+        };
+    }
     let (
         in_region,
         region,
+        chart,
+        path2,
+        tracks,
+        length,
+        spacing,
         boundary,
         boundary2,
         interior,
@@ -852,6 +873,7 @@ pub fn incise(
         }
         let mut next: HashMap<u32, u32> = HashMap::new();
         let mut pinched = false;
+        let mut pinches: Vec<u32> = Vec::new();
         // In the region's order, not the set's: at a pinch, which edge `next` keeps decides
         // the loops reported, and a set's order changes from run to run.
         for &t in &region {
@@ -860,6 +882,7 @@ pub fn incise(
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
                 if !directed.contains(&(b, a)) && next.insert(a, b).is_some() {
                     pinched = true;
+                    pinches.push(a);
                 }
             }
         }
@@ -890,25 +913,101 @@ pub fn incise(
             }
             loops.push(lp);
         }
+        // No disk: R is mended where it can be — the skin triangles round a vertex where
+        // its boundary touches itself, and those beyond the edges of every boundary loop but
+        // the longest (a hole) join it — up to three times.
+        if (pinched || loops.len() != 1) && mended < 3 {
+            let loop_length = |lp: &Vec<u32>| {
+                (0..lp.len())
+                    .map(|i| {
+                        (mesh.positions[lp[(i + 1) % lp.len()] as usize]
+                            - mesh.positions[lp[i] as usize])
+                            .norm()
+                    })
+                    .sum::<f64>()
+            };
+            let outer = (0..loops.len())
+                .max_by(|&a, &b| loop_length(&loops[a]).total_cmp(&loop_length(&loops[b])));
+            let mut joining: Vec<usize> = Vec::new();
+            for (l, lp) in loops.iter().enumerate() {
+                if Some(l) == outer {
+                    continue;
+                }
+                for i in 0..lp.len() {
+                    let (a, b) = (lp[i], lp[(i + 1) % lp.len()]);
+                    joining.extend(edge_owner.get(&(b, a)).copied());
+                }
+            }
+            if !pinches.is_empty() {
+                joining.extend(
+                    edge_owner
+                        .values()
+                        .copied()
+                        .filter(|&t| mesh.triangles[t].iter().any(|v| pinches.contains(v))),
+                );
+            }
+            joining.sort_unstable();
+            joining.dedup();
+            joining.retain(|&t| !grown[t] && (steep_growth || facing_well(t)));
+            if !joining.is_empty() {
+                if before_steep.is_none() && joining.iter().any(|&t| !facing_well(t)) {
+                    before_steep = Some((grown.clone(), attempt));
+                }
+                for t in joining {
+                    grown[t] = true;
+                }
+                mended += 1;
+                continue;
+            }
+        }
         if pinched || loops.len() != 1 {
-            return Err(IncisionError::NotDisk {
+            or_fall_back!(Err(IncisionError::NotDisk {
                 loops: loops.len(),
                 pinched,
-            });
+            }));
         }
+        // R laid flat keeping its angles; projected onto n̄'s plane where that fails and R
+        // faces n̄ well throughout (it grew into nothing steep).
+        let chart = match Chart::conformal(mesh, &region, |x| frame.project(x)) {
+            Some(chart) => chart,
+            None => {
+                if before_steep.is_some() {
+                    or_fall_back!(Err(IncisionError::Triangulation(
+                        "the region has no chart".into()
+                    )));
+                }
+                Chart::projected(mesh, &region, |x| frame.project(x))
+            }
+        };
         let boundary = loops.pop().unwrap_or_default();
         let on_boundary: HashSet<u32> = boundary.iter().copied().collect();
-        let boundary2: Vec<[f64; 2]> = boundary
-            .iter()
-            .map(|&v| frame.project(&mesh.positions[v as usize]))
-            .collect();
+        let boundary2: Vec<[f64; 2]> = boundary.iter().map(|&v| chart.vertex(v)).collect();
+        // The path in the chart, and what follows from its length there.
+        let (points2, tracks) = smooth_path(
+            &samples
+                .iter()
+                .map(|s| chart.point(mesh, &s.surface))
+                .collect::<Vec<_>>(),
+            &across,
+        );
+        let path2 = ArcPolyline::new(points2);
+        let length = path2.length();
+        let w_wanted = params.opening_for(length, depth_max);
+        let spacing = (0.5 * edge).min(0.5 * length).max(1e-6);
+        // How fast the lips must turn: the path's turning at the lips' own spacing,
+        // averaged over it, so that a jog of the entry point (its rest-space mapping hops
+        // by a fraction of a millimetre as the tissue gives) does not step the whole lip,
+        // and the walls gridded at its step, finely (the tumour's default stroke, 0.2 mm
+        // aside within 0.4 mm: 4042 wall triangles for an 8.7 mm cut). The lips still
+        // follow the path itself, jog included.
+        let turn_rate = path2.averaged(0.5 * spacing).max_turn_rate(spacing);
         // The whole path must lie inside R, with room for the lips.
         if path2
             .points
             .iter()
             .any(|&p| !point_in_polygon(&boundary2, p))
         {
-            return Err(IncisionError::PathOutsideRegion);
+            or_fall_back!(Err(IncisionError::PathOutsideRegion));
         }
         // At least eight segments per lip, so that even a short lip turns smoothly.
         // Lip segments no longer than three quarters of the depth either: the walls below are
@@ -996,7 +1095,7 @@ pub fn incise(
         };
         let mut boundary_handles = Vec::with_capacity(boundary.len());
         for (k, &v) in boundary.iter().enumerate() {
-            let h = insert(&mut cdt, boundary2[k])?;
+            let h = or_fall_back!(insert(&mut cdt, boundary2[k]));
             cdt_to_mesh.insert(h.index(), v);
             boundary_handles.push(h);
         }
@@ -1009,16 +1108,16 @@ pub fn incise(
             .collect();
         interior.sort_unstable();
         for &v in &interior {
-            let p = frame.project(&mesh.positions[v as usize]);
+            let p = chart.vertex(v);
             if !near_lens(p) {
-                let h = insert(&mut cdt, p)?;
+                let h = or_fall_back!(insert(&mut cdt, p));
                 cdt_to_mesh.insert(h.index(), v);
             }
         }
         let mut upper_handles = Vec::with_capacity(m + 1);
         let mut lower_handles = Vec::with_capacity(m + 1);
         for r in 0..=m {
-            let hu = insert(&mut cdt, upper[r])?;
+            let hu = or_fall_back!(insert(&mut cdt, upper[r]));
             upper_handles.push(hu);
             if r == 0 || r == m {
                 lower_handles.push(hu);
@@ -1041,11 +1140,11 @@ pub fn incise(
                 boundary_handles[k],
                 boundary_handles[(k + 1) % boundary_handles.len()],
             );
-            constrain(&mut cdt, a, b)?;
+            or_fall_back!(constrain(&mut cdt, a, b));
         }
         for r in 0..m {
-            constrain(&mut cdt, upper_handles[r], upper_handles[r + 1])?;
-            constrain(&mut cdt, lower_handles[r], lower_handles[r + 1])?;
+            or_fall_back!(constrain(&mut cdt, upper_handles[r], upper_handles[r + 1]));
+            or_fall_back!(constrain(&mut cdt, lower_handles[r], lower_handles[r + 1]));
         }
         // Ruppert/Chew refinement. Constraint edges may be split (the lips and R's boundary
         // get extra vertices on them): with them locked, skinny triangles next to them could not
@@ -1058,9 +1157,9 @@ pub fn incise(
                 .with_max_additional_vertices(20 * before + 100),
         );
         if !result.refinement_complete {
-            return Err(IncisionError::Triangulation(
+            or_fall_back!(Err(IncisionError::Triangulation(
                 "refinement ran out of Steiner points".into(),
-            ));
+            )));
         }
         let scale = edge.max(length);
         let tol2 = (1e-9 * scale).powi(2);
@@ -1083,8 +1182,11 @@ pub fn incise(
                 let (a, b) = (boundary[k], boundary[(k + 1) % boundary.len()]);
                 if let Some(&t) = edge_owner.get(&(b, a))
                     && !grown[t]
-                    && facing_well(t)
+                    && (facing_well(t) || steep_growth)
                 {
+                    if !facing_well(t) && before_steep.is_none() {
+                        before_steep = Some((grown.clone(), attempt));
+                    }
                     grown[t] = true;
                     grew = true;
                 }
@@ -1097,6 +1199,11 @@ pub fn incise(
         break (
             in_region,
             region,
+            chart,
+            path2,
+            tracks,
+            length,
+            spacing,
             boundary,
             boundary2,
             interior,
@@ -1171,7 +1278,10 @@ pub fn incise(
     }
 
     // New vertices: everything the triangulation has that the mesh does not, lifted.
-    let region2: Vec<([[f64; 2]; 3], usize)> = region.iter().map(|&t| (tri2(t), t)).collect();
+    let region2: Vec<([[f64; 2]; 3], usize)> = region
+        .iter()
+        .map(|&t| (chart.triangle(mesh, t), t))
+        .collect();
     let lift = |p: [f64; 2]| -> Vec3 {
         let mut best = (f64::INFINITY, region2[0].1, [1.0 / 3.0; 3]);
         for &(tri, t) in &region2 {
@@ -1393,7 +1503,7 @@ pub fn incise(
         &mut positions,
         &triangles,
         &steiner_of(&cdt_vertex),
-        |p| frame.project(p),
+        |p| chart.point(mesh, p),
         lift,
     );
     // The lips as refined: (parameter along the lip in [0, 1], vertex).

@@ -1,6 +1,7 @@
 //! Cutting: the virtual scalpel, the swept cut surface and the visibility criterion.
 
 pub mod blade;
+mod chart;
 #[cfg(test)]
 pub(crate) mod checks;
 mod collapse;

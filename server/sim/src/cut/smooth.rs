@@ -1,9 +1,12 @@
 //! Moving the region's new vertices where their cells came out poorly on the surface.
 //!
-//! The incision region is triangulated to the angle limit in one projection plane and
-//! lifted onto the surface. Where the region runs onto a steep side (the ends of a stroke
-//! over the deltoid sheet, faces 70–80° from the plane's normal) a cell fine in the plane
-//! is a needle or a flat cap on the surface; flips and collapses leave those whose
+//! The incision region is triangulated to the angle limit in its chart (super::chart) and
+//! lifted onto the surface. A conformal chart keeps angles only triangle by triangle, and
+//! where the region has no such chart it is projected onto one plane: where it runs onto a
+//! steep side (the ends of a stroke over the deltoid sheet, faces 70–80° from the plane's
+//! normal) a cell fine in the plane is then a needle or a flat cap on the surface (the
+//! chart's kinks, across the surface's own edges, do the same on a smaller scale); flips
+//! and collapses leave those whose
 //! neighbours are no better. A new vertex inside the region can move instead: within its
 //! ring in the plane, lifted back onto the surface, to where the smallest angle of its
 //! cells on the surface is largest — optimisation-based smoothing, restricted to the
@@ -28,10 +31,10 @@ const SMOOTH_PASSES: usize = 3;
 
 /// Moves vertices of `movable` (new vertices inside the region, off its boundary and the
 /// lips) where the smallest angle of their cells on the surface is under
-/// [`SMOOTH_BELOW_DEG`], to the place among a few candidates in the projection plane
+/// [`SMOOTH_BELOW_DEG`], to the place among a few candidates in the region's chart
 /// (toward the centroid of the ring, and the ring cells' own best places) that raises it
 /// most — by [`SMOOTH_GAIN_DEG`] at least. `project` maps a point of the region to the
-/// plane and `lift` back onto the surface (inverse of each other on the region). A move
+/// chart and `lift` back onto the surface (inverse of each other on the region). A move
 /// keeps every ring cell the same way round in the plane and turning on the surface by at
 /// most [`SMOOTH_MAX_TURN_DEG`]. The vertices moved.
 pub(crate) fn smooth_to_quality(

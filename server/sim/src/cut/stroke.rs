@@ -397,16 +397,17 @@ mod tests {
     /// the tumour hold the 15° bound like the built-in organs. Measured at 100 trials
     /// (strokes opened; under 15°; smallest), remeshed — as they came: pig liver lobe 281
     /// of 300, none — 266, 3, 7.2°; sphere (not remeshed: 50° and up) 268 of 300, none;
-    /// tumour 270 of 300, none — 264, 16, 10.9°; deltoid (a muscle sheet, strongly curved
+    /// tumour 268 of 300, none — 264, 16, 10.9°; deltoid (a muscle sheet, strongly curved
     /// across the strokes, whose ends run onto its steep sides) 135 of 265 (35 more had
-    /// gaps), 28, 4.2° (106 before outside triangles split next to a corner were fanned from a
-    /// point inside, 81 before such splits were collapsed, 51 before a first incision's floor
-    /// was eased beside a shallow column, 39 and 0.63° before the walls were graded like the
-    /// lips at their ends, flipped, and let end at the surface where an end column is
-    /// shallow, 30 before new vertices inside moved to better cells) — 121, 106, 0.2°: not
-    /// held to 15° here (docs/CUTTING.md, "Real organ meshes"); what is left under 15° is
-    /// skin but for one wall cell of 12.5°. The bounds below hold at 20 trials, one random
-    /// sequence across the meshes (deltoid: 5 of 26, 5.0°).
+    /// gaps), 2, 12.1° (106 before outside triangles split next to a corner were fanned from
+    /// a point inside, 81 before such splits were collapsed, 51 before a first incision's
+    /// floor was eased beside a shallow column, 39 and 0.63° before the walls were graded
+    /// like the lips at their ends, flipped, and let end at the surface where an end column
+    /// is shallow, 30 before new vertices inside moved to better cells, 28 and 4.2° before
+    /// the region was laid flat in a conformal chart and let grow onto the sheet's rim) —
+    /// 121, 106, 0.2°: not held to 15° here (docs/CUTTING.md, "Real organ meshes"). (The
+    /// figures as the scans came were measured before the conformal chart.) The bounds below
+    /// hold at 20 trials, one random sequence across the meshes (deltoid: none of 28).
     #[test]
     #[ignore = "reads ../shared/meshes"]
     fn shared_meshes_take_random_strokes() {
@@ -425,7 +426,7 @@ mod tests {
             ),
             ("sofa_sphere_05.obj", LengthUnit::Mm, 0.8, 0.0, 15.0),
             ("liver_tumour_PPP_Tumor.obj", LengthUnit::Cm, 0.8, 0.0, 15.0),
-            ("deltoid_tri.obj", LengthUnit::Mm, 0.4, 0.3, 3.0),
+            ("deltoid_tri.obj", LengthUnit::Mm, 0.4, 0.05, 10.0),
         ];
         let organs: Vec<(String, TriMesh, f64)> = meshes
             .iter()
