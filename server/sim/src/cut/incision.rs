@@ -815,20 +815,25 @@ pub fn incise(
     // of a thin part, 80–130° from n̄ on the deltoid sheet): laid flat in its conformal
     // chart they keep their angles. Where a region grown so cannot be triangulated (no
     // disk, no chart, the path outside it, ...), R goes back to where it was before its
-    // first such growth and grows only into triangles facing n̄ well from there, as it
-    // always did.
-    let mut before_steep: Option<(Vec<bool>, usize)> = None;
+    // first such growth and is made as it was before charts: grown only into triangles
+    // facing n̄ well, triangulated in the projection (so a region that could be opened
+    // then still can: a spike 6 mm tall on a 2 mm mesh beside the cut gave its partly
+    // grown region no chart, and its region facing n̄ well a hole in the chart).
+    let mut before_steep: Option<(Vec<bool>, usize, usize)> = None;
     let mut mended = 0;
     let mut steep_growth = true;
+    let mut charted = true;
     macro_rules! or_fall_back {
         ($result:expr) => {
             match $result {
                 Ok(value) => value,
                 Err(error) => match before_steep.take() {
-                    Some((was, at)) => {
+                    Some((was, at, mends)) => {
                         grown = was;
                         attempt = at;
+                        mended = mends;
                         steep_growth = false;
+                        charted = false;
                         continue;
                     }
                     None => return Err(error),
@@ -951,7 +956,7 @@ pub fn incise(
             joining.retain(|&t| !grown[t] && (steep_growth || facing_well(t)));
             if !joining.is_empty() {
                 if before_steep.is_none() && joining.iter().any(|&t| !facing_well(t)) {
-                    before_steep = Some((grown.clone(), attempt));
+                    before_steep = Some((grown.clone(), attempt, mended));
                 }
                 for t in joining {
                     grown[t] = true;
@@ -968,7 +973,10 @@ pub fn incise(
         }
         // R laid flat keeping its angles; projected onto n̄'s plane where that fails and R
         // faces n̄ well throughout (it grew into nothing steep).
-        let chart = match Chart::conformal(mesh, &region, |x| frame.project(x)) {
+        let conformal = charted
+            .then(|| Chart::conformal(mesh, &region, |x| frame.project(x)))
+            .flatten();
+        let chart = match conformal {
             Some(chart) => chart,
             None => {
                 if before_steep.is_some() {
@@ -1176,7 +1184,7 @@ pub fn incise(
                 }
             }
         }
-        let mut grew = false;
+        let mut joining: Vec<usize> = Vec::new();
         if attempt < 8 {
             for &k in &split {
                 let (a, b) = (boundary[k], boundary[(k + 1) % boundary.len()]);
@@ -1184,13 +1192,16 @@ pub fn incise(
                     && !grown[t]
                     && (facing_well(t) || steep_growth)
                 {
-                    if !facing_well(t) && before_steep.is_none() {
-                        before_steep = Some((grown.clone(), attempt));
-                    }
-                    grown[t] = true;
-                    grew = true;
+                    joining.push(t);
                 }
             }
+        }
+        if before_steep.is_none() && joining.iter().any(|&t| !facing_well(t)) {
+            before_steep = Some((grown.clone(), attempt, mended));
+        }
+        let grew = !joining.is_empty();
+        for t in joining {
+            grown[t] = true;
         }
         attempt += 1;
         if grew {
@@ -1721,6 +1732,7 @@ pub fn incise(
 mod tests {
     use super::*;
     use crate::cut::checks::{check, check_topology, top_path, uniform};
+    use crate::geometry::organs::box_mesh;
     use crate::pipeline::script::vertical_extent;
     use crate::scene::BuiltinMesh;
 
@@ -2027,5 +2039,68 @@ mod tests {
         }
         println!("{done} incisions, worst angle {worst:.1}°");
         assert!(done >= 30, "{done}");
+    }
+    /// A cut 0.5–3.5 mm from the rim of a slab 4–8 mm thick (4 mm triangles): the
+    /// refinement splits the region's edges along the rim, and the triangles beyond are the
+    /// slab's vertical sides. Projected onto one plane the region could not take them in, and
+    /// fanning them gave cells down to 12.4° (four of these 63 cuts under 15°); laid flat in
+    /// its conformal chart it grows over the rim, every cut over 20°.
+    #[test]
+    fn incisions_beside_a_thin_parts_rim_keep_their_angles() {
+        let mut worst = (180.0f64, String::new());
+        for (thick, layers) in [(0.004, 1), (0.006, 1), (0.008, 2)] {
+            let slab = box_mesh(Vec3::new(0.040, 0.040, thick), [10, 10, layers]);
+            let kinds = vec![FaceKind::Skin; slab.triangles.len()];
+            for from_rim_mm in [0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5] {
+                for (length, depth) in [(0.010, 0.002), (0.020, 0.003), (0.030, 0.002)] {
+                    let name = format!("{thick} m slab, {from_rim_mm} mm from the rim, {length} m");
+                    let y = 0.020 - from_rim_mm * 1e-3;
+                    // Slightly askew, off the grid's lines.
+                    let path = top_path(
+                        &slab,
+                        [-0.5 * length + 0.0013, y],
+                        [0.5 * length + 0.0013, y - 0.0005],
+                        depth,
+                    );
+                    let out = incise(&slab, &kinds, &[], &path, &IncisionParams::default())
+                        .unwrap_or_else(|e| panic!("{name}: {e}"));
+                    check_topology(&out, &name);
+                    if out.min_angle_deg < worst.0 {
+                        worst = (out.min_angle_deg, name);
+                    }
+                }
+            }
+        }
+        assert!(worst.0 >= 18.0, "{worst:?}");
+    }
+
+    /// A vertex of a 2 mm mesh raised 2–6 mm, 2–5 mm beside a cut: its steep faces are left
+    /// out of the region chosen in the projection, which then has a hole or touches itself
+    /// round them. Such a region was refused (14 of these 32 cuts); it is now mended — the
+    /// faces round the spike join it, laid flat in its chart — and every cut opens, sound,
+    /// over 15°.
+    #[test]
+    fn a_region_holed_by_a_spike_beside_the_cut_is_mended() {
+        for raised in [0.002, 0.003, 0.004, 0.006] {
+            for beside_mm in [2.0, 3.0, 4.0, 5.0] {
+                for depth in [0.002, 0.005] {
+                    let name = format!("spike {raised} m, {beside_mm} mm beside, {depth} m deep");
+                    let mut mesh = box_mesh(Vec3::new(0.040, 0.040, 0.010), [20, 20, 2]);
+                    let wanted = Vec3::new(0.0, beside_mm * 1e-3, 0.005);
+                    let spike = (0..mesh.positions.len())
+                        .min_by(|&a, &b| {
+                            let d = |v: usize| (mesh.positions[v] - wanted).norm();
+                            d(a).total_cmp(&d(b))
+                        })
+                        .expect("vertices");
+                    mesh.positions[spike].z += raised;
+                    let kinds = vec![FaceKind::Skin; mesh.triangles.len()];
+                    let path = top_path(&mesh, [-0.008, 0.0], [0.008, 0.0], depth);
+                    let out = incise(&mesh, &kinds, &[], &path, &IncisionParams::default())
+                        .unwrap_or_else(|e| panic!("{name}: {e}"));
+                    check(&out, &name);
+                }
+            }
+        }
     }
 }
