@@ -7,9 +7,10 @@
 //! from the plane and cannot join the region at all, so the splits the refinement puts on
 //! that boundary are fanned into needles. A least-squares conformal map (Lévy, Petitjean,
 //! Ray and Maillot 2002, "Least squares conformal maps for automatic texture atlas
-//! generation") flattens the region with the least angle distortion any piecewise-linear
-//! map has, whatever way its triangles face: a developable region (a cylinder's patch) is
-//! unrolled exactly, a flat one is its projection.
+//! generation") flattens the region minimising, in the least-squares sense, how far each
+//! triangle's map is from a similarity (angle-keeping), whatever way its triangles face: a
+//! developable region (a cylinder's patch) is unrolled exactly, a flat one is its
+//! projection.
 
 use std::collections::HashMap;
 
@@ -272,7 +273,9 @@ impl Chart {
 
     /// Whether the region's boundary edges (those without a twin in the region) meet only
     /// at shared vertices in the chart: a map can keep every triangle the right way round
-    /// and still lay one part of the region over another.
+    /// and still lay one part of the region over another. Edges that touch or run along
+    /// each other count as meeting (two boundary vertices on one chart point would be one
+    /// vertex to the triangulation).
     fn boundary_is_simple(&self, mesh: &TriMesh) -> bool {
         let mut directed = std::collections::HashSet::new();
         for &t in &self.triangles {
@@ -295,8 +298,8 @@ impl Chart {
                     continue;
                 }
                 let [pa, pb, pc, pd] = [a, b, c, d].map(|v| self.coords[&v]);
-                if orient(pa, pb, pc) * orient(pa, pb, pd) < 0.0
-                    && orient(pc, pd, pa) * orient(pc, pd, pb) < 0.0
+                if orient(pa, pb, pc) * orient(pa, pb, pd) <= 0.0
+                    && orient(pc, pd, pa) * orient(pc, pd, pb) <= 0.0
                 {
                     return false;
                 }
@@ -322,13 +325,12 @@ impl Chart {
         let nearest = self
             .triangles
             .iter()
-            .copied()
-            .min_by(|&a, &b| {
-                let d =
-                    |t: usize| (closest_point_on_triangle(x, &mesh.corners(t)) - x).norm_squared();
-                d(a).total_cmp(&d(b))
+            .map(|&t| {
+                let d = (closest_point_on_triangle(x, &mesh.corners(t)) - x).norm_squared();
+                (d, t)
             })
-            .unwrap_or(0);
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map_or(0, |(_, t)| t);
         let [a, b, c] = mesh.corners(nearest);
         let (ab, ac, ax) = (b - a, c - a, x - a);
         let (d00, d01, d11) = (ab.dot(&ab), ab.dot(&ac), ac.dot(&ac));
@@ -376,7 +378,8 @@ mod tests {
         (0..mesh.triangles.len()).collect()
     }
 
-    /// A flat region square to the projection is its projection.
+    /// A flat region square to the projection is its projection; a point beyond its edge
+    /// maps beyond the edge, where the projection puts it.
     #[test]
     fn a_flat_region_maps_to_its_projection() {
         let mesh = grid(6, 4, |x, y| {
@@ -384,13 +387,13 @@ mod tests {
         });
         let project = |p: &Vec3| [p.x, p.y];
         let chart = Chart::conformal(&mesh, &all(&mesh), project).expect("a chart");
+        let near = |q: [f64; 2], p: &Vec3| (q[0] - p.x).abs() < 1e-12 && (q[1] - p.y).abs() < 1e-12;
         for (v, p) in mesh.positions.iter().enumerate() {
             let q = chart.vertex(v as u32);
-            assert!(
-                (q[0] - p.x).abs() < 1e-15 && (q[1] - p.y).abs() < 1e-15,
-                "{v}: {q:?}"
-            );
+            assert!(near(q, p), "{v}: {q:?}");
         }
+        let beyond = Vec3::new(-0.4e-3, 2.5e-3, 0.02);
+        assert!(near(chart.point(&mesh, &beyond), &beyond));
     }
 
     /// A half cylinder (a sheet bent round a 5 mm radius, its sides facing away from the

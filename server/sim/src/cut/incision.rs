@@ -815,11 +815,13 @@ pub fn incise(
     // of a thin part, 80–130° from n̄ on the deltoid sheet): laid flat in its conformal
     // chart they keep their angles. Where a region grown so cannot be triangulated (no
     // disk, no chart, the path outside it, ...), R goes back to where it was before its
-    // first such growth and is made as it was before charts: grown only into triangles
-    // facing n̄ well, triangulated in the projection (so a region that could be opened
-    // then still can: a spike 6 mm tall on a 2 mm mesh beside the cut gave its partly
+    // first such growth and grows only into triangles facing n̄ well from there. Where it
+    // still fails, R is made from the start as before charts — grown only onto faces
+    // facing n̄ well, triangulated in the projection — so a region that could be opened
+    // then still can (a spike 6 mm tall on a 2 mm mesh beside the cut gave its partly
     // grown region no chart, and its region facing n̄ well a hole in the chart).
     let mut before_steep: Option<(Vec<bool>, usize, usize)> = None;
+    let at_start = grown.clone();
     let mut mended = 0;
     let mut steep_growth = true;
     let mut charted = true;
@@ -827,17 +829,18 @@ pub fn incise(
         ($result:expr) => {
             match $result {
                 Ok(value) => value,
-                Err(error) => match before_steep.take() {
-                    Some((was, at, mends)) => {
-                        grown = was;
-                        attempt = at;
-                        mended = mends;
-                        steep_growth = false;
+                Err(error) => {
+                    if let Some((was, at, mends)) = before_steep.take() {
+                        (grown, attempt, mended) = (was, at, mends);
+                    } else if charted {
+                        (grown, attempt, mended) = (at_start.clone(), 0, 0);
                         charted = false;
-                        continue;
+                    } else {
+                        return Err(error);
                     }
-                    None => return Err(error),
-                },
+                    steep_growth = false;
+                    continue;
+                }
             }
         };
     }
@@ -920,19 +923,20 @@ pub fn incise(
         }
         // No disk: R is mended where it can be — the skin triangles round a vertex where
         // its boundary touches itself, and those beyond the edges of every boundary loop but
-        // the longest (a hole) join it — up to three times.
+        // the outer one (a hole) join it — up to three times. The outer loop runs counter-
+        // clockwise round the most area in the projection; a hole's runs clockwise.
         if (pinched || loops.len() != 1) && mended < 3 {
-            let loop_length = |lp: &Vec<u32>| {
+            let loop_area = |lp: &Vec<u32>| {
                 (0..lp.len())
                     .map(|i| {
-                        (mesh.positions[lp[(i + 1) % lp.len()] as usize]
-                            - mesh.positions[lp[i] as usize])
-                            .norm()
+                        let a = frame.project(&mesh.positions[lp[i] as usize]);
+                        let b = frame.project(&mesh.positions[lp[(i + 1) % lp.len()] as usize]);
+                        cross2(a, b)
                     })
                     .sum::<f64>()
             };
             let outer = (0..loops.len())
-                .max_by(|&a, &b| loop_length(&loops[a]).total_cmp(&loop_length(&loops[b])));
+                .max_by(|&a, &b| loop_area(&loops[a]).total_cmp(&loop_area(&loops[b])));
             let mut joining: Vec<usize> = Vec::new();
             for (l, lp) in loops.iter().enumerate() {
                 if Some(l) == outer {
@@ -972,7 +976,7 @@ pub fn incise(
             }));
         }
         // R laid flat keeping its angles; projected onto n̄'s plane where that fails and R
-        // faces n̄ well throughout (it grew into nothing steep).
+        // faces n̄ well throughout (it grew into nothing steep), or once charts failed.
         let conformal = charted
             .then(|| Chart::conformal(mesh, &region, |x| frame.project(x)))
             .flatten();
@@ -1130,7 +1134,7 @@ pub fn incise(
             if r == 0 || r == m {
                 lower_handles.push(hu);
             } else {
-                lower_handles.push(insert(&mut cdt, lower[r])?);
+                lower_handles.push(or_fall_back!(insert(&mut cdt, lower[r])));
             }
         }
         let constrain = |cdt: &mut Cdt, a, b| {
@@ -2044,7 +2048,8 @@ mod tests {
     /// refinement splits the region's edges along the rim, and the triangles beyond are the
     /// slab's vertical sides. Projected onto one plane the region could not take them in, and
     /// fanning them gave cells down to 12.4° (four of these 63 cuts under 15°); laid flat in
-    /// its conformal chart it grows over the rim, every cut over 20°.
+    /// its conformal chart it grows over the rim (20.6° at worst measured; held to 18°).
+    /// The same cut twice gives the same surface, bit for bit.
     #[test]
     fn incisions_beside_a_thin_parts_rim_keep_their_angles() {
         let mut worst = (180.0f64, String::new());
@@ -2062,9 +2067,17 @@ mod tests {
                         [0.5 * length + 0.0013, y - 0.0005],
                         depth,
                     );
-                    let out = incise(&slab, &kinds, &[], &path, &IncisionParams::default())
-                        .unwrap_or_else(|e| panic!("{name}: {e}"));
-                    check_topology(&out, &name);
+                    let cut = || {
+                        incise(&slab, &kinds, &[], &path, &IncisionParams::default())
+                            .unwrap_or_else(|e| panic!("{name}: {e}"))
+                    };
+                    let out = cut();
+                    check(&out, &name);
+                    if from_rim_mm == 1.0 {
+                        let again = cut();
+                        assert_eq!(out.mesh.triangles, again.mesh.triangles, "{name}");
+                        assert_eq!(out.mesh.positions, again.mesh.positions, "{name}");
+                    }
                     if out.min_angle_deg < worst.0 {
                         worst = (out.min_angle_deg, name);
                     }
@@ -2074,15 +2087,15 @@ mod tests {
         assert!(worst.0 >= 18.0, "{worst:?}");
     }
 
-    /// A vertex of a 2 mm mesh raised 2–6 mm, 2–5 mm beside a cut: its steep faces are left
+    /// A vertex of a 2 mm mesh raised 2–6 mm, 2–6 mm beside a cut: its steep faces are left
     /// out of the region chosen in the projection, which then has a hole or touches itself
-    /// round them. Such a region was refused (14 of these 32 cuts); it is now mended — the
+    /// round them. Such a region was refused (6 of these 24 cuts); it is now mended — the
     /// faces round the spike join it, laid flat in its chart — and every cut opens, sound,
-    /// over 15°.
+    /// over 15°. (The tallest spike's partly grown region has no chart: it falls back.)
     #[test]
     fn a_region_holed_by_a_spike_beside_the_cut_is_mended() {
         for raised in [0.002, 0.003, 0.004, 0.006] {
-            for beside_mm in [2.0, 3.0, 4.0, 5.0] {
+            for beside_mm in [2.0, 4.0, 6.0] {
                 for depth in [0.002, 0.005] {
                     let name = format!("spike {raised} m, {beside_mm} mm beside, {depth} m deep");
                     let mut mesh = box_mesh(Vec3::new(0.040, 0.040, 0.010), [20, 20, 2]);
