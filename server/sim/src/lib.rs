@@ -31,4 +31,5 @@ pub mod pipeline;
 pub mod progress;
 pub mod scene;
 pub mod solver;
+pub mod sparse_llt;
 pub mod validate;

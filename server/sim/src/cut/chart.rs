@@ -14,17 +14,10 @@
 
 use std::collections::HashMap;
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{
-    CholeskySymbolicParams, LltRef, SymmetricOrdering, factorize_symbolic_cholesky,
-};
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{Conj, MatMut, Par, Side};
-
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::Vec3;
+use crate::sparse_llt::SparseLlt;
 
 /// A chart triangle's doubled signed area must be at least this share of its doubled
 /// area on the surface: a triangle squashed further (or turned over) is no chart.
@@ -174,37 +167,9 @@ impl Chart {
         for c in 0..m {
             col_ptr[c + 1] += col_ptr[c];
         }
-        let symbolic_ref = SymbolicSparseColMatRef::new_checked(m, m, &col_ptr, None, &row_idx);
-        let matrix = SparseColMatRef::new(symbolic_ref, &values);
-        let symbolic = factorize_symbolic_cholesky(
-            symbolic_ref,
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .ok()?;
-        let mut factor = vec![0.0; symbolic.len_val()];
-        let mut memory = MemBuffer::new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-        );
-        symbolic
-            .factorize_numeric_llt(
-                &mut factor,
-                matrix,
-                Side::Lower,
-                LltRegularization::default(),
-                Par::Seq,
-                MemStack::new(&mut memory),
-                Default::default(),
-            )
-            .ok()?;
-        let mut solve_memory = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        LltRef::new(&symbolic, &factor).solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(&mut rhs, m, 1),
-            Par::Seq,
-            MemStack::new(&mut solve_memory),
-        );
+        SparseLlt::factor(m, &col_ptr, &row_idx, &values, 1)
+            .ok()?
+            .solve_in_place(&mut rhs, 1);
         let mut flat: Vec<[f64; 2]> = (0..n)
             .map(|i| match pin_of(i) {
                 Some(p) => pins[p],

@@ -45,6 +45,7 @@ use thiserror::Error;
 use crate::geometry::TriMesh;
 use crate::geometry::angle_deg;
 use crate::geometry::predicates::distance_sq_to_segment;
+use crate::geometry::topology::{SurfaceCheck, check_surface};
 use crate::math::Vec3;
 
 use super::chart::Chart;
@@ -176,6 +177,15 @@ pub enum IncisionError {
     /// The constrained triangulation failed.
     #[error("triangulation failed: {0}")]
     Triangulation(String),
+    /// The re-triangulated surface would not be closed, edge-manifold and consistently
+    /// oriented (drawn, or as the envelope blade contact sees): refused, the surface kept.
+    #[error("the incised surface would not be sound ({which}: {check:?})")]
+    Unsound {
+        /// "drawn" (skin and walls) or "envelope" (skin and lids).
+        which: &'static str,
+        /// What the check found.
+        check: SurfaceCheck,
+    },
 }
 
 /// A 2D vertex of the triangulation (spade needs `From<Point2>` to add Steiner points).
@@ -560,8 +570,8 @@ const FLIP_MAX_BEND_DEG: f64 = 30.0;
 /// the angle limit in its chart; lifted back onto a strongly curved surface (a tumour
 /// 12 mm across, the rim of a region on a scanned liver) a cell can lose much of its
 /// smallest angle where the chart bends across the surface's own edges, and more than
-/// half where the region had to be projected onto n̄'s plane. Walls: their grid zips lips and columns spaced
-/// differently (a lip graded to quarter-spacing segments at its ends beside columns a
+/// half where the region had to be projected onto n̄'s plane. Walls: their grid zips lips
+/// and columns spaced differently (a lip graded to quarter-spacing segments at its ends beside columns a
 /// gap apart). Edges against another kind or an old triangle (lips, the region's
 /// unsplit boundary, a wall's lip) are never flipped, nor those `kept` says (where the
 /// two walls meet face to face); neither is a bend over [`FLIP_MAX_BEND_DEG`], nor a flip
@@ -747,7 +757,14 @@ pub fn incise(
     // The path projected onto n̄'s plane, to choose R by (R is laid flat in a chart of its
     // own below, where the path is placed again).
     let path_projected: Vec<[f64; 2]> = samples.iter().map(|s| frame.project(&s.surface)).collect();
-    let w_wanted = params.opening_for(ArcPolyline::new(path_projected.clone()).length(), depth_max);
+    let projected_length: f64 = path_projected
+        .windows(2)
+        .map(|w| {
+            let d = sub2(w[1], w[0]);
+            d[0].hypot(d[1])
+        })
+        .sum();
+    let w_wanted = params.opening_for(projected_length, depth_max);
 
     // Region R: skin facing n̄ within reach of the opening, plus its one-ring.
     // Triangles under the opening may be steep; the ring around them must face n̄ well, or
@@ -807,8 +824,9 @@ pub fn incise(
     // R grows where the refinement had to split its boundary (the triangles beyond would
     // be split into slivers), and is triangulated again; up to eight times (a scanned
     // liver's 24 mm triangles around a 12 mm cut took more than three). A grown R that
-    // cannot be triangulated refuses the incision: falling back to the last R that could
-    // drew more wounds on the deltoid scan, and more cells under 15° on every scan.
+    // cannot be triangulated, once it is made as before charts (below), refuses the
+    // incision: falling back to the last R that could drew more wounds on the deltoid scan,
+    // and more cells under 15° on every scan.
     let mut grown = in_region;
     let mut attempt = 0;
     // R may grow into triangles beyond a split boundary that do not face n̄ well (the rim
@@ -825,8 +843,11 @@ pub fn incise(
     let mut mended = 0;
     let mut steep_growth = true;
     let mut charted = true;
+    // (The attempt loop's label comes in from the call: a `continue` without it would go
+    // on with the innermost loop, the constraint or insertion loop it was called in,
+    // leaving a lip or a boundary edge out of the triangulation.)
     macro_rules! or_fall_back {
-        ($result:expr) => {
+        ($attempts:lifetime, $result:expr) => {
             match $result {
                 Ok(value) => value,
                 Err(error) => {
@@ -839,7 +860,7 @@ pub fn incise(
                         return Err(error);
                     }
                     steep_growth = false;
-                    continue;
+                    continue $attempts;
                 }
             }
         };
@@ -865,7 +886,7 @@ pub fn incise(
         upper_handles,
         lower_handles,
         result,
-    ) = loop {
+    ) = 'attempts: loop {
         let in_region = grown.clone();
         let region: Vec<usize> = (0..mesh.triangles.len())
             .filter(|&t| in_region[t])
@@ -966,11 +987,11 @@ pub fn incise(
                     grown[t] = true;
                 }
                 mended += 1;
-                continue;
+                continue 'attempts;
             }
         }
         if pinched || loops.len() != 1 {
-            or_fall_back!(Err(IncisionError::NotDisk {
+            or_fall_back!('attempts, Err(IncisionError::NotDisk {
                 loops: loops.len(),
                 pinched,
             }));
@@ -984,7 +1005,7 @@ pub fn incise(
             Some(chart) => chart,
             None => {
                 if before_steep.is_some() {
-                    or_fall_back!(Err(IncisionError::Triangulation(
+                    or_fall_back!('attempts, Err(IncisionError::Triangulation(
                         "the region has no chart".into()
                     )));
                 }
@@ -1019,7 +1040,7 @@ pub fn incise(
             .iter()
             .any(|&p| !point_in_polygon(&boundary2, p))
         {
-            or_fall_back!(Err(IncisionError::PathOutsideRegion));
+            or_fall_back!('attempts, Err(IncisionError::PathOutsideRegion));
         }
         // At least eight segments per lip, so that even a short lip turns smoothly.
         // Lip segments no longer than three quarters of the depth either: the walls below are
@@ -1107,7 +1128,7 @@ pub fn incise(
         };
         let mut boundary_handles = Vec::with_capacity(boundary.len());
         for (k, &v) in boundary.iter().enumerate() {
-            let h = or_fall_back!(insert(&mut cdt, boundary2[k]));
+            let h = or_fall_back!('attempts, insert(&mut cdt, boundary2[k]));
             cdt_to_mesh.insert(h.index(), v);
             boundary_handles.push(h);
         }
@@ -1122,19 +1143,19 @@ pub fn incise(
         for &v in &interior {
             let p = chart.vertex(v);
             if !near_lens(p) {
-                let h = or_fall_back!(insert(&mut cdt, p));
+                let h = or_fall_back!('attempts, insert(&mut cdt, p));
                 cdt_to_mesh.insert(h.index(), v);
             }
         }
         let mut upper_handles = Vec::with_capacity(m + 1);
         let mut lower_handles = Vec::with_capacity(m + 1);
         for r in 0..=m {
-            let hu = or_fall_back!(insert(&mut cdt, upper[r]));
+            let hu = or_fall_back!('attempts, insert(&mut cdt, upper[r]));
             upper_handles.push(hu);
             if r == 0 || r == m {
                 lower_handles.push(hu);
             } else {
-                lower_handles.push(or_fall_back!(insert(&mut cdt, lower[r])));
+                lower_handles.push(or_fall_back!('attempts, insert(&mut cdt, lower[r])));
             }
         }
         let constrain = |cdt: &mut Cdt, a, b| {
@@ -1152,11 +1173,11 @@ pub fn incise(
                 boundary_handles[k],
                 boundary_handles[(k + 1) % boundary_handles.len()],
             );
-            or_fall_back!(constrain(&mut cdt, a, b));
+            or_fall_back!('attempts, constrain(&mut cdt, a, b));
         }
         for r in 0..m {
-            or_fall_back!(constrain(&mut cdt, upper_handles[r], upper_handles[r + 1]));
-            or_fall_back!(constrain(&mut cdt, lower_handles[r], lower_handles[r + 1]));
+            or_fall_back!('attempts, constrain(&mut cdt, upper_handles[r], upper_handles[r + 1]));
+            or_fall_back!('attempts, constrain(&mut cdt, lower_handles[r], lower_handles[r + 1]));
         }
         // Ruppert/Chew refinement. Constraint edges may be split (the lips and R's boundary
         // get extra vertices on them): with them locked, skinny triangles next to them could not
@@ -1169,7 +1190,7 @@ pub fn incise(
                 .with_max_additional_vertices(20 * before + 100),
         );
         if !result.refinement_complete {
-            or_fall_back!(Err(IncisionError::Triangulation(
+            or_fall_back!('attempts, Err(IncisionError::Triangulation(
                 "refinement ran out of Steiner points".into(),
             )));
         }
@@ -1209,7 +1230,7 @@ pub fn incise(
         }
         attempt += 1;
         if grew {
-            continue;
+            continue 'attempts;
         }
         break (
             in_region,
@@ -1705,6 +1726,22 @@ pub fn incise(
         kinds: out_kinds,
         created,
     } = assembly;
+    // Whatever the path did (a hand's noise can double it back on itself), the surface
+    // must stay sound: an incision that would leave a hole or a fin is refused, and the
+    // surface kept as it was (a fault run's noisy stroke left a hole in the envelope,
+    // through which the blade then fell out of the tissue).
+    for (which, left_out) in [("drawn", FaceKind::Lid), ("envelope", FaceKind::Wall)] {
+        let kept: Vec<[u32; 3]> = triangles
+            .iter()
+            .zip(&out_kinds)
+            .filter(|(_, k)| **k != left_out)
+            .map(|(t, _)| *t)
+            .collect();
+        let check = check_surface(&kept, positions.len());
+        if !(check.closed && check.manifold && check.oriented) {
+            return Err(IncisionError::Unsound { which, check });
+        }
+    }
     let out = TriMesh::new(positions, triangles);
     // The lips' own smoothness, in the incision's tangent plane (the facets of the surface
     // they are lifted onto add their dihedral angles on top).
@@ -2114,6 +2151,45 @@ mod tests {
                     check(&out, &name);
                 }
             }
+        }
+    }
+    /// A hand's noise (an instructor's 2 mm pose-noise fault) doubled a stroke back on
+    /// itself across the liver: its lips cross the region's boundary in the chart and, made
+    /// again as before charts, in the projection, and the incision is refused. A fall-back
+    /// that went on with the constraint loop it was called from left that lip edge out of
+    /// the triangulation: a surface with a hole the blade then fell through, out of the
+    /// tissue for the rest of the cut. Refused for what it is, or opened sound — never
+    /// opened with a hole, nor refused as unsound.
+    #[test]
+    fn a_stroke_doubled_back_by_noise_is_refused_or_opened_sound() {
+        let liver = BuiltinMesh::Liver.generate();
+        let kinds = vec![FaceKind::Skin; liver.triangles.len()];
+        // (x, y, surface z, bottom z) in mm, as the fault run's stroke recorded them.
+        let samples = [
+            (-38.0025, -0.0098, 18.9984, 17.9804),
+            (-34.0025, -0.0098, 19.4359, 13.9804),
+            (-30.0025, -0.0098, 19.9836, 9.9804),
+            (-25.5891, 0.0, 20.3575, 10.3543),
+            (-21.1811, 0.0, 20.8059, 10.8059),
+            (-16.7729, 0.0, 21.2541, 11.2414),
+            (-12.3662, 0.0, 21.6990, 8.0924),
+            (-7.9543, 0.0, 22.0931, 8.4865),
+            (-3.2805, 1.3389, 22.5108, 8.8341),
+            (-9.6136, 4.5890, 21.9482, 9.8065),
+        ];
+        // (Rest-space points mapped from the deformed surface: off the rest mesh by up to
+        // 0.1 mm, as the stroke had them.)
+        let path: Vec<PathSample> = samples
+            .iter()
+            .map(|&(x, y, top, bottom)| PathSample {
+                surface: Vec3::new(x, y, top) * 1e-3,
+                bottom: Vec3::new(x, y, bottom) * 1e-3,
+            })
+            .collect();
+        match incise(&liver, &kinds, &[], &path, &IncisionParams::default()) {
+            Ok(out) => check_topology(&out, "doubled back"),
+            Err(e @ IncisionError::Unsound { .. }) => panic!("{e}"),
+            Err(_) => {}
         }
     }
 }

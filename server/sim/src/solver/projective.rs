@@ -14,14 +14,6 @@
 //! iteration. The scalar system is `L ⊗ I₃`: one N×N factor serves the three components when
 //! they share their fixed dofs (otherwise one factor per pattern).
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{
-    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
-    factorize_symbolic_cholesky,
-};
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{Conj, MatMut, Par, Side};
 use nalgebra::UnitQuaternion;
 
 use super::Solver;
@@ -29,6 +21,7 @@ use super::events::{SolverEvent, StepReport};
 use crate::math::{Mat3, Vec3};
 use crate::mls::forces::hourglass_stiffness;
 use crate::mls::operator::{MlsOperator, PointRank, complete};
+use crate::sparse_llt::{LltError, SparseLlt};
 
 /// Rotation-extraction iterations per local step (warm-started from the last rotation).
 const ROTATION_ITERATIONS: usize = 4;
@@ -42,9 +35,7 @@ struct ComponentSystem {
     point_of: Vec<u32>,
     /// Entries L[row, fixed point] that move to the right-hand side.
     coupling: Vec<(u32, u32, f64)>,
-    symbolic: SymbolicCholesky<usize>,
-    factor: Vec<f64>,
-    solve_memory: MemBuffer,
+    llt: SparseLlt,
     rhs: Vec<f64>,
 }
 
@@ -378,41 +369,18 @@ impl ComponentSystem {
         }
         // Rows within a column must be sorted in the reduced numbering: row_of is monotone,
         // so the original order is kept.
-        let symbolic_ref = SymbolicSparseColMatRef::new_checked(m, m, &col_ptr, None, &row_idx);
-        let matrix = SparseColMatRef::new(symbolic_ref, &values);
-        let symbolic = factorize_symbolic_cholesky(
-            symbolic_ref,
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| format!("symbolic factorisation failed: {e:?}"))?;
-        let mut factor = vec![0.0; symbolic.len_val()];
-        let mut memory = MemBuffer::new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-        );
-        symbolic
-            .factorize_numeric_llt(
-                &mut factor,
-                matrix,
-                Side::Lower,
-                LltRegularization::default(),
-                Par::Seq,
-                MemStack::new(&mut memory),
-                Default::default(),
-            )
-            .map_err(|e| {
-                format!("the projective-dynamics matrix is not positive definite: {e:?}")
-            })?;
-        let solve_memory = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(3, Par::Seq));
+        let llt = SparseLlt::factor(m, &col_ptr, &row_idx, &values, 3).map_err(|e| match e {
+            LltError::Symbolic(_) => e.to_string(),
+            LltError::NotPositiveDefinite(detail) => {
+                format!("the projective-dynamics matrix is not positive definite: {detail}")
+            }
+        })?;
         Ok(Self {
             components: vec![component],
             row_of,
             point_of,
             coupling,
-            symbolic,
-            factor,
-            solve_memory,
+            llt,
             rhs: vec![0.0; 3 * m],
         })
     }
@@ -431,14 +399,7 @@ impl ComponentSystem {
                 b[row as usize] -= v * p[fixed_point as usize][c];
             }
         }
-        let llt = LltRef::new(&self.symbolic, &self.factor);
-        let mat = MatMut::from_column_major_slice_mut(&mut self.rhs[..k * m], m, k);
-        llt.solve_in_place_with_conj(
-            Conj::No,
-            mat,
-            Par::Seq,
-            MemStack::new(&mut self.solve_memory),
-        );
+        self.llt.solve_in_place(&mut self.rhs, k);
         for (col, &c) in self.components.iter().enumerate() {
             for (row, &i) in self.point_of.iter().enumerate() {
                 p[i as usize][c] = self.rhs[col * m + row];
