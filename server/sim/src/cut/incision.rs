@@ -571,8 +571,8 @@ const FLIP_MAX_BEND_DEG: f64 = 30.0;
 /// 12 mm across, the rim of a region on a scanned liver) a cell can lose much of its
 /// smallest angle where the chart bends across the surface's own edges, and more than
 /// half where the region had to be projected onto n̄'s plane. Walls: their grid zips lips
-/// and columns spaced differently (a lip graded to quarter-spacing segments at its ends beside columns a
-/// gap apart). Edges against another kind or an old triangle (lips, the region's
+/// and columns spaced differently (a lip graded to quarter-spacing segments at its ends
+/// beside columns a gap apart). Edges against another kind or an old triangle (lips, the region's
 /// unsplit boundary, a wall's lip) are never flipped, nor those `kept` says (where the
 /// two walls meet face to face); neither is a bend over [`FLIP_MAX_BEND_DEG`], nor a flip
 /// that would fold a cell over.
@@ -2081,6 +2081,7 @@ mod tests {
         println!("{done} incisions, worst angle {worst:.1}°");
         assert!(done >= 30, "{done}");
     }
+
     /// A cut 0.5–3.5 mm from the rim of a slab 4–8 mm thick (4 mm triangles): the
     /// refinement splits the region's edges along the rim, and the triangles beyond are the
     /// slab's vertical sides. Projected onto one plane the region could not take them in, and

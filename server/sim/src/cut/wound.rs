@@ -1007,18 +1007,12 @@ mod tests {
     /// deep (mm), and lips 1 mm apart at most, with vertices at `params` along it: the
     /// surface with the lips alone (no triangles yet).
     fn straight_wound(depths_mm: &[f64], params: &[f64]) -> (Wound, Assembly) {
-        straight_wound_with(depths_mm, params, params, 0.0005)
+        straight_wound_with(depths_mm, params, params)
     }
 
-    /// The same with the upper and lower lips' vertices at `upper` and `lower`, and the
-    /// given largest half-opening (m).
-    fn straight_wound_with(
-        depths_mm: &[f64],
-        upper: &[f64],
-        lower: &[f64],
-        opening: f64,
-    ) -> (Wound, Assembly) {
-        let length = 0.012;
+    /// The same with the upper and lower lips' vertices at `upper` and `lower`.
+    fn straight_wound_with(depths_mm: &[f64], upper: &[f64], lower: &[f64]) -> (Wound, Assembly) {
+        let (length, opening) = (0.012, 0.0005);
         let mut out = Assembly {
             positions: Vec::new(),
             source: Vec::new(),
@@ -1202,7 +1196,7 @@ mod tests {
                 (&GRADED_LIPS[..], &EVEN_LIPS[..]),
                 (&EVEN_LIPS[..], &GRADED_LIPS[..]),
             ] {
-                let (wound, mut out) = straight_wound_with(&depths, upper, lower, 0.0005);
+                let (wound, mut out) = straight_wound_with(&depths, upper, lower);
                 build_walls(&wound, &mut out);
                 assert_sound_walls(&wound, &out);
                 let angle = out.min_created_angle_deg();
