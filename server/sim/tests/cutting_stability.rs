@@ -54,6 +54,8 @@ struct Trace {
     /// Ticks where a forward cut came out of the tissue (the last ligament parts).
     breakthroughs: usize,
     diverged_ticks: usize,
+    /// Ticks the solver's guard rolled back at least once.
+    rolled_back_ticks: usize,
     /// Deepest depth reading (m).
     max_depth_m: f64,
     /// Ticks where the blade fell out of the tissue while cutting and came back the next
@@ -173,6 +175,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
         last_phase = phase;
         trace.peak_n = trace.peak_n.max(f.norm());
         trace.diverged_ticks += usize::from(r.solver.diverged);
+        trace.rolled_back_ticks += usize::from(r.solver.rollbacks > 0);
         if k % 64 == 0 || k + 1 == ticks + idle_ticks {
             assert!(
                 sim.solver()
@@ -397,6 +400,57 @@ fn two_crossing_cuts() {
     println!("{stats:?}");
     assert!(stats.incisions >= 2, "{stats:?}");
     assert!(stats.min_angle_deg >= 15.0);
+    assert_sound_surface(&sim);
+}
+
+/// Three wounds made one after the other across the liver's top, 60 mm apart (one of the
+/// endurance scripts of docs/CUTTING.md, "Virtual points"): the virtual points on the
+/// earlier walls, moved once a tick to where their wall vertices went, drove the tissue
+/// that carries those vertices, a loop with a tick's lag that pumped energy into the walls
+/// during the second stroke — from then on the guard rolled ticks back, doubling their
+/// sub-steps up to 32 768 (0.5–3.8 s per tick), and 223 ticks diverged. Slaved to the
+/// points around them, the nodes close no loop: every tick is calm and none is rolled back.
+#[test]
+fn several_wounds_in_one_session_stay_calm() {
+    let scene = scene("liver");
+    let mut frames: Vec<(f64, [f64; 3])> = Vec::new();
+    let mut t = 0.0;
+    // (x, first y, last y, depth mm): along −y, 10 mm/s down, 8 mm/s along.
+    for (x, y0, y1, depth) in [
+        (-58.5, 42.8, 12.8, 7.5),
+        (-8.1, 25.2, -0.9, 5.1),
+        (53.7, 7.1, -17.9, 7.2),
+    ] {
+        let above = top_mm(&scene, x, y0) + 10.0;
+        if !frames.is_empty() {
+            t += 1.0;
+        }
+        frames.push((t, [x, y0, above]));
+        t += (10.0 + depth) / 10.0;
+        let steps = 10;
+        for k in 0..=steps {
+            let y = y0 + (y1 - y0) * k as f64 / steps as f64;
+            if k > 0 {
+                t += (y1 - y0).abs() / steps as f64 / 8.0;
+            }
+            frames.push((t, [x, y, top_mm(&scene, x, y) - depth]));
+        }
+        t += (10.0 + depth) / 10.0;
+        frames.push((t, [x, y1, top_mm(&scene, x, y1) + 10.0]));
+    }
+    // Upright, facing along the strokes (−y).
+    let mut s = script(&frames);
+    for k in &mut s.keyframes {
+        k.pose = ToolPose::facing(k.pose.tip_m, Vec3::z(), -Vec3::y());
+    }
+    let (sim, trace) = calm_run(&scene, &s, 500);
+    assert_eq!(trace.rolled_back_ticks, 0, "{trace:?}");
+    let stats = sim.incisions().unwrap();
+    println!("{stats:?}");
+    assert!(stats.incisions >= 3, "{stats:?}");
+    assert!(stats.min_angle_deg >= 15.0);
+    let vp = sim.virtual_points().expect("the liver uses virtual points");
+    assert!(vp.stats.placed > 20, "{:?}", vp.stats);
     assert_sound_surface(&sim);
 }
 

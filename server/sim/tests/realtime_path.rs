@@ -135,6 +135,26 @@ fn rollbacks_do_not_allocate_either() {
     assert_eq!(allocations() - before, 0);
 }
 
+/// A blow-up that no sub-step can cure (a load that is not finite) is given up after the
+/// guard's five doublings, not chased to 65 536 sub-steps: a tick of the simulation thread
+/// stays bounded (the lagged virtual-point loop once made ticks of 3.8 s that way), and the
+/// state that leaves is the tick's start, finite and at rest.
+#[test]
+fn a_blow_up_more_sub_steps_cannot_cure_is_given_up_within_bounds() {
+    let model = model("block");
+    let mut solver = Solver::for_model(&model, &Material::LIVER, SolverConfig::default());
+    solver.step(1e-3);
+    let planned = solver.substeps();
+    let start: Vec<Vec3> = solver.positions().to_vec();
+    solver.set_external_force(0, Vec3::new(f64::NAN, 0.0, 0.0));
+    let report = solver.step(1e-3);
+    assert!(report.diverged, "{report:?}");
+    assert_eq!(report.rollbacks, SolverConfig::default().max_rollbacks);
+    assert!(report.substeps <= 32 * planned, "{report:?}");
+    assert_eq!(solver.positions(), &start[..]);
+    assert!(solver.velocities().iter().all(|v| *v == Vec3::zeros()));
+}
+
 /// Every coordinate's bits, for bitwise comparisons.
 fn position_bits(solver: &Solver) -> Vec<u64> {
     solver

@@ -200,7 +200,7 @@ impl Simulation {
                 let released = vp.release_near(
                     &edge,
                     stage.affected_radius(),
-                    self.solver.rest(),
+                    &mut self.solver,
                     &mut self.neighbours,
                     &mut self.vp_changed,
                 );
@@ -281,9 +281,6 @@ impl Simulation {
             self.solver.positions(),
             moved,
         );
-        if let (Some(vp), Some(stage)) = (&self.virtual_points, &mut self.cutting) {
-            vp.follow(&self.surface, &mut self.solver, |i| stage.wake_point(i));
-        }
         observer.leave(Stage::Surface);
         self.time_s += dt;
         let tool_force_n = match (&cut, &blade) {

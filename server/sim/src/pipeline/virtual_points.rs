@@ -5,19 +5,24 @@
 //! renderer draws to the field behind it. Virtual points are nodes placed on the walls,
 //! about one lattice spacing apart: they join the neighbourhoods of the interior points
 //! within h on their own side of the cut (never across Σ), so those points' MLS fits are
-//! supported on the cut side again — a Dirichlet condition imposed through MLS, which is
+//! supported on the cut side again — a boundary condition imposed through MLS, which is
 //! what the paper means by treating them as boundary points. They have no volume (no
-//! stress of their own) and are kinematic: each follows the wall vertex it sits on, a
-//! fixed node moved by a target every tick.
+//! stress of their own) and are not integrated: each is slaved to the interior points it
+//! is joined to, sitting in every sub-step where the MLS interpolation of their positions
+//! puts it, and handing the force on it back to them (`solver::slaves`). So a node moves
+//! with the tissue of its wall as the wall vertex does (both are interpolations of the same
+//! points) but, unlike a node moved to its wall vertex once a tick, closes no lagged loop:
+//! that one pumped energy into the walls over a few crossing cuts, until the solver's guard
+//! rolled every tick back (docs/CUTTING.md, "Virtual points").
 //!
 //! They sit on the walls as the incision draws them (opened in rest space), a twentieth of
-//! a spacing inside the tissue, so the field they prescribe is the one the wall already
+//! a spacing inside the tissue, so the field they carry is the one the wall already
 //! follows: they support the fit without driving the opening.
 //!
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
 //! the surface; the nodes are then released and placed again on the new walls (a topology
-//! change, off the per-tick path). Between re-meshes a tick moves the targets of the nodes
-//! whose wall vertex moved, and releases the nodes the blade comes within R_aff of.
+//! change, off the per-tick path). Between re-meshes a tick releases the nodes the blade
+//! comes within R_aff of.
 
 use serde::Serialize;
 
@@ -35,8 +40,6 @@ pub const VIRTUAL_NODE_CAPACITY: usize = 1024;
 const MIN_SEPARATION_SPACINGS: f64 = 0.75;
 /// ... and this many spacings inside the tissue from their wall (physics.md §5.3).
 const INSET_SPACINGS: f64 = 0.05;
-/// A node's target is updated (and the node woken) once its wall vertex moved this far (m).
-const RETARGET_M: f64 = 1e-6;
 
 /// Figures of the virtual points, for reports and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -106,7 +109,7 @@ impl VirtualPoints {
         &mut self,
         edge: &[Vec3; 2],
         radius: f64,
-        rest: &[Vec3],
+        solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
     ) -> bool {
@@ -114,8 +117,9 @@ impl VirtualPoints {
         let mut k = 0;
         while k < self.nodes.len() {
             let node = self.nodes[k].node;
-            if distance_sq_to_segment(&rest[node as usize], &edge[0], &edge[1]) < radius * radius {
-                release(node, neighbours, changed);
+            let at = solver.rest()[node as usize];
+            if distance_sq_to_segment(&at, &edge[0], &edge[1]) < radius * radius {
+                release(node, solver, neighbours, changed);
                 self.nodes.swap_remove(k);
             } else {
                 k += 1;
@@ -140,7 +144,7 @@ impl VirtualPoints {
         changed: &mut Vec<u32>,
     ) {
         for n in self.nodes.drain(..) {
-            release(n.node, neighbours, changed);
+            release(n.node, solver, neighbours, changed);
         }
         let mut sites = wall_sites(surface, MIN_SEPARATION_SPACINGS * self.spacing_m);
         if let Some((edge, radius)) = clear {
@@ -191,13 +195,15 @@ impl VirtualPoints {
                 changed.push(i);
                 connected += 1;
             }
-            if connected == 0 {
+            // Its masters are the points it is joined to (its fits' points: every force
+            // on it comes from their rows).
+            if connected == 0 || !solver.slave_node(node as usize, x, neighbours.of(node as usize))
+            {
+                release(node, solver, neighbours, changed);
                 not_placed += 1;
                 continue;
             }
             pairs += connected;
-            let now = surface.mesh.positions[vertex as usize] + inset;
-            solver.place_node(node as usize, x, now);
             changed.push(node);
             self.nodes.push(Node {
                 node,
@@ -212,23 +218,16 @@ impl VirtualPoints {
             placements: self.stats.placements + 1,
         };
     }
-
-    /// Moves each node's target to its wall vertex as drawn now; the nodes that moved are
-    /// handed to `wake` (the solver moves only active points to their targets).
-    pub fn follow(&self, surface: &CurrentSurface, solver: &mut Solver, mut wake: impl FnMut(u32)) {
-        for n in &self.nodes {
-            let goal = surface.mesh.positions[n.vertex as usize] + n.inset;
-            let i = n.node as usize;
-            if (goal - solver.positions()[i]).norm_squared() > RETARGET_M * RETARGET_M {
-                solver.set_target(i, goal);
-                wake(n.node);
-            }
-        }
-    }
 }
 
-/// Takes node `node` out of every neighbourhood.
-fn release(node: u32, neighbours: &mut Neighbourhoods, changed: &mut Vec<u32>) {
+/// Takes node `node` out of every neighbourhood and unties it.
+fn release(
+    node: u32,
+    solver: &mut Solver,
+    neighbours: &mut Neighbourhoods,
+    changed: &mut Vec<u32>,
+) {
+    solver.free_node(node as usize);
     let i = node as usize;
     while let Some(&j) = neighbours.of(i).last() {
         neighbours.remove(j as usize, node);

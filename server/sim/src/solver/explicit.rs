@@ -27,6 +27,8 @@ impl Solver {
         loop {
             match self.run_substeps(dt) {
                 Ok((stats, work)) => {
+                    // Slaved nodes where the tick's last positions put them.
+                    self.slaves.interpolate(&mut self.p);
                     self.note_clamping(&stats);
                     self.relax_substeps(rollbacks);
                     return StepReport {

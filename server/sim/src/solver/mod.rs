@@ -20,6 +20,7 @@
 pub mod events;
 mod explicit;
 mod projective;
+mod slaves;
 mod statics;
 mod timestep;
 
@@ -34,6 +35,7 @@ use crate::mls::operator::{LatticeOffsets, RankCounts};
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
 use crate::scene::Material;
+use slaves::{Slaves, shape_functions};
 
 /// How ticks are integrated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -70,7 +72,11 @@ pub struct SolverConfig {
     pub safety: f64,
     /// Force this explicit sub-step (s) instead of the computed one (the guard still acts).
     pub dt_override_s: Option<f64>,
-    /// Rollbacks allowed per tick before giving up.
+    /// Rollbacks allowed per tick before giving up. Each doubles the sub-steps, so five
+    /// reach 32× the planned count (enough for a step ten times dt_crit, the stability
+    /// matrix's case) at a worst-case cost of 63× a tick's; a blow-up that persists past
+    /// that is no time-step problem, and more doublings only stall the simulation thread
+    /// (ten reached 65 536 sub-steps: 3.8 s for one tick of the liver, docs/CUTTING.md).
     pub max_rollbacks: u32,
     /// Power iterations for ω_max.
     pub power_iterations: u32,
@@ -101,7 +107,7 @@ impl Default for SolverConfig {
             gravity: Vec3::zeros(),
             safety: 0.5,
             dt_override_s: None,
-            max_rollbacks: 10,
+            max_rollbacks: 5,
             power_iterations: 30,
             projective_iterations: 10,
             static_tolerance: 1e-9,
@@ -184,6 +190,11 @@ pub struct Solver {
     projective: Option<projective::Projective>,
     /// Points of the body; nodes after them (virtual points) are kinematic.
     material_points: usize,
+    /// Spare nodes tied to body points (virtual points, see `slaves`).
+    slaves: Slaves,
+    /// The active list and the slaved nodes next to it: what the evaluation set is built
+    /// for (a slaved node's fits must all be evaluated for the force it hands back).
+    eval_seed: Vec<u32>,
 }
 
 impl Solver {
@@ -193,8 +204,8 @@ impl Solver {
     }
 
     /// A solver for `model` with `spare` nodes after its points, for virtual points
-    /// (physics.md §5.3): kinematic (fixed, moved by targets), without volume (no stress
-    /// of their own), and nobody's neighbour until placed with [`Solver::place_node`].
+    /// (physics.md §5.3): without volume (no stress of their own), never integrated, and
+    /// nobody's neighbour until tied to body points with [`Solver::slave_node`].
     /// `neighbours` must be the model's lists with `spare` empty lists after them.
     pub fn for_model_with_spare_nodes(
         model: &CoupledModel,
@@ -239,21 +250,47 @@ impl Solver {
             solver.fixed[i] = [true; 3];
         }
         solver.material_points = n;
+        solver.slaves = Slaves::new(n, spare);
         solver
     }
 
-    /// Puts spare node `i` at `rest`, now at `position`, at rest and fixed there; its
-    /// neighbour pairs are the caller's (then [`Solver::topology_changed`]).
-    pub fn place_node(&mut self, i: usize, rest: Vec3, position: Vec3) {
+    /// Puts spare node `i` at `rest` and ties it to the body points `masters` (its
+    /// neighbours, which are the caller's: then [`Solver::topology_changed`]): in every
+    /// sub-step it sits where the linear-precision MLS interpolation of their positions at
+    /// `rest` puts it, and the force on it goes back to them (`slaves`). Returns false,
+    /// leaving the node free, if no master is within the support of `rest`.
+    pub fn slave_node(&mut self, i: usize, rest: Vec3, masters: &[u32]) -> bool {
         assert!(
             i >= self.material_points,
             "point {i} is material, not a spare node"
         );
+        assert!(
+            masters.iter().all(|&k| (k as usize) < self.material_points),
+            "node {i} slaved to a node"
+        );
+        let Some(weights) = shape_functions(&self.rest, rest, masters, &self.kernel) else {
+            return false;
+        };
         self.rest[i] = rest;
-        self.p[i] = position;
-        self.target[i] = position;
         self.v[i] = Vec3::zeros();
         self.fixed[i] = [true; 3];
+        self.slaves.slave(i, &weights);
+        self.slaves.interpolate(&mut self.p);
+        self.target[i] = self.p[i];
+        if std::mem::replace(&mut self.is_active[i], false) {
+            self.active_list.retain(|&a| a as usize != i);
+        }
+        true
+    }
+
+    /// Unties spare node `i` (after its neighbour pairs are gone); it stays where it is.
+    pub fn free_node(&mut self, i: usize) {
+        self.slaves.free(i);
+    }
+
+    /// Whether node `i` is a spare node tied to body points.
+    pub fn is_slaved(&self, i: usize) -> bool {
+        self.slaves.is_slaved(i)
     }
 
     /// Points of the body (the nodes after them are virtual).
@@ -345,6 +382,8 @@ impl Solver {
             last_stats: None,
             projective: None,
             material_points: n,
+            slaves: Slaves::default(),
+            eval_seed: Vec::with_capacity(n),
         };
         solver.precond = statics::diagonal_stiffness(&solver.op, &solver.params, &solver.volume);
         solver
@@ -526,7 +565,10 @@ impl Solver {
         std::mem::swap(&mut self.active_list, &mut self.retired);
         self.active_list.clear();
         for &i in points {
-            if !std::mem::replace(&mut self.is_active[i as usize], true) {
+            // Slaved nodes are never integrated: they follow their masters.
+            if !self.slaves.is_slaved(i as usize)
+                && !std::mem::replace(&mut self.is_active[i as usize], true)
+            {
                 self.active_list.push(i);
             }
         }
@@ -536,15 +578,38 @@ impl Solver {
                 self.v[i as usize] = Vec3::zeros();
             }
         }
-        let set = self.eval_set.get_or_insert_with(EvalSet::default);
-        set.rebuild(&self.op, &self.active_list, true);
+        self.eval_set.get_or_insert_with(EvalSet::default);
+        self.rebuild_eval_set();
+    }
+
+    /// Rebuilds the restricted evaluation set for the active list and the slaved nodes with
+    /// an active master (whose every fit must be evaluated: they hand the force back).
+    fn rebuild_eval_set(&mut self) {
+        let Some(set) = &mut self.eval_set else {
+            return;
+        };
+        self.eval_seed.clear();
+        self.eval_seed.extend_from_slice(&self.active_list);
+        for &s in self.slaves.list() {
+            let masters = self.slaves.masters_of(s as usize);
+            if masters.iter().any(|&(k, _)| self.is_active[k as usize]) {
+                self.eval_seed.push(s);
+            }
+        }
+        self.eval_seed.sort_unstable();
+        set.rebuild(&self.op, &self.eval_seed, true);
     }
 
     /// Makes every point active again.
     pub fn activate_all(&mut self) {
         self.active_list.clear();
-        self.active_list.extend(0..self.p.len() as u32);
-        self.is_active.iter_mut().for_each(|a| *a = true);
+        for i in 0..self.p.len() {
+            let active = !self.slaves.is_slaved(i);
+            self.is_active[i] = active;
+            if active {
+                self.active_list.push(i as u32);
+            }
+        }
         self.eval_set = None;
     }
 
@@ -607,9 +672,7 @@ impl Solver {
         } else {
             self.dt_crit = None;
         }
-        if let Some(set) = &mut self.eval_set {
-            set.rebuild(&self.op, &self.active_list, true);
-        }
+        self.rebuild_eval_set();
         self.invalidate_projective();
     }
 
@@ -664,6 +727,8 @@ enum ForceBuffer {
 impl Solver {
     /// Zeroes the buffer and fills it with the elastic forces at the current positions.
     fn evaluate_elastic(&mut self, into: ForceBuffer) -> ForceStats {
+        // Slaved nodes where their masters are now; their forces go back to them below.
+        self.slaves.interpolate(&mut self.p);
         let out = match into {
             ForceBuffer::Force => &mut self.force,
             ForceBuffer::Scratch(k) => &mut self.scratch[k],
@@ -692,12 +757,14 @@ impl Solver {
                 &mut self.force_scratch,
             )
         };
-        match &self.pool {
+        let stats = match &self.pool {
             // Called from outside a tick (a static solve, `elastic_forces`): into the
             // solver's own pool, not rayon's global one.
             Some(pool) if pool.current_thread_index().is_none() => pool.install(evaluate),
             _ => evaluate(),
-        }
+        };
+        self.slaves.hand_back(out);
+        stats
     }
 }
 

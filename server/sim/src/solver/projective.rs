@@ -68,6 +68,12 @@ impl Solver {
                 }
             }
         }
+        // Slaved nodes are fixed dofs here, held for the tick where their masters are now
+        // (the global solve has no place for the interpolation).
+        self.slaves.interpolate(&mut self.p);
+        for &i in self.slaves.list() {
+            self.target[i as usize] = self.p[i as usize];
+        }
         let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
         self.projective = Some(pd);

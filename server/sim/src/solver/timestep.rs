@@ -64,7 +64,11 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
     x.iter_mut().for_each(|v| *v /= norm);
     let mut lambda = 0.0;
     for _ in 0..s.config.power_iterations {
+        // Slaved nodes move with their masters and hand their forces back: the product
+        // is the one the masters feel (Pᵀ K P).
+        s.slaves.interpolate(x);
         stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
+        s.slaves.hand_back(y);
         for i in 0..n {
             for a in 0..3 {
                 if s.fixed[i][a] {

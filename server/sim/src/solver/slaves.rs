@@ -1,0 +1,251 @@
+//! Slaved nodes: zero-volume nodes whose position is an interpolation of body points (a
+//! linear multi-point constraint), for the virtual points on the wound walls.
+//!
+//! A virtual point joins the MLS fits of the interior points around it (physics.md §5.3)
+//! and must move with the tissue it sits in. Moving it once a tick to where the drawn wall
+//! went (which follows those same points) closes a loop with a tick's lag: the node drives
+//! its neighbours, they carry the wall, the wall moves the node. Over several crossing cuts
+//! that loop pumped energy into the walls until the guard rolled every tick back, each
+//! retry doubling the sub-steps (half a second per tick on the liver). A slaved node has no
+//! loop: in every sub-step its position is `x_s = Σ_k φ_k x_k` over its masters k, with the
+//! linear-precision MLS shape functions φ at its rest position (exact for any affine motion,
+//! rotations included), and the force the fits put on it is handed back to the masters as
+//! `f_k += φ_k f_s` — the transpose of the interpolation. The elastic energy is then a
+//! function of the masters alone and those are its exact gradient: the constraint does no
+//! work, and the step's stability is the body's.
+
+use crate::math::Vec3;
+use crate::model::Kernel;
+
+/// A slaved node's masters: (body point, weight), weights summing to one.
+pub type Masters = Vec<(u32, f64)>;
+
+/// The slaved nodes of a solver.
+#[derive(Debug, Clone, Default)]
+pub struct Slaves {
+    /// Node index of the first node that may be slaved.
+    first: usize,
+    /// Per node from `first` on: its masters (empty when not slaved).
+    masters: Vec<Masters>,
+    /// The slaved nodes, in the order they were slaved.
+    list: Vec<u32>,
+}
+
+impl Slaves {
+    /// Room for `count` nodes from index `first` on.
+    pub fn new(first: usize, count: usize) -> Self {
+        Self {
+            first,
+            masters: vec![Vec::new(); count],
+            list: Vec::with_capacity(count),
+        }
+    }
+
+    /// The slaved nodes.
+    pub fn list(&self) -> &[u32] {
+        &self.list
+    }
+
+    /// Whether node `i` is slaved now.
+    pub fn is_slaved(&self, i: usize) -> bool {
+        i >= self.first
+            && self
+                .masters
+                .get(i - self.first)
+                .is_some_and(|m| !m.is_empty())
+    }
+
+    /// The masters of node `i` (empty when it is not slaved).
+    pub fn masters_of(&self, i: usize) -> &[(u32, f64)] {
+        match i.checked_sub(self.first) {
+            Some(k) if k < self.masters.len() => &self.masters[k],
+            _ => &[],
+        }
+    }
+
+    /// Slaves node `i` to `masters` (weights summing to one; not empty).
+    pub fn slave(&mut self, i: usize, masters: &[(u32, f64)]) {
+        assert!(
+            i >= self.first && i - self.first < self.masters.len(),
+            "node {i} cannot be slaved"
+        );
+        assert!(!masters.is_empty(), "node {i} slaved to nothing");
+        let slot = &mut self.masters[i - self.first];
+        if slot.is_empty() {
+            self.list.push(i as u32);
+        }
+        slot.clear();
+        slot.extend_from_slice(masters);
+    }
+
+    /// Frees node `i` (nothing if it is not slaved).
+    pub fn free(&mut self, i: usize) {
+        if self.is_slaved(i) {
+            self.masters[i - self.first].clear();
+            self.list.retain(|&s| s as usize != i);
+        }
+    }
+
+    /// Puts every slaved node where its masters say: `x_s = Σ φ_k x_k`.
+    pub fn interpolate(&self, x: &mut [Vec3]) {
+        for &s in &self.list {
+            let masters = &self.masters[s as usize - self.first];
+            x[s as usize] = masters
+                .iter()
+                .fold(Vec3::zeros(), |acc, &(k, w)| acc + x[k as usize] * w);
+        }
+    }
+
+    /// Hands each slaved node's force to its masters (`f_k += φ_k f_s`) and clears it.
+    pub fn hand_back(&self, f: &mut [Vec3]) {
+        for &s in &self.list {
+            let fs = std::mem::replace(&mut f[s as usize], Vec3::zeros());
+            for &(k, w) in &self.masters[s as usize - self.first] {
+                f[k as usize] += fs * w;
+            }
+        }
+    }
+}
+
+/// Linear-precision MLS shape functions at `x` over the points `candidates` (rest
+/// positions `rest`) with `kernel`: `Σ φ_k = 1` and `Σ φ_k X_k = x`, so an affine field is
+/// reproduced exactly. Where the candidates do not span 3D (a plane, a line) or the fit is
+/// too poorly conditioned to trust, the kernel-weighted mean (Shepard) instead. Candidates
+/// with zero weight are left out; `None` if none has weight.
+pub fn shape_functions(
+    rest: &[Vec3],
+    x: Vec3,
+    candidates: &[u32],
+    kernel: &Kernel,
+) -> Option<Masters> {
+    let h = kernel.support_m;
+    let weighted: Vec<(u32, f64, Vec3)> = candidates
+        .iter()
+        .map(|&k| {
+            let d = rest[k as usize] - x;
+            (k, kernel.weight_sq(d.norm_squared()), d / h)
+        })
+        .filter(|&(_, w, _)| w > 0.0)
+        .collect();
+    let total: f64 = weighted.iter().map(|&(_, w, _)| w).sum();
+    if weighted.is_empty() || total <= 0.0 {
+        return None;
+    }
+    // Moment matrix of the basis (1, d/h).
+    let basis = |d: &Vec3| nalgebra::Vector4::new(1.0, d.x, d.y, d.z);
+    let moment = weighted
+        .iter()
+        .fold(nalgebra::Matrix4::zeros(), |m, (_, w, d)| {
+            m + basis(d) * basis(d).transpose() * *w
+        });
+    let linear = moment.symmetric_eigenvalues();
+    let (lo, hi) = linear.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| {
+        (lo.min(e), hi.max(e))
+    });
+    // Beyond this condition number the fit extrapolates wildly from a near-plane of points.
+    const MAX_CONDITION: f64 = 1e6;
+    let fit = (lo > 0.0 && hi / lo < MAX_CONDITION)
+        .then(|| moment.try_inverse())
+        .flatten();
+    Some(match fit {
+        Some(inverse) => {
+            let c = inverse.column(0).into_owned();
+            weighted
+                .iter()
+                .map(|(k, w, d)| (*k, w * basis(d).dot(&c)))
+                .collect()
+        }
+        None => weighted.iter().map(|&(k, w, _)| (k, w / total)).collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lattice() -> Vec<Vec3> {
+        let mut points = Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                for k in 0..5 {
+                    points.push(Vec3::new(i as f64, j as f64, k as f64) * 0.01);
+                }
+            }
+        }
+        points
+    }
+
+    /// The shape functions reproduce an affine field at a point inside the points and at
+    /// one on their boundary (where a wall node sits: all its masters on one side).
+    #[test]
+    fn shape_functions_reproduce_affine_motion_at_a_boundary() {
+        let rest = lattice();
+        let kernel = Kernel { support_m: 0.02 };
+        let all: Vec<u32> = (0..rest.len() as u32).collect();
+        let affine = |x: &Vec3| {
+            nalgebra::Matrix3::new(1.1, 0.2, -0.1, 0.05, 0.9, 0.3, 0.0, -0.2, 1.2) * x
+                + Vec3::new(0.003, -0.001, 0.002)
+        };
+        for x in [
+            Vec3::new(0.021, 0.018, 0.022),
+            Vec3::new(0.021, 0.018, -0.0005),
+        ] {
+            let near: Vec<u32> = all
+                .iter()
+                .copied()
+                .filter(|&k| (rest[k as usize] - x).norm() < 0.02)
+                .collect();
+            let phi = shape_functions(&rest, x, &near, &kernel).expect("weights");
+            let sum: f64 = phi.iter().map(|p| p.1).sum();
+            assert!((sum - 1.0).abs() < 1e-12, "{sum}");
+            let moved = phi.iter().fold(Vec3::zeros(), |a, &(k, w)| {
+                a + affine(&rest[k as usize]) * w
+            });
+            assert!(
+                (moved - affine(&x)).norm() < 1e-12,
+                "{moved} vs {}",
+                affine(&x)
+            );
+        }
+    }
+
+    /// Points in a plane cannot fix the normal part of the motion: the mean instead.
+    #[test]
+    fn a_plane_of_masters_gives_the_weighted_mean() {
+        let rest: Vec<Vec3> = lattice().into_iter().filter(|p| p.z == 0.0).collect();
+        let kernel = Kernel { support_m: 0.02 };
+        let all: Vec<u32> = (0..rest.len() as u32).collect();
+        let phi =
+            shape_functions(&rest, Vec3::new(0.02, 0.02, 0.001), &all, &kernel).expect("weights");
+        assert!(phi.iter().all(|p| p.1 > 0.0));
+        let sum: f64 = phi.iter().map(|p| p.1).sum();
+        assert!((sum - 1.0).abs() < 1e-12);
+    }
+
+    /// Interpolation and hand-back are transposes: the work the slaved node's force does
+    /// on an interpolated displacement is the work its masters' shares do.
+    #[test]
+    fn hand_back_is_the_transpose_of_interpolation() {
+        let mut slaves = Slaves::new(3, 2);
+        slaves.slave(3, &[(0, 0.5), (1, 0.7), (2, -0.2)]);
+        let mut x = vec![
+            Vec3::new(1.0, 2.0, 3.0),
+            Vec3::new(-1.0, 0.5, 2.0),
+            Vec3::new(0.3, 0.1, -4.0),
+            Vec3::zeros(),
+            Vec3::new(9.0, 9.0, 9.0),
+        ];
+        slaves.interpolate(&mut x);
+        let mut f = vec![Vec3::zeros(); 5];
+        f[3] = Vec3::new(0.2, -1.0, 0.4);
+        let work = f[3].dot(&x[3]);
+        slaves.hand_back(&mut f);
+        assert_eq!(f[3], Vec3::zeros());
+        let shared: f64 = (0..3).map(|k| f[k].dot(&x[k])).sum();
+        assert!((work - shared).abs() < 1e-12);
+        // Node 4 was never slaved: left alone.
+        assert_eq!(x[4], Vec3::new(9.0, 9.0, 9.0));
+        slaves.free(3);
+        assert!(!slaves.is_slaved(3) && slaves.list().is_empty());
+    }
+}
