@@ -4,12 +4,13 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, bail};
+use std::path::PathBuf;
 use indicatif::{ProgressBar, ProgressStyle};
 use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
 use scalpel_sim::cut::FaceKind;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
-use scalpel_sim::scene::{BuiltScene, Features};
+use scalpel_sim::scene::{BuiltScene, Features, SceneSpec};
 
 use crate::cutrun::{self, CutMetrics, CutRun};
 use crate::plot::{self, Series};
@@ -18,12 +19,51 @@ use crate::{TargetArgs, export, load};
 /// Colours of the render: skin, wound wall (linear RGB).
 const PALETTE: [[f32; 3]; 2] = [[0.50, 0.14, 0.11], [0.93, 0.62, 0.52]];
 
-/// The script of a run: a file, or the scene's default stroke.
-pub fn script_for(scene: &BuiltScene, file: Option<&Path>) -> anyhow::Result<CutScript> {
-    match file {
-        Some(path) => Ok(CutScript::load(path)?),
-        None => Ok(CutScript::default_for(&scene.model.surface)?),
+/// What a run plays.
+pub enum ScriptChoice {
+    /// The scene's default stroke.
+    Default,
+    /// A script file.
+    File(PathBuf),
+    /// A session of strokes drawn from a seed.
+    Session {
+        /// Strokes.
+        strokes: usize,
+        /// Seed.
+        seed: u64,
+    },
+}
+
+/// The script of a run.
+pub fn script_for(scene: &BuiltScene, choice: &ScriptChoice) -> anyhow::Result<CutScript> {
+    let surface = &scene.model.surface;
+    Ok(match choice {
+        ScriptChoice::Default => CutScript::default_for(surface)?,
+        ScriptChoice::File(path) => CutScript::load(path)?,
+        ScriptChoice::Session { strokes, seed } => {
+            anyhow::ensure!(*strokes > 0, "a session needs at least one stroke");
+            CutScript::session_for(surface, *strokes, *seed)?
+        }
+    })
+}
+
+/// The scene `target` names, as a cutting station cuts it: a bare mesh file gets the
+/// station's cutting features (a scene file chooses its own); an error if it does not cut.
+pub fn cutting_spec(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
+    let mut spec = load::resolve(target)?;
+    if load::is_bare_mesh(target) {
+        let station = Features::CUTTING_STATION;
+        spec.features.cutting = true;
+        spec.features.virtual_points = station.virtual_points;
+        spec.features.ripple = station.ripple;
     }
+    if !spec.features.cutting {
+        bail!(
+            "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma, and any mesh file",
+            spec.name
+        );
+    }
+    Ok(spec)
 }
 
 /// Runs `script` on the built scene with a progress bar (on a terminal).
@@ -49,33 +89,19 @@ pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
 /// `scalpel cut`.
 pub fn run(
     target: &TargetArgs,
-    script_file: Option<&Path>,
+    script: &ScriptChoice,
     out: &Path,
     mesh_format: &str,
     json: bool,
 ) -> anyhow::Result<()> {
-    let mut spec = load::resolve(target)?;
-    if load::is_bare_mesh(target) {
-        // Asked to cut a mesh file, cut it as a cutting station would (a scene file
-        // chooses its features itself).
-        let station = Features::CUTTING_STATION;
-        spec.features.cutting = true;
-        spec.features.virtual_points = station.virtual_points;
-        spec.features.ripple = station.ripple;
-    }
-    if !spec.features.cutting {
-        bail!(
-            "scene '{}' does not cut (features.cutting = false); cutting scenes: liver, shoulder, cerebroma, and any mesh file",
-            spec.name
-        );
-    }
+    let spec = cutting_spec(target)?;
     let timed = load::build_with_progress(&spec)?;
     let scene = &timed.scene;
     // (On stderr: what was done to the surface before cutting it, such as a scan remeshed.)
     for w in &scene.mesh_warnings {
         eprintln!("mesh: {w}");
     }
-    let script = script_for(scene, script_file)?;
+    let script = script_for(scene, script)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let run = run_with_progress(scene, &script);
     let metrics = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
@@ -163,11 +189,11 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
             let _ = writeln!(s, "  surface: not opened (the blade never cut far enough)");
         }
     }
-    if m.diverged_ticks > 0 {
+    if m.diverged_ticks > 0 || m.rollback_ticks > 0 {
         let _ = writeln!(
             s,
-            "  solver: {} tick(s) diverged (state restored)",
-            m.diverged_ticks
+            "  solver: {} tick(s) rolled back and retried with more sub-steps, {} diverged (state restored)",
+            m.rollback_ticks, m.diverged_ticks
         );
     }
     s
@@ -175,13 +201,13 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
 
 fn write_csv(run: &CutRun, path: &Path) -> anyhow::Result<()> {
     let mut s = String::from(
-        "t_s,tip_x_mm,tip_y_mm,tip_z_mm,travel_mm,phase,in_tissue,depth_mm,force_n,fx_n,fy_n,fz_n,surface_ms,internal_ms,active_points\n",
+        "t_s,tip_x_mm,tip_y_mm,tip_z_mm,travel_mm,phase,in_tissue,depth_mm,force_n,fx_n,fy_n,fz_n,surface_ms,internal_ms,active_points,substeps,rollbacks\n",
     );
     for r in &run.rows {
         let phase = serde_json::to_value(r.phase)?;
         let _ = writeln!(
             s,
-            "{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{},{},{}",
             r.t_s,
             r.tip_m[0] * 1e3,
             r.tip_m[1] * 1e3,
@@ -196,7 +222,9 @@ fn write_csv(run: &CutRun, path: &Path) -> anyhow::Result<()> {
             r.force_n[2],
             r.surface_ms,
             r.internal_ms,
-            r.active_points
+            r.active_points,
+            r.substeps,
+            r.rollbacks
         );
     }
     std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))

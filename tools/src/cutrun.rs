@@ -42,6 +42,10 @@ pub struct TickRow {
     pub active_points: usize,
     /// The solver could not stabilise the tick (state restored, velocities zeroed).
     pub diverged: bool,
+    /// Times the solver's guard rolled the tick back and retried it.
+    pub rollbacks: u32,
+    /// Explicit sub-steps of the tick's last attempt.
+    pub substeps: u32,
 }
 
 /// Measures the two stages of each tick.
@@ -115,6 +119,8 @@ pub fn run_cut(
             internal_ms: clock.internal_s * 1e3,
             active_points: report.active_points,
             diverged: report.solver.diverged,
+            rollbacks: report.solver.rollbacks,
+            substeps: report.solver.substeps,
         });
         tick(k + 1, ticks);
     }
@@ -212,6 +218,8 @@ pub struct CutMetrics {
     pub triangles_after: usize,
     /// The solver diverged in some tick (state restored).
     pub diverged_ticks: usize,
+    /// Ticks the solver's guard rolled back (and retried with more sub-steps).
+    pub rollback_ticks: usize,
 }
 
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
@@ -311,5 +319,6 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         triangles_before: scene.model.surface.triangles.len(),
         triangles_after: drawn.triangles.len(),
         diverged_ticks: run.rows.iter().filter(|r| r.diverged).count(),
+        rollback_ticks: run.rows.iter().filter(|r| r.rollbacks > 0).count(),
     }
 }

@@ -69,8 +69,15 @@ enum Command {
         target: TargetArgs,
         /// Blade script (TOML keyframes, see docs/CUTTING.md); default: a 60 mm stroke at
         /// 5 mm/s, 10 mm deep, along the organ's long axis.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "strokes")]
         script: Option<PathBuf>,
+        /// Instead of one stroke, a lab session of this many strokes one after the other at
+        /// places and headings drawn from `--seed` (docs/CUTTING.md, "A session").
+        #[arg(long)]
+        strokes: Option<usize>,
+        /// Seed of a session's strokes.
+        #[arg(long, default_value_t = 1, requires = "strokes")]
+        seed: u64,
         /// Output folder (created if missing).
         #[arg(long)]
         out: PathBuf,
@@ -270,6 +277,22 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// A lab session on a cutting scene: many strokes one after the other (as
+    /// `scalpel cut --strokes`), the cost per cut step stroke by stroke, the solver's
+    /// rollbacks and divergences, and the surface at the end.
+    Session {
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Strokes in the session.
+        #[arg(long, default_value_t = 16)]
+        strokes: usize,
+        /// Seed of the strokes' places and headings.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Idle ticks of the liver with and without the cutting feature: what a scene that
     /// does not cut pays for cutting (nothing), and what an untouched cutting scene costs.
     Idle {
@@ -396,10 +419,19 @@ fn main() -> ExitCode {
         Command::Cut {
             target,
             script,
+            strokes,
+            seed,
             out,
             mesh_format,
             json,
-        } => cut_cmd::run(&target, script.as_deref(), &out, &mesh_format, json),
+        } => {
+            let script = match (script, strokes) {
+                (Some(file), _) => cut_cmd::ScriptChoice::File(file),
+                (None, Some(strokes)) => cut_cmd::ScriptChoice::Session { strokes, seed },
+                (None, None) => cut_cmd::ScriptChoice::Default,
+            };
+            cut_cmd::run(&target, &script, &out, &mesh_format, json)
+        }
         Command::Replay { file, json } => replay_cmd::run(&file, json),
         Command::Certs(CertsCommand::Init { dir, host }) => {
             certs_cmd::init(&dir, &host).map(|made| println!("{made}"))
@@ -492,6 +524,12 @@ fn main() -> ExitCode {
             bench::cutting::scaling(&points, json)
         }
         Command::Bench(BenchCommand::Idle { ticks, json }) => bench::cutting::idle(ticks, json),
+        Command::Bench(BenchCommand::Session {
+            target,
+            strokes,
+            seed,
+            json,
+        }) => bench::session::run(&target, strokes, seed, json),
         Command::Bench(BenchCommand::Loop {
             seconds,
             viewers,

@@ -4,6 +4,7 @@ pub mod accuracy;
 pub mod cutting;
 pub mod loop_bench;
 pub mod net;
+pub mod session;
 pub mod stability;
 
 use scalpel_sim::scene::{self, BUILTIN_SCENES};

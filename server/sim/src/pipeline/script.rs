@@ -416,6 +416,104 @@ impl CutScript {
         })
     }
 
+    /// A lab session: `strokes` straight cuts one after the other, at places and headings
+    /// drawn from `seed` over the top of the organ (the middle 70 % of its bounding box
+    /// seen from above), each 10–18 % of the organ's long side, 5–10 mm deep (at most 30 %
+    /// of the thickness at its middle and half the tissue under the top), following the top
+    /// at 8 mm/s; the blade goes in and comes out at 10 mm/s, facing along the stroke, and
+    /// takes a second, 10 mm above the organ, to the next. Strokes fall on earlier wounds
+    /// as they happen to (crossings, parallel cuts). A place whose top does not go on
+    /// smoothly for the stroke's length is drawn again (up to 100 times, then the session
+    /// is a stroke shorter); an error if no stroke fits at all.
+    pub fn session_for(surface: &TriMesh, strokes: usize, seed: u64) -> Result<Self, ScriptError> {
+        const CLEARANCE_M: f64 = 0.010;
+        const STROKE_SPEED: f64 = 0.008;
+        const PLUNGE_SPEED: f64 = 0.010;
+        const TRAVEL_S: f64 = 1.0;
+        const SAMPLE_M: f64 = 0.005;
+        let bbox = surface.bbox();
+        let (lo, hi) = (Vec3::from(bbox.min), Vec3::from(bbox.max));
+        let size = hi - lo;
+        let long_side = size.x.max(size.y);
+        let mut state = seed;
+        let mut uniform = move |a: f64, b: f64| a + (b - a) * unit_random(&mut state);
+        let top_at = |p: &Vec3| vertical_extent(surface, p.x, p.y).map(|(top, _)| top);
+        let mut keyframes: Vec<Keyframe> = Vec::new();
+        let mut t = 0.0;
+        let mut made = 0;
+        for _ in 0..strokes {
+            let found = (0..100).find_map(|_| {
+                let centre = Vec3::new(
+                    uniform(lo.x + 0.15 * size.x, hi.x - 0.15 * size.x),
+                    uniform(lo.y + 0.15 * size.y, hi.y - 0.15 * size.y),
+                    0.0,
+                );
+                let heading = uniform(0.0, std::f64::consts::TAU);
+                let axis = Vec3::new(heading.cos(), heading.sin(), 0.0);
+                let length = uniform(0.10, 0.18) * long_side;
+                let depth_wanted = uniform(0.005, 0.010);
+                // The top must go on smoothly (no step over 2 mm per mm) for the length.
+                let start = centre - axis * (0.5 * length);
+                let steps = (length / 0.001).ceil() as usize;
+                let mut last = top_at(&start)?;
+                for k in 1..=steps {
+                    let here = top_at(&(start + axis * (length * k as f64 / steps as f64)))?;
+                    if (here - last).abs() > 2.0 * length / steps as f64 {
+                        return None;
+                    }
+                    last = here;
+                }
+                let crossings = vertical_crossings(surface, centre.x, centre.y);
+                let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last())
+                else {
+                    return None;
+                };
+                let depth = depth_wanted.min(0.3 * (top - bottom)).min(0.5 * (top - below));
+                Some((start, axis, length, depth))
+            });
+            let Some((start, axis, length, depth)) = found else {
+                continue;
+            };
+            made += 1;
+            let up = Vec3::z();
+            let mut push = |tip: Vec3, t: f64| {
+                keyframes.push(Keyframe {
+                    t_s: t,
+                    pose: ToolPose::facing(tip, up, axis),
+                })
+            };
+            let top0 = top_at(&start).unwrap_or(start.z);
+            let above = Vec3::new(start.x, start.y, top0 + CLEARANCE_M);
+            if made > 1 {
+                t += TRAVEL_S;
+            }
+            push(above, t);
+            let mut last = Vec3::new(start.x, start.y, top0 - depth);
+            t += (last - above).norm() / PLUNGE_SPEED;
+            push(last, t);
+            let samples = ((length / SAMPLE_M).ceil() as usize).max(2);
+            for k in 1..=samples {
+                let x = start + axis * (length * k as f64 / samples as f64);
+                let tip = Vec3::new(x.x, x.y, top_at(&x).unwrap_or(last.z + depth) - depth);
+                t += (tip - last).norm() / STROKE_SPEED;
+                push(tip, t);
+                last = tip;
+            }
+            let out = Vec3::new(last.x, last.y, last.z + depth + CLEARANCE_M);
+            t += (out - last).norm() / PLUNGE_SPEED;
+            push(out, t);
+        }
+        if made == 0 {
+            return Err(ScriptError::NoSurface(
+                "no place on the top goes on smoothly for a stroke".into(),
+            ));
+        }
+        Ok(Self {
+            keyframes,
+            description: format!("a session of {made} strokes (seed {seed})"),
+        })
+    }
+
     /// Duration (s).
     pub fn duration_s(&self) -> f64 {
         self.keyframes.last().map_or(0.0, |k| k.t_s)
@@ -446,6 +544,17 @@ impl CutScript {
                 }),
         }
     }
+}
+
+/// A number in [0, 1) from a SplitMix64 state (a session's strokes are the same on every
+/// machine for a seed).
+fn unit_random(state: &mut u64) -> f64 {
+    *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// Highest and lowest crossing of the vertical line through (x, y) with the surface.
