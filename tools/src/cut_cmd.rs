@@ -4,13 +4,13 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, bail};
-use std::path::PathBuf;
 use indicatif::{ProgressBar, ProgressStyle};
 use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
 use scalpel_sim::cut::FaceKind;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::scene::{BuiltScene, Features, SceneSpec};
+use std::path::PathBuf;
 
 use crate::cutrun::{self, CutMetrics, CutRun};
 use crate::plot::{self, Series};

@@ -475,3 +475,39 @@ fn cut_refuses_scenes_that_do_not_cut_and_bad_scripts() {
     ]);
     assert!(e.contains("bad.toml") && e.contains("at least 2"), "{e}");
 }
+
+/// `scalpel bench session`: strokes one after the other on the liver, each reported, the
+/// solver calm throughout (a session of several wounds once made it diverge), the surface
+/// sound at the end. `scalpel cut --strokes` plays the same session; a script file and a
+/// session together are refused.
+#[test]
+fn a_session_of_strokes_stays_calm_and_sound() {
+    let r = ok_json(&["bench", "session", "liver", "--strokes", "3", "--json"]);
+    let strokes = r["strokes"].as_array().expect("strokes");
+    assert_eq!(strokes.len(), 3, "{r}");
+    for s in strokes {
+        assert!(s["cut_steps"].as_u64().unwrap() > 1000, "{s}");
+        assert_eq!(s["rollback_ticks"], 0, "{s}");
+        assert!(s["total_ms"]["p50"].as_f64().unwrap() > 0.0, "{s}");
+    }
+    assert_eq!(r["diverged_ticks"], 0, "{r}");
+    assert!(r["incisions"].as_u64().unwrap() >= 3, "{r}");
+    assert!(r["min_angle_deg"].as_f64().unwrap() >= 15.0, "{r}");
+    for key in ["closed", "manifold", "oriented"] {
+        assert_eq!(r[key], true, "{key}: {r}");
+    }
+    let err = fails(&[
+        "cut",
+        "liver",
+        "--strokes",
+        "2",
+        "--script",
+        "x.toml",
+        "--out",
+        "/tmp/never",
+    ]);
+    assert!(
+        err.contains("--strokes") || err.contains("--script"),
+        "{err}"
+    );
+}

@@ -133,7 +133,16 @@ fn print_report(r: &SessionReport) {
     println!("Session on {}: {}", r.scene, r.script);
     println!(
         "{:>6} {:>6} | {:>8} {:>8} {:>8} | {:>6} {:>4} | {:>8} {:>8} | {:>6}",
-        "stroke", "steps", "tot p50", "tot p99", "tot max", "active", "sub", "rolled", "diverged", "peak"
+        "stroke",
+        "steps",
+        "tot p50",
+        "tot p99",
+        "tot max",
+        "active",
+        "sub",
+        "rolled",
+        "diverged",
+        "peak"
     );
     for s in &r.strokes {
         println!(

@@ -464,11 +464,12 @@ impl CutScript {
                     last = here;
                 }
                 let crossings = vertical_crossings(surface, centre.x, centre.y);
-                let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last())
-                else {
+                let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
                     return None;
                 };
-                let depth = depth_wanted.min(0.3 * (top - bottom)).min(0.5 * (top - below));
+                let depth = depth_wanted
+                    .min(0.3 * (top - bottom))
+                    .min(0.5 * (top - below));
                 Some((start, axis, length, depth))
             });
             let Some((start, axis, length, depth)) = found else {

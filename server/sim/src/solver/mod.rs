@@ -31,7 +31,7 @@ pub use statics::StaticReport;
 
 use crate::math::{Mat3, Vec3};
 use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, Threads, add_elastic_forces};
-use crate::mls::operator::{LatticeOffsets, RankCounts};
+use crate::mls::operator::{LatticeOffsets, PointRank, RankCounts};
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
 use crate::scene::Material;
@@ -142,6 +142,11 @@ impl SolverConfig {
 /// Most sub-steps a tick may take.
 pub const MAX_SUBSTEPS: u32 = 1 << 16;
 
+/// After a cut, no point's fit may raise its ω² estimate above this many times the largest
+/// in the uncut body: the points of a fit the cut left degenerate get mass instead (see
+/// [`Solver::topology_changed`]). 2 lets a cut shorten the stable step by up to √2.
+pub const OMEGA_SQ_CAP_OVER_UNCUT: f64 = 2.0;
+
 /// The simulated body and everything needed to advance it.
 pub struct Solver {
     /// The force evaluation's threads when `config.threads > 1`.
@@ -154,6 +159,13 @@ pub struct Solver {
     rest: Vec<Vec3>,
     volume: Vec<f64>,
     mass: Vec<f64>,
+    /// The masses as built; `mass` is at least these (selective mass scaling after cuts).
+    base_mass: Vec<f64>,
+    /// Per point: the ω² its own fit (row) gives the points in it, with their built masses
+    /// (see `fit_omega_sq`); filled with the first dt_crit.
+    fit_omega_sq: Vec<f64>,
+    /// The largest fit ω² a cut may leave before mass is added (set with the first dt_crit).
+    omega_sq_cap: Option<f64>,
     p: Vec<Vec3>,
     v: Vec<Vec3>,
     fixed: Vec<[bool; 3]>,
@@ -345,6 +357,9 @@ impl Solver {
             rest: rest.to_vec(),
             volume: volume.to_vec(),
             mass: mass.to_vec(),
+            base_mass: mass.to_vec(),
+            fit_omega_sq: Vec::new(),
+            omega_sq_cap: None,
             p: rest.to_vec(),
             v: zeros.clone(),
             fixed: vec![[false; 3]; n],
@@ -541,9 +556,13 @@ impl Solver {
             // ω² of M⁻¹K is linear in E too: the critical step scales as 1/√ratio, with
             // no power iteration (milliseconds at organ scale, on the simulation thread).
             self.dt_crit = self.dt_crit.map(|dt| dt / ratio.sqrt());
+            // The fits' ω² are linear in E too, and so is their cap.
+            self.omega_sq_cap = self.omega_sq_cap.map(|cap| cap * ratio);
+            self.fit_omega_sq.iter_mut().for_each(|w| *w *= ratio);
         } else {
             self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
             self.dt_crit = None;
+            self.omega_sq_cap = None;
         }
         self.substeps_for_dt = f64::NAN;
         self.invalidate_projective();
@@ -636,9 +655,25 @@ impl Solver {
     /// preconditioner and the stable-step bound around them. Local: the work follows the
     /// changed points, not the body. Removing neighbours can only stiffen the rows, so the
     /// step is shortened when the local bound rises above the current ω² (physics.md §2.2).
+    ///
+    /// A cut can leave a point with a nearly degenerate fit (four neighbours almost in a
+    /// plane: cond(A) 8 000, under the rank test's 10⁴) whose d_ij, all along the weak
+    /// direction, make the points of that fit hundreds of times stiffer than the body's:
+    /// over a session of sixteen strokes on the shoulder that took the step from 6 to 448
+    /// sub-steps per tick (seconds per tick). The points of such a fit get mass instead
+    /// (selective mass scaling, as explicit FE codes do for distorted elements): each point
+    /// at least `fit ω² / cap` times its built mass for every fit it is in, so no fit's ω²
+    /// exceeds [`OMEGA_SQ_CAP_OVER_UNCUT`] × the largest of the uncut body. Inertia grows
+    /// there; stiffness, and so the equilibrium, do not. A point whose fits recover gets its
+    /// mass back.
     pub fn topology_changed(&mut self, points: &[u32], neighbours: &Neighbourhoods) {
         self.op
             .update_points(points, &self.rest, neighbours, &self.kernel);
+        if self.omega_sq_cap.is_some() {
+            for &i in points {
+                self.fit_omega_sq[i as usize] = self.fit_omega_sq_of(i as usize);
+            }
+        }
         // The diagonal stiffness of a point sums its own row and its neighbours' rows.
         self.touched_buf.clear();
         for &i in points {
@@ -656,6 +691,13 @@ impl Solver {
                 statics::diagonal_stiffness_of(&self.op, &self.params, &self.volume, a);
             // Fixed points are not integrated: they do not limit the step.
             if self.fixed[a] != [true; 3] {
+                if let Some(cap) = self.omega_sq_cap {
+                    let own = self.fit_omega_sq[a];
+                    let worst = (self.op.neighbours(a).iter())
+                        .map(|&i| self.fit_omega_sq[i as usize])
+                        .fold(own, f64::max);
+                    self.mass[a] = self.base_mass[a] * (worst / cap).max(1.0);
+                }
                 local = local.max(self.precond[a] / self.mass[a]);
             }
         }
@@ -711,7 +753,50 @@ impl Solver {
         if omega_sq > 0.0 && diagonal > 0.0 {
             self.omega_calibration = Some(omega_sq / diagonal);
         }
+        if self.omega_sq_cap.is_none() {
+            self.fit_omega_sq.resize(self.p.len(), 0.0);
+            for i in 0..self.p.len() {
+                self.fit_omega_sq[i] = self.fit_omega_sq_of(i);
+            }
+            let uncut = self.fit_omega_sq.iter().copied().fold(0.0, f64::max);
+            self.omega_sq_cap = (uncut > 0.0).then_some(OMEGA_SQ_CAP_OVER_UNCUT * uncut);
+        }
         dt
+    }
+
+    /// The ω² point i's fit gives the points in it: `V_i M Σ_k |d_ik|² / m_k` over the fit's
+    /// points k (i itself with `d_ii = −Σ_j d_ij`; fixed points left out), M the wave
+    /// modulus, m the built masses. The fit's stiffness is `V_i Bᵀ C B` with B made of the
+    /// d_ik, so this is the trace of its mass-weighted Gram matrix: it adds up the shares
+    /// that a diagonal estimate gives each point separately, and so sees a fit whose d_ik
+    /// all point along one weak direction (a mode over all its points at once).
+    fn fit_omega_sq_of(&self, i: usize) -> f64 {
+        let term = self.op.point(i);
+        if matches!(term.rank, PointRank::Orphan) || self.volume[i] == 0.0 {
+            return 0.0;
+        }
+        let share = |k: usize, d: Vec3| {
+            if self.fixed[k] == [true; 3] {
+                0.0
+            } else {
+                d.norm_squared() / self.base_mass[k]
+            }
+        };
+        let own = share(i, -(term.a_pinv * term.sum_wx));
+        let sum = (self.op.neighbours(i).iter().enumerate())
+            .map(|(slot, &j)| share(j as usize, term.a_pinv * self.op.pair(i, slot).wx))
+            .fold(own, |a, b| a + b);
+        self.volume[i] * self.params.wave_modulus() * sum
+    }
+
+    /// Points given mass after cuts (see [`Solver::topology_changed`]), and the mass added
+    /// (kg). O(points): for reports.
+    pub fn added_mass(&self) -> (usize, f64) {
+        self.mass
+            .iter()
+            .zip(&self.base_mass)
+            .filter(|(m, b)| m > b)
+            .fold((0, 0.0), |(n, kg), (m, b)| (n + 1, kg + m - b))
     }
 }
 
