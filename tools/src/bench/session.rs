@@ -37,6 +37,11 @@ struct SessionReport {
     late_over_early: f64,
     rollback_ticks: usize,
     diverged_ticks: usize,
+    /// Points the solver gave mass after cuts left their fits degenerate, and how much
+    /// (selective mass scaling: `Solver::topology_changed`), as a share of the body's.
+    mass_added_points: usize,
+    mass_added_g: f64,
+    mass_added_share: f64,
     incisions: usize,
     incisions_refused: usize,
     min_angle_deg: Option<f64>,
@@ -69,6 +74,8 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
     };
     let early = median_of(&rows[..third.min(rows.len())]);
     let late = median_of(&rows[rows.len().saturating_sub(third)..]);
+    let (mass_added_points, added_kg) = run.sim.solver().added_mass();
+    let body_kg: f64 = scene.model.points.mass_kg.iter().sum();
     let report = SessionReport {
         scene: spec.name.clone(),
         script: script.description.clone(),
@@ -76,6 +83,9 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
         late_over_early: late / early.max(1e-12),
         rollback_ticks: m.rollback_ticks,
         diverged_ticks: m.diverged_ticks,
+        mass_added_points,
+        mass_added_g: added_kg * 1e3,
+        mass_added_share: added_kg / body_kg.max(1e-300),
         incisions: m.incisions,
         incisions_refused: m.incisions_refused,
         min_angle_deg: m.min_angle_deg,
@@ -162,6 +172,12 @@ fn print_report(r: &SessionReport) {
     println!(
         "all cut steps: {:.3} ms median, {:.3} ms p99, {:.2} ms max; last third / first third of the strokes (medians): {:.2}×",
         r.total_ms.p50, r.total_ms.p99, r.total_ms.max, r.late_over_early
+    );
+    println!(
+        "mass added to {} point(s) whose fits cuts left degenerate: {:.2} g, {:.2} % of the body",
+        r.mass_added_points,
+        r.mass_added_g,
+        100.0 * r.mass_added_share
     );
     println!(
         "solver: {} tick(s) rolled back, {} diverged; surface: {} incision(s) ({} refused), {} → {} triangles, Σ {} triangles, min angle {}, closed {}, manifold {}, oriented {}",

@@ -286,7 +286,7 @@ impl Solver {
         self.rest[i] = rest;
         self.v[i] = Vec3::zeros();
         self.fixed[i] = [true; 3];
-        self.slaves.slave(i, &weights);
+        self.slaves.slave(i, &weights, &self.rest);
         self.slaves.interpolate(&mut self.p);
         self.target[i] = self.p[i];
         if std::mem::replace(&mut self.is_active[i], false) {

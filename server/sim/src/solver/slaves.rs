@@ -27,6 +27,9 @@ pub struct Slaves {
     first: usize,
     /// Per node from `first` on: its masters (empty when not slaved).
     masters: Vec<Masters>,
+    /// Per node from `first` on: `X_s − Σ φ_k X_k`, so that what is interpolated is the
+    /// displacement (zero for linear weights; the mean's offset from the node otherwise).
+    offsets: Vec<Vec3>,
     /// The slaved nodes, in the order they were slaved.
     list: Vec<u32>,
 }
@@ -37,6 +40,7 @@ impl Slaves {
         Self {
             first,
             masters: vec![Vec::new(); count],
+            offsets: vec![Vec3::zeros(); count],
             list: Vec::with_capacity(count),
         }
     }
@@ -63,8 +67,9 @@ impl Slaves {
         }
     }
 
-    /// Slaves node `i` to `masters` (weights summing to one; not empty).
-    pub fn slave(&mut self, i: usize, masters: &[(u32, f64)]) {
+    /// Slaves node `i`, at rest at `rest[i]`, to `masters` (weights summing to one; not
+    /// empty): its displacement is theirs interpolated.
+    pub fn slave(&mut self, i: usize, masters: &[(u32, f64)], rest: &[Vec3]) {
         assert!(
             i >= self.first && i - self.first < self.masters.len(),
             "node {i} cannot be slaved"
@@ -76,6 +81,10 @@ impl Slaves {
         }
         slot.clear();
         slot.extend_from_slice(masters);
+        let mean = masters
+            .iter()
+            .fold(Vec3::zeros(), |acc, &(k, w)| acc + rest[k as usize] * w);
+        self.offsets[i - self.first] = rest[i] - mean;
     }
 
     /// Frees node `i` (nothing if it is not slaved).
@@ -86,13 +95,18 @@ impl Slaves {
         }
     }
 
-    /// Puts every slaved node where its masters say: `x_s = Σ φ_k x_k`.
+    /// Puts every slaved node where its masters say: `x_s = X_s + Σ φ_k (x_k − X_k)`.
     pub fn interpolate(&self, x: &mut [Vec3]) {
         for &s in &self.list {
-            let masters = &self.masters[s as usize - self.first];
-            x[s as usize] = masters
-                .iter()
-                .fold(Vec3::zeros(), |acc, &(k, w)| acc + x[k as usize] * w);
+            let k = s as usize - self.first;
+            x[s as usize] = self.offsets[k] + weighted_sum(&self.masters[k], x);
+        }
+    }
+
+    /// The same for a displacement-like vector (no rest offset): `v_s = Σ φ_k v_k`.
+    pub fn interpolate_vectors(&self, v: &mut [Vec3]) {
+        for &s in &self.list {
+            v[s as usize] = weighted_sum(&self.masters[s as usize - self.first], v);
         }
     }
 
@@ -107,10 +121,22 @@ impl Slaves {
     }
 }
 
+fn weighted_sum(masters: &[(u32, f64)], x: &[Vec3]) -> Vec3 {
+    masters
+        .iter()
+        .fold(Vec3::zeros(), |acc, &(k, w)| acc + x[k as usize] * w)
+}
+
+/// Most `Σ |φ_k|` a node's linear weights may have (1 for a convex combination).
+pub const MAX_ABS_WEIGHT_SUM: f64 = 1.5;
+
 /// Linear-precision MLS shape functions at `x` over the points `candidates` (rest
 /// positions `rest`) with `kernel`: `Σ φ_k = 1` and `Σ φ_k X_k = x`, so an affine field is
-/// reproduced exactly. Where the candidates do not span 3D (a plane, a line) or the fit is
-/// too poorly conditioned to trust, the kernel-weighted mean (Shepard) instead. Candidates
+/// reproduced exactly. Where the candidates do not span 3D (a plane, a line), the fit is
+/// too poorly conditioned to trust, or it extrapolates strongly (`Σ |φ_k|` over
+/// [`MAX_ABS_WEIGHT_SUM`]: a node beyond a lopsided set of masters, which would move
+/// further than any of them and stiffen the fits it is in past the step the solver
+/// planned), the kernel-weighted mean (Shepard), a convex combination, instead. Candidates
 /// with zero weight are left out; `None` if none has weight.
 pub fn shape_functions(
     rest: &[Vec3],
@@ -147,16 +173,20 @@ pub fn shape_functions(
     let fit = (lo > 0.0 && hi / lo < MAX_CONDITION)
         .then(|| moment.try_inverse())
         .flatten();
-    Some(match fit {
-        Some(inverse) => {
-            let c = inverse.column(0).into_owned();
-            weighted
-                .iter()
-                .map(|(k, w, d)| (*k, w * basis(d).dot(&c)))
-                .collect()
-        }
-        None => weighted.iter().map(|&(k, w, _)| (k, w / total)).collect(),
-    })
+    let linear: Option<Masters> = fit.map(|inverse| {
+        let c = inverse.column(0).into_owned();
+        weighted
+            .iter()
+            .map(|(k, w, d)| (*k, w * basis(d).dot(&c)))
+            .collect()
+    });
+    Some(
+        match linear.filter(|phi| phi.iter().map(|p| p.1.abs()).sum::<f64>() <= MAX_ABS_WEIGHT_SUM)
+        {
+            Some(phi) => phi,
+            None => weighted.iter().map(|&(k, w, _)| (k, w / total)).collect(),
+        },
+    )
 }
 
 #[cfg(test)]
@@ -220,6 +250,22 @@ mod tests {
         assert!(phi.iter().all(|p| p.1 > 0.0));
         let sum: f64 = phi.iter().map(|p| p.1).sum();
         assert!((sum - 1.0).abs() < 1e-12);
+        // What is interpolated is the displacement: at rest the node stays on its rest
+        // position (not at its masters' mean, a fit-straining millimetre away), and it
+        // follows a translation exactly.
+        let mut points = rest.clone();
+        let node = Vec3::new(0.02, 0.02, 0.001);
+        points.push(node);
+        let mut slaves = Slaves::new(rest.len(), 1);
+        slaves.slave(rest.len(), &phi, &points);
+        let mut x = points.clone();
+        x[rest.len()] = Vec3::zeros();
+        slaves.interpolate(&mut x);
+        assert!((x[rest.len()] - node).norm() < 1e-15);
+        let shift = Vec3::new(0.001, -0.002, 0.0005);
+        x.iter_mut().take(rest.len()).for_each(|p| *p += shift);
+        slaves.interpolate(&mut x);
+        assert!((x[rest.len()] - (node + shift)).norm() < 1e-15);
     }
 
     /// Interpolation and hand-back are transposes: the work the slaved node's force does
@@ -227,7 +273,8 @@ mod tests {
     #[test]
     fn hand_back_is_the_transpose_of_interpolation() {
         let mut slaves = Slaves::new(3, 2);
-        slaves.slave(3, &[(0, 0.5), (1, 0.7), (2, -0.2)]);
+        let rest = vec![Vec3::zeros(); 5];
+        slaves.slave(3, &[(0, 0.5), (1, 0.7), (2, -0.2)], &rest);
         let mut x = vec![
             Vec3::new(1.0, 2.0, 3.0),
             Vec3::new(-1.0, 0.5, 2.0),

@@ -66,7 +66,7 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
     for _ in 0..s.config.power_iterations {
         // Slaved nodes move with their masters and hand their forces back: the product
         // is the one the masters feel (Pᵀ K P).
-        s.slaves.interpolate(x);
+        s.slaves.interpolate_vectors(x);
         stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
         s.slaves.hand_back(y);
         for i in 0..n {
