@@ -365,45 +365,23 @@ impl CutScript {
         // A third of the shape's height there, and no more than half the tissue under the
         // top (down to the next surface: a sheet can fold back under itself).
         let depth = depth_m.min(0.3 * (top - bottom)).min(0.5 * (top - below));
-        let clearance = 0.005;
         let start = centre - axis * (length * 0.5);
-        let samples = ((length / 0.005).ceil() as usize).max(2);
-        let up = Vec3::z();
-        let mut keyframes = Vec::with_capacity(samples + 4);
-        let mut t = 0.0;
-        // The blade faces along the stroke (its back trails), as a hand holds it.
-        let mut push = |tip: Vec3, t: f64| {
-            keyframes.push(Keyframe {
-                t_s: t,
-                pose: ToolPose::facing(tip, up, axis),
-            })
-        };
-        let top_at = |s: f64| {
-            let x = start + axis * s;
-            vertical_extent(surface, x.x, x.y).map(|(top, _)| top)
-        };
-        let top0 = top_at(0.0).ok_or_else(|| {
-            ScriptError::NoSurface("no surface under the start of the stroke".into())
-        })?;
-        let above = Vec3::new(start.x, start.y, top0 + clearance);
-        push(above, t);
-        let mut last = above;
-        let mut tip = Vec3::new(start.x, start.y, top0 - depth);
-        t += (tip - last).norm() / speed;
-        push(tip, t);
-        last = tip;
-        for k in 1..=samples {
-            let s = length * k as f64 / samples as f64;
-            let x = start + axis * s;
-            let top = top_at(s).unwrap_or(last.z + depth);
-            tip = Vec3::new(x.x, x.y, top - depth);
-            t += (tip - last).norm() / speed;
-            push(tip, t);
-            last = tip;
+        if vertical_extent(surface, start.x, start.y).is_none() {
+            return Err(ScriptError::NoSurface(
+                "no surface under the start of the stroke".into(),
+            ));
         }
-        let out = Vec3::new(last.x, last.y, last.z + depth + clearance);
-        t += (out - last).norm() / speed;
-        push(out, t);
+        let mut keyframes = Vec::new();
+        let stroke = Stroke {
+            start,
+            axis,
+            length,
+            depth,
+            clearance: 0.005,
+            plunge_speed: speed,
+            speed,
+        };
+        stroke.push_onto(surface, &mut keyframes, 0.0);
         Ok(Self {
             keyframes,
             description: format!(
@@ -430,7 +408,6 @@ impl CutScript {
         const STROKE_SPEED: f64 = 0.008;
         const PLUNGE_SPEED: f64 = 0.010;
         const TRAVEL_S: f64 = 1.0;
-        const SAMPLE_M: f64 = 0.005;
         let bbox = surface.bbox();
         let (lo, hi) = (Vec3::from(bbox.min), Vec3::from(bbox.max));
         let size = hi - lo;
@@ -476,33 +453,19 @@ impl CutScript {
                 continue;
             };
             made += 1;
-            let up = Vec3::z();
-            let mut push = |tip: Vec3, t: f64| {
-                keyframes.push(Keyframe {
-                    t_s: t,
-                    pose: ToolPose::facing(tip, up, axis),
-                })
-            };
-            let top0 = top_at(&start).unwrap_or(start.z);
-            let above = Vec3::new(start.x, start.y, top0 + CLEARANCE_M);
             if made > 1 {
                 t += TRAVEL_S;
             }
-            push(above, t);
-            let mut last = Vec3::new(start.x, start.y, top0 - depth);
-            t += (last - above).norm() / PLUNGE_SPEED;
-            push(last, t);
-            let samples = ((length / SAMPLE_M).ceil() as usize).max(2);
-            for k in 1..=samples {
-                let x = start + axis * (length * k as f64 / samples as f64);
-                let tip = Vec3::new(x.x, x.y, top_at(&x).unwrap_or(last.z + depth) - depth);
-                t += (tip - last).norm() / STROKE_SPEED;
-                push(tip, t);
-                last = tip;
-            }
-            let out = Vec3::new(last.x, last.y, last.z + depth + CLEARANCE_M);
-            t += (out - last).norm() / PLUNGE_SPEED;
-            push(out, t);
+            let stroke = Stroke {
+                start,
+                axis,
+                length,
+                depth,
+                clearance: CLEARANCE_M,
+                plunge_speed: PLUNGE_SPEED,
+                speed: STROKE_SPEED,
+            };
+            t = stroke.push_onto(surface, &mut keyframes, t);
         }
         if made == 0 {
             return Err(ScriptError::NoSurface(
@@ -544,6 +507,56 @@ impl CutScript {
                     b.pose.orientation
                 }),
         }
+    }
+}
+
+/// One straight stroke that follows the top of the surface.
+struct Stroke {
+    /// Where it starts, seen from above (its z is not used).
+    start: Vec3,
+    /// Unit horizontal direction.
+    axis: Vec3,
+    length: f64,
+    /// Below the top (m).
+    depth: f64,
+    /// Height above the top where the blade starts and ends (m).
+    clearance: f64,
+    /// Speed going in and out, and along (m/s).
+    plunge_speed: f64,
+    speed: f64,
+}
+
+impl Stroke {
+    /// Appends its keyframes from time `t`, upright and facing along the stroke (its back
+    /// trails, as a hand holds it): down from above the start, along the top sampled every
+    /// 5 mm, and out; returns the time at its end.
+    fn push_onto(&self, surface: &TriMesh, keyframes: &mut Vec<Keyframe>, mut t: f64) -> f64 {
+        let top_at = |x: &Vec3| vertical_extent(surface, x.x, x.y).map(|(top, _)| top);
+        let (start, depth) = (self.start, self.depth);
+        let mut push = |tip: Vec3, t: f64| {
+            keyframes.push(Keyframe {
+                t_s: t,
+                pose: ToolPose::facing(tip, Vec3::z(), self.axis),
+            })
+        };
+        let top0 = top_at(&start).unwrap_or(start.z);
+        let above = Vec3::new(start.x, start.y, top0 + self.clearance);
+        push(above, t);
+        let mut last = Vec3::new(start.x, start.y, top0 - depth);
+        t += (last - above).norm() / self.plunge_speed;
+        push(last, t);
+        let samples = ((self.length / 0.005).ceil() as usize).max(2);
+        for k in 1..=samples {
+            let x = start + self.axis * (self.length * k as f64 / samples as f64);
+            let tip = Vec3::new(x.x, x.y, top_at(&x).unwrap_or(last.z + depth) - depth);
+            t += (tip - last).norm() / self.speed;
+            push(tip, t);
+            last = tip;
+        }
+        let out = Vec3::new(last.x, last.y, last.z + depth + self.clearance);
+        t += (out - last).norm() / self.plunge_speed;
+        push(out, t);
+        t
     }
 }
 
