@@ -1,7 +1,7 @@
 //! `scalpel cut`: a scripted cut, offline, with everything it produced written out.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -10,7 +10,6 @@ use scalpel_sim::cut::FaceKind;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::scene::{BuiltScene, Features, SceneSpec};
-use std::path::PathBuf;
 
 use crate::cutrun::{self, CutMetrics, CutRun};
 use crate::plot::{self, Series};

@@ -8,8 +8,8 @@
 //! supported on the cut side again — a boundary condition imposed through MLS, which is
 //! what the paper means by treating them as boundary points. They have no volume (no
 //! stress of their own) and are not integrated: each is slaved to the interior points it
-//! is joined to, sitting in every sub-step where the MLS interpolation of their positions
-//! puts it, and handing the force on it back to them (`solver::slaves`). So a node moves
+//! is joined to, its displacement in every sub-step the MLS interpolation of theirs, and
+//! handing the force on it back to them (`solver::slaves`). So a node moves
 //! with the tissue of its wall as the wall vertex does (both are interpolations of the same
 //! points) but, unlike a node moved to its wall vertex once a tick, closes no lagged loop:
 //! that one pumped energy into the walls over a few crossing cuts, until the solver's guard
@@ -58,7 +58,7 @@ pub struct VirtualPointStats {
 struct Node {
     /// Solver index.
     node: u32,
-    /// The wall vertex it follows.
+    /// The wall vertex it was placed on.
     vertex: u32,
     /// Rest offset from the vertex into the tissue.
     inset: Vec3,
@@ -94,7 +94,7 @@ impl VirtualPoints {
         self.nodes.iter().map(|n| n.node)
     }
 
-    /// The wall vertex node `k` (in placement order) follows, and its rest inset.
+    /// The wall vertex node `k` (in placement order) was placed on, and its rest inset.
     pub fn site(&self, k: usize) -> (u32, u32, Vec3) {
         let n = self.nodes[k];
         (n.node, n.vertex, n.inset)

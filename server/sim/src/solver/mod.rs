@@ -162,7 +162,7 @@ pub struct Solver {
     /// The masses as built; `mass` is at least these (selective mass scaling after cuts).
     base_mass: Vec<f64>,
     /// Per point: the ω² its own fit (row) gives the points in it, with their built masses
-    /// (see `fit_omega_sq`); filled with the first dt_crit.
+    /// (see `fit_omega_sq_of`); filled with the first dt_crit.
     fit_omega_sq: Vec<f64>,
     /// The largest fit ω² a cut may leave before mass is added (set with the first dt_crit).
     omega_sq_cap: Option<f64>,
@@ -268,9 +268,10 @@ impl Solver {
 
     /// Puts spare node `i` at `rest` and ties it to the body points `masters` (its
     /// neighbours, which are the caller's: then [`Solver::topology_changed`]): in every
-    /// sub-step it sits where the linear-precision MLS interpolation of their positions at
-    /// `rest` puts it, and the force on it goes back to them (`slaves`). Returns false,
-    /// leaving the node free, if no master is within the support of `rest`.
+    /// sub-step its displacement is the MLS interpolation of theirs at `rest` (linear
+    /// precision, or their kernel-weighted mean where that extrapolates), and the force on
+    /// it goes back to them (`slaves`). Returns false, leaving the node free, if no master
+    /// is within the support of `rest`.
     pub fn slave_node(&mut self, i: usize, rest: Vec3, masters: &[u32]) -> bool {
         assert!(
             i >= self.material_points,
