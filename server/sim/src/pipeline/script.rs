@@ -356,15 +356,9 @@ impl CutScript {
                 wanted * 1e3
             )));
         }
-        let crossings = vertical_crossings(surface, centre.x, centre.y);
-        let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
-            return Err(ScriptError::NoSurface(
-                "no tissue under the top at the stroke's centre".into(),
-            ));
-        };
-        // A third of the shape's height there, and no more than half the tissue under the
-        // top (down to the next surface: a sheet can fold back under itself).
-        let depth = depth_m.min(0.3 * (top - bottom)).min(0.5 * (top - below));
+        let depth = stroke_depth(surface, &centre, depth_m).ok_or_else(|| {
+            ScriptError::NoSurface("no tissue under the top at the stroke's centre".into())
+        })?;
         let start = centre - axis * (length * 0.5);
         if vertical_extent(surface, start.x, start.y).is_none() {
             return Err(ScriptError::NoSurface(
@@ -414,7 +408,6 @@ impl CutScript {
         let long_side = size.x.max(size.y);
         let mut state = seed;
         let mut uniform = move |a: f64, b: f64| a + (b - a) * unit_random(&mut state);
-        let top_at = |p: &Vec3| vertical_extent(surface, p.x, p.y).map(|(top, _)| top);
         let mut keyframes: Vec<Keyframe> = Vec::new();
         let mut t = 0.0;
         let mut made = 0;
@@ -429,25 +422,13 @@ impl CutScript {
                 let axis = Vec3::new(heading.cos(), heading.sin(), 0.0);
                 let length = uniform(0.10, 0.18) * long_side;
                 let depth_wanted = uniform(0.005, 0.010);
-                // The top must go on smoothly (no step over 2 mm per mm) for the length.
-                let start = centre - axis * (0.5 * length);
-                let steps = (length / 0.001).ceil() as usize;
-                let mut last = top_at(&start)?;
-                for k in 1..=steps {
-                    let here = top_at(&(start + axis * (length * k as f64 / steps as f64)))?;
-                    if (here - last).abs() > 2.0 * length / steps as f64 {
-                        return None;
-                    }
-                    last = here;
-                }
-                let crossings = vertical_crossings(surface, centre.x, centre.y);
-                let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
+                // The top must go on smoothly for the length (to a millimetre).
+                let half = 0.5 * length;
+                if smooth_top_room(surface, &centre, &axis, half) < half - 0.001 {
                     return None;
-                };
-                let depth = depth_wanted
-                    .min(0.3 * (top - bottom))
-                    .min(0.5 * (top - below));
-                Some((start, axis, length, depth))
+                }
+                let depth = stroke_depth(surface, &centre, depth_wanted)?;
+                Some((centre - axis * half, axis, length, depth))
             });
             let Some((start, axis, length, depth)) = found else {
                 continue;
@@ -637,6 +618,17 @@ fn roomiest_top_near(surface: &TriMesh, x: &Vec3, axis: &Vec3, wanted: f64) -> O
 /// How far (up to `wanted`) either way along `axis` from `centre` the top goes on without a
 /// gap or a step (checked every millimetre: a step of more than 2 mm per millimetre is the
 /// edge of a fold, not the slope of the top).
+/// How deep a stroke through `centre` (seen from above) may cut, `wanted` at most: a third
+/// of the shape's height there, and no more than half the tissue under the top (down to the
+/// next surface: a sheet can fold back under itself). `None` if there is no tissue there.
+fn stroke_depth(surface: &TriMesh, centre: &Vec3, wanted: f64) -> Option<f64> {
+    let crossings = vertical_crossings(surface, centre.x, centre.y);
+    let (&[top, below, ..], Some(&bottom)) = (&crossings[..], crossings.last()) else {
+        return None;
+    };
+    Some(wanted.min(0.3 * (top - bottom)).min(0.5 * (top - below)))
+}
+
 fn smooth_top_room(surface: &TriMesh, centre: &Vec3, axis: &Vec3, wanted: f64) -> f64 {
     const STEP_M: f64 = 0.001;
     let top = |s: f64| {
