@@ -222,7 +222,7 @@ fn assert_calm(trace: &Trace) {
 }
 
 /// No body point is held by the blade's dent any more. (Virtual points, after the body's
-/// points, are kinematic: fixed by design.)
+/// points, are slaved to body points: fixed dofs by design.)
 fn assert_dent_released(sim: &Simulation) {
     let body = sim.solver().material_points();
     assert!(

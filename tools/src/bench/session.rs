@@ -7,7 +7,7 @@ use serde::Serialize;
 use crate::TargetArgs;
 use crate::cut_cmd::{self, ScriptChoice};
 use crate::cutrun::{self, Quantiles, TickRow};
-use crate::load;
+use crate::{bench, load};
 
 /// Ticks out of the tissue that end a stroke (a blade that drops out for a few ticks in
 /// the middle of a stroke is still in it).
@@ -69,8 +69,11 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
     let third = (rows.len() / 3).max(1);
     let median_of = |rs: &[StrokeRow]| {
         let mut v: Vec<f64> = rs.iter().map(|r| r.total_ms.p50).collect();
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0)
+        if v.is_empty() {
+            0.0
+        } else {
+            bench::median(&mut v)
+        }
     };
     let early = median_of(&rows[..third.min(rows.len())]);
     let late = median_of(&rows[rows.len().saturating_sub(third)..]);
@@ -111,12 +114,11 @@ fn split_strokes(rows: &[TickRow]) -> Vec<Vec<&TickRow>> {
     let mut out_for = usize::MAX;
     for r in rows {
         if r.in_tissue {
-            if out_for >= GAP_TICKS || strokes.is_empty() {
+            // (`out_for` starts past the gap: the first tick in opens the first stroke.)
+            if out_for >= GAP_TICKS {
                 strokes.push(Vec::new());
             }
-            if let Some(s) = strokes.last_mut() {
-                s.push(r);
-            }
+            strokes.last_mut().expect("opened above").push(r);
             out_for = 0;
         } else {
             out_for = out_for.saturating_add(1);

@@ -12,7 +12,7 @@
 //! handing the force on it back to them (`solver::slaves`). So a node moves
 //! with the tissue of its wall as the wall vertex does (both are interpolations of the same
 //! points) but, unlike a node moved to its wall vertex once a tick, closes no lagged loop:
-//! that one pumped energy into the walls over a few crossing cuts, until the solver's guard
+//! that one pumped energy into the walls over a few wounds, until the solver's guard
 //! rolled every tick back (docs/CUTTING.md, "Virtual points").
 //!
 //! They sit on the walls as the incision draws them (opened in rest space), a twentieth of
@@ -101,9 +101,9 @@ impl VirtualPoints {
     }
 
     /// Releases the nodes within `radius` of the blade's rest `edge`: the blade cuts and
-    /// dents the tissue there, and a node tied to a wall the blade is re-cutting would
-    /// prescribe where that tissue is (a stiff, lagged loop that diverged when a second
-    /// cut crossed a first). The next placement puts nodes back once the blade has gone.
+    /// dents the tissue there, and the new Σ would split a node's masters on a wall the
+    /// blade is re-cutting (its pairs are cut, its interpolation is not). The next
+    /// placement puts nodes back once the blade has gone.
     /// Returns whether any was released; changed lists are appended to `changed`.
     pub fn release_near(
         &mut self,

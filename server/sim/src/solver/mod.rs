@@ -301,11 +301,6 @@ impl Solver {
         self.slaves.free(i);
     }
 
-    /// Whether node `i` is a spare node tied to body points.
-    pub fn is_slaved(&self, i: usize) -> bool {
-        self.slaves.is_slaved(i)
-    }
-
     /// Points of the body (the nodes after them are virtual).
     pub fn material_points(&self) -> usize {
         self.material_points

@@ -4,13 +4,14 @@
 //! A virtual point joins the MLS fits of the interior points around it (physics.md §5.3)
 //! and must move with the tissue it sits in. Moving it once a tick to where the drawn wall
 //! went (which follows those same points) closes a loop with a tick's lag: the node drives
-//! its neighbours, they carry the wall, the wall moves the node. Over several crossing cuts
-//! that loop pumped energy into the walls until the guard rolled every tick back, each
-//! retry doubling the sub-steps (half a second per tick on the liver). A slaved node has no
-//! loop: in every sub-step its position is `x_s = Σ_k φ_k x_k` over its masters k, with the
-//! linear-precision MLS shape functions φ at its rest position (exact for any affine motion,
-//! rotations included), and the force the fits put on it is handed back to the masters as
-//! `f_k += φ_k f_s` — the transpose of the interpolation. The elastic energy is then a
+//! its neighbours, they carry the wall, the wall moves the node. Over a few wounds that
+//! loop pumped energy into the walls until the guard rolled every tick back, each retry
+//! doubling the sub-steps (half a second per tick on the liver). A slaved node has no
+//! loop: in every sub-step its displacement is its masters' interpolated,
+//! `x_s = X_s + Σ_k φ_k (x_k − X_k)`, with the linear-precision MLS shape functions φ at its
+//! rest position (exact for any affine motion, rotations included; the kernel-weighted mean
+//! where those extrapolate, see [`shape_functions`]), and the force the fits put on it is
+//! handed back to the masters as `f_k += φ_k f_s` — the transpose of the interpolation. The elastic energy is then a
 //! function of the masters alone and those are its exact gradient: the constraint does no
 //! work, and the step's stability is the body's.
 
@@ -52,11 +53,7 @@ impl Slaves {
 
     /// Whether node `i` is slaved now.
     pub fn is_slaved(&self, i: usize) -> bool {
-        i >= self.first
-            && self
-                .masters
-                .get(i - self.first)
-                .is_some_and(|m| !m.is_empty())
+        !self.masters_of(i).is_empty()
     }
 
     /// The masters of node `i` (empty when it is not slaved).
@@ -81,10 +78,7 @@ impl Slaves {
         }
         slot.clear();
         slot.extend_from_slice(masters);
-        let mean = masters
-            .iter()
-            .fold(Vec3::zeros(), |acc, &(k, w)| acc + rest[k as usize] * w);
-        self.offsets[i - self.first] = rest[i] - mean;
+        self.offsets[i - self.first] = rest[i] - weighted_sum(masters, rest);
     }
 
     /// Frees node `i` (nothing if it is not slaved).
