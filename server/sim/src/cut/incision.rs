@@ -1937,6 +1937,60 @@ mod tests {
         assert!(out.opening_m > 0.97 * wanted, "{}", out.opening_m);
     }
 
+    /// The first 2.6 mm of a stroke on the cerebroma, as a session's blade draws it (its
+    /// first two samples at the entry, the tissue dented 0.5 mm under the second): the
+    /// end column is 0.24 mm deep, its two rows 0.12 mm apart, and the lower lip leaves
+    /// it sideways in a 0.12 mm segment. Zipped in step along the cut the wall fanned a
+    /// 14.5° cell from the end vertex; the other order gives 22.6°.
+    #[test]
+    fn a_short_stroke_from_a_shallow_end_keeps_its_wall_cells_above_the_bound() {
+        let cerebroma = BuiltinMesh::Cerebroma.generate();
+        let kinds = vec![FaceKind::Skin; cerebroma.triangles.len()];
+        let mm = |x: f64, y: f64, z: f64| Vec3::new(x, y, z) * 1e-3;
+        let samples = [
+            (
+                [-1.0029743875304298, 7.495886856207976],
+                13.4914226484295,
+                6.255250402294003,
+            ),
+            (
+                [-1.0029743875304298, 7.495886856207976],
+                12.953847338117717,
+                9.165647132027026,
+            ),
+            (
+                [-0.18311326590255372, 7.344515190308935],
+                13.647160824852158,
+                6.393392965428429,
+            ),
+            (
+                [0.3330143258954731, 7.2502193174702425],
+                13.720005274905533,
+                6.4572386382624885,
+            ),
+            (
+                [0.8486280137694094, 7.154459205214668],
+                13.788480624780489,
+                6.527121895705612,
+            ),
+            (
+                [1.371941790141029, 7.057946490084465],
+                13.837309082800873,
+                6.58859503068883,
+            ),
+        ];
+        let path: Vec<PathSample> = samples
+            .iter()
+            .map(|&([x, y], top, bottom)| PathSample {
+                surface: mm(x, y, top),
+                bottom: mm(x, y, bottom),
+            })
+            .collect();
+        let out =
+            incise(&cerebroma, &kinds, &[], &path, &IncisionParams::default()).expect("incision");
+        check(&out, "short stroke on the cerebroma");
+    }
+
     #[test]
     fn skinny_pairs_are_flipped_but_not_across_a_fold_or_a_lip() {
         // A flat rhombus split along its long diagonal (14° corners): flipped to the short

@@ -231,7 +231,12 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> Vec<usize> {
             (a..b).map(top_gap).sum::<f64>(),
             (a..b).map(bottom_gap).sum::<f64>(),
         );
-        if over_tops <= 0.0 || bottom_gap(k) >= 0.5 * top_gap(k) * over_bottoms / over_tops {
+        // (Or under half its own top's: where the bottoms come together over several
+        // gaps — a deeper pass under columns that lean toward each other over a hump,
+        // 0.40 mm under tops 1.6 mm apart on the deltoid, rows 1.8 mm tall — the share
+        // alone misses it, and the floor's cells are 12° slivers.)
+        let share = top_gap(k) * over_bottoms / over_tops.max(1e-300);
+        if over_tops <= 0.0 || bottom_gap(k) >= 0.5 * share.max(top_gap(k)) {
             continue;
         }
         match stretches.last_mut() {
@@ -291,6 +296,9 @@ pub(crate) fn even_out_bottoms(columns: &mut [WallColumn]) -> Vec<usize> {
     moved
 }
 
+/// The smallest angle a wall's cell should keep (degrees): the surface's bound.
+const WALL_MIN_ANGLE_DEG: f64 = 15.0;
+
 /// Rows of a column `depth` deep, for cells about `cell` tall; none for an end column that
 /// ends at the surface ([`build_walls_choosing_ends`]).
 fn rows_for(depth: f64, cell: f64) -> usize {
@@ -304,10 +312,36 @@ fn rows_for(depth: f64, cell: f64) -> usize {
 
 /// Adds the wound's walls: from each lip down to the bottom curve, meeting at the bottom
 /// and at both ends (the end columns and the bottom vertices are shared by the two walls).
+/// Where a lip's strip would lay a sliver its fronts kept in step avoid, the walls are
+/// built both ways and the ones whose smallest angle is larger kept (in step on a tie):
+/// a step out of turn shifts every step after it (beside a spike's flank, an 8.9° cell
+/// further on), and the flips after it may mend either.
 pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
     let mark = out.mark();
     let columns = graded_columns(wound, &out.positions);
-    let shared = build_wall_grids(wound, &columns, out);
+    if !build_and_flip(wound, &columns, false, out) {
+        return;
+    }
+    let in_step = out.min_angle_since_deg(&mark);
+    out.truncate(mark);
+    let mark = out.mark();
+    build_and_flip(wound, &columns, true, out);
+    if out.min_angle_since_deg(&mark) <= in_step {
+        out.truncate(mark);
+        build_and_flip(wound, &columns, false, out);
+    }
+}
+
+/// The walls on `columns` ([`build_wall_grids`]), their edges flipped to better cells;
+/// whether a step out of turn would change a lip's strip.
+fn build_and_flip(
+    wound: &Wound,
+    columns: &[WallColumn],
+    out_of_turn: bool,
+    out: &mut Assembly,
+) -> bool {
+    let mark = out.mark();
+    let (shared, differs) = build_wall_grids(wound, columns, out_of_turn, out);
     // Where the two walls meet (the floor, the end columns) they face each other: an
     // edge there is never flipped, however flat a shallow, wide wound's V is.
     let meet = |v: u32| shared.binary_search(&v).is_ok();
@@ -319,6 +353,7 @@ pub(crate) fn build_walls(wound: &Wound, out: &mut Assembly) {
         FaceKind::Wall,
         |a, b| meet(a) && meet(b),
     );
+    differs
 }
 
 /// The wound's columns with columns added between each end column and the next where
@@ -376,10 +411,17 @@ fn graded_columns(wound: &Wound, positions: &[Vec3]) -> Vec<WallColumn> {
     graded
 }
 
-/// The walls as their grids on `cols` give them (see [`build_walls`]); the vertices both
-/// walls share (the end columns' and the bottom's), sorted.
-fn build_wall_grids(wound: &Wound, cols: &[WallColumn], out: &mut Assembly) -> Vec<u32> {
+/// The walls as their grids on `cols` give them (see [`build_walls`]), the lips' strips
+/// with steps out of turn where `out_of_turn`; the vertices both walls share (the end
+/// columns' and the bottom's), sorted, and whether a step out of turn changes a strip.
+fn build_wall_grids(
+    wound: &Wound,
+    cols: &[WallColumn],
+    out_of_turn: bool,
+    out: &mut Assembly,
+) -> (Vec<u32>, bool) {
     let n = cols.len();
+    let mut differs = false;
     let cell = wound.column_gap_m().max(wound.spacing_m / 4.0);
     let rows: Vec<usize> = cols.iter().map(|c| rows_for(c.depth, cell)).collect();
     let a_id = wound.upper[0].1;
@@ -468,43 +510,82 @@ fn build_wall_grids(wound: &Wound, cols: &[WallColumn], out: &mut Assembly) -> V
         let shape = |t: [u32; 3], out: &Assembly| {
             triangle_min_angle_deg(t.map(|v| out.positions[v as usize]))
         };
-        // Between the lip and row 1: zip the two polylines together by parameter.
-        let (mut i, mut k) = (0, 0);
-        while i + 1 < lip.len() || k + 1 < n {
-            let advance_lip = if i + 1 == lip.len() {
-                false
-            } else if k + 1 == n {
-                true
-            } else if k == 0 && rows[0] == 0 {
-                // An end column at the surface is left first and reached last: a lip step
-                // there would lay a cell along the lip from the end vertex.
-                false
-            } else if k + 2 == n && rows[n - 1] == 0 {
-                true
-            } else if k == 1 && i == 0 && rows[0] == 0 && i + 2 < lip.len() {
-                // And the lip leaves that end vertex next (reaches it after the columns):
-                // a column step from it would join it to two rows of a wall rising to it,
-                // nearly on a line (exactly, on a straight cut with columns graded near
-                // the end beside a lip that is not).
-                true
-            } else if i + 2 == lip.len() && k + 2 < n && rows[n - 1] == 0 {
-                false
-            } else if (lip[i + 1].0 - cols[k + 1].param).abs()
-                > 0.5 * (cols[k + 1].param - cols[k].param)
-            {
-                // Keep the two fronts in step along the cut.
-                lip[i + 1].0 < cols[k + 1].param
-            } else {
-                shape([lip[i].1, grid[k][1], lip[i + 1].1], out)
-                    >= shape([lip[i].1, grid[k][1], grid[k + 1][1]], out)
-            };
-            if advance_lip {
-                emit([lip[i].1, grid[k][1], lip[i + 1].1], true, out);
-                i += 1;
-            } else {
-                emit([lip[i].1, grid[k][1], grid[k + 1][1]], true, out);
-                k += 1;
+        // Between the lip and row 1: zip the two polylines together by parameter, keeping
+        // the two fronts in step along the cut — and again letting a step out of turn
+        // where in turn it lays a sliver the other order avoids: at a shallow end column,
+        // rows a fraction of a gap apart beside a lip leaving sideways make the in-turn
+        // step's fan from the end vertex a 14.5° cell (the cerebroma's session), the other
+        // order 22.6°. Which is used is `out_of_turn`'s (see [`build_walls`]).
+        let strip = |lenient: bool, out: &Assembly| -> Vec<[u32; 3]> {
+            let mut cells = Vec::with_capacity(lip.len() + n);
+            let (mut i, mut k) = (0, 0);
+            while i + 1 < lip.len() || k + 1 < n {
+                let lip_step = [
+                    lip[i].1,
+                    grid[k][1],
+                    lip.get(i + 1).map_or(u32::MAX, |l| l.1),
+                ];
+                let column_step = [
+                    lip[i].1,
+                    grid[k][1],
+                    grid.get(k + 1).map_or(u32::MAX, |g| g[1]),
+                ];
+                let advance_lip = if i + 1 == lip.len() {
+                    false
+                } else if k + 1 == n {
+                    true
+                } else if k == 0 && rows[0] == 0 {
+                    // An end column at the surface is left first and reached last: a lip
+                    // step there would lay a cell along the lip from the end vertex.
+                    false
+                } else if k + 2 == n && rows[n - 1] == 0 {
+                    true
+                } else if k == 1 && i == 0 && rows[0] == 0 && i + 2 < lip.len() {
+                    // And the lip leaves that end vertex next (reaches it after the
+                    // columns): a column step from it would join it to two rows of a wall
+                    // rising to it, nearly on a line (exactly, on a straight cut with
+                    // columns graded near the end beside a lip that is not).
+                    true
+                } else if i + 2 == lip.len() && k + 2 < n && rows[n - 1] == 0 {
+                    false
+                } else if (lip[i + 1].0 - cols[k + 1].param).abs()
+                    > 0.5 * (cols[k + 1].param - cols[k].param)
+                {
+                    let in_turn = lip[i + 1].0 < cols[k + 1].param;
+                    if lenient {
+                        // Each order weighed with the step that follows it.
+                        let lip_first = shape(lip_step, out)
+                            .min(shape([lip[i + 1].1, grid[k][1], grid[k + 1][1]], out));
+                        let column_first = shape(column_step, out)
+                            .min(shape([lip[i].1, grid[k + 1][1], lip[i + 1].1], out));
+                        let (kept, other) = if in_turn {
+                            (lip_first, column_first)
+                        } else {
+                            (column_first, lip_first)
+                        };
+                        in_turn != (kept < WALL_MIN_ANGLE_DEG && other > kept)
+                    } else {
+                        in_turn
+                    }
+                } else {
+                    shape(lip_step, out) >= shape(column_step, out)
+                };
+                if advance_lip {
+                    cells.push(lip_step);
+                    i += 1;
+                } else {
+                    cells.push(column_step);
+                    k += 1;
+                }
             }
+            cells
+        };
+        let in_step = strip(false, out);
+        let lenient = strip(true, out);
+        differs |= lenient != in_step;
+        let cells = if out_of_turn { lenient } else { in_step };
+        for tri in cells {
+            emit(tri, true, out);
         }
         // Between neighbouring columns, row 1 down to the bottom: zip the two columns
         // together by depth fraction (they may have different numbers of rows).
@@ -555,7 +636,7 @@ fn build_wall_grids(wound: &Wound, cols: &[WallColumn], out: &mut Assembly) -> V
     let mut shared: Vec<u32> = end0.iter().chain(&end1).chain(&bottoms).copied().collect();
     shared.sort_unstable();
     shared.dedup();
-    shared
+    (shared, differs)
 }
 
 /// Distance along the ray from `origin` in unit direction `dir` to the first of
@@ -747,6 +828,16 @@ pub fn deepen(
         }
         if changed {
             limit_slope(&mut new.columns, Some(&wound.columns), wound.column_gap_m());
+            // Deeper, columns that lean toward each other bunch their bottoms further:
+            // spread as a first incision's (and held short of a thin part's far side
+            // along their new directions).
+            for c in even_out_bottoms(&mut new.columns) {
+                let col = &mut new.columns[c];
+                let reach = col.depth + wound.spacing_m;
+                if let Some(hit) = first_hit(mesh, &skin, &col.top, &col.inward, reach) {
+                    col.depth = col.depth.min(0.7 * hit);
+                }
+            }
         }
         // A wound whose record no longer matches its walls (it cannot happen as the
         // incisions keep their records, but a torn surface would be worse than a shallow
@@ -1141,7 +1232,7 @@ mod tests {
     #[test]
     fn wall_columns_are_graded_like_the_lips_at_the_ends() {
         let before = walls_built_by(&SHALLOW_ENDS, &GRADED_LIPS, |wound, out| {
-            build_wall_grids(wound, &wound.columns, out);
+            build_wall_grids(wound, &wound.columns, false, out);
         });
         assert!(before < 5.0, "{before}");
         let (chosen, after) = walls_chosen(&SHALLOW_ENDS, &GRADED_LIPS, None);
@@ -1444,6 +1535,38 @@ mod tests {
             split > 0,
             "no later incision split a lip: the case is not exercised"
         );
+    }
+
+    /// A wound whose columns lean toward each other over a few gaps, as a tilted blade's
+    /// over a hump leave them (a deeper pass on the deltoid drew bottoms 0.40 mm apart
+    /// under tops 1.6 mm apart there, 12.1° floor cells): a deeper pass over that part,
+    /// 10 mm down, draws bottoms 1.0 and 0.72 mm apart under tops 2.86 mm apart — not
+    /// bunched as a share of a bottom curve that is drawn together itself, and 12.0°
+    /// floor cells as they were. Spread as a first incision's are, the walls keep the
+    /// bound.
+    #[test]
+    fn a_deeper_pass_under_columns_leaning_together_spreads_their_bottoms() {
+        let (liver, mut first) = first_pass();
+        let gap = first.wounds[0].column_gap_m();
+        let cols = &mut first.wounds[0].columns;
+        let middle: Vec<usize> = (0..cols.len())
+            .filter(|&c| cols[c].top.x.abs() < 0.008)
+            .collect();
+        // Leaning along the path, x per unit depth.
+        let leans = [0.35, 0.35, 0.12, -0.11, -0.34, -0.34];
+        assert_eq!(middle.len(), leans.len());
+        for (&c, lean) in middle.iter().zip(leans) {
+            cols[c].inward = (Vec3::x() * lean - Vec3::z()).normalize();
+        }
+        let pass = top_path(&liver, [-0.01, 0.0], [0.01, 0.0], 0.01);
+        let out = deepen_on(&first, &pass).expect("deeper");
+        check(&out, "deepened under leaning columns");
+        let cols = &out.wounds[0].columns;
+        let least = cols
+            .windows(2)
+            .map(|w| (w[1].bottom() - w[0].bottom()).norm())
+            .fold(f64::INFINITY, f64::min);
+        assert!(least > 0.4 * gap, "{least} under tops {gap} apart");
     }
 
     #[test]
