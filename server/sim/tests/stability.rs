@@ -27,21 +27,12 @@ fn stability_matrix() {
 /// got it.
 #[test]
 fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
-    use scalpel_sim::math::Vec3;
-    use scalpel_sim::model::{Kernel, Neighbourhoods, RestGrid};
-    use scalpel_sim::solver::{Solver, SolverConfig};
+    use scalpel_sim::model::{Neighbourhoods, RestGrid};
+    use scalpel_sim::validate::{LatticeCube, cut_down_to};
     let s = 0.003;
-    let n = 7;
-    let mut rest = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            for k in 0..n {
-                rest.push(Vec3::new(i as f64, j as f64, k as f64) * s);
-            }
-        }
-    }
-    let id = |i: usize, j: usize, k: usize| (i * n + j) * n + k;
-    let centre = id(3, 3, 3);
+    let cube = LatticeCube::new(7, s);
+    let mut rest = cube.rest.clone();
+    let centre = cube.id(3, 3, 3);
     // The centre a thirtieth of a spacing above its layer: whole, its fit does not mind.
     rest[centre].z += s / 30.0;
     let h = 2.0 * s;
@@ -49,31 +40,11 @@ fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
     let mut neighbours = Neighbourhoods::build(&rest, &grid, h, 8);
     let volume = vec![s * s * s; rest.len()];
     let mass: Vec<f64> = volume.iter().map(|v| v * 1060.0).collect();
-    let mut solver = Solver::new(
-        &rest,
-        &volume,
-        &mass,
-        &neighbours,
-        Kernel { support_m: h },
-        s,
-        None,
-        5e3,
-        0.45,
-        SolverConfig::default(),
-    );
+    let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours, s);
     let uncut = solver.step(1e-3).substeps;
     // Cut down to its four neighbours in its layer, all just below it.
-    let keep: Vec<u32> = [id(4, 3, 3), id(2, 3, 3), id(3, 4, 3), id(3, 2, 3)]
-        .map(|i| i as u32)
-        .to_vec();
-    let mut changed = vec![centre as u32];
-    for j in neighbours.of(centre).to_vec() {
-        if !keep.contains(&j) {
-            neighbours.remove(centre, j);
-            neighbours.remove(j as usize, centre as u32);
-            changed.push(j);
-        }
-    }
+    let keep = cube.layer_around_centre();
+    let changed = cut_down_to(&mut neighbours, centre, &keep);
     solver.topology_changed(&changed, &neighbours);
     let condition = solver.operator().point(centre).condition;
     let cut = solver.step(1e-3).substeps;

@@ -985,6 +985,7 @@ fn kinetic_energy(mass: &[f64], v: &[Vec3], fixed: &[[bool; 3]]) -> f64 {
 mod tests {
     use super::*;
     use crate::model::RestGrid;
+    use crate::validate::{LatticeCube, cut_down_to};
 
     /// A slaved node hands its forces back to its masters, so it puts them into the fits
     /// it is in. A cut leaves the centre of a lattice four neighbours in a plane, and a
@@ -997,17 +998,9 @@ mod tests {
     #[test]
     fn masters_of_a_slaved_node_in_a_fit_over_the_cap_take_mass_by_their_columns() {
         let s = 0.003;
-        let n = 7;
-        let mut rest = Vec::new();
-        for i in 0..n {
-            for j in 0..n {
-                for k in 0..n {
-                    rest.push(Vec3::new(i as f64, j as f64, k as f64) * s);
-                }
-            }
-        }
-        let id = |i: usize, j: usize, k: usize| (i * n + j) * n + k;
-        let centre = id(3, 3, 3);
+        let cube = LatticeCube::new(7, s);
+        let mut rest = cube.rest.clone();
+        let centre = cube.id(3, 3, 3);
         let h = 2.0 * s;
         let grid = RestGrid::build(&rest, h);
         let body = rest.len();
@@ -1018,34 +1011,15 @@ mod tests {
         volume.push(0.0);
         let mut mass: Vec<f64> = vec![s * s * s * 1060.0; body + 1];
         // A light point beside the centre (a boundary point's small share of the volume).
-        let light = id(4, 4, 3);
+        let light = cube.id(4, 4, 3);
         mass[light] /= 10.0;
-        let mut solver = Solver::new(
-            &rest,
-            &volume,
-            &mass,
-            &neighbours,
-            Kernel { support_m: h },
-            s,
-            None,
-            5e3,
-            0.45,
-            SolverConfig::default(),
-        );
+        let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours, s);
         solver.fixed[node] = [true; 3];
         solver.material_points = body;
         solver.slaves = Slaves::new(body, 1);
         let uncut = solver.step(1e-3).substeps;
         // The centre cut down to its four neighbours in its layer.
-        let keep = [id(4, 3, 3), id(2, 3, 3), id(3, 4, 3), id(3, 2, 3)].map(|i| i as u32);
-        let mut changed = vec![centre as u32];
-        for j in neighbours.of(centre).to_vec() {
-            if !keep.contains(&j) {
-                neighbours.remove(centre, j);
-                neighbours.remove(j as usize, centre as u32);
-                changed.push(j);
-            }
-        }
+        let mut changed = cut_down_to(&mut neighbours, centre, &cube.layer_around_centre());
         // The node beside it, joined to every point within reach.
         let x = rest[centre] + Vec3::new(0.4 * s, 0.3 * s, 0.1 * s);
         for i in 0..body {

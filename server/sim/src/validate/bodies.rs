@@ -1,9 +1,10 @@
-//! Box-shaped bodies for the benchmarks, built through the scene pipeline.
+//! Box-shaped bodies for the benchmarks, built through the scene pipeline; a bare lattice
+//! cube for tests that cut neighbour lists by hand.
 
 use crate::geometry::organs::box_mesh;
 use crate::geometry::{ValidationOptions, validate};
 use crate::math::Vec3;
-use crate::model::{CoupledModel, SamplingParams, SpacingRule};
+use crate::model::{CoupledModel, Kernel, Neighbourhoods, SamplingParams, SpacingRule};
 use crate::progress::Silent;
 use crate::scene::Material;
 use crate::solver::{Solver, SolverConfig};
@@ -71,4 +72,77 @@ pub fn timoshenko_tip_deflection(load_n: f64, length: f64, side: f64, e: f64, nu
     let shear = e / (2.0 * (1.0 + nu));
     let kappa = 10.0 * (1.0 + nu) / (12.0 + 11.0 * nu);
     load_n * length.powi(3) / (3.0 * e * inertia) + load_n * length / (kappa * shear * area)
+}
+
+/// A cube of n × n × n points `spacing` apart from the origin, for tests that cut a
+/// lattice's neighbour lists by hand.
+pub struct LatticeCube {
+    /// The points, index (i·n + j)·n + k for lattice cell (i, j, k).
+    pub rest: Vec<Vec3>,
+    n: usize,
+}
+
+impl LatticeCube {
+    /// The cube of `n`³ points `spacing` apart.
+    pub fn new(n: usize, spacing: f64) -> Self {
+        let mut rest = Vec::with_capacity(n * n * n);
+        for i in 0..n {
+            for j in 0..n {
+                for k in 0..n {
+                    rest.push(Vec3::new(i as f64, j as f64, k as f64) * spacing);
+                }
+            }
+        }
+        Self { rest, n }
+    }
+
+    /// The index of point (i, j, k).
+    pub fn id(&self, i: usize, j: usize, k: usize) -> usize {
+        (i * self.n + j) * self.n + k
+    }
+
+    /// A solver for soft tissue (5 kPa, ν 0.45) on points at `rest` (the cube's, and any
+    /// after them), support two spacings, the default configuration.
+    pub fn soft_solver(
+        &self,
+        rest: &[Vec3],
+        volume: &[f64],
+        mass: &[f64],
+        neighbours: &Neighbourhoods,
+        spacing: f64,
+    ) -> Solver {
+        let kernel = Kernel {
+            support_m: 2.0 * spacing,
+        };
+        let config = SolverConfig::default();
+        Solver::new(
+            rest, volume, mass, neighbours, kernel, spacing, None, 5e3, 0.45, config,
+        )
+    }
+
+    /// The centre point's four neighbours in its layer (±x, ±y).
+    pub fn layer_around_centre(&self) -> [u32; 4] {
+        let c = self.n / 2;
+        [
+            self.id(c + 1, c, c),
+            self.id(c - 1, c, c),
+            self.id(c, c + 1, c),
+            self.id(c, c - 1, c),
+        ]
+        .map(|i| i as u32)
+    }
+}
+
+/// Cuts point `i` down to the neighbours in `keep` (its other pairs removed both ways, as
+/// a cut would); the points whose lists changed, `i` first.
+pub fn cut_down_to(neighbours: &mut Neighbourhoods, i: usize, keep: &[u32]) -> Vec<u32> {
+    let mut changed = vec![i as u32];
+    for j in neighbours.of(i).to_vec() {
+        if !keep.contains(&j) {
+            neighbours.remove(i, j);
+            neighbours.remove(j as usize, i as u32);
+            changed.push(j);
+        }
+    }
+    changed
 }

@@ -10,7 +10,7 @@ mod stability;
 
 use serde::Serialize;
 
-pub use bodies::{BoxBody, box_body, timoshenko_tip_deflection};
+pub use bodies::{BoxBody, LatticeCube, box_body, cut_down_to, timoshenko_tip_deflection};
 pub use cases::*;
 pub use stability::*;
 
