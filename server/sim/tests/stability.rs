@@ -32,7 +32,7 @@ fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
     let s = 0.003;
     let cube = LatticeCube::new(7, s);
     let mut rest = cube.rest.clone();
-    let centre = cube.id(3, 3, 3);
+    let centre = cube.centre();
     // The centre a thirtieth of a spacing above its layer: whole, its fit does not mind.
     rest[centre].z += s / 30.0;
     let h = 2.0 * s;
@@ -40,7 +40,7 @@ fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
     let mut neighbours = Neighbourhoods::build(&rest, &grid, h, 8);
     let volume = vec![s * s * s; rest.len()];
     let mass: Vec<f64> = volume.iter().map(|v| v * 1060.0).collect();
-    let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours, s);
+    let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours);
     let uncut = solver.step(1e-3).substeps;
     // Cut down to its four neighbours in its layer, all just below it.
     let keep = cube.layer_around_centre();

@@ -520,6 +520,7 @@ fn build_wall_grids(
             let mut cells = Vec::with_capacity(lip.len() + n);
             let (mut i, mut k) = (0, 0);
             while i + 1 < lip.len() || k + 1 < n {
+                // (u32::MAX where that polyline has ended: the step is then never taken.)
                 let lip_step = [
                     lip[i].1,
                     grid[k][1],
@@ -558,12 +559,16 @@ fn build_wall_grids(
                             .min(shape([lip[i + 1].1, grid[k][1], grid[k + 1][1]], out));
                         let column_first = shape(column_step, out)
                             .min(shape([lip[i].1, grid[k + 1][1], lip[i + 1].1], out));
-                        let (kept, other) = if in_turn {
+                        let (in_order, out_of_order) = if in_turn {
                             (lip_first, column_first)
                         } else {
                             (column_first, lip_first)
                         };
-                        in_turn != (kept < WALL_MIN_ANGLE_DEG && other > kept)
+                        if in_order < WALL_MIN_ANGLE_DEG && out_of_order > in_order {
+                            !in_turn
+                        } else {
+                            in_turn
+                        }
                     } else {
                         in_turn
                     }

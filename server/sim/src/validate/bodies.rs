@@ -80,6 +80,7 @@ pub struct LatticeCube {
     /// The points, index (i·n + j)·n + k for lattice cell (i, j, k).
     pub rest: Vec<Vec3>,
     n: usize,
+    spacing: f64,
 }
 
 impl LatticeCube {
@@ -93,7 +94,13 @@ impl LatticeCube {
                 }
             }
         }
-        Self { rest, n }
+        Self { rest, n, spacing }
+    }
+
+    /// The index of the middle point, (n/2, n/2, n/2).
+    pub fn centre(&self) -> usize {
+        let c = self.n / 2;
+        self.id(c, c, c)
     }
 
     /// The index of point (i, j, k).
@@ -101,16 +108,16 @@ impl LatticeCube {
         (i * self.n + j) * self.n + k
     }
 
-    /// A solver for soft tissue (5 kPa, ν 0.45) on points at `rest` (the cube's, and any
-    /// after them), support two spacings, the default configuration.
+    /// A solver for soft tissue (5 kPa, ν 0.45) on points at `rest` (the cube's, moved or
+    /// with nodes after them), support two spacings, the default configuration.
     pub fn soft_solver(
         &self,
         rest: &[Vec3],
         volume: &[f64],
         mass: &[f64],
         neighbours: &Neighbourhoods,
-        spacing: f64,
     ) -> Solver {
+        let spacing = self.spacing;
         let kernel = Kernel {
             support_m: 2.0 * spacing,
         };
