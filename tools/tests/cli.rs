@@ -478,8 +478,7 @@ fn cut_refuses_scenes_that_do_not_cut_and_bad_scripts() {
 
 /// `scalpel bench session`: strokes one after the other on the liver, each reported, the
 /// solver calm throughout (a session of several wounds once made it diverge), the surface
-/// sound at the end. `scalpel cut --strokes` plays the same session; a script file and a
-/// session together are refused.
+/// sound at the end. `scalpel cut` refuses a script file and a session together.
 #[test]
 fn a_session_of_strokes_stays_calm_and_sound() {
     let r = ok_json(&["bench", "session", "liver", "--strokes", "3", "--json"]);

@@ -615,9 +615,6 @@ fn roomiest_top_near(surface: &TriMesh, x: &Vec3, axis: &Vec3, wanted: f64) -> O
     best
 }
 
-/// How far (up to `wanted`) either way along `axis` from `centre` the top goes on without a
-/// gap or a step (checked every millimetre: a step of more than 2 mm per millimetre is the
-/// edge of a fold, not the slope of the top).
 /// How deep a stroke through `centre` (seen from above) may cut, `wanted` at most: a third
 /// of the shape's height there, and no more than half the tissue under the top (down to the
 /// next surface: a sheet can fold back under itself). `None` if there is no tissue there.
@@ -629,6 +626,9 @@ fn stroke_depth(surface: &TriMesh, centre: &Vec3, wanted: f64) -> Option<f64> {
     Some(wanted.min(0.3 * (top - bottom)).min(0.5 * (top - below)))
 }
 
+/// How far (up to `wanted`) either way along `axis` from `centre` the top goes on without a
+/// gap or a step (checked every millimetre: a step of more than 2 mm per millimetre is the
+/// edge of a fold, not the slope of the top).
 fn smooth_top_room(surface: &TriMesh, centre: &Vec3, axis: &Vec3, wanted: f64) -> f64 {
     const STEP_M: f64 = 0.001;
     let top = |s: f64| {

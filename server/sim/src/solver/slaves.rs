@@ -11,9 +11,9 @@
 //! `x_s = X_s + Σ_k φ_k (x_k − X_k)`, with the linear-precision MLS shape functions φ at its
 //! rest position (exact for any affine motion, rotations included; the kernel-weighted mean
 //! where those extrapolate, see [`shape_functions`]), and the force the fits put on it is
-//! handed back to the masters as `f_k += φ_k f_s` — the transpose of the interpolation. The elastic energy is then a
-//! function of the masters alone and those are its exact gradient: the constraint does no
-//! work, and the step's stability is the body's.
+//! handed back to the masters as `f_k += φ_k f_s` — the transpose of the interpolation.
+//! The elastic energy is then a function of the masters alone and those are its exact
+//! gradient: the constraint does no work, and the step's stability is the body's.
 
 use crate::math::Vec3;
 use crate::model::Kernel;
