@@ -236,6 +236,9 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
 /// at the end.
 pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
     let mut sim = Simulation::new(scene);
+    // As the station does before its threads start (the masses it plans depend on the
+    // material then, before any stiffness fault).
+    sim.prepare(crate::station::SIM_TICK_S);
     for r in &journal.ticks {
         if let Some(k) = r.stiffness {
             sim.set_stiffness_factor(k);

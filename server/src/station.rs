@@ -436,7 +436,10 @@ pub fn run(
     };
 
     // Built before the threads start: everything the loops use is allocated up front.
-    let sim = Simulation::new(scene);
+    let mut sim = Simulation::new(scene);
+    // The stable step and the mass scaling to whole sub-steps: power iterations, here and
+    // not in the first real-time tick.
+    sim.prepare(SIM_TICK_S);
     let t0 = realtime::monotonic_s();
     let journal_dropped = Arc::new(AtomicU64::new(0));
     let sim_done = Arc::new(AtomicBool::new(false));

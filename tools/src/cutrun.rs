@@ -8,6 +8,7 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Simulation, Stage, StageObserver};
 use scalpel_sim::scene::BuiltScene;
+use scalpel_sim::solver::WholeStepMass;
 use serde::Serialize;
 
 /// Time per tick (s): the haptic rate.
@@ -87,6 +88,7 @@ pub fn run_cut(
     mut tick: impl FnMut(usize, usize),
 ) -> CutRun {
     let mut sim = Simulation::new(scene);
+    sim.prepare(TICK_S);
     let ticks = (script.duration_s() / TICK_S).ceil() as usize + 1;
     let mut rows = Vec::with_capacity(ticks);
     let mut travel = 0.0;
@@ -220,6 +222,10 @@ pub struct CutMetrics {
     pub diverged_ticks: usize,
     /// Ticks the solver's guard rolled back (and retried with more sub-steps).
     pub rollback_ticks: usize,
+    /// Most explicit sub-steps in one tick.
+    pub substeps_max: u32,
+    /// The mass floor the uncut body was given for whole sub-steps, if any.
+    pub whole_step_mass: Option<WholeStepMass>,
 }
 
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
@@ -320,5 +326,7 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         triangles_after: drawn.triangles.len(),
         diverged_ticks: run.rows.iter().filter(|r| r.diverged).count(),
         rollback_ticks: run.rows.iter().filter(|r| r.rollbacks > 0).count(),
+        substeps_max: run.rows.iter().map(|r| r.substeps).max().unwrap_or(0),
+        whole_step_mass: sim.solver().whole_step_mass(),
     }
 }

@@ -6,6 +6,7 @@ use std::time::Instant;
 use scalpel_sim::model::SpacingRule;
 use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
 use scalpel_sim::scene::{self, BuiltScene, SceneSpec};
+use scalpel_sim::solver::WholeStepMass;
 use serde::Serialize;
 
 use crate::cut_cmd;
@@ -43,6 +44,9 @@ struct Table1Row {
     min_angle_deg: Option<f64>,
     closed: bool,
     manifold: bool,
+    substeps_max: u32,
+    /// The mass floor that saved a sub-step per tick, if any.
+    whole_step_mass: Option<WholeStepMass>,
 }
 
 fn build(spec: &SceneSpec) -> anyhow::Result<BuiltScene> {
@@ -82,6 +86,8 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
             min_angle_deg: m.min_angle_deg,
             closed: m.closed,
             manifold: m.manifold,
+            substeps_max: m.substeps_max,
+            whole_step_mass: m.whole_step_mass,
         });
     }
     if json {
@@ -136,6 +142,17 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
             r.closed,
             r.manifold
         );
+        let floor = r.whole_step_mass.map_or(String::new(), |w| {
+            format!(
+                " (from {}: a mass floor of {:.2} cell on {} points, +{:.2} g = {:.2} % of the body)",
+                w.substeps_before,
+                w.floor_of_cell,
+                w.points,
+                w.added_kg * 1e3,
+                w.fraction * 100.0
+            )
+        });
+        println!("    ≤ {} sub-steps per tick{floor}", r.substeps_max);
     }
     Ok(())
 }
@@ -242,6 +259,7 @@ pub fn idle(ticks: usize, json: bool) -> anyhow::Result<()> {
         spec.name = format!("liver, cutting {}", if cutting { "on" } else { "off" });
         let scene = build(&spec)?;
         let mut sim = Simulation::new(&scene);
+        sim.prepare(TICK_S);
         let mut times = Vec::with_capacity(ticks);
         let mut integrated = 0;
         for _ in 0..ticks {

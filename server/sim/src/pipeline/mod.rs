@@ -156,6 +156,13 @@ impl Simulation {
         }
     }
 
+    /// Plans ticks of `dt` before the first (see [`Solver::prepare`]): the power iterations
+    /// that find the stable step and scale the uncut body's masses to whole sub-steps run
+    /// here and not in the first tick.
+    pub fn prepare(&mut self, dt: f64) {
+        self.solver.prepare(dt);
+    }
+
     /// Scales the tissue's stiffness to `factor` times the scene's (an instructor's fault):
     /// the solver's Young's modulus (its stable step is re-derived) and the force model's
     /// loading curve and friction. Re-derives constants: call it on a change, not per tick.

@@ -48,6 +48,18 @@ pub enum SolverEvent {
         /// Sub-steps per tick.
         substeps: u32,
     },
+    /// The uncut body was given a little mass so that ticks take fewer sub-steps (see
+    /// `Solver::whole_step_mass`).
+    MassScaled {
+        /// Tick number.
+        tick: u64,
+        /// Points given mass.
+        points: u32,
+        /// Mass added (kg).
+        added_kg: f64,
+        /// Sub-steps per tick with it.
+        substeps: u32,
+    },
     /// Some points left det F ∈ [0.2, 5]; their stress was evaluated with clamped singular
     /// values.
     ExtremeDeformation {

@@ -98,12 +98,17 @@ impl Solver {
 
     /// Sets the sub-step count for ticks of `dt`, from dt_crit (computed when missing) or the
     /// override. Kept across ticks, so rollbacks' halvings persist (until calm returns).
-    fn plan_substeps(&mut self, dt: f64) {
+    pub(super) fn plan_substeps(&mut self, dt: f64) {
         if self.dt_crit.is_some() && self.substeps_for_dt == dt {
             return;
         }
         let fresh = self.dt_crit.is_none();
-        let dt_crit = self.dt_crit();
+        let mut dt_crit = self.dt_crit();
+        if !std::mem::replace(&mut self.whole_steps_tried, true) {
+            dt_crit = self.scale_mass_to_whole_substeps(dt, dt_crit);
+            // The fits' ω² and their cap with the masses now.
+            self.set_omega_sq_cap();
+        }
         let h = self
             .config
             .dt_override_s

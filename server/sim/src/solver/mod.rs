@@ -23,11 +23,13 @@ mod projective;
 mod slaves;
 mod statics;
 mod timestep;
+mod whole_substeps;
 
 use serde::Serialize;
 
 pub use events::{DivergenceReason, EventQueue, SolverEvent, StepReport};
 pub use statics::StaticReport;
+pub use whole_substeps::WholeStepMass;
 
 use crate::math::{Mat3, Vec3};
 use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, Threads, add_elastic_forces};
@@ -80,6 +82,9 @@ pub struct SolverConfig {
     pub max_rollbacks: u32,
     /// Power iterations for ω_max.
     pub power_iterations: u32,
+    /// Mass the uncut body may be given (a fraction of its own) so that ticks take a whole
+    /// sub-step fewer (see `whole_substeps`); 0 for none.
+    pub mass_scaling_budget: f64,
     /// Local/global iterations per projective step.
     pub projective_iterations: u32,
     /// Relative residual at which a static solve stops.
@@ -109,6 +114,7 @@ impl Default for SolverConfig {
             dt_override_s: None,
             max_rollbacks: 5,
             power_iterations: 30,
+            mass_scaling_budget: 0.01,
             projective_iterations: 10,
             static_tolerance: 1e-9,
             threads: 1,
@@ -167,6 +173,10 @@ pub struct Solver {
     fit_omega_sq: Vec<f64>,
     /// The largest fit ω² a cut may leave before mass is added (set with the first dt_crit).
     omega_sq_cap: Option<f64>,
+    /// Whether the uncut body's masses were (or can no longer be) scaled to whole sub-steps.
+    whole_steps_tried: bool,
+    /// What that scaling added.
+    whole_step_mass: Option<WholeStepMass>,
     /// Per point: the ω² a fit over the cap asks of it through the slaved nodes it masters
     /// (a slaved node's forces are handed back to its masters), 0 for none; the points
     /// with one listed in `through_slaves_list`.
@@ -362,6 +372,8 @@ impl Solver {
             base_mass: mass.to_vec(),
             fit_omega_sq: Vec::new(),
             omega_sq_cap: None,
+            whole_steps_tried: false,
+            whole_step_mass: None,
             through_slaves: vec![0.0; n],
             through_slaves_list: Vec::with_capacity(n),
             p: rest.to_vec(),
@@ -406,6 +418,16 @@ impl Solver {
         };
         solver.precond = statics::diagonal_stiffness(&solver.op, &solver.params, &solver.volume);
         solver
+    }
+
+    /// Plans ticks of `dt` now — the stable step, and on the uncut body the mass scaling to
+    /// whole sub-steps (`whole_substeps`) — so that the first tick does not pay for their
+    /// power iterations (tens of milliseconds each at organ scale). Optional: the first
+    /// explicit tick plans otherwise.
+    pub fn prepare(&mut self, dt: f64) {
+        if self.config.mode == SolverMode::Explicit {
+            self.plan_substeps(dt);
+        }
     }
 
     /// Advances one tick of `dt` seconds. Never fails: trouble is reported in the returned
@@ -683,6 +705,8 @@ impl Solver {
     /// master also in the fit itself has its two terms counted apart. (Mass for every
     /// master by the fit's ω² added 19.3 g to the liver's session; this way, 8.1 g.)
     pub fn topology_changed(&mut self, points: &[u32], neighbours: &Neighbourhoods) {
+        // Whole sub-steps are planned for the uncut body only.
+        self.whole_steps_tried = true;
         self.op
             .update_points(points, &self.rest, neighbours, &self.kernel);
         if let Some(cap) = self.omega_sq_cap {
@@ -818,6 +842,16 @@ impl Solver {
             return dt;
         }
         let (dt, omega_sq) = timestep::critical_time_step(self);
+        self.set_dt_crit(dt, omega_sq);
+        if self.omega_sq_cap.is_none() {
+            self.set_omega_sq_cap();
+        }
+        dt
+    }
+
+    /// Keeps a power iteration's dt_crit, and the ratio that turns the diagonal bound into
+    /// a ω² estimate.
+    fn set_dt_crit(&mut self, dt: f64, omega_sq: f64) {
         self.dt_crit = Some(dt);
         // Fixed points are not integrated: they do not limit the step.
         let diagonal = (0..self.p.len())
@@ -827,15 +861,21 @@ impl Solver {
         if omega_sq > 0.0 && diagonal > 0.0 {
             self.omega_calibration = Some(omega_sq / diagonal);
         }
-        if self.omega_sq_cap.is_none() {
-            self.fit_omega_sq.resize(self.p.len(), 0.0);
-            for i in 0..self.p.len() {
-                self.fit_omega_sq[i] = self.fit_omega_sq_of(i).0;
-            }
-            let uncut = self.fit_omega_sq.iter().copied().fold(0.0, f64::max);
-            self.omega_sq_cap = (uncut > 0.0).then_some(OMEGA_SQ_CAP_OVER_UNCUT * uncut);
+    }
+
+    /// Every fit's ω² with the built masses, and the cap a cut may leave them at.
+    fn set_omega_sq_cap(&mut self) {
+        self.fit_omega_sq.resize(self.p.len(), 0.0);
+        for i in 0..self.p.len() {
+            self.fit_omega_sq[i] = self.fit_omega_sq_of(i).0;
         }
-        dt
+        let uncut = self.fit_omega_sq.iter().copied().fold(0.0, f64::max);
+        self.omega_sq_cap = (uncut > 0.0).then_some(OMEGA_SQ_CAP_OVER_UNCUT * uncut);
+    }
+
+    /// The mass given to the uncut body for whole sub-steps (see `whole_substeps`), if any.
+    pub fn whole_step_mass(&self) -> Option<WholeStepMass> {
+        self.whole_step_mass
     }
 
     /// The ω² point i's fit gives the points in it: `V_i M Σ_k |d_ik|² / m_k` over the fit's
@@ -1012,6 +1052,8 @@ mod tests {
         let light = cube.id(4, 4, 3);
         mass[light] /= 10.0;
         let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours);
+        // The light point stays light: this is about the masses a cut asks for.
+        solver.config.mass_scaling_budget = 0.0;
         solver.fixed[node] = [true; 3];
         solver.material_points = body;
         solver.slaves = Slaves::new(body, 1);
@@ -1069,5 +1111,81 @@ mod tests {
         assert!(now <= cap * (1.0 + 1e-9), "{:.2}× the cap", now / cap);
         assert_eq!(rolled, 0, "rolled back");
         assert!(f64::from(most) <= (f64::from(uncut) * 2f64.sqrt()).ceil());
+    }
+
+    /// Mass scaling to whole sub-steps: a cube whose eight corners hold a tenth of a cell's
+    /// volume (the slivers an organ's surface clips) has its step set by them. Ticks just
+    /// over two sub-steps' worth take three; the mass floor on the corners takes them to
+    /// two, within the budget, with every other mass, and the stiffness, untouched — and a
+    /// pushed body rings down at two with no rollback. A budget too small changes nothing.
+    #[test]
+    fn a_mass_floor_on_clipped_corners_saves_a_sub_step_within_the_budget() {
+        let s = 0.003;
+        let n = 6;
+        let cube = LatticeCube::new(n, s);
+        let rest = cube.rest.clone();
+        let h = 2.0 * s;
+        let neighbours = Neighbourhoods::build(&rest, &RestGrid::build(&rest, h), h, 0);
+        let last = n - 1;
+        let corners: Vec<usize> = (0..8)
+            .map(|c| cube.id(last * (c & 1), last * ((c >> 1) & 1), last * (c >> 2)))
+            .collect();
+        let mut volume = vec![s * s * s; rest.len()];
+        corners.iter().for_each(|&c| volume[c] *= 0.1);
+        let mass: Vec<f64> = volume.iter().map(|v| v * 1060.0).collect();
+        let solver_with = |budget: f64| {
+            let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours);
+            solver.config.mass_scaling_budget = budget;
+            solver
+        };
+        let mut plain = solver_with(0.0);
+        // A tick 1.1 × two sub-steps' worth.
+        let dt = 2.0 * plain.config.safety * plain.dt_crit() * 1.1;
+        plain.prepare(dt);
+        assert_eq!(plain.substeps(), 3);
+        let mut scaled = solver_with(0.01);
+        scaled.prepare(dt);
+        let w = scaled.whole_step_mass().expect("scaled");
+        println!(
+            "dt_crit {:.3} → {:.3} ms: floor {:.3} cell, {} points, {:.3} % of the body",
+            plain.dt_crit() * 1e3,
+            scaled.dt_crit() * 1e3,
+            w.floor_of_cell,
+            w.points,
+            w.fraction * 100.0
+        );
+        assert_eq!((w.substeps_before, w.substeps_after), (3, 2));
+        assert_eq!(scaled.substeps(), 2);
+        assert!(w.fraction <= 0.01 && w.points == 8, "{w:?}");
+        assert!(scaled.dt_crit() >= 1.02 * dt / (2.0 * scaled.config.safety));
+        for i in 0..rest.len() {
+            if corners.contains(&i) {
+                assert!(scaled.masses()[i] > mass[i]);
+            } else {
+                assert_eq!(scaled.masses()[i], mass[i], "point {i}");
+            }
+        }
+        // Same stiffness: the same forces at a deformed state, bit for bit.
+        let bent: Vec<Vec3> = (rest.iter())
+            .map(|x| x + Vec3::new(0.02 * x.z, 0.0, -0.03 * x.x))
+            .collect();
+        plain.set_positions(&bent);
+        scaled.set_positions(&bent);
+        assert_eq!(plain.elastic_forces().0, scaled.elastic_forces().0);
+        scaled.set_positions(&rest);
+        scaled.set_external_force(cube.centre(), Vec3::new(0.0, 0.0, -1e-3));
+        for tick in 0..200 {
+            if tick == 20 {
+                scaled.clear_external_forces();
+            }
+            let report = scaled.step(dt);
+            assert_eq!((report.rollbacks, report.substeps), (0, 2), "tick {tick}");
+        }
+        // A budget under what the corners need: nothing changes.
+        let mut tight = solver_with(1e-5);
+        tight.prepare(dt);
+        assert!(tight.whole_step_mass().is_none());
+        assert_eq!(tight.substeps(), 3);
+        assert_eq!(tight.masses(), &mass[..]);
     }
 }
