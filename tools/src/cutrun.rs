@@ -228,6 +228,24 @@ pub struct CutMetrics {
     pub whole_step_mass: Option<WholeStepMass>,
 }
 
+/// The sub-steps per tick and, when the uncut body was given a mass floor for them, how
+/// (one line's worth, for the reports).
+pub fn describe_substeps(most: u32, floor: Option<&WholeStepMass>) -> String {
+    let per_tick = format!("≤ {most} sub-step(s) per tick");
+    match floor {
+        Some(w) => format!(
+            "{per_tick} (planned {} → {} by a mass floor of {:.2} of a lattice cell on {} points: +{:.2} g, {:.2} % of the body)",
+            w.substeps_before,
+            w.substeps_after,
+            w.floor_of_cell,
+            w.points,
+            w.added_kg * 1e3,
+            w.fraction * 100.0
+        ),
+        None => per_tick,
+    }
+}
+
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
 pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetrics {
     let cut_rows: Vec<&TickRow> = run.rows.iter().filter(|r| r.in_tissue).collect();

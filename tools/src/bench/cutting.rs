@@ -142,17 +142,10 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
             r.closed,
             r.manifold
         );
-        let floor = r.whole_step_mass.map_or(String::new(), |w| {
-            format!(
-                " (from {}: a mass floor of {:.2} cell on {} points, +{:.2} g = {:.2} % of the body)",
-                w.substeps_before,
-                w.floor_of_cell,
-                w.points,
-                w.added_kg * 1e3,
-                w.fraction * 100.0
-            )
-        });
-        println!("    ≤ {} sub-steps per tick{floor}", r.substeps_max);
+        println!(
+            "    {}",
+            cutrun::describe_substeps(r.substeps_max, r.whole_step_mass.as_ref())
+        );
     }
     Ok(())
 }

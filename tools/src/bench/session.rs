@@ -2,6 +2,7 @@
 //! stroke — what a trainee's half hour does to the cost of a cut step, to the solver and to
 //! the surface (a run of several wounds once made the solver diverge, docs/CUTTING.md).
 
+use scalpel_sim::solver::WholeStepMass;
 use serde::Serialize;
 
 use crate::TargetArgs;
@@ -42,6 +43,10 @@ struct SessionReport {
     mass_added_points: usize,
     mass_added_g: f64,
     mass_added_share: f64,
+    /// Most sub-steps in one tick.
+    substeps_max: u32,
+    /// The mass floor the uncut body was given for whole sub-steps, if any.
+    whole_step_mass: Option<WholeStepMass>,
     incisions: usize,
     incisions_refused: usize,
     min_angle_deg: Option<f64>,
@@ -89,6 +94,8 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
         mass_added_points,
         mass_added_g: added_kg * 1e3,
         mass_added_share: added_kg / body_kg.max(1e-300),
+        substeps_max: m.substeps_max,
+        whole_step_mass: m.whole_step_mass,
         incisions: m.incisions,
         incisions_refused: m.incisions_refused,
         min_angle_deg: m.min_angle_deg,
@@ -174,6 +181,10 @@ fn print_report(r: &SessionReport) {
     println!(
         "all cut steps: {:.3} ms median, {:.3} ms p99, {:.2} ms max; last third / first third of the strokes (medians): {:.2}×",
         r.total_ms.p50, r.total_ms.p99, r.total_ms.max, r.late_over_early
+    );
+    println!(
+        "time step: {}",
+        cutrun::describe_substeps(r.substeps_max, r.whole_step_mass.as_ref())
     );
     println!(
         "mass added to {} point(s) whose fits cuts left degenerate: {:.2} g, {:.2} % of the body",
