@@ -1157,7 +1157,7 @@ mod tests {
         assert_eq!((w.substeps_before, w.substeps_after), (3, 2));
         assert_eq!(scaled.substeps(), 2);
         assert!(w.fraction <= 0.01 && w.points == 8, "{w:?}");
-        assert!(scaled.dt_crit() >= 1.02 * dt / (2.0 * scaled.config.safety));
+        assert!(scaled.dt_crit() >= whole_substeps::HEADROOM * dt / (2.0 * scaled.config.safety));
         for i in 0..rest.len() {
             if corners.contains(&i) {
                 assert!(scaled.masses()[i] > mass[i]);

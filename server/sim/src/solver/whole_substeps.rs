@@ -10,7 +10,7 @@
 //! those. The smallest f that raises dt_crit far enough is searched by bisection (a power
 //! iteration per try), and only within `SolverConfig::mass_scaling_budget` of the body's
 //! mass; otherwise nothing changes. It is done once, on the uncut body, before its first
-//! tick (`Solver::prepare`). Stiffness, and so every equilibrium, is untouched; the inertia
+//! tick (`Solver::prepare`, else in that tick). Stiffness, and so every equilibrium, is untouched; the inertia
 //! of a surface layer grows by the reported mass.
 //!
 //! A floor, not the least mass per point by its own ω² estimate (c·D_i/m_i, tried): that
@@ -24,10 +24,10 @@ use super::{Solver, SolverEvent, timestep};
 
 /// dt_crit must clear the bound for n − 1 sub-steps by this much, so that the local step
 /// updates of a cut's first re-meshes do not take the sub-step straight back.
-const HEADROOM: f64 = 1.02;
+pub(super) const HEADROOM: f64 = 1.02;
 
-/// Bisection steps on the floor after the budget's floor passed: the floor found is within
-/// 2⁻³ of that one above the least that would do.
+/// Bisection steps on the floor once the highest floor the budget allows has passed: the
+/// floor kept is at most an eighth of that one above the least that would do.
 const BISECTIONS: usize = 3;
 
 /// What the scaling did, for reports.
