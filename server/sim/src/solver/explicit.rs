@@ -106,8 +106,6 @@ impl Solver {
         let mut dt_crit = self.dt_crit();
         if !std::mem::replace(&mut self.whole_steps_tried, true) {
             dt_crit = self.scale_mass_to_whole_substeps(dt, dt_crit);
-            // The fits' ω² and their cap with the masses now.
-            self.set_omega_sq_cap();
         }
         let h = self
             .config

@@ -115,6 +115,8 @@ impl Solver {
             self.mass[i] = built[i].max(passing * cell_kg);
         }
         self.base_mass.copy_from_slice(&self.mass);
+        // The fits' ω² and the cap a cut may leave them at, from the masses now.
+        self.set_omega_sq_cap();
         let (points, added_kg) = (body.iter())
             .filter(|&&i| self.mass[i] > built[i])
             .fold((0, 0.0), |(n, kg), &i| {
