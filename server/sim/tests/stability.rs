@@ -20,14 +20,13 @@ fn stability_matrix() {
 }
 
 /// A cut that leaves a point's fit nearly degenerate (here its four neighbours in a plane a
-/// thirtieth of a spacing below it: cond(A) in the hundreds, under the rank test's 10⁴) makes that fit's points many times
-/// stiffer than the body; on the old code the step shrank with them (over a session on the
+/// thirtieth of a spacing below it: cond(A) in the hundreds, under the rank test's 10⁴)
+/// makes that fit's points many times stiffer than the body; on the old code the step shrank with them (over a session on the
 /// shoulder, 6 → 448 sub-steps per tick). Now those points get mass instead: the tick's
 /// sub-steps stay within √2 of the uncut body's, and the fit's points are the ones that
 /// got it.
 #[test]
 fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
-    use scalpel_sim::model::{Neighbourhoods, RestGrid};
     use scalpel_sim::validate::{LatticeCube, cut_down_to};
     let s = 0.003;
     let cube = LatticeCube::new(7, s);
@@ -35,9 +34,7 @@ fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
     let centre = cube.centre();
     // The centre a thirtieth of a spacing above its layer: whole, its fit does not mind.
     rest[centre].z += s / 30.0;
-    let h = 2.0 * s;
-    let grid = RestGrid::build(&rest, h);
-    let mut neighbours = Neighbourhoods::build(&rest, &grid, h, 8);
+    let mut neighbours = cube.neighbours(&rest, 8);
     let volume = vec![s * s * s; rest.len()];
     let mass: Vec<f64> = volume.iter().map(|v| v * 1060.0).collect();
     let mut solver = cube.soft_solver(&rest, &volume, &mass, &neighbours);

@@ -57,7 +57,7 @@ use super::fan::plan_fan;
 use super::smooth::smooth_to_quality;
 use super::wound::{
     Assembly, EdgeSplits, WallColumn, Wound, build_walls_choosing_ends, carry_wounds,
-    even_out_bottoms, first_hit, limit_slope,
+    even_out_bottoms, held_short, limit_slope,
 };
 
 /// What a surface triangle is.
@@ -1621,16 +1621,8 @@ pub fn incise(
     let delta = window.max(0.5 * spacing);
     let max_lean = MAX_WALL_LEAN_DEG.to_radians();
     // A thin part: a wall stops short of the far side of the organ.
-    let held_short = |col: &mut WallColumn| {
-        if let Some(hit) = first_hit(
-            mesh,
-            &other_skin,
-            &col.top,
-            &col.inward,
-            col.depth + spacing,
-        ) {
-            col.depth = col.depth.min(0.7 * hit);
-        }
+    let hold_short = |col: &mut WallColumn| {
+        col.depth = held_short(mesh, &other_skin, &col.top, &col.inward, col.depth, spacing);
     };
     let mut columns = Vec::with_capacity(n_cols);
     for c in 0..n_cols {
@@ -1677,12 +1669,12 @@ pub fn incise(
             inward,
             depth: (depths[c] * shorten).max(min_depth),
         };
-        held_short(&mut column);
+        hold_short(&mut column);
         columns.push(column);
     }
     // A column turned toward a new bottom may now run toward the far side of a thin part.
     for c in even_out_bottoms(&mut columns) {
-        held_short(&mut columns[c]);
+        hold_short(&mut columns[c]);
     }
     let mut wound = Wound {
         upper: upper_chain,

@@ -644,6 +644,23 @@ fn build_wall_grids(
     (shared, differs)
 }
 
+/// A wall column's `depth` from `top` along `inward`, held short of a thin part's far
+/// side: at most 0.7 of the way to the first of `skin`'s triangles within one `spacing`
+/// past it (the incision's rule, a deeper pass's and a spread column's).
+pub(crate) fn held_short(
+    mesh: &TriMesh,
+    skin: &[usize],
+    top: &Vec3,
+    inward: &Vec3,
+    depth: f64,
+    spacing: f64,
+) -> f64 {
+    match first_hit(mesh, skin, top, inward, depth + spacing) {
+        Some(hit) => depth.min(0.7 * hit),
+        None => depth,
+    }
+}
+
 /// Distance along the ray from `origin` in unit direction `dir` to the first of
 /// `triangles` of `mesh` it hits within `reach`.
 pub(crate) fn first_hit(
@@ -821,11 +838,7 @@ pub fn deepen(
             }
             // A thin part: stop the wall short of the far side of the organ, as the
             // incision does.
-            let reach = depth + wound.spacing_m;
-            let depth = match first_hit(mesh, &skin, &col.top, &col.inward, reach) {
-                Some(hit) => depth.min(0.7 * hit),
-                None => depth,
-            };
+            let depth = held_short(mesh, &skin, &col.top, &col.inward, depth, wound.spacing_m);
             if depth > col.depth + 0.25 * wound.spacing_m {
                 col.depth = depth;
                 changed = true;
@@ -838,10 +851,14 @@ pub fn deepen(
             // along their new directions).
             for c in even_out_bottoms(&mut new.columns) {
                 let col = &mut new.columns[c];
-                let reach = col.depth + wound.spacing_m;
-                if let Some(hit) = first_hit(mesh, &skin, &col.top, &col.inward, reach) {
-                    col.depth = col.depth.min(0.7 * hit);
-                }
+                col.depth = held_short(
+                    mesh,
+                    &skin,
+                    &col.top,
+                    &col.inward,
+                    col.depth,
+                    wound.spacing_m,
+                );
             }
         }
         // A wound whose record no longer matches its walls (it cannot happen as the

@@ -1020,7 +1020,6 @@ fn kinetic_energy(mass: &[f64], v: &[Vec3], fixed: &[[bool; 3]]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::RestGrid;
     use crate::validate::{LatticeCube, cut_down_to};
 
     /// A slaved node hands its forces back to its masters, so it puts them into the fits
@@ -1040,9 +1039,8 @@ mod tests {
         let mut rest = cube.rest.clone();
         let centre = cube.centre();
         let h = 2.0 * s;
-        let grid = RestGrid::build(&rest, h);
         let body = rest.len();
-        let mut neighbours = Neighbourhoods::build(&rest, &grid, h, 40).with_spare_lists(1);
+        let mut neighbours = cube.neighbours(&rest, 40).with_spare_lists(1);
         let node = body;
         rest.push(rest[centre]);
         let mut volume = vec![s * s * s; body];
@@ -1124,8 +1122,7 @@ mod tests {
         let n = 6;
         let cube = LatticeCube::new(n, s);
         let rest = cube.rest.clone();
-        let h = 2.0 * s;
-        let neighbours = Neighbourhoods::build(&rest, &RestGrid::build(&rest, h), h, 0);
+        let neighbours = cube.neighbours(&rest, 0);
         let last = n - 1;
         let corners: Vec<usize> = (0..8)
             .map(|c| cube.id(last * (c & 1), last * ((c >> 1) & 1), last * (c >> 2)))

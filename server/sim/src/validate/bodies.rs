@@ -4,7 +4,7 @@
 use crate::geometry::organs::box_mesh;
 use crate::geometry::{ValidationOptions, validate};
 use crate::math::Vec3;
-use crate::model::{CoupledModel, Kernel, Neighbourhoods, SamplingParams, SpacingRule};
+use crate::model::{CoupledModel, Kernel, Neighbourhoods, RestGrid, SamplingParams, SpacingRule};
 use crate::progress::Silent;
 use crate::scene::Material;
 use crate::solver::{Solver, SolverConfig};
@@ -106,6 +106,13 @@ impl LatticeCube {
     /// The index of point (i, j, k).
     pub fn id(&self, i: usize, j: usize, k: usize) -> usize {
         (i * self.n + j) * self.n + k
+    }
+
+    /// The neighbour lists of points at `rest` (the cube's, perhaps moved) within the
+    /// solver's support of two spacings, with room for `headroom` more per point.
+    pub fn neighbours(&self, rest: &[Vec3], headroom: usize) -> Neighbourhoods {
+        let h = 2.0 * self.spacing;
+        Neighbourhoods::build(rest, &RestGrid::build(rest, h), h, headroom)
     }
 
     /// A solver for soft tissue (5 kPa, ν 0.45) on points at `rest` (the cube's, moved or
