@@ -191,7 +191,11 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
     let _ = writeln!(
         s,
         "  time step: {}",
-        cutrun::describe_substeps(m.substeps_max, m.whole_step_mass.as_ref())
+        cutrun::describe_substeps(
+            m.substeps_max,
+            m.whole_step_mass.as_ref(),
+            &m.substep_keeping_mass
+        )
     );
     if m.diverged_ticks > 0 || m.rollback_ticks > 0 {
         let _ = writeln!(

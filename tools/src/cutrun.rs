@@ -8,7 +8,7 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Simulation, Stage, StageObserver};
 use scalpel_sim::scene::BuiltScene;
-use scalpel_sim::solver::WholeStepMass;
+use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
 /// Time per tick (s): the haptic rate.
@@ -226,24 +226,39 @@ pub struct CutMetrics {
     pub substeps_max: u32,
     /// The mass floor the uncut body was given for whole sub-steps, if any.
     pub whole_step_mass: Option<WholeStepMass>,
+    /// Mass given to cut points to keep the planned sub-steps through the cuts.
+    pub substep_keeping_mass: SubstepKeepingMass,
 }
 
-/// The sub-steps per tick and, when the uncut body was given a mass floor for them, how
-/// (one line's worth, for the reports).
-pub fn describe_substeps(most: u32, floor: Option<&WholeStepMass>) -> String {
-    let per_tick = format!("≤ {most} sub-step(s) per tick");
-    match floor {
-        Some(w) => format!(
-            "{per_tick} (planned {} → {} by a mass floor of {:.2} of a lattice cell on {} points: +{:.2} g, {:.2} % of the body)",
+/// The sub-steps per tick and, when the uncut body was given a mass floor for them or cut
+/// points mass to keep them, how (one line's worth, for the reports).
+pub fn describe_substeps(
+    most: u32,
+    floor: Option<&WholeStepMass>,
+    kept: &SubstepKeepingMass,
+) -> String {
+    let mut line = format!("≤ {most} sub-step(s) per tick");
+    if let Some(w) = floor {
+        line += &format!(
+            " (planned {} → {} by a mass floor of {:.2} of a lattice cell on {} points: +{:.2} g, {:.2} % of the body)",
             w.substeps_before,
             w.substeps_after,
             w.floor_of_cell,
             w.points,
             w.added_kg * 1e3,
             w.fraction * 100.0
-        ),
-        None => per_tick,
+        );
     }
+    if kept.most_points > 0 {
+        line += &format!(
+            "; kept through the cuts by up to +{:.3} g on {} cut point(s) (+{:.3} g on {} at the end)",
+            kept.most_kg * 1e3,
+            kept.most_points,
+            kept.added_kg * 1e3,
+            kept.points
+        );
+    }
+    line
 }
 
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
@@ -346,5 +361,6 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         rollback_ticks: run.rows.iter().filter(|r| r.rollbacks > 0).count(),
         substeps_max: run.rows.iter().map(|r| r.substeps).max().unwrap_or(0),
         whole_step_mass: sim.solver().whole_step_mass(),
+        substep_keeping_mass: sim.solver().substep_keeping_mass(),
     }
 }

@@ -6,7 +6,7 @@ use std::time::Instant;
 use scalpel_sim::model::SpacingRule;
 use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
 use scalpel_sim::scene::{self, BuiltScene, SceneSpec};
-use scalpel_sim::solver::WholeStepMass;
+use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
 use crate::cut_cmd;
@@ -47,6 +47,8 @@ struct Table1Row {
     substeps_max: u32,
     /// The mass floor that saved a sub-step per tick, if any.
     whole_step_mass: Option<WholeStepMass>,
+    /// Mass given to cut points to keep the planned sub-steps through the cuts.
+    substep_keeping_mass: SubstepKeepingMass,
 }
 
 fn build(spec: &SceneSpec) -> anyhow::Result<BuiltScene> {
@@ -88,6 +90,7 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
             manifold: m.manifold,
             substeps_max: m.substeps_max,
             whole_step_mass: m.whole_step_mass,
+            substep_keeping_mass: m.substep_keeping_mass,
         });
     }
     if json {
@@ -144,7 +147,11 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
         );
         println!(
             "    {}",
-            cutrun::describe_substeps(r.substeps_max, r.whole_step_mass.as_ref())
+            cutrun::describe_substeps(
+                r.substeps_max,
+                r.whole_step_mass.as_ref(),
+                &r.substep_keeping_mass
+            )
         );
     }
     Ok(())

@@ -2,7 +2,7 @@
 //! stroke — what a trainee's half hour does to the cost of a cut step, to the solver and to
 //! the surface (a run of several wounds once made the solver diverge, docs/CUTTING.md).
 
-use scalpel_sim::solver::WholeStepMass;
+use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
 use crate::TargetArgs;
@@ -38,8 +38,9 @@ struct SessionReport {
     late_over_early: f64,
     rollback_ticks: usize,
     diverged_ticks: usize,
-    /// Points the solver gave mass after cuts left their fits degenerate, and how much
-    /// (selective mass scaling: `Solver::topology_changed`), as a share of the body's.
+    /// Points the solver gave mass after cuts, and how much, as a share of the body's:
+    /// where cuts left fits degenerate (selective mass scaling: `Solver::topology_changed`)
+    /// and to keep the planned sub-steps (`substep_keeping_mass`).
     mass_added_points: usize,
     mass_added_g: f64,
     mass_added_share: f64,
@@ -47,6 +48,8 @@ struct SessionReport {
     substeps_max: u32,
     /// The mass floor the uncut body was given for whole sub-steps, if any.
     whole_step_mass: Option<WholeStepMass>,
+    /// Mass given to cut points to keep the planned sub-steps through the cuts.
+    substep_keeping_mass: SubstepKeepingMass,
     incisions: usize,
     incisions_refused: usize,
     min_angle_deg: Option<f64>,
@@ -96,6 +99,7 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
         mass_added_share: added_kg / body_kg.max(1e-300),
         substeps_max: m.substeps_max,
         whole_step_mass: m.whole_step_mass,
+        substep_keeping_mass: m.substep_keeping_mass,
         incisions: m.incisions,
         incisions_refused: m.incisions_refused,
         min_angle_deg: m.min_angle_deg,
@@ -184,10 +188,14 @@ fn print_report(r: &SessionReport) {
     );
     println!(
         "time step: {}",
-        cutrun::describe_substeps(r.substeps_max, r.whole_step_mass.as_ref())
+        cutrun::describe_substeps(
+            r.substeps_max,
+            r.whole_step_mass.as_ref(),
+            &r.substep_keeping_mass
+        )
     );
     println!(
-        "mass added to {} point(s) whose fits cuts left degenerate: {:.2} g, {:.2} % of the body",
+        "mass added to {} point(s) after cuts (fits left degenerate, sub-steps kept): {:.2} g, {:.2} % of the body",
         r.mass_added_points,
         r.mass_added_g,
         100.0 * r.mass_added_share

@@ -113,6 +113,7 @@ impl Solver {
             .unwrap_or(self.config.safety * dt_crit);
         self.substeps = ((dt / h).ceil() as u32).clamp(1, MAX_SUBSTEPS);
         self.planned_substeps = self.substeps;
+        self.keep_planned_substeps(dt, self.substeps);
         self.substeps_for_dt = dt;
         if fresh {
             self.events.push(SolverEvent::TimeStep {

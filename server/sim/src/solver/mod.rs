@@ -19,6 +19,7 @@
 
 pub mod events;
 mod explicit;
+mod kept_substeps;
 mod projective;
 mod slaves;
 mod statics;
@@ -28,6 +29,7 @@ mod whole_substeps;
 use serde::Serialize;
 
 pub use events::{DivergenceReason, EventQueue, SolverEvent, StepReport};
+pub use kept_substeps::SubstepKeepingMass;
 pub use statics::StaticReport;
 pub use whole_substeps::WholeStepMass;
 
@@ -177,6 +179,8 @@ pub struct Solver {
     whole_steps_tried: bool,
     /// What that scaling added.
     whole_step_mass: Option<WholeStepMass>,
+    /// Mass given to cut points to keep the planned sub-steps (`kept_substeps`).
+    kept: kept_substeps::KeptSubsteps,
     /// Per point: the ω² a fit over the cap asks of it through the slaved nodes it masters
     /// (a slaved node's forces are handed back to its masters), 0 for none; the points
     /// with one listed in `through_slaves_list`.
@@ -374,6 +378,7 @@ impl Solver {
             omega_sq_cap: None,
             whole_steps_tried: false,
             whole_step_mass: None,
+            kept: Default::default(),
             through_slaves: vec![0.0; n],
             through_slaves_list: Vec::with_capacity(n),
             p: rest.to_vec(),
@@ -745,7 +750,9 @@ impl Solver {
                     let worst = (self.op.neighbours(a).iter())
                         .map(|&i| self.fit_omega_sq[i as usize])
                         .fold(own, f64::max);
-                    self.mass[a] = self.base_mass[a] * (worst / cap).max(1.0);
+                    let mass = self.base_mass[a] * (worst / cap).max(1.0);
+                    self.mass[a] =
+                        (self.kept).mass_for(a, mass, self.precond[a], self.omega_calibration);
                 }
                 local = local.max(self.precond[a] / self.mass[a]);
             }
