@@ -211,3 +211,20 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     // The work stays in the affected region.
     assert!(max_active < scene.model.points.len() / 2, "{max_active}");
 }
+
+/// `[solver] mass_scaling_percent = 0` in a scene reaches the simulation: the liver keeps
+/// its masses as built, and its ticks the two sub-steps its dt_crit asks for.
+#[test]
+fn a_scene_without_mass_scaling_keeps_its_masses() {
+    let mut spec = builtin("liver").unwrap();
+    spec.solver.mass_scaling_budget = 0.0;
+    let scene = build_scene(&spec, None, &mut Silent).unwrap();
+    let mut sim = Simulation::new(&scene);
+    sim.prepare(1e-3);
+    assert!(sim.solver().whole_step_mass().is_none());
+    assert_eq!(sim.solver().substeps(), 2);
+    assert_eq!(
+        sim.solver().masses()[..scene.model.points.len()],
+        scene.model.points.mass_kg[..]
+    );
+}

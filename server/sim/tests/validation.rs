@@ -68,17 +68,24 @@ fn mueller_compat_with_a_quarter_of_e_matches_stvk() {
 
 #[test]
 fn scene_features_select_the_solver() {
-    use scalpel_sim::scene::{Features, Material};
+    use scalpel_sim::scene::{Features, Material, SolverSpec};
     use scalpel_sim::solver::{SolverConfig, SolverMode};
     let stiff = Features {
         stiff_mode: true,
         volume_term: true,
         ..Features::default()
     };
-    let c = SolverConfig::for_scene(&stiff, &Material::LIVER);
+    let default = SolverSpec::default();
+    let c = SolverConfig::for_scene(&stiff, &Material::LIVER, &default);
     assert_eq!(c.mode, SolverMode::Projective);
     assert!(c.volume_k_pa > 0.0);
-    let plain = SolverConfig::for_scene(&Features::default(), &Material::LIVER);
+    let plain = SolverConfig::for_scene(&Features::default(), &Material::LIVER, &default);
     assert_eq!(plain.mode, SolverMode::Explicit);
     assert_eq!(plain.volume_k_pa, 0.0);
+    assert_eq!(plain.mass_scaling_budget, 0.01);
+    let unscaled = SolverSpec {
+        mass_scaling_budget: 0.0,
+    };
+    let c = SolverConfig::for_scene(&Features::default(), &Material::LIVER, &unscaled);
+    assert_eq!(c.mass_scaling_budget, 0.0);
 }

@@ -100,7 +100,7 @@ impl Simulation {
     pub fn new(scene: &BuiltScene) -> Self {
         let spec = scene.spec.clone();
         let model = &scene.model;
-        let config = SolverConfig::for_scene(&spec.features, &spec.material);
+        let config = SolverConfig::for_scene(&spec.features, &spec.material, &spec.solver);
         let n = model.points.len();
         // Virtual points are spare nodes after the body's points (virtual_points.rs).
         let spare = if spec.features.cutting && spec.features.virtual_points {

@@ -48,6 +48,7 @@ struct RawScene {
     features: Option<RawFeatures>,
     tool: Option<RawTool>,
     force: Option<RawForce>,
+    solver: Option<RawSolver>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -134,6 +135,12 @@ struct RawForce {
     crack_transparency: Option<f64>,
     motion_deadband_mm: Option<f64>,
     max_force_n: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSolver {
+    mass_scaling_percent: Option<f64>,
 }
 
 /// Checks values against ranges and names the key on failure.
@@ -502,6 +509,17 @@ impl SceneSpec {
                 1.0,
             )?;
         }
+        if let Some(s) = &raw.solver {
+            check.set(
+                &mut spec.solver.mass_scaling_budget,
+                s.mass_scaling_percent,
+                "solver.mass_scaling_percent",
+                // Beyond a few per cent the inertia of the surface layer, not the tissue,
+                // sets how the organ swings.
+                Limit::closed(0.0, 10.0, "%"),
+                0.01,
+            )?;
+        }
         Ok(spec)
     }
 }
@@ -638,6 +656,20 @@ mod tests {
     }
 
     #[test]
+    fn mass_scaling_is_given_in_per_cent_of_the_body() {
+        let budget = |text: &str| parse(text).unwrap().solver.mass_scaling_budget;
+        assert_eq!(budget("extends = \"liver\"\n"), 0.01);
+        assert_eq!(
+            budget("extends = \"liver\"\n[solver]\nmass_scaling_percent = 0\n"),
+            0.0
+        );
+        assert_eq!(
+            budget("extends = \"liver\"\n[solver]\nmass_scaling_percent = 2.5\n"),
+            0.025
+        );
+    }
+
+    #[test]
     fn file_paths_are_relative_to_the_scene() {
         let s =
             parse("[mesh]\nfile = \"organ.stl\"\nunits = \"mm\"\n[sampling]\nspacing_mm = 2.5\n")
@@ -690,6 +722,10 @@ mod tests {
                 "extends = \"liver\"\n[mesh]\nremesh = -2.5\n",
                 "mesh.remesh",
             ),
+            (
+                "extends = \"liver\"\n[solver]\nmass_scaling_percent = 12\n",
+                "solver.mass_scaling_percent",
+            ),
         ] {
             match parse(text) {
                 Err(SceneError::Invalid { key: k, .. }) => assert_eq!(k, key, "{text}"),
@@ -734,6 +770,7 @@ mod tests {
             features,
             tool,
             force,
+            solver,
         } = raw;
         assert!(name.is_some() && description.is_some() && extends.is_none());
         let RawMesh {
@@ -826,6 +863,10 @@ mod tests {
         ] {
             assert!(f.is_some());
         }
+        let RawSolver {
+            mass_scaling_percent,
+        } = solver.expect("[solver]");
+        assert!(mass_scaling_percent.is_some());
 
         // The values shown are the defaults of a mesh-file scene.
         let parsed = SceneSpec::from_toml(text, Path::new("docs/organ.toml")).expect("valid");

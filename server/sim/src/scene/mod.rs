@@ -38,6 +38,26 @@ pub struct SceneSpec {
     pub tool: ToolSpec,
     /// Cutting force model.
     pub force: ForceSpec,
+    /// Numerical choices of the solver a scene may make.
+    pub solver: SolverSpec,
+}
+
+/// Numerical choices of the solver a scene may make (`[solver]` in a scene file).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SolverSpec {
+    /// Mass the explicit solver may add, as a fraction of the body's, so that ticks take a
+    /// whole sub-step fewer and keep that count through cuts (mass scaling: see
+    /// `solver::whole_substeps` and `solver::kept_substeps`); 0 keeps the masses as built
+    /// (the cap on fits a cut leaves degenerate is a matter of stability, not of this).
+    pub mass_scaling_budget: f64,
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            mass_scaling_budget: 0.01,
+        }
+    }
 }
 
 /// Where the surface comes from and how it is placed.
@@ -416,6 +436,7 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
         features,
         tool: ToolSpec::default(),
         force: ForceSpec::default(),
+        solver: SolverSpec::default(),
     })
 }
 
@@ -443,5 +464,6 @@ pub fn for_mesh_file(path: PathBuf, units: LengthUnit) -> SceneSpec {
         features: Features::default(),
         tool: ToolSpec::default(),
         force: ForceSpec::default(),
+        solver: SolverSpec::default(),
     }
 }

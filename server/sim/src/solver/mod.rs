@@ -127,8 +127,13 @@ impl Default for SolverConfig {
 impl SolverConfig {
     /// The configuration a scene asks for: projective dynamics when it declares `stiff_mode`,
     /// Müller's volume term (k_v = λ, the upper end physics.md §1.8 recommends) when it
-    /// declares `volume_term`, the material's damping; everything else default.
-    pub fn for_scene(features: &crate::scene::Features, material: &Material) -> Self {
+    /// declares `volume_term`, the material's damping, its mass scaling budget; everything
+    /// else default.
+    pub fn for_scene(
+        features: &crate::scene::Features,
+        material: &Material,
+        solver: &crate::scene::SolverSpec,
+    ) -> Self {
         let lame = Lame::from_young_poisson(material.youngs_modulus_pa, material.poisson_ratio);
         Self {
             mode: if features.stiff_mode {
@@ -142,6 +147,7 @@ impl SolverConfig {
                 0.0
             },
             damping_per_s: material.damping_per_s,
+            mass_scaling_budget: solver.mass_scaling_budget,
             ..Self::default()
         }
     }
