@@ -3,7 +3,7 @@
 //! D_i/m_i of the points it touched) may shorten dt_crit. Where that falls short of the
 //! step the planned sub-steps need, the whole tick pays a sub-step more for the rest of the
 //! session — on the liver, whose mass floor (`whole_substeps`) gave it one sub-step per
-//! tick, the sixth stroke of a session took it back to two, doubling every later tick's
+//! tick, the seventh stroke of a session took it back to two, doubling every later tick's
 //! cost for the sake of a few points whose rows a wound left stiffer.
 //!
 //! So a touched point whose bound would exceed the planned step's ω² is given the mass
@@ -126,8 +126,8 @@ impl Solver {
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_support;
     use super::*;
-    use crate::math::Vec3;
     use crate::model::Neighbourhoods;
     use crate::validate::LatticeCube;
 
@@ -215,23 +215,9 @@ mod tests {
             }
         }
         assert!((differ - given.added_kg).abs() <= 1e-12 * body_kg);
-        // Same stiffness: the same forces at a deformed state, bit for bit.
-        let bent: Vec<Vec3> = (rest.iter())
-            .map(|x| x + Vec3::new(0.02 * x.z, 0.0, -0.03 * x.x))
-            .collect();
-        plain.set_positions(&bent);
-        kept.set_positions(&bent);
-        assert_eq!(plain.elastic_forces().0, kept.elastic_forces().0);
-        kept.set_positions(&rest);
-        kept.set_external_force(centre, Vec3::new(0.0, 0.0, -1e-3));
-        for tick in 0..200 {
-            if tick == 20 {
-                kept.clear_external_forces();
-            }
-            let report = kept.step(dt);
-            assert!(!report.diverged, "tick {tick}");
-            assert_eq!((report.rollbacks, report.substeps), (0, 2), "tick {tick}");
-        }
+        // Same stiffness; and the pushed body rings down at two sub-steps.
+        test_support::assert_same_stiffness(&mut plain, &mut kept, &rest);
+        test_support::assert_rings_down_at(&mut kept, &rest, centre, dt, 2);
         // A budget under what they need (a tenth of it): as without one.
         let (tight, ..) = cut(0.1 * given.added_kg / body_kg);
         assert_eq!(tight.substeps(), 3);

@@ -84,8 +84,9 @@ pub struct SolverConfig {
     pub max_rollbacks: u32,
     /// Power iterations for ω_max.
     pub power_iterations: u32,
-    /// Mass the uncut body may be given (a fraction of its own) so that ticks take a whole
-    /// sub-step fewer (see `whole_substeps`); 0 for none.
+    /// Mass the body may be given (a fraction of its own) so that ticks take a whole
+    /// sub-step fewer (see `whole_substeps`) and keep that count through cuts (see
+    /// `kept_substeps`); 0 for none.
     pub mass_scaling_budget: f64,
     /// Local/global iterations per projective step.
     pub projective_iterations: u32,
@@ -1031,6 +1032,42 @@ fn kinetic_energy(mass: &[f64], v: &[Vec3], fixed: &[[bool; 3]]) -> f64 {
 }
 
 #[cfg(test)]
+pub(super) mod test_support {
+    use super::Solver;
+    use crate::math::Vec3;
+
+    /// Mass scaling changes inertia only: the two solvers give the same elastic forces,
+    /// bit for bit, at a bent state of `rest`.
+    pub fn assert_same_stiffness(a: &mut Solver, b: &mut Solver, rest: &[Vec3]) {
+        let bent: Vec<Vec3> = (rest.iter())
+            .map(|x| x + Vec3::new(0.02 * x.z, 0.0, -0.03 * x.x))
+            .collect();
+        a.set_positions(&bent);
+        b.set_positions(&bent);
+        assert_eq!(a.elastic_forces().0, b.elastic_forces().0);
+    }
+
+    /// From rest, point `at` pushed for 20 ticks of `dt` and let go for 180: every tick
+    /// takes `substeps` sub-steps, with no rollback.
+    pub fn assert_rings_down_at(s: &mut Solver, rest: &[Vec3], at: usize, dt: f64, substeps: u32) {
+        s.set_positions(rest);
+        s.set_external_force(at, Vec3::new(0.0, 0.0, -1e-3));
+        for tick in 0..200 {
+            if tick == 20 {
+                s.clear_external_forces();
+            }
+            let report = s.step(dt);
+            assert!(!report.diverged, "tick {tick}");
+            assert_eq!(
+                (report.rollbacks, report.substeps),
+                (0, substeps),
+                "tick {tick}"
+            );
+        }
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::validate::{LatticeCube, cut_down_to};
@@ -1175,22 +1212,9 @@ mod tests {
                 assert_eq!(scaled.masses()[i], mass[i], "point {i}");
             }
         }
-        // Same stiffness: the same forces at a deformed state, bit for bit.
-        let bent: Vec<Vec3> = (rest.iter())
-            .map(|x| x + Vec3::new(0.02 * x.z, 0.0, -0.03 * x.x))
-            .collect();
-        plain.set_positions(&bent);
-        scaled.set_positions(&bent);
-        assert_eq!(plain.elastic_forces().0, scaled.elastic_forces().0);
-        scaled.set_positions(&rest);
-        scaled.set_external_force(cube.centre(), Vec3::new(0.0, 0.0, -1e-3));
-        for tick in 0..200 {
-            if tick == 20 {
-                scaled.clear_external_forces();
-            }
-            let report = scaled.step(dt);
-            assert_eq!((report.rollbacks, report.substeps), (0, 2), "tick {tick}");
-        }
+        // Same stiffness; and the pushed body rings down at two sub-steps.
+        test_support::assert_same_stiffness(&mut plain, &mut scaled, &rest);
+        test_support::assert_rings_down_at(&mut scaled, &rest, cube.centre(), dt, 2);
         // A budget under what the corners need: nothing changes.
         let mut tight = solver_with(1e-5);
         tight.prepare(dt);
