@@ -80,7 +80,7 @@ pub fn open_stroke(
                 None => continue,
             }
         } else {
-            match incise(m, k, w, piece, params) {
+            match incise_trimming_ends(m, k, w, piece, params) {
                 Ok(out) => {
                     outcome.opened += 1;
                     out
@@ -104,6 +104,41 @@ pub fn open_stroke(
         out
     });
     outcome
+}
+
+/// Samples an incision may leave out at either end of a piece whose region cannot be laid
+/// out (see [`incise_trimming_ends`]).
+const MOST_TRIMMED: usize = 2;
+
+/// [`incise`], and where the path's region cannot be laid out — the path outside it, or
+/// no disk — again without its last, then its first, samples (up to [`MOST_TRIMMED`] at
+/// either end). A stroke that runs off the top of a thin sheet onto its rim ends on faces
+/// at 90° to the path's mean normal, which the region leaves out (the deltoid scan's
+/// random strokes: 2 of 137 refused so); trimmed, its incision is drawn up to the rim.
+/// The internal cut is the blade's whatever is drawn.
+fn incise_trimming_ends(
+    mesh: &TriMesh,
+    kinds: &[FaceKind],
+    wounds: &[Wound],
+    piece: &[PathSample],
+    params: &IncisionParams,
+) -> Result<Incised, IncisionError> {
+    let first = incise(mesh, kinds, wounds, piece, params);
+    let Err(IncisionError::PathOutsideRegion | IncisionError::NotDisk { .. }) = first else {
+        return first;
+    };
+    let n = piece.len();
+    for trimmed in 1..=MOST_TRIMMED {
+        for (from, to) in [(0, n - trimmed), (trimmed, n)] {
+            if to <= from + 1 {
+                continue;
+            }
+            if let Ok(out) = incise(mesh, kinds, wounds, &piece[from..to], params) {
+                return Ok(out);
+            }
+        }
+    }
+    first
 }
 
 #[cfg(test)]
@@ -223,6 +258,56 @@ mod tests {
         assert!(
             changed >= 100 && deepened >= 15 && 2 * widened >= deepened,
             "{changed} {deepened} {widened}"
+        );
+    }
+
+    /// A stroke over the top of an 8 mm slab that runs off its end: its last sample lies
+    /// on the slab's vertical end face, at 90° to the path's mean normal, which the region
+    /// leaves out — the path is outside it and `incise` refuses the whole incision. Opened
+    /// as a stroke, the incision is drawn up to the rim (the last sample left out), sound and
+    /// above 15°; and a stroke on the top alone is opened as before, untrimmed.
+    #[test]
+    fn a_stroke_running_off_a_rim_is_drawn_up_to_it() {
+        use crate::cut::checks::{check, top_path};
+        use crate::geometry::organs::box_mesh;
+        let (thick, depth) = (0.008, 0.002);
+        let slab = box_mesh(Vec3::new(0.040, 0.040, thick), [10, 10, 2]);
+        let kinds = vec![FaceKind::Skin; slab.triangles.len()];
+        let params = IncisionParams::default();
+        let mut path = top_path(&slab, [0.004, 0.0013], [0.0195, 0.0013], depth);
+        // Down the end face, half a millimetre below the rim.
+        let surface = Vec3::new(0.020, 0.0013, 0.5 * thick - 0.0005);
+        path.push(PathSample {
+            surface,
+            bottom: surface - Vec3::x() * depth,
+        });
+        let refused = incise(&slab, &kinds, &[], &path, &params).err();
+        assert!(
+            matches!(
+                refused,
+                Some(IncisionError::PathOutsideRegion | IncisionError::NotDisk { .. })
+            ),
+            "{refused:?}"
+        );
+        let outcome = open_stroke(&slab, &kinds, &[], &path, 0.002, &params);
+        assert!(outcome.refusals.is_empty(), "{:?}", outcome.refusals);
+        assert_eq!(outcome.opened, 1);
+        let out = outcome.surface.expect("drawn");
+        check(&out, "off the rim");
+        // The drawn wound reaches to within a sample of the rim.
+        let reach = (out.mesh.positions.iter())
+            .zip(&out.source)
+            .filter(|(_, s)| s.is_none())
+            .map(|(p, _)| p.x)
+            .fold(f64::MIN, f64::max);
+        assert!(reach > 0.0185, "new vertices reach x = {reach} m");
+        // On the top alone nothing is trimmed: the same surface as `incise` draws.
+        let top = &path[..path.len() - 1];
+        let whole = incise(&slab, &kinds, &[], top, &params).expect("on the top");
+        let stroke = open_stroke(&slab, &kinds, &[], top, 0.002, &params);
+        assert_eq!(
+            stroke.surface.expect("drawn").mesh.positions,
+            whole.mesh.positions
         );
     }
 
@@ -398,8 +483,8 @@ mod tests {
     /// (strokes opened; under 15°; smallest), remeshed — as they came: pig liver lobe 281
     /// of 300, none — 266, 3, 7.2°; sphere (not remeshed: 50° and up) 269 of 300, none;
     /// tumour 268 of 300, none — 264, 16, 10.9°; deltoid (a muscle sheet, strongly curved
-    /// across the strokes, whose ends run onto its steep sides) 135 of 265 (35 more had
-    /// gaps), none (2, 12.1° before a deeper pass spread its columns' bottoms as a first
+    /// across the strokes, whose ends run onto its steep sides) 137 of 265 (135 before a
+    /// piece refused past the rim was tried trimmed; 35 more had gaps), none (2, 12.1° before a deeper pass spread its columns' bottoms as a first
     /// incision does; 106 before outside triangles split next to a corner were fanned from
     /// a point inside, 81 before such splits were collapsed, 51 before a first incision's
     /// floor was eased beside a shallow column, 39 and 0.63° before the walls were graded
