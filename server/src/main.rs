@@ -174,13 +174,14 @@ fn run() -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
         println!(
-            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
+            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
             summary.haptic_ticks,
             summary.deadline_misses,
             summary.poses_dropped,
             summary.sim.ticks,
             summary.sim.late_ticks,
             summary.sim.max_tick_ms,
+            summary.sim.most_substeps,
             summary.sim.cut_length_mm,
             summary.state_hash,
             summary.fifo_priority,
@@ -236,10 +237,11 @@ fn print_status(line: &StatusLine) {
         None => "no haptics".to_string(),
     };
     println!(
-        "{:7.1} s  {haptic}  | sim {} ticks, {} points, cut {:.1} mm, {} frames",
+        "{:7.1} s  {haptic}  | sim {} ticks, {} points × {} sub-step(s), cut {:.1} mm, {} frames",
         line.uptime_s,
         line.sim.ticks,
         line.sim.active_points,
+        line.sim.substeps,
         line.sim.cut_length_mm,
         line.sim.frames_sent
     );

@@ -93,6 +93,10 @@ pub struct SimStatus {
     pub sim_force_n: f64,
     /// Points integrated in the last tick.
     pub active_points: usize,
+    /// Explicit sub-steps the last tick took (0 for other solver modes).
+    pub substeps: u32,
+    /// Most sub-steps one tick took so far (a rollback doubles them for that tick).
+    pub most_substeps: u32,
     /// Longest tick so far (ms of wall time).
     pub max_tick_ms: f64,
     /// Ticks that took longer than the simulated time they advance.
@@ -117,6 +121,8 @@ impl Default for SimStatus {
             cut_length_mm: 0.0,
             sim_force_n: 0.0,
             active_points: 0,
+            substeps: 0,
+            most_substeps: 0,
             max_tick_ms: 0.0,
             late_ticks: 0,
             frames_sent: 0,
@@ -1426,6 +1432,8 @@ fn spawn_sim(
                 figures.ticks += 1;
                 figures.sim_force_n = report.tool_force_n.norm();
                 figures.active_points = report.active_points;
+                figures.substeps = report.solver.substeps;
+                figures.most_substeps = figures.most_substeps.max(report.solver.substeps);
                 figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
                 figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
                 models.write(ModelUpdate {

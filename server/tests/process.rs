@@ -51,6 +51,8 @@ fn the_embedded_default_runs_the_demo_cut_and_replays_bit_for_bit() {
         summary["sim"]["cut_length_mm"].as_f64().unwrap() > 0.0,
         "{summary}"
     );
+    // The liver's mass floor gives it one sub-step per tick, and the cut keeps it.
+    assert_eq!(summary["sim"]["most_substeps"], 1, "{summary}");
     // The device felt the cut (the largest force of the status samples: one may fall in a
     // watchdog fade while a slow build re-meshes).
     let felt = status
