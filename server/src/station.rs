@@ -93,7 +93,7 @@ pub struct SimStatus {
     pub sim_force_n: f64,
     /// Points integrated in the last tick.
     pub active_points: usize,
-    /// Explicit sub-steps the last tick took (0 for other solver modes).
+    /// Explicit sub-steps the last tick took (1 for a projective step).
     pub substeps: u32,
     /// Most sub-steps one tick took so far (a rollback doubles them for that tick).
     pub most_substeps: u32,
