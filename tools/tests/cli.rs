@@ -73,6 +73,10 @@ fn inspect_json_has_the_documented_keys() {
     let points = r["points"].as_u64().unwrap();
     assert!(points.abs_diff(1526) <= 45, "{points}");
     assert!(r["build_ms"].as_f64().unwrap() > 0.0);
+    // The time step its solver plans for 1 ms ticks: one sub-step, by the mass floor.
+    assert_eq!(r["time_step"]["substeps_per_tick"], 1, "{r}");
+    assert_eq!(r["time_step"]["mass_floor"]["substeps_before"], 2, "{r}");
+    assert!(r["time_step"]["dt_crit_ms"].as_f64().unwrap() >= 2.0, "{r}");
     let bbox: Vec<f64> = r["bbox_mm"]
         .as_array()
         .unwrap()

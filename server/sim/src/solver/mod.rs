@@ -850,6 +850,11 @@ impl Solver {
         kinetic_energy(&self.mass, &self.v, &self.fixed)
     }
 
+    /// The critical explicit step (s) as last computed or planned, without computing it.
+    pub fn known_dt_crit(&self) -> Option<f64> {
+        self.dt_crit
+    }
+
     /// Critical explicit step 2/ω_max (s), computing it if needed.
     pub fn dt_crit(&mut self) -> f64 {
         if let Some(dt) = self.dt_crit {
