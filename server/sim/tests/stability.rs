@@ -21,10 +21,10 @@ fn stability_matrix() {
 
 /// A cut that leaves a point's fit nearly degenerate (here its four neighbours in a plane a
 /// thirtieth of a spacing below it: cond(A) in the hundreds, under the rank test's 10⁴)
-/// makes that fit's points many times stiffer than the body; on the old code the step shrank with them (over a session on the
-/// shoulder, 6 → 448 sub-steps per tick). Now those points get mass instead: the tick's
-/// sub-steps stay within √2 of the uncut body's, and the fit's points are the ones that
-/// got it.
+/// makes that fit's points many times stiffer than the body; on the old code the step
+/// shrank with them (over a session on the shoulder, 6 → 448 sub-steps per tick). Now those
+/// points get mass instead: the tick's sub-steps stay within √2 of the uncut body's, and
+/// the fit's points are the ones that got it.
 #[test]
 fn a_fit_left_degenerate_by_a_cut_adds_mass_not_sub_steps() {
     use scalpel_sim::validate::{LatticeCube, cut_down_to};

@@ -115,7 +115,9 @@ const MOST_TRIMMED: usize = 2;
 /// either end). A stroke that runs off the top of a thin sheet onto its rim ends on faces
 /// at 90° to the path's mean normal, which the region leaves out (the deltoid scan's
 /// random strokes at 100 trials: 2 of the 137 that open were refused so); trimmed, its
-/// incision is drawn up to the rim. The internal cut is the blade's whatever is drawn.
+/// incision is drawn up to the rim. The internal cut is the blade's whatever is drawn. A
+/// piece that stays refused costs up to five `incise` calls instead of one: in a station,
+/// which re-runs a stroke's incision as it grows, every run while the blade is past a rim.
 fn incise_trimming_ends(
     mesh: &TriMesh,
     kinds: &[FaceKind],

@@ -10,8 +10,9 @@
 //! those. The smallest f that raises dt_crit far enough is searched by bisection (a power
 //! iteration per try), and only within `SolverConfig::mass_scaling_budget` of the body's
 //! mass; otherwise nothing changes. It is done once, on the uncut body, before its first
-//! tick (`Solver::prepare`, else in that tick). Stiffness, and so every equilibrium, is untouched; the inertia
-//! of a surface layer grows by the reported mass.
+//! tick (`Solver::prepare`, else in that tick). Stiffness, and so every equilibrium, is
+//! untouched; the inertia of a surface layer grows by the reported mass. The cuts then keep
+//! the sub-step count it gave (`kept_substeps`).
 //!
 //! A floor, not the least mass per point by its own ω² estimate (c·D_i/m_i, tried): that
 //! reached the liver's step with 0.24 % of its mass against the floor's 0.40 %, but on the
