@@ -132,6 +132,14 @@ fn run() -> anyhow::Result<()> {
         for w in &scene.mesh_warnings {
             println!("  mesh: {w}");
         }
+        // A mesh's default sampling thinned (or still over) for a real-time tick, likewise.
+        if let Some(plan) = scene
+            .sampling_plan
+            .as_ref()
+            .filter(|p| p.resampled() || !p.fits())
+        {
+            println!("  sampling: {plan}");
+        }
     }
     let stop = Arc::new(AtomicBool::new(false));
     let on_signal = stop.clone();

@@ -40,7 +40,7 @@ const JITTER_BINS: usize = 1000;
 /// Poses in flight from the haptic to the simulation thread.
 const POSE_RING: usize = 256;
 /// Simulated time per simulation tick (s).
-pub(crate) const SIM_TICK_S: f64 = 1e-3;
+pub(crate) const SIM_TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
 /// The simulation thread ticks this long after the haptic thread on the same 1 ms grid,
 /// so that it takes the pose the haptic thread has just read (and the frame it sends
 /// shows it) instead of one up to a millisecond old.

@@ -12,7 +12,7 @@ use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
 /// Time per tick (s): the haptic rate.
-pub const TICK_S: f64 = 1e-3;
+pub const TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
 
 /// One tick of a run.
 #[derive(Debug, Clone, Serialize)]

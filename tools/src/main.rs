@@ -293,9 +293,19 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Idle ticks of the liver with and without the cutting feature: what a scene that
-    /// does not cut pays for cutting (nothing), and what an untouched cutting scene costs.
+    /// Idle ticks of a scene (default: the liver) with and without the cutting feature:
+    /// what a scene that does not cut pays for cutting (nothing), what an untouched cutting
+    /// scene costs, and what a tick of the whole body costs without cutting.
     Idle {
+        /// Built-in scene name, scene file (.toml) or mesh file.
+        #[arg(default_value = "liver")]
+        target: String,
+        /// Units of a mesh file's coordinates (for a bare mesh file).
+        #[arg(long, value_enum, default_value = "m")]
+        units: UnitArg,
+        /// Target number of interior points (overrides the scene's sampling).
+        #[arg(long)]
+        target_points: Option<usize>,
         /// Ticks per variant.
         #[arg(long, default_value_t = 2000)]
         ticks: usize,
@@ -523,7 +533,21 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Scaling { points, json }) => {
             bench::cutting::scaling(&points, json)
         }
-        Command::Bench(BenchCommand::Idle { ticks, json }) => bench::cutting::idle(ticks, json),
+        Command::Bench(BenchCommand::Idle {
+            target,
+            units,
+            target_points,
+            ticks,
+            json,
+        }) => {
+            let target = TargetArgs {
+                target,
+                units,
+                spacing_mm: None,
+                target_points,
+            };
+            bench::cutting::idle(&target, ticks, json)
+        }
         Command::Bench(BenchCommand::Session {
             target,
             strokes,

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 
 use scalpel_sim::model::ModelSummary;
 use scalpel_sim::pipeline::Simulation;
-use scalpel_sim::scene::{self, BuiltinMesh, MeshSource};
+use scalpel_sim::scene::{self, BuiltinMesh, MeshSource, SamplingPlan};
 use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
@@ -49,6 +49,8 @@ pub struct SceneReport {
     /// The explicit time step the scene's solver plans for the station's 1 ms ticks;
     /// `None` in the stiff mode or for a body over [`PLANNED_POINTS_MAX`] points.
     pub time_step: Option<TimeStepReport>,
+    /// How a mesh's default sampling was chosen for a real-time tick.
+    pub sampling_plan: Option<SamplingPlan>,
     /// Repairs made to the surface, as sentences.
     pub warnings: Vec<String>,
     /// Whole build (ms).
@@ -131,6 +133,7 @@ impl SceneReport {
                 damping_per_s: m.damping_per_s,
             },
             time_step: TimeStepReport::plan(timed),
+            sampling_plan: s.sampling_plan.clone(),
             warnings: s.mesh_warnings.iter().map(ToString::to_string).collect(),
             build_ms: timed.build_ms,
             stages_ms: timed.stages_ms.clone(),
@@ -198,6 +201,9 @@ pub fn print_scene(timed: &TimedScene, json: bool) -> anyhow::Result<()> {
             println!("  time step  stiff mode: one projective step per tick")
         }
         None => println!("  time step  not planned here (over {PLANNED_POINTS_MAX} points)"),
+    }
+    if let Some(plan) = &r.sampling_plan {
+        println!("  sampling   {plan}");
     }
     let features = if r.features.is_empty() {
         "none (deformation only)".to_string()

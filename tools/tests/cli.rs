@@ -125,6 +125,32 @@ fn inspect_reads_scene_files_and_mesh_files() {
     assert_eq!(r["triangles"], 4);
     assert!((r["volume_ml"].as_f64().unwrap() - 4.5).abs() < 1e-9);
     assert!(r["points"].as_u64().unwrap().abs_diff(300) < 30);
+    assert!(
+        r["sampling_plan"].is_null(),
+        "a given count is not planned: {r}"
+    );
+
+    // At a mesh file's default sampling the small tetrahedron's 2000 points would take more
+    // point-sub-steps per 1 ms tick than real time affords: it is sampled coarser.
+    let r = ok_json(&[
+        "scene",
+        "inspect",
+        mesh.to_str().unwrap(),
+        "--units",
+        "mm",
+        "--json",
+    ]);
+    let plan = &r["sampling_plan"];
+    let cost =
+        |s: &serde_json::Value| s["points"].as_u64().unwrap() * s["substeps"].as_u64().unwrap();
+    let budget = plan["budget"].as_u64().unwrap();
+    assert!(cost(&plan["first"]) > budget, "{r}");
+    assert!(cost(&plan["kept"]) <= budget, "{r}");
+    assert_eq!(r["points"], plan["kept"]["points"], "{r}");
+    assert_eq!(
+        r["time_step"]["substeps_per_tick"], plan["kept"]["substeps"],
+        "{r}"
+    );
 }
 
 #[test]

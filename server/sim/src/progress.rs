@@ -19,6 +19,8 @@ pub enum BuildStage {
     Neighbours,
     /// Surface embedding.
     Embed,
+    /// Planning a sampling's time step (`scene::real_time`).
+    PlanSampling,
 }
 
 impl BuildStage {
@@ -32,6 +34,7 @@ impl BuildStage {
             Self::Sample => "sample",
             Self::Neighbours => "neighbours",
             Self::Embed => "embed",
+            Self::PlanSampling => "plan_sampling",
         }
     }
 }

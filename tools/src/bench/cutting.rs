@@ -9,10 +9,10 @@ use scalpel_sim::scene::{self, BuiltScene, SceneSpec};
 use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
-use crate::cut_cmd;
 use crate::cutrun::{self, Quantiles, TICK_S};
 use crate::load;
 use crate::progress::StageProgress;
+use crate::{TargetArgs, cut_cmd};
 
 /// The paper's Table 1: (scene, triangles, points, surface ms, internal ms).
 const PAPER_TABLE1: [(&str, usize, usize, f64, f64); 3] = [
@@ -245,33 +245,38 @@ struct IdleRow {
     scene: String,
     cutting_stages_built: bool,
     points_integrated: usize,
+    substeps: u32,
     tick_ms: Quantiles,
 }
 
 /// `scalpel bench idle`: a scene that does not cut builds no cutting stage (no contact
 /// queries, no cut surface, no force model) and pays nothing for it; a cutting scene with
 /// the tool away integrates no point at all.
-pub fn idle(ticks: usize, json: bool) -> anyhow::Result<()> {
+pub fn idle(target: &TargetArgs, ticks: usize, json: bool) -> anyhow::Result<()> {
+    let base = load::resolve(target)?;
     let mut rows = Vec::new();
     for cutting in [true, false] {
-        let mut spec = scene::builtin("liver").expect("built-in scene");
+        let mut spec = base.clone();
         spec.features.cutting = cutting;
-        spec.name = format!("liver, cutting {}", if cutting { "on" } else { "off" });
+        let state = if cutting { "on" } else { "off" };
+        spec.name = format!("{}, cutting {state}", base.name);
         let scene = build(&spec)?;
         let mut sim = Simulation::new(&scene);
         sim.prepare(TICK_S);
         let mut times = Vec::with_capacity(ticks);
-        let mut integrated = 0;
+        let (mut integrated, mut substeps) = (0, 0);
         for _ in 0..ticks {
             let t0 = Instant::now();
             let r = sim.tick(TICK_S, &mut Unobserved);
             times.push(t0.elapsed().as_secs_f64() * 1e3);
             integrated = r.active_points;
+            substeps = r.solver.substeps;
         }
         rows.push(IdleRow {
             scene: spec.name.clone(),
             cutting_stages_built: sim.cutting().is_some(),
             points_integrated: integrated,
+            substeps,
             tick_ms: Quantiles::of(&times),
         });
     }
@@ -282,8 +287,13 @@ pub fn idle(ticks: usize, json: bool) -> anyhow::Result<()> {
     println!("Idle ticks (no tool), {ticks} each");
     for r in &rows {
         println!(
-            "{:<22} cutting stages {:<5} points integrated {:>5}  tick {:.4} ms median, {:.4} ms p99",
-            r.scene, r.cutting_stages_built, r.points_integrated, r.tick_ms.p50, r.tick_ms.p99
+            "{:<22} cutting stages {:<5} points integrated {:>5} × {} sub-step(s)  tick {:.4} ms median, {:.4} ms p99",
+            r.scene,
+            r.cutting_stages_built,
+            r.points_integrated,
+            r.substeps,
+            r.tick_ms.p50,
+            r.tick_ms.p99
         );
     }
     Ok(())

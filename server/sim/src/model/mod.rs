@@ -36,7 +36,7 @@ pub struct SamplingParams {
 impl Default for SamplingParams {
     fn default() -> Self {
         Self {
-            spacing: SpacingRule::TargetPoints(2000),
+            spacing: SpacingRule::RealTime { most_points: 2000 },
             support_ratio: 2.0,
             min_cell_fraction: 0.1,
             neighbour_headroom: 16,
@@ -52,6 +52,12 @@ pub enum SpacingRule {
     Spacing(f64),
     /// Solve the spacing so that about this many points are kept.
     TargetPoints(usize),
+    /// About `most_points`, or fewer where a 1 ms tick of the whole body would not be real
+    /// time (`scene::real_time`; the model alone takes it as `TargetPoints(most_points)`).
+    RealTime {
+        /// Points sampled when the tick affords them.
+        most_points: usize,
+    },
 }
 
 /// Largest number of interior points a build accepts.
@@ -187,7 +193,7 @@ impl CoupledModel {
         let bbox = surface.bbox();
         let spacing = match params.spacing {
             SpacingRule::Spacing(s) => s,
-            SpacingRule::TargetPoints(n) => {
+            SpacingRule::TargetPoints(n) | SpacingRule::RealTime { most_points: n } => {
                 if n > MAX_POINTS {
                     return Err(ModelBuildError::TooManyPoints {
                         points: n,
@@ -283,7 +289,9 @@ fn check_params(p: &SamplingParams) -> Result<(), ModelBuildError> {
         SpacingRule::Spacing(s) if !(s.is_finite() && s > 0.0) => {
             return bad(format!("spacing must be a positive length, got {s} m"));
         }
-        SpacingRule::TargetPoints(0) => return bad("target points must be at least 1".into()),
+        SpacingRule::TargetPoints(0) | SpacingRule::RealTime { most_points: 0 } => {
+            return bad("target points must be at least 1".into());
+        }
         _ => {}
     }
     if !(1.2..=4.0).contains(&p.support_ratio) {

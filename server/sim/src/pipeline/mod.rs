@@ -32,6 +32,10 @@ pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
 
+/// Simulated time per simulation tick (s): the station's simulation thread runs at 1 kHz,
+/// and the offline runs and the real-time sampling rule plan for the same tick.
+pub const SIMULATION_TICK_S: f64 = 1e-3;
+
 use incision::IncisionInputs;
 use virtual_points::VIRTUAL_NODE_CAPACITY;
 

@@ -3,13 +3,14 @@
 
 use thiserror::Error;
 
+use super::real_time::{SamplingPlan, build_for_real_time};
 use super::{MeshSource, SceneSpec};
 use crate::geometry::remesh::remesh_isotropic;
 use crate::geometry::{
     MeshFormat, MeshImportError, MeshStats, MeshValidationError, MeshWarning, ValidatedMesh,
     ValidationOptions, import_mesh, validate,
 };
-use crate::model::{CoupledModel, ModelBuildError};
+use crate::model::{CoupledModel, ModelBuildError, SpacingRule};
 use crate::progress::{BuildObserver, BuildStage};
 
 /// A scene ready to simulate.
@@ -23,6 +24,9 @@ pub struct BuiltScene {
     pub mesh_stats: MeshStats,
     /// The coupled model.
     pub model: CoupledModel,
+    /// How a real-time sampling rule chose the point count (`SpacingRule::RealTime` with the
+    /// explicit solver); `None` for a fixed spacing or count.
+    pub sampling_plan: Option<SamplingPlan>,
 }
 
 /// Why a scene could not be built.
@@ -148,13 +152,19 @@ pub fn build_scene(
         validated = remeshed(validated, target, &source, &options);
     }
 
-    let model = CoupledModel::build(
-        validated.mesh,
-        &spec.sampling,
-        spec.material.density_kg_m3,
-        observer,
-    )
-    .map_err(|error| SceneBuildError::Model {
+    let built = match spec.sampling.spacing {
+        SpacingRule::RealTime { most_points } => {
+            build_for_real_time(&validated.mesh, spec, most_points, observer)
+        }
+        _ => CoupledModel::build(
+            validated.mesh,
+            &spec.sampling,
+            spec.material.density_kg_m3,
+            observer,
+        )
+        .map(|model| (model, None)),
+    };
+    let (model, sampling_plan) = built.map_err(|error| SceneBuildError::Model {
         scene: spec.name.clone(),
         error,
     })?;
@@ -163,5 +173,6 @@ pub fn build_scene(
         mesh_warnings: validated.warnings,
         mesh_stats: validated.stats,
         model,
+        sampling_plan,
     })
 }

@@ -95,6 +95,7 @@ struct RawMaterial {
 struct RawSampling {
     spacing_mm: Option<f64>,
     target_points: Option<usize>,
+    real_time_points: Option<usize>,
     support_ratio: Option<f64>,
     min_cell_fraction: Option<f64>,
     neighbour_headroom: Option<usize>,
@@ -319,27 +320,36 @@ impl SceneSpec {
         }
         if let Some(s) = &raw.sampling {
             let p = &mut spec.sampling;
-            match (s.spacing_mm, s.target_points) {
-                (Some(_), Some(_)) => {
-                    return Err(
-                        check.fail("sampling", "give spacing_mm or target_points, not both")
-                    );
+            let count = |key: &str, n: usize| {
+                if (8..=MAX_POINTS).contains(&n) {
+                    Ok(n)
+                } else {
+                    Err(check.fail(
+                        key,
+                        format!("{n} is out of range; allowed 8 to {MAX_POINTS}"),
+                    ))
                 }
-                (Some(mm), None) => {
+            };
+            match (s.spacing_mm, s.target_points, s.real_time_points) {
+                (Some(mm), None, None) => {
                     let limit = Limit::positive(1000.0, "mm");
                     p.spacing =
                         SpacingRule::Spacing(check.check("sampling.spacing_mm", mm, limit)? * MM);
                 }
-                (None, Some(n)) => {
-                    if !(8..=MAX_POINTS).contains(&n) {
-                        return Err(check.fail(
-                            "sampling.target_points",
-                            format!("{n} is out of range; allowed 8 to {MAX_POINTS}"),
-                        ));
-                    }
-                    p.spacing = SpacingRule::TargetPoints(n);
+                (None, Some(n), None) => {
+                    p.spacing = SpacingRule::TargetPoints(count("sampling.target_points", n)?);
                 }
-                (None, None) => {}
+                (None, None, Some(n)) => {
+                    let most_points = count("sampling.real_time_points", n)?;
+                    p.spacing = SpacingRule::RealTime { most_points };
+                }
+                (None, None, None) => {}
+                _ => {
+                    return Err(check.fail(
+                        "sampling",
+                        "give one of spacing_mm, target_points and real_time_points",
+                    ));
+                }
             }
             let key = "sampling.support_ratio";
             check.set(
@@ -703,6 +713,14 @@ mod tests {
                 "sampling",
             ),
             (
+                "extends = \"liver\"\n[sampling]\ntarget_points = 100\nreal_time_points = 100\n",
+                "sampling",
+            ),
+            (
+                "extends = \"liver\"\n[sampling]\nreal_time_points = 4\n",
+                "sampling.real_time_points",
+            ),
+            (
                 "extends = \"block\"\n[features]\nripple = true\n",
                 "features.ripple",
             ),
@@ -799,11 +817,14 @@ mod tests {
         let RawSampling {
             spacing_mm,
             target_points,
+            real_time_points,
             support_ratio,
             min_cell_fraction,
             neighbour_headroom,
         } = sampling.expect("[sampling]");
-        assert!(spacing_mm.is_none() && target_points.is_some() && support_ratio.is_some());
+        // One of the three sampling rules: the example shows the default.
+        assert!(spacing_mm.is_none() && target_points.is_none() && real_time_points.is_some());
+        assert!(support_ratio.is_some());
         assert!(min_cell_fraction.is_some() && neighbour_headroom.is_some());
         let RawFeatures {
             cutting,

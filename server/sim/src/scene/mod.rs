@@ -5,6 +5,7 @@
 
 mod build;
 pub mod file;
+pub mod real_time;
 
 use std::path::PathBuf;
 
@@ -12,6 +13,7 @@ use serde::Serialize;
 
 pub use build::{BuiltScene, SceneBuildError, build_scene};
 pub use file::SceneError;
+pub use real_time::{PlannedSampling, SamplingPlan};
 
 use crate::geometry::organs;
 use crate::geometry::remesh::POOR_ANGLE_DEG;
