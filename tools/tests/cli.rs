@@ -112,16 +112,16 @@ fn inspect_reads_scene_files_and_mesh_files() {
         "v 0 0 0\nv 30 0 0\nv 0 30 0\nv 0 0 30\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n",
     )
     .unwrap();
-    let r = ok_json(&[
-        "scene",
-        "inspect",
-        mesh.to_str().unwrap(),
-        "--units",
-        "mm",
-        "--target-points",
-        "300",
-        "--json",
-    ]);
+    let inspect = |extra: &[&str]| {
+        let mesh = mesh.to_str().unwrap();
+        let args = [
+            &["scene", "inspect", mesh, "--units", "mm", "--json"],
+            extra,
+        ]
+        .concat();
+        ok_json(&args)
+    };
+    let r = inspect(&["--target-points", "300"]);
     assert_eq!(r["triangles"], 4);
     assert!((r["volume_ml"].as_f64().unwrap() - 4.5).abs() < 1e-9);
     assert!(r["points"].as_u64().unwrap().abs_diff(300) < 30);
@@ -132,14 +132,7 @@ fn inspect_reads_scene_files_and_mesh_files() {
 
     // At a mesh file's default sampling the small tetrahedron's 2000 points would take more
     // point-sub-steps per 1 ms tick than real time affords: it is sampled coarser.
-    let r = ok_json(&[
-        "scene",
-        "inspect",
-        mesh.to_str().unwrap(),
-        "--units",
-        "mm",
-        "--json",
-    ]);
+    let r = inspect(&[]);
     let plan = &r["sampling_plan"];
     let cost =
         |s: &serde_json::Value| s["points"].as_u64().unwrap() * s["substeps"].as_u64().unwrap();
