@@ -926,6 +926,7 @@ impl CuttingStage {
                 });
                 let Some((_, centre)) = nearest else { return };
                 let c = rest[centre as usize];
+                let radius = radius_holding(grid, rest, &c, radius, MAX_DENT_POINTS);
                 let positions = solver.positions();
                 let pressed = &mut self.pressed;
                 pressed.clear();
@@ -993,5 +994,70 @@ impl CuttingStage {
     /// Points integrated now.
     pub fn awake_points(&self) -> &[u32] {
         &self.awake_list
+    }
+}
+
+/// The largest radius up to `radius` whose ball about `c` holds at most `most` points: the
+/// dent patch of a small organ sampled finely would hold more than its preallocated slots,
+/// and cutting the patch off in the grid's order left free points among pressed ones,
+/// dragged inside out. Shrinks by the cube root of the excess (a few grid queries, once per
+/// press; no allocation).
+fn radius_holding(grid: &RestGrid, rest: &[Vec3], c: &Vec3, radius: f64, most: usize) -> f64 {
+    let mut r = radius;
+    for _ in 0..8 {
+        let mut inside = 0usize;
+        grid.for_each_within(rest, c, r, |_, d2| {
+            if d2 < r * r {
+                inside += 1;
+            }
+        });
+        if inside <= most {
+            return r;
+        }
+        r *= 0.97 * (most as f64 / inside as f64).cbrt();
+    }
+    r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lattice of 1 mm spacing, 21³ points: a ball of 6 mm radius holds about 900.
+    fn lattice() -> (Vec<Vec3>, RestGrid) {
+        let mut rest = Vec::new();
+        for z in 0..21 {
+            for y in 0..21 {
+                for x in 0..21 {
+                    rest.push(Vec3::new(x as f64, y as f64, z as f64) * 1e-3);
+                }
+            }
+        }
+        let grid = RestGrid::build(&rest, 2e-3);
+        (rest, grid)
+    }
+
+    fn held(grid: &RestGrid, rest: &[Vec3], c: &Vec3, r: f64) -> usize {
+        let mut n = 0;
+        grid.for_each_within(rest, c, r, |_, d2| n += usize::from(d2 < r * r));
+        n
+    }
+
+    /// The dent patch is a whole ball: a radius whose ball holds more points than the slots
+    /// shrinks until it holds at most that many (not much fewer), and one that fits is kept.
+    #[test]
+    fn a_dent_patch_too_large_for_its_slots_shrinks_to_a_whole_ball() {
+        let (rest, grid) = lattice();
+        let c = Vec3::new(10.0, 10.0, 20.0) * 1e-3; // on a face: half a ball inside
+        let r = radius_holding(&grid, &rest, &c, 6e-3, MAX_DENT_POINTS);
+        let n = held(&grid, &rest, &c, r);
+        println!("radius 6 → {:.2} mm holding {n} points", r * 1e3);
+        assert!(held(&grid, &rest, &c, 6e-3) > MAX_DENT_POINTS);
+        assert!((MAX_DENT_POINTS / 2..=MAX_DENT_POINTS).contains(&n), "{n}");
+        assert!(r < 6e-3 && r > 3e-3, "{r}");
+        assert_eq!(
+            radius_holding(&grid, &rest, &c, 2e-3, MAX_DENT_POINTS),
+            2e-3
+        );
     }
 }
