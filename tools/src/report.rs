@@ -75,9 +75,17 @@ pub struct TimeStepReport {
 }
 
 impl TimeStepReport {
-    /// Builds the scene's simulation and plans 1 ms ticks (`Simulation::prepare`).
+    /// Builds the scene's simulation and plans 1 ms ticks (`Simulation::prepare`), unless
+    /// the build's real-time sampling rule already planned the model kept.
     fn plan(timed: &TimedScene) -> Option<Self> {
         let s = &timed.scene;
+        if let Some(kept) = s.sampling_plan.as_ref().map(|p| p.kept) {
+            return Some(Self {
+                dt_crit_ms: kept.dt_crit_s * 1e3,
+                substeps_per_tick: kept.substeps,
+                mass_floor: kept.mass_floor,
+            });
+        }
         if s.spec.features.stiff_mode || s.model.points.len() > PLANNED_POINTS_MAX {
             return None;
         }

@@ -17,7 +17,7 @@ use crate::geometry::TriMesh;
 use crate::model::{CoupledModel, ModelBuildError, SpacingRule};
 use crate::pipeline::SIMULATION_TICK_S;
 use crate::progress::{BuildObserver, BuildStage};
-use crate::solver::{Solver, SolverConfig, SolverMode};
+use crate::solver::{Solver, SolverConfig, SolverMode, WholeStepMass};
 
 use super::SceneSpec;
 
@@ -35,13 +35,18 @@ pub const LEAST_POINTS: usize = 250;
 /// Samplings tried before the last is kept as it is.
 const MOST_TRIES: usize = 8;
 
-/// One sampling and the sub-steps per 1 ms tick its solver plans.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+/// One sampling and the time step its solver plans for 1 ms ticks (what `scene inspect`
+/// reports for the kept one, without planning it again).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PlannedSampling {
     /// Interior points.
     pub points: usize,
     /// Sub-steps per 1 ms tick, after any whole-step mass floor.
     pub substeps: u32,
+    /// Critical explicit step (s), after the floor.
+    pub dt_crit_s: f64,
+    /// The whole-step mass floor, if one saved a sub-step.
+    pub mass_floor: Option<WholeStepMass>,
 }
 
 impl PlannedSampling {
@@ -52,7 +57,7 @@ impl PlannedSampling {
 }
 
 /// How the real-time rule chose the sampling.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SamplingPlan {
     /// The rule's most points.
     pub most_points: usize,
@@ -72,7 +77,7 @@ impl SamplingPlan {
 
     /// Whether fewer points than `most_points` asked for were kept.
     pub fn resampled(&self) -> bool {
-        self.kept != self.first
+        self.kept.points != self.first.points
     }
 }
 
@@ -146,6 +151,8 @@ pub(super) fn build_for_real_time(
         PlannedSampling {
             points: model.points.len(),
             substeps: solver.substeps(),
+            dt_crit_s: solver.known_dt_crit().unwrap_or(f64::NAN),
+            mass_floor: solver.whole_step_mass(),
         }
     };
     let first = plan(&model, observer);
@@ -198,7 +205,11 @@ mod tests {
     /// counted — what the station will pay.
     #[test]
     fn a_small_organ_is_sampled_for_a_real_time_tick() {
-        let scene = block(2000, |_| {});
+        // As a cutting station: its simulation's solver has virtual points' spare nodes.
+        let scene = block(2000, |s| {
+            s.features.cutting = true;
+            s.features.virtual_points = true;
+        });
         let plan = scene
             .sampling_plan
             .clone()
@@ -214,6 +225,8 @@ mod tests {
         let mut sim = Simulation::new(&scene);
         sim.prepare(SIMULATION_TICK_S);
         assert_eq!(sim.solver().substeps(), plan.kept.substeps);
+        assert_eq!(sim.solver().known_dt_crit(), Some(plan.kept.dt_crit_s));
+        assert_eq!(sim.solver().whole_step_mass(), plan.kept.mass_floor);
         let said = plan.to_string();
         assert!(said.contains("for real time"), "{said}");
     }
