@@ -293,6 +293,67 @@ fn a_press_that_backs_out_before_rupture() {
     assert_sound_surface(&sim);
 }
 
+/// While the blade dents the capsule, the free points next to the held patch are
+/// integrated: left asleep (frozen where they were) they took the patch's whole strain at
+/// its rim, and the small tumour scan's points there sprang out inverted at 1.7 m/s when
+/// rupture woke them (a rollback in its default stroke, docs/CUTTING.md).
+/// While the blade dents the capsule, the free points next to the held patch are
+/// integrated. The affected region around the edge (3 support radii) does not cover a patch
+/// two rupture displacements wide on a fine lattice: the cerebroma's 147 held points had
+/// neighbours asleep, frozen where they were, that took the patch's whole strain at its rim
+/// — on the small tumour scan they sprang out inverted at 1.7 m/s when rupture woke them, a
+/// rollback in its default stroke (docs/CUTTING.md "Displacement-controlled dent").
+#[test]
+fn a_held_dent_keeps_its_surroundings_integrated() {
+    let scene = scene("cerebroma");
+    let top = top_mm(&scene, 0.0, 0.0);
+    let press = top - 0.9 * scene.spec.force.rupture_displacement_m * 1e3;
+    let s = script(&[
+        (0.0, [0.0, 0.0, top + 1.0]),
+        (0.8, [0.0, 0.0, press]),
+        (1.0, [0.0, 0.0, press]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let ticks = (s.duration_s() / TICK_S) as usize;
+    let (mut held_ticks, mut most_held) = (0, 0);
+    for k in 0..=ticks {
+        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
+        sim.tick(TICK_S, &mut Unobserved);
+        let solver = sim.solver();
+        let body = solver.material_points();
+        let held: Vec<usize> = (0..body)
+            .filter(|&i| solver.fixed()[i] == [true; 3])
+            .collect();
+        if held.is_empty() {
+            continue;
+        }
+        held_ticks += 1;
+        most_held = most_held.max(held.len());
+        // The press begins at the end of a tick; its points are integrated from the next.
+        if held_ticks == 1 {
+            continue;
+        }
+        let mut active = vec![false; solver.positions().len()];
+        for &i in solver.active_points() {
+            active[i as usize] = true;
+        }
+        for &i in &held {
+            for &j in solver.operator().neighbours(i) {
+                // Nodes after the body's points are virtual points (slaved).
+                assert!(
+                    active[j as usize] || j as usize >= body,
+                    "tick {k}: point {j}, a neighbour of the dented point {i}, is frozen"
+                );
+            }
+        }
+    }
+    // The dent was held from first contact to the end, over many points.
+    assert!(
+        held_ticks > 700 && most_held > 100,
+        "{held_ticks} {most_held}"
+    );
+}
+
 #[test]
 fn a_pressed_blade_that_slides_slices() {
     let scene = scene("liver");
