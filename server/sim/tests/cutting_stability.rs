@@ -294,10 +294,6 @@ fn a_press_that_backs_out_before_rupture() {
 }
 
 /// While the blade dents the capsule, the free points next to the held patch are
-/// integrated: left asleep (frozen where they were) they took the patch's whole strain at
-/// its rim, and the small tumour scan's points there sprang out inverted at 1.7 m/s when
-/// rupture woke them (a rollback in its default stroke, docs/CUTTING.md).
-/// While the blade dents the capsule, the free points next to the held patch are
 /// integrated. The affected region around the edge (3 support radii) does not cover a patch
 /// two rupture displacements wide on a fine lattice: the cerebroma's 147 held points had
 /// neighbours asleep, frozen where they were, that took the patch's whole strain at its rim
