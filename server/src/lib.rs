@@ -14,4 +14,5 @@ pub mod output;
 pub mod realtime;
 pub mod scene_file;
 pub mod shm_device;
+pub mod sim_wake;
 pub mod station;

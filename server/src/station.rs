@@ -31,6 +31,7 @@ use crate::frames::{FrameInfo, FramePublisher};
 use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputReport, OutputStage};
 use crate::realtime;
+use crate::sim_wake::SimWake;
 use scalpel_proto::wire::{Event, EventKind, Metrics};
 
 /// Jitter histogram: bins of this width (s) ...
@@ -41,9 +42,10 @@ const JITTER_BINS: usize = 1000;
 const POSE_RING: usize = 256;
 /// Simulated time per simulation tick (s).
 pub(crate) const SIM_TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
-/// The simulation thread ticks this long after the haptic thread on the same 1 ms grid,
-/// so that it takes the pose the haptic thread has just read (and the frame it sends
-/// shows it) instead of one up to a millisecond old.
+/// The simulation thread ticks on the same 1 ms grid as the haptic thread, woken by it once
+/// its tick is done (`sim_wake`), so that it takes the pose the haptic thread has just read
+/// (and the frame it sends shows it) instead of one up to a millisecond old; at the latest
+/// it ticks this long after the grid point (a late haptic thread, or none).
 const SIM_PHASE_S: f64 = 1e-4;
 
 /// A pose on its way from the haptic to the simulation thread.
@@ -463,6 +465,8 @@ pub fn run(
             (None, None)
         }
     };
+    // The haptic thread wakes the simulation thread once its tick is done.
+    let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
     let sim_thread = spawn_sim(
         sim,
         pose_out,
@@ -481,8 +485,9 @@ pub fn run(
         stop.clone(),
         t0,
         params.sim_fifo_priority,
+        sim_wake.clone(),
     )?;
-    let haptic_thread = if params.haptics {
+    let haptic_thread = if let Some(sim_wake) = sim_wake {
         Some(spawn_haptic(
             device,
             HapticContext {
@@ -492,6 +497,7 @@ pub fn run(
                 limits: params.limits,
                 t0,
             },
+            (sim_wake, sim_thread.thread().clone()),
             pose_in,
             model_out,
             faults_haptic,
@@ -829,6 +835,7 @@ struct HapticReady {
 fn spawn_haptic(
     device: DeviceFactory,
     ctx: HapticContext,
+    (sim_wake, sim_thread): (Arc<SimWake>, std::thread::Thread),
     mut poses: rtrb::Producer<PoseIn>,
     mut models: triple_buffer::Output<ModelUpdate>,
     mut faults: triple_buffer::Output<FaultTable>,
@@ -893,6 +900,7 @@ fn spawn_haptic(
                     &mut faults,
                     &counters,
                 );
+                sim_wake.haptic_done(deadline - ctx.t0, &sim_thread);
             }
             // Stopping: bring the force down at the rate limit and leave the device at
             // zero (many devices hold their last command).
@@ -1309,6 +1317,7 @@ fn spawn_sim(
     stop: Arc<AtomicBool>,
     t0: f64,
     sim_fifo_priority: i32,
+    haptic: Option<Arc<SimWake>>,
 ) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
         .name("simulation".into())
@@ -1327,7 +1336,8 @@ fn spawn_sim(
                     .send(opened.as_ref().map(|_| ()).map_err(|e| e.to_string()));
                 publisher = opened.ok();
             }
-            // On the station's 1 ms grid, just after the haptic thread.
+            // On the station's 1 ms grid, woken by the haptic thread's tick (or at the
+            // latest `SIM_PHASE_S` after the grid point).
             let mut deadline =
                 next_on_grid(t0, SIM_TICK_S, realtime::monotonic_s()) + SIM_PHASE_S - SIM_TICK_S;
             let mut figures = SimStatus::default();
@@ -1340,7 +1350,12 @@ fn spawn_sim(
             let (mut stiffness, mut stiffness_asked) = (1.0, 1.0);
             while !stop.load(Ordering::Relaxed) {
                 deadline += SIM_TICK_S;
-                realtime::sleep_until(deadline);
+                match &haptic {
+                    Some(h) => {
+                        h.wait_for_haptic(deadline - SIM_PHASE_S - t0, deadline);
+                    }
+                    None => realtime::sleep_until(deadline),
+                }
                 let started = realtime::monotonic_s();
                 if started - deadline > 10.0 * SIM_TICK_S {
                     // Far behind (a slow scene): go on from the grid rather than catching
