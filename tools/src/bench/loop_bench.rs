@@ -71,6 +71,11 @@ struct Phase {
     haptic: HapticFigures,
     pose_to_force_ms: Quantiles,
     pose_to_frame_ms: Quantiles,
+    /// The first part of it: from the haptic thread taking the pose to the simulation
+    /// thread stamping the frame's header (its wake-up and the normals).
+    pose_to_frame_stamped_ms: Quantiles,
+    /// The rest: writing the payload, sending, and the subscriber's wake-up.
+    frame_stamped_to_received_ms: Quantiles,
     frames_rendered_by_viewers: u64,
 }
 
@@ -214,7 +219,7 @@ fn measure(
         let stop = stop.clone();
         std::thread::Builder::new()
             .name("bench-frames".into())
-            .spawn(move || -> anyhow::Result<Vec<(f64, f64)>> {
+            .spawn(move || -> anyhow::Result<Vec<(f64, f64, f64)>> {
                 // A renderer's frame thread that wants frames promptly: real-time, below
                 // the server's threads.
                 scalpel_client::mock_device::make_fifo(50);
@@ -225,9 +230,12 @@ fn measure(
                     if let Some(f) = reader.wait(Duration::from_millis(50))?
                         && f.header.pose_received_ns > 0
                         && f.received_ns > f.header.pose_received_ns
+                        && f.header.server_time_ns >= f.header.pose_received_ns
                     {
                         let l = (f.received_ns - f.header.pose_received_ns) as f64 * 1e-9;
-                        latencies.push((started.elapsed().as_secs_f64(), l));
+                        let stamped =
+                            (f.header.server_time_ns - f.header.pose_received_ns) as f64 * 1e-9;
+                        latencies.push((started.elapsed().as_secs_f64(), l, stamped));
                     }
                 }
                 Ok(latencies)
@@ -300,11 +308,13 @@ fn measure(
             .filter(|(t, _)| within(*t))
             .map(|(_, l)| *l)
             .collect();
-        let frame: Vec<f64> = frame_latencies
+        let frames: Vec<&(f64, f64, f64)> = frame_latencies
             .iter()
-            .filter(|(t, _)| within(*t))
-            .map(|(_, l)| *l)
+            .filter(|(t, _, _)| within(*t))
             .collect();
+        let frame: Vec<f64> = frames.iter().map(|(_, l, _)| *l).collect();
+        let stamped: Vec<f64> = frames.iter().map(|(_, _, s)| *s).collect();
+        let rest: Vec<f64> = frames.iter().map(|(_, l, s)| l - s).collect();
         // Status windows wholly inside the phase (a window ends at its line's uptime).
         let windows: Vec<&serde_json::Value> = lines
             .iter()
@@ -346,6 +356,8 @@ fn measure(
             haptic,
             pose_to_force_ms: quantiles(&force),
             pose_to_frame_ms: quantiles(&frame),
+            pose_to_frame_stamped_ms: quantiles(&stamped),
+            frame_stamped_to_received_ms: quantiles(&rest),
             frames_rendered_by_viewers: rendered,
         }
     };
@@ -408,6 +420,13 @@ fn print_report(r: &LoopBench) {
             } else {
                 String::new()
             }
+        );
+        println!(
+            "    of which pose → frame stamped by the simulation p50 {:.3} p99 {:.3} ms, stamped → received p50 {:.3} p99 {:.3} ms",
+            p.pose_to_frame_stamped_ms.p50,
+            p.pose_to_frame_stamped_ms.p99,
+            p.frame_stamped_to_received_ms.p50,
+            p.frame_stamped_to_received_ms.p99,
         );
     }
     println!(
