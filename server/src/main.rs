@@ -13,7 +13,7 @@ use scalpel_server::device::{DeviceFactory, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
 use scalpel_server::station::{self, StationParams, StationReport, StatusLine};
-use scalpel_server::{journal, scene_file};
+use scalpel_server::{host_check, journal, scene_file};
 use scalpel_sim::pipeline::CutScript;
 
 #[derive(Parser)]
@@ -33,6 +33,11 @@ struct Args {
     /// Write every input the simulation uses to FILE (replay it with `scalpel replay`).
     #[arg(long, value_name = "FILE")]
     journal: Option<PathBuf>,
+    /// Check this host and configuration for the station (real-time limits, the scene, the
+    /// station name, shared memory, the network endpoint) and exit: 0 if it can run, 1 if
+    /// something would stop it.
+    #[arg(long, conflicts_with_all = ["duration", "journal"])]
+    check: bool,
 }
 
 fn main() {
@@ -54,6 +59,9 @@ fn run() -> anyhow::Result<()> {
         anyhow::bail!("--duration must be a positive number of seconds, got {d}");
     }
     scalpel_proto::shm::quiet_logging();
+    if args.check {
+        return check_host(&config, args.json);
+    }
     let scene = scene_file::load_scene(&config.scene)?;
     let shm_counters = Arc::new(ShmDeviceCounters::default());
     let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
@@ -253,6 +261,41 @@ fn print_status(line: &StatusLine) {
         line.sim.cut_length_mm,
         line.sim.frames_sent
     );
+}
+
+/// `--check`: the host check's report; exits 1 when something would stop the station.
+fn check_host(config: &ServerConfig, json: bool) -> anyhow::Result<()> {
+    let scene = scene_file::load_scene(&config.scene).map_err(|e| format!("{e:#}"));
+    let checks = host_check::run(config, scene.as_ref().map_err(Clone::clone));
+    let passed = host_check::passed(&checks);
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({ "station": config.station, "checks": checks, "passed": passed })
+        );
+    } else {
+        println!("station {}:", config.station);
+        for c in &checks {
+            let status = match c.status {
+                host_check::Status::Ok => "ok",
+                host_check::Status::Warn => "warn",
+                host_check::Status::Fail => "FAIL",
+            };
+            println!("  {status:<5}{:<15}{}", c.name, c.detail);
+        }
+        println!(
+            "{}",
+            if passed {
+                "the station can run here (warnings say what it would run without)"
+            } else {
+                "the station would not start: see FAIL above"
+            }
+        );
+    }
+    if !passed {
+        std::process::exit(1);
+    }
+    Ok(())
 }
 
 /// The QUIC endpoint's parameters: only with `network.listen` set and a scene that has the

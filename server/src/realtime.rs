@@ -125,3 +125,39 @@ pub fn sleep_until(deadline_s: f64) {
         }
     }
 }
+
+/// The soft limit of `resource` (`Ok(None)` = unlimited).
+pub fn soft_limit(resource: libc::__rlimit_resource_t) -> std::io::Result<Option<u64>> {
+    let mut r = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `r` is a valid rlimit for getrlimit to fill.
+    if unsafe { libc::getrlimit(resource, &mut r) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok((r.rlim_cur != libc::RLIM_INFINITY).then_some(r.rlim_cur))
+}
+
+/// Whether mlockall(MCL_CURRENT) is permitted now: locks and unlocks at once (the host
+/// check; the server locks for good with [`lock_memory`]).
+pub fn try_lock_memory() -> std::io::Result<()> {
+    // SAFETY: mlockall/munlockall take flags only and touch no Rust memory.
+    if unsafe { libc::mlockall(libc::MCL_CURRENT) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: as above.
+    unsafe { libc::munlockall() };
+    Ok(())
+}
+
+/// Bytes an unprivileged user may still write on the file system holding `path`.
+pub fn free_bytes(path: &std::ffi::CStr) -> std::io::Result<u64> {
+    // SAFETY: statvfs is plain data, filled by the call; an all-zero value is valid.
+    let mut s: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `path` is a valid C string and `s` a valid statvfs for the call to fill.
+    if unsafe { libc::statvfs(path.as_ptr(), &mut s) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(s.f_bavail.saturating_mul(s.f_frsize))
+}

@@ -1,0 +1,502 @@
+//! `scalpel-server CONFIG --check`: what this host and this configuration give a station,
+//! before it runs — for a lab setting up a machine (deploy/README.md).
+//!
+//! The server itself starts with less (normal scheduling, unlocked memory) and says so in
+//! warnings; the check finds those causes up front and names the fix. What would stop the
+//! station from starting at all (a scene that does not load, a station name in use, a
+//! missing certificate, a port taken) is a failure.
+
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::config::{DeviceKind, ServerConfig};
+use crate::realtime;
+
+/// How a check came out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    /// As the station wants it.
+    Ok,
+    /// The station runs, with less (the detail says what and how to fix it).
+    Warn,
+    /// The station would not start.
+    Fail,
+}
+
+/// One line of the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct Check {
+    /// What was checked (a stable key).
+    pub name: &'static str,
+    /// The outcome.
+    pub status: Status,
+    /// What was found, and what to do about it.
+    pub detail: String,
+}
+
+fn check(name: &'static str, status: Status, detail: impl Into<String>) -> Check {
+    Check {
+        name,
+        status,
+        detail: detail.into(),
+    }
+}
+
+/// Runs every check for `config` (its scene already loaded, or the error it gave).
+pub fn run(
+    config: &ServerConfig,
+    scene: Result<&scalpel_sim::scene::BuiltScene, String>,
+) -> Vec<Check> {
+    let observers = scene.as_ref().is_ok_and(|s| s.spec.features.observers);
+    let haptics = scene.as_ref().map_or(true, |s| s.spec.features.haptics);
+    let frames = scene.as_ref().is_ok_and(|s| s.spec.features.frames);
+    vec![
+        scene_check(scene),
+        device_check(config),
+        station_check(
+            &config.station,
+            config.device.kind == DeviceKind::SharedMemory
+                || (frames && config.rates.frame_hz > 0.0),
+        ),
+        fifo_check(config.realtime.fifo_priority, haptics),
+        memlock_check(config.realtime.lock_memory),
+        rt_throttling_check(),
+        cpu_check(config.realtime.haptic_cpu),
+        shm_check(),
+        network_check(config, observers),
+    ]
+}
+
+/// Whether nothing failed.
+pub fn passed(checks: &[Check]) -> bool {
+    checks.iter().all(|c| c.status != Status::Fail)
+}
+
+fn scene_check(scene: Result<&scalpel_sim::scene::BuiltScene, String>) -> Check {
+    match scene {
+        Ok(s) => {
+            let f = &s.spec.features;
+            let on: Vec<&str> = [
+                ("cutting", f.cutting),
+                ("haptics", f.haptics),
+                ("frames", f.frames),
+                ("observers", f.observers),
+            ]
+            .iter()
+            .filter(|(_, on)| *on)
+            .map(|(n, _)| *n)
+            .collect();
+            check(
+                "scene",
+                Status::Ok,
+                format!(
+                    "{}: {} triangles, {} points; features: {}",
+                    s.spec.name,
+                    s.model.surface.triangles.len(),
+                    s.model.points.len(),
+                    if on.is_empty() {
+                        "none".to_string()
+                    } else {
+                        on.join(", ")
+                    }
+                ),
+            )
+        }
+        Err(e) => check("scene", Status::Fail, e),
+    }
+}
+
+fn device_check(config: &ServerConfig) -> Check {
+    match config.device.kind {
+        DeviceKind::SharedMemory => check(
+            "device",
+            Status::Ok,
+            format!(
+                "a device process on station {}'s shared-memory services (docs/PROTOCOL.md); the force fades to zero until it connects",
+                config.station
+            ),
+        ),
+        DeviceKind::Scripted if config.device.script.is_empty() => check(
+            "device",
+            Status::Ok,
+            "in-process scripted device, the scene's demo cut",
+        ),
+        DeviceKind::Scripted => {
+            match scalpel_sim::pipeline::CutScript::load(Path::new(&config.device.script)) {
+                Ok(_) => check(
+                    "device",
+                    Status::Ok,
+                    format!(
+                        "in-process scripted device playing {}",
+                        config.device.script
+                    ),
+                ),
+                Err(e) => check("device", Status::Fail, format!("device.script: {e:#}")),
+            }
+        }
+    }
+}
+
+fn station_check(station: &str, needs_shm: bool) -> Check {
+    match scalpel_proto::shm::station_nodes(station) {
+        Ok(nodes) => {
+            if let Some(n) = nodes
+                .iter()
+                .find(|n| n.alive && n.name.starts_with("scalpel-server."))
+            {
+                return check(
+                    "station",
+                    Status::Fail,
+                    format!(
+                        "station {station} already has a running server (node {}): stop it, or give this one another `station` name",
+                        n.name
+                    ),
+                );
+            }
+            let dead = nodes.iter().filter(|n| !n.alive).count();
+            check(
+                "station",
+                Status::Ok,
+                if dead > 0 {
+                    format!(
+                        "{station} is free; {dead} dead node(s) of an earlier run will be cleaned up at start"
+                    )
+                } else {
+                    format!("{station} is free")
+                },
+            )
+        }
+        Err(e) => check(
+            "station",
+            // Without iceoryx2's files the device and frame services cannot open either.
+            if needs_shm {
+                Status::Fail
+            } else {
+                Status::Warn
+            },
+            format!(
+                "cannot list the shared-memory nodes ({e}): iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm, owned by whoever made them first — every station, device and viewer process of a host must run as one user"
+            ),
+        ),
+    }
+}
+
+fn fifo_check(priority: i32, haptics: bool) -> Check {
+    if !haptics {
+        return check(
+            "sched_fifo",
+            Status::Ok,
+            "no haptic thread (the scene has no haptics)",
+        );
+    }
+    if priority == 0 {
+        return check(
+            "sched_fifo",
+            Status::Warn,
+            "realtime.fifo_priority = 0: the haptic thread runs with normal scheduling",
+        );
+    }
+    // Tried on a thread of its own, which then ends: the caller's scheduling is untouched.
+    let granted = std::thread::spawn(move || realtime::make_thread_fifo(priority))
+        .join()
+        .unwrap_or_else(|_| Err("the probe thread panicked".into()));
+    match granted {
+        Ok(()) => check(
+            "sched_fifo",
+            Status::Ok,
+            format!("the haptic thread gets SCHED_FIFO {priority}"),
+        ),
+        Err(e) => {
+            let limit = match realtime::soft_limit(libc::RLIMIT_RTPRIO) {
+                Ok(Some(soft)) => format!("RLIMIT_RTPRIO is {soft}"),
+                Ok(None) => "RLIMIT_RTPRIO is unlimited".to_string(),
+                Err(e) => format!("RLIMIT_RTPRIO: {e}"),
+            };
+            check(
+                "sched_fifo",
+                Status::Warn,
+                format!(
+                    "{e} ({limit}): the haptic thread would run with normal scheduling; allow it with LimitRTPRIO={priority} in the service (deploy/systemd) or `rtprio {priority}` in /etc/security/limits.d (deploy/host)"
+                ),
+            )
+        }
+    }
+}
+
+/// Linux capability bit of CAP_IPC_LOCK (linux/capability.h).
+const CAP_IPC_LOCK: u32 = 14;
+
+/// Whether this process has capability `bit` in its effective set (/proc/self/status).
+fn has_capability(bit: u32) -> bool {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("CapEff:"))
+                .and_then(|v| u64::from_str_radix(v.trim(), 16).ok())
+        })
+        .is_some_and(|caps| caps & (1 << bit) != 0)
+}
+
+fn memlock_check(wanted: bool) -> Check {
+    if !wanted {
+        return check(
+            "memory_lock",
+            Status::Warn,
+            "realtime.lock_memory = false: the haptic loop may wait on page faults",
+        );
+    }
+    let limit = realtime::soft_limit(libc::RLIMIT_MEMLOCK);
+    let shown = match &limit {
+        Ok(None) => "unlimited".to_string(),
+        Ok(Some(soft)) => format!("{} KiB", soft / 1024),
+        Err(e) => format!("unknown ({e})"),
+    };
+    match (realtime::try_lock_memory(), limit) {
+        (Ok(()), Ok(None)) => check(
+            "memory_lock",
+            Status::Ok,
+            "mlockall permitted, RLIMIT_MEMLOCK unlimited",
+        ),
+        // CAP_IPC_LOCK (root has it) locks whatever the limit says.
+        (Ok(()), _) if has_capability(CAP_IPC_LOCK) => check(
+            "memory_lock",
+            Status::Ok,
+            format!("mlockall permitted (CAP_IPC_LOCK: RLIMIT_MEMLOCK {shown} does not apply)"),
+        ),
+        (Ok(()), _) => check(
+            "memory_lock",
+            Status::Warn,
+            format!(
+                "mlockall permitted now, but RLIMIT_MEMLOCK is {shown}: the running station (its scene, render frames, device) may need more; set LimitMEMLOCK=infinity (deploy/systemd) or `memlock unlimited` (deploy/host)"
+            ),
+        ),
+        (Err(e), _) => check(
+            "memory_lock",
+            Status::Warn,
+            format!(
+                "mlockall: {e} (RLIMIT_MEMLOCK {shown}): the haptic loop may wait on page faults; set LimitMEMLOCK=infinity (deploy/systemd) or `memlock unlimited` (deploy/host)"
+            ),
+        ),
+    }
+}
+
+fn rt_throttling_check() -> Check {
+    let path = "/proc/sys/kernel/sched_rt_runtime_us";
+    match std::fs::read_to_string(path).map(|s| s.trim().parse::<i64>()) {
+        Ok(Ok(-1)) => check(
+            "rt_throttling",
+            Status::Warn,
+            format!(
+                "{path} is -1: a real-time thread that runs away can take a CPU for good; the default 950000 keeps 5 % of each second for the rest"
+            ),
+        ),
+        Ok(Ok(us)) => check(
+            "rt_throttling",
+            Status::Ok,
+            format!(
+                "real-time threads get at most {:.0} % of each second ({path} = {us})",
+                us as f64 / 1e4
+            ),
+        ),
+        _ => check("rt_throttling", Status::Warn, format!("cannot read {path}")),
+    }
+}
+
+fn cpu_check(haptic_cpu: i32) -> Check {
+    let cpus = realtime::allowed_cpus();
+    if haptic_cpu >= 0 {
+        let c = haptic_cpu as usize;
+        return if cpus.contains(&c) && cpus.len() >= 2 {
+            check(
+                "cpus",
+                Status::Ok,
+                format!(
+                    "the haptic thread pinned to CPU {c} of {cpus:?}, the network threads kept off it"
+                ),
+            )
+        } else {
+            check(
+                "cpus",
+                Status::Warn,
+                format!(
+                    "realtime.haptic_cpu {c} is not one of this process's CPUs {cpus:?} (or the only one): the haptic thread would share its CPU"
+                ),
+            )
+        };
+    }
+    if cpus.len() >= 2 {
+        check(
+            "cpus",
+            Status::Ok,
+            format!(
+                "{} CPUs {cpus:?}; the haptic thread is not pinned",
+                cpus.len()
+            ),
+        )
+    } else {
+        check(
+            "cpus",
+            Status::Warn,
+            format!(
+                "one CPU {cpus:?}: the haptic and simulation threads share it (a station wants two)"
+            ),
+        )
+    }
+}
+
+fn shm_check() -> Check {
+    let free_mib = match realtime::free_bytes(c"/dev/shm") {
+        Ok(b) => b as f64 / (1024.0 * 1024.0),
+        Err(e) => {
+            return check(
+                "shared_memory",
+                Status::Fail,
+                format!("/dev/shm: {e}: iceoryx2 needs it for the device and render services"),
+            );
+        }
+    };
+    // A station's services take a few MiB (frames grow with the cut surface).
+    if free_mib < 64.0 {
+        check(
+            "shared_memory",
+            Status::Warn,
+            format!("/dev/shm has {free_mib:.0} MiB free: render frames may not find room"),
+        )
+    } else {
+        check(
+            "shared_memory",
+            Status::Ok,
+            format!("/dev/shm has {free_mib:.0} MiB free"),
+        )
+    }
+}
+
+fn network_check(config: &ServerConfig, observers: bool) -> Check {
+    let n = &config.network;
+    if n.listen.is_empty() {
+        return check(
+            "network",
+            Status::Ok,
+            "no endpoint (network.listen is empty)",
+        );
+    }
+    if !observers {
+        return check(
+            "network",
+            Status::Warn,
+            format!(
+                "network.listen is {} but the scene has no `observers` feature: no endpoint would run",
+                n.listen
+            ),
+        );
+    }
+    let addr: std::net::SocketAddr = match n.listen.parse() {
+        Ok(a) => a,
+        Err(e) => {
+            return check(
+                "network",
+                Status::Fail,
+                format!("network.listen {:?}: {e}", n.listen),
+            );
+        }
+    };
+    // The files there, and a TLS configuration made from them (a key that does not match
+    // its certificate, a file that is not PEM).
+    if let Err(e) = crate::net::check_certs(Path::new(&n.certs))
+        .and_then(|()| crate::net::tls::server_config(Path::new(&n.certs)).map(drop))
+    {
+        return check("network", Status::Fail, format!("network.certs: {e:#}"));
+    }
+    // QUIC runs over UDP: the port must be free now (a bound-and-released probe).
+    match std::net::UdpSocket::bind(addr) {
+        Ok(_) => check(
+            "network",
+            Status::Ok,
+            format!(
+                "QUIC on {addr} (UDP port free), certificates in {}",
+                n.certs
+            ),
+        ),
+        Err(e) => check(
+            "network",
+            Status::Fail,
+            format!("network.listen {addr}: {e} (another station or program holds the port?)"),
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_that_does_not_load_fails_the_check_and_the_rest_still_run() {
+        let checks = run(
+            &ServerConfig::default(),
+            Err("no such scene: nowhere".into()),
+        );
+        assert!(!passed(&checks));
+        assert_eq!(checks[0].name, "scene");
+        assert_eq!(checks[0].status, Status::Fail);
+        let names: Vec<&str> = checks.iter().map(|c| c.name).collect();
+        assert_eq!(
+            names,
+            [
+                "scene",
+                "device",
+                "station",
+                "sched_fifo",
+                "memory_lock",
+                "rt_throttling",
+                "cpus",
+                "shared_memory",
+                "network"
+            ]
+        );
+    }
+
+    #[test]
+    fn missing_or_unreadable_certificates_and_a_bad_address_fail_the_network_check() {
+        // (A port in use: tools/tests/deploy.rs, with real certificates.)
+        let mut config = ServerConfig::default();
+        config.network.listen = "127.0.0.1:0".into();
+        let dir = std::env::temp_dir().join(format!("scalpel-no-certs-{}", std::process::id()));
+        config.network.certs = dir.display().to_string();
+        let c = network_check(&config, true);
+        assert_eq!(c.status, Status::Fail);
+        assert!(c.detail.contains("is missing"), "{}", c.detail);
+
+        config.network.listen = "not an address".into();
+        let c = network_check(&config, true);
+        assert_eq!(c.status, Status::Fail);
+        assert!(c.detail.contains("network.listen"), "{}", c.detail);
+
+        // Files that are there but hold no certificate.
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in ["ca.pem", "server.pem", "server.key"] {
+            std::fs::write(dir.join(f), "not PEM\n").unwrap();
+        }
+        config.network.listen = "127.0.0.1:0".into();
+        let c = network_check(&config, true);
+        assert_eq!(c.status, Status::Fail);
+        assert!(c.detail.contains("network.certs"), "{}", c.detail);
+        std::fs::remove_dir_all(&dir).unwrap();
+
+        // Without the observers feature the endpoint would not run at all.
+        assert_eq!(network_check(&config, false).status, Status::Warn);
+    }
+
+    #[test]
+    fn a_missing_device_script_fails_and_a_priority_of_zero_warns() {
+        let mut config = ServerConfig::default();
+        config.device.script = "/nonexistent/cut.toml".into();
+        let c = device_check(&config);
+        assert_eq!(c.status, Status::Fail);
+        assert!(c.detail.contains("device.script"), "{}", c.detail);
+        assert_eq!(fifo_check(0, true).status, Status::Warn);
+        assert_eq!(fifo_check(80, false).status, Status::Ok);
+    }
+}
