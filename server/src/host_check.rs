@@ -51,20 +51,22 @@ pub fn run(
 ) -> Vec<Check> {
     let observers = scene.as_ref().is_ok_and(|s| s.spec.features.observers);
     let haptics = scene.as_ref().map_or(true, |s| s.spec.features.haptics);
-    let frames = scene.as_ref().is_ok_and(|s| s.spec.features.frames);
+    // The server refuses to start only when its device is on shared memory; render frames
+    // and the monitor's clean-up are dropped with a warning.
+    let needs_shm = config.device.kind == DeviceKind::SharedMemory;
     vec![
         scene_check(scene),
         device_check(config),
-        station_check(
-            &config.station,
-            config.device.kind == DeviceKind::SharedMemory
-                || (frames && config.rates.frame_hz > 0.0),
+        station_check(&config.station, needs_shm),
+        fifo_check(
+            config.realtime.fifo_priority,
+            config.realtime.sim_fifo_priority,
+            haptics,
         ),
-        fifo_check(config.realtime.fifo_priority, haptics),
         memlock_check(config.realtime.lock_memory),
         rt_throttling_check(),
-        cpu_check(config.realtime.haptic_cpu),
-        shm_check(),
+        cpu_check(config.realtime.haptic_cpu, haptics),
+        shm_check(needs_shm),
         network_check(config, observers),
     ]
 }
@@ -170,7 +172,7 @@ fn station_check(station: &str, needs_shm: bool) -> Check {
         }
         Err(e) => check(
             "station",
-            // Without iceoryx2's files the device and frame services cannot open either.
+            // Without iceoryx2's files the device's services cannot open either.
             if needs_shm {
                 Status::Fail
             } else {
@@ -183,7 +185,15 @@ fn station_check(station: &str, needs_shm: bool) -> Check {
     }
 }
 
-fn fifo_check(priority: i32, haptics: bool) -> Check {
+/// Tries SCHED_FIFO at `priority` on a thread of its own, which then ends (the caller's
+/// scheduling is untouched).
+fn probe_fifo(priority: i32) -> Result<(), String> {
+    std::thread::spawn(move || realtime::make_thread_fifo(priority))
+        .join()
+        .unwrap_or_else(|_| Err("the probe thread panicked".into()))
+}
+
+fn fifo_check(priority: i32, sim_priority: i32, haptics: bool) -> Check {
     if !haptics {
         return check(
             "sched_fifo",
@@ -198,31 +208,43 @@ fn fifo_check(priority: i32, haptics: bool) -> Check {
             "realtime.fifo_priority = 0: the haptic thread runs with normal scheduling",
         );
     }
-    // Tried on a thread of its own, which then ends: the caller's scheduling is untouched.
-    let granted = std::thread::spawn(move || realtime::make_thread_fifo(priority))
-        .join()
-        .unwrap_or_else(|_| Err("the probe thread panicked".into()));
-    match granted {
-        Ok(()) => check(
+    let limit = || match realtime::soft_limit(libc::RLIMIT_RTPRIO) {
+        Ok(Some(soft)) => format!("RLIMIT_RTPRIO is {soft}"),
+        Ok(None) => "RLIMIT_RTPRIO is unlimited".to_string(),
+        Err(e) => format!("RLIMIT_RTPRIO: {e}"),
+    };
+    if let Err(e) = probe_fifo(priority) {
+        return check(
             "sched_fifo",
-            Status::Ok,
-            format!("the haptic thread gets SCHED_FIFO {priority}"),
-        ),
-        Err(e) => {
-            let limit = match realtime::soft_limit(libc::RLIMIT_RTPRIO) {
-                Ok(Some(soft)) => format!("RLIMIT_RTPRIO is {soft}"),
-                Ok(None) => "RLIMIT_RTPRIO is unlimited".to_string(),
-                Err(e) => format!("RLIMIT_RTPRIO: {e}"),
-            };
-            check(
-                "sched_fifo",
-                Status::Warn,
-                format!(
-                    "{e} ({limit}): the haptic thread would run with normal scheduling; allow it with LimitRTPRIO={priority} in the service (deploy/systemd) or `rtprio {priority}` in /etc/security/limits.d (deploy/host)"
-                ),
-            )
-        }
+            Status::Warn,
+            format!(
+                "{e} ({}): the haptic thread would run with normal scheduling; allow it with LimitRTPRIO={priority} in the service (deploy/systemd) or `rtprio {priority}` in /etc/security/limits.d (deploy/host)",
+                limit()
+            ),
+        );
     }
+    if sim_priority > 0
+        && let Err(e) = probe_fifo(sim_priority)
+    {
+        // The server drops it silently (the simulation then runs with normal scheduling).
+        return check(
+            "sched_fifo",
+            Status::Warn,
+            format!(
+                "the haptic thread gets SCHED_FIFO {priority}, but realtime.sim_fifo_priority: {e} ({}): the simulation thread would run with normal scheduling",
+                limit()
+            ),
+        );
+    }
+    check(
+        "sched_fifo",
+        Status::Ok,
+        if sim_priority > 0 {
+            format!("the haptic thread gets SCHED_FIFO {priority}, the simulation {sim_priority}")
+        } else {
+            format!("the haptic thread gets SCHED_FIFO {priority}")
+        },
+    )
 }
 
 /// Linux capability bit of CAP_IPC_LOCK (linux/capability.h).
@@ -285,29 +307,47 @@ fn memlock_check(wanted: bool) -> Check {
 
 fn rt_throttling_check() -> Check {
     let path = "/proc/sys/kernel/sched_rt_runtime_us";
-    match std::fs::read_to_string(path).map(|s| s.trim().parse::<i64>()) {
+    let read = |p: &str| std::fs::read_to_string(p).map(|s| s.trim().parse::<i64>());
+    // The runtime is out of this period (1 s unless changed).
+    let period_us = match read("/proc/sys/kernel/sched_rt_period_us") {
+        Ok(Ok(p)) if p > 0 => p,
+        _ => 1_000_000,
+    };
+    match read(path) {
         Ok(Ok(-1)) => check(
             "rt_throttling",
             Status::Warn,
             format!(
-                "{path} is -1: a real-time thread that runs away can take a CPU for good; the default 950000 keeps 5 % of each second for the rest"
+                "{path} is -1: a real-time thread that runs away can take a CPU for good; the default 950000 (of 1 s) keeps 5 % for the rest"
+            ),
+        ),
+        // Under half the period the haptic thread's ~1 % is safe, but a real-time
+        // simulation thread is not (and 0 stops real-time threads altogether).
+        Ok(Ok(us)) if us < period_us / 2 => check(
+            "rt_throttling",
+            Status::Warn,
+            format!(
+                "real-time threads get at most {:.0} % of each {} ms ({path} = {us}): too little for a real-time simulation thread; the default is 950000 of 1000000",
+                us as f64 / period_us as f64 * 100.0,
+                period_us / 1000
             ),
         ),
         Ok(Ok(us)) => check(
             "rt_throttling",
             Status::Ok,
             format!(
-                "real-time threads get at most {:.0} % of each second ({path} = {us})",
-                us as f64 / 1e4
+                "real-time threads get at most {:.0} % of each {} ms ({path} = {us})",
+                us as f64 / period_us as f64 * 100.0,
+                period_us / 1000
             ),
         ),
         _ => check("rt_throttling", Status::Warn, format!("cannot read {path}")),
     }
 }
 
-fn cpu_check(haptic_cpu: i32) -> Check {
+fn cpu_check(haptic_cpu: i32, haptics: bool) -> Check {
     let cpus = realtime::allowed_cpus();
-    if haptic_cpu >= 0 {
+    if haptic_cpu >= 0 && haptics {
         let c = haptic_cpu as usize;
         return if cpus.contains(&c) && cpus.len() >= 2 {
             check(
@@ -347,13 +387,17 @@ fn cpu_check(haptic_cpu: i32) -> Check {
     }
 }
 
-fn shm_check() -> Check {
+fn shm_check(needs_shm: bool) -> Check {
     let free_mib = match realtime::free_bytes(c"/dev/shm") {
         Ok(b) => b as f64 / (1024.0 * 1024.0),
         Err(e) => {
             return check(
                 "shared_memory",
-                Status::Fail,
+                if needs_shm {
+                    Status::Fail
+                } else {
+                    Status::Warn
+                },
                 format!("/dev/shm: {e}: iceoryx2 needs it for the device and render services"),
             );
         }
@@ -459,7 +503,7 @@ mod tests {
     }
 
     #[test]
-    fn missing_or_unreadable_certificates_and_a_bad_address_fail_the_network_check() {
+    fn missing_or_garbled_certificates_and_a_bad_address_fail_the_network_check() {
         // (A port in use: tools/tests/deploy.rs, with real certificates.)
         let mut config = ServerConfig::default();
         config.network.listen = "127.0.0.1:0".into();
@@ -496,7 +540,7 @@ mod tests {
         let c = device_check(&config);
         assert_eq!(c.status, Status::Fail);
         assert!(c.detail.contains("device.script"), "{}", c.detail);
-        assert_eq!(fifo_check(0, true).status, Status::Warn);
-        assert_eq!(fifo_check(80, false).status, Status::Ok);
+        assert_eq!(fifo_check(0, 0, true).status, Status::Warn);
+        assert_eq!(fifo_check(80, 60, false).status, Status::Ok);
     }
 }

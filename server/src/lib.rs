@@ -8,6 +8,7 @@ pub mod device;
 pub mod device_monitor;
 pub mod faults;
 pub mod frames;
+pub mod grid_clock;
 pub mod host_check;
 pub mod journal;
 pub mod net;

@@ -126,8 +126,15 @@ pub fn sleep_until(deadline_s: f64) {
     }
 }
 
+/// The type libc gives resource numbers (glibc has its own).
+#[cfg(target_env = "gnu")]
+pub type Resource = libc::__rlimit_resource_t;
+/// The type libc gives resource numbers.
+#[cfg(not(target_env = "gnu"))]
+pub type Resource = libc::c_int;
+
 /// The soft limit of `resource` (`Ok(None)` = unlimited).
-pub fn soft_limit(resource: libc::__rlimit_resource_t) -> std::io::Result<Option<u64>> {
+pub fn soft_limit(resource: Resource) -> std::io::Result<Option<u64>> {
     let mut r = libc::rlimit {
         rlim_cur: 0,
         rlim_max: 0,

@@ -9,8 +9,11 @@
 //! (or after) the grid point is done, or the old phase as a fallback (a haptic thread that
 //! woke late, or stalled, delays the simulation by no more than before).
 //!
-//! The haptic side is a store, a load and, only when the simulation is due, `unpark`: an
-//! atomic swap plus a futex wake if the thread is parked — no lock, no allocation, no wait.
+//! The haptic side is a store, a load and, when the simulation waits for this tick or an
+//! earlier one, `unpark`: an atomic swap, plus a futex wake if the thread is parked — no
+//! lock, no allocation, no wait. (While the simulation computes, its word still names the
+//! tick it took, so the haptic thread unparks then too: a swap that leaves a token, and
+//! the simulation's next wait checks once more before parking.)
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::Thread;

@@ -28,6 +28,7 @@ use crate::device::{DeviceFactory, DeviceSample, ForceStatus, HapticDevice};
 use crate::device_monitor::{DeviceEvent, DeviceMonitor};
 use crate::faults::{FaultBook, FaultTable, HapticEffects, Transition};
 use crate::frames::{FrameInfo, FramePublisher};
+use crate::grid_clock::GridClock;
 use crate::journal::{self, TickRecord};
 use crate::output::{OutputInput, OutputLimits, OutputReport, OutputStage};
 use crate::realtime;
@@ -59,10 +60,6 @@ pub(crate) struct PoseIn {
     pub received_ns: u64,
 }
 
-/// The first point of the grid `origin + k·period` at or after `now`.
-fn next_on_grid(origin: f64, period: f64, now: f64) -> f64 {
-    origin + period * ((now - origin) / period).ceil().max(0.0)
-}
 /// The station clock's tick at `now_s` seconds since the start (1 ms ticks; faults are
 /// scheduled on it). The threads wake on the tick's grid point or just after it, and the
 /// nanosecond of slack keeps one that the float sum puts a hair early on its own tick.
@@ -876,11 +873,11 @@ fn spawn_haptic(
             let mut state = HapticState::new(ctx.limits);
             // The schedule starts once this thread runs (spawning and the scheduler change
             // take a while); the device's clock still counts from the station's start.
-            // On the station's 1 ms grid (the simulation ticks just after it).
-            let mut deadline =
-                next_on_grid(ctx.t0, ctx.period_s, realtime::monotonic_s()) - ctx.period_s;
+            // On the station's grid (the simulation ticks just after it).
+            let mut clock = GridClock::starting_at(ctx.t0, ctx.period_s, realtime::monotonic_s());
             while !stop.load(Ordering::Relaxed) {
-                deadline += ctx.period_s;
+                let mut k = clock.advance();
+                let deadline = clock.deadline(k);
                 realtime::sleep_until(deadline);
                 let wall = realtime::monotonic_s();
                 let lateness = (wall - deadline).max(0.0);
@@ -888,7 +885,7 @@ fn spawn_haptic(
                 if missed {
                     // Woke a whole period late: go on from the grid point now rather than
                     // running the missed ticks back to back.
-                    deadline = next_on_grid(ctx.t0, ctx.period_s, wall) - ctx.period_s;
+                    k = clock.resync(wall);
                 }
                 state.tick(
                     wall - ctx.t0,
@@ -900,13 +897,13 @@ fn spawn_haptic(
                     &mut faults,
                     &counters,
                 );
-                sim_wake.haptic_done(deadline - ctx.t0, &sim_thread);
+                sim_wake.haptic_done(clock.since_start(k), &sim_thread);
             }
             // Stopping: bring the force down at the rate limit and leave the device at
             // zero (many devices hold their last command).
             for _ in 0..10_000 {
-                deadline += ctx.period_s;
-                realtime::sleep_until(deadline);
+                let k = clock.advance();
+                realtime::sleep_until(clock.deadline(k));
                 let now = realtime::monotonic_s() - ctx.t0;
                 if state.release(now, device.as_mut()) == Vec3::zeros() {
                     break;
@@ -1338,8 +1335,7 @@ fn spawn_sim(
             }
             // On the station's 1 ms grid, woken by the haptic thread's tick (or at the
             // latest `SIM_PHASE_S` after the grid point).
-            let mut deadline =
-                next_on_grid(t0, SIM_TICK_S, realtime::monotonic_s()) + SIM_PHASE_S - SIM_TICK_S;
+            let mut clock = GridClock::starting_at(t0, SIM_TICK_S, realtime::monotonic_s());
             let mut figures = SimStatus::default();
             let mut last_tip: Option<Vec3> = None;
             let mut pose: Option<PoseIn> = None;
@@ -1349,10 +1345,11 @@ fn spawn_sim(
             let mut credit = 0.0;
             let (mut stiffness, mut stiffness_asked) = (1.0, 1.0);
             while !stop.load(Ordering::Relaxed) {
-                deadline += SIM_TICK_S;
+                let k = clock.advance();
+                let deadline = clock.deadline(k) + SIM_PHASE_S;
                 match &haptic {
                     Some(h) => {
-                        h.wait_for_haptic(deadline - SIM_PHASE_S - t0, deadline);
+                        h.wait_for_haptic(clock.since_start(k), deadline);
                     }
                     None => realtime::sleep_until(deadline),
                 }
@@ -1360,7 +1357,7 @@ fn spawn_sim(
                 if started - deadline > 10.0 * SIM_TICK_S {
                     // Far behind (a slow scene): go on from the grid rather than catching
                     // up.
-                    deadline = next_on_grid(t0, SIM_TICK_S, started) + SIM_PHASE_S - SIM_TICK_S;
+                    clock.resync(started);
                 }
                 while let Ok(p) = poses.pop() {
                     pose = Some(p);

@@ -25,8 +25,8 @@ fn make_certs(dir: &Path) {
             String::from_utf8_lossy(&out.stderr)
         );
     };
+    station::make_lab_ca(dir);
     let d = dir.to_str().unwrap();
-    run(&["certs", "init", "--dir", d]);
     for (role, name) in [
         ("observer", "obs1"),
         ("observer", "obs2"),
@@ -44,12 +44,7 @@ fn start(dir: &Path, station: &str) -> (Running, SocketAddr) {
 
 /// [`start`] with more configuration (TOML sections) and arguments.
 fn start_with(dir: &Path, station: &str, more: &str, args: &[&str]) -> (Running, SocketAddr) {
-    let scene = dir.join("observed.toml");
-    std::fs::write(
-        &scene,
-        "extends = \"liver\"\n[features]\nobservers = true\n",
-    )
-    .unwrap();
+    let scene = station::write_observed_scene(dir);
     let config = dir.join("server.toml");
     std::fs::write(
         &config,

@@ -72,7 +72,7 @@ struct Phase {
     pose_to_force_ms: Quantiles,
     pose_to_frame_ms: Quantiles,
     /// The first part of it: from the haptic thread taking the pose to the simulation
-    /// thread stamping the frame's header (its wake-up and the normals).
+    /// thread stamping the frame's header (its wake-up, the normals and the loan).
     pose_to_frame_stamped_ms: Quantiles,
     /// The rest: writing the payload, sending, and the subscriber's wake-up.
     frame_stamped_to_received_ms: Quantiles,

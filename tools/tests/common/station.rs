@@ -155,6 +155,32 @@ pub fn start_server_with(station: &str, dir: &Path, duration_s: f64, kind: &str)
     Running::start(command)
 }
 
+/// Writes `dir/observed.toml`, the built-in liver with remote observers (a scene the QUIC
+/// endpoint runs for), and returns its path.
+pub fn write_observed_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("observed.toml");
+    std::fs::write(
+        &scene,
+        "extends = \"liver\"\n[features]\nobservers = true\n",
+    )
+    .unwrap();
+    scene
+}
+
+/// Makes a lab CA and the server's certificate in `dir` with `scalpel certs init`.
+pub fn make_lab_ca(dir: &Path) {
+    let made = scalpel()
+        .args(["certs", "init", "--dir"])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "scalpel certs init: {}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+}
+
 /// A JSON line as a value (`Null` if it is not JSON).
 pub fn json(line: &str) -> serde_json::Value {
     serde_json::from_str(line).unwrap_or(serde_json::Value::Null)
