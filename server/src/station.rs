@@ -62,7 +62,7 @@ pub(crate) struct PoseIn {
 
 /// The station clock's tick at `now_s` seconds since the start (1 ms ticks; faults are
 /// scheduled on it). The threads wake on the tick's grid point or just after it, and the
-/// nanosecond of slack keeps one that the float sum puts a hair early on its own tick.
+/// nanosecond of slack keeps one that float rounding puts a hair early on its own tick.
 pub fn station_tick(now_s: f64) -> u64 {
     ((now_s + 1e-9) * 1e3).max(0.0) as u64
 }

@@ -121,12 +121,7 @@ fn the_check_fails_for_a_station_that_already_runs_and_for_a_port_in_use() {
     assert_eq!(status, "fail");
     assert!(detail.contains("already has a running server"), "{detail}");
     // Stopped as an operator stops it: its shared memory goes with it.
-    let stopped = Command::new("kill")
-        .args(["-INT", &server.child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(stopped.success());
-    let (status, _) = server.finish();
+    let (status, _) = server.interrupt();
     assert!(status.success());
     let (passed, report) = check(&dir, &config);
     assert!(passed, "free again once it stopped: {report:#}");

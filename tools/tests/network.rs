@@ -557,12 +557,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     let frames_rendered = renderer.join().unwrap();
     observing.join().unwrap();
     // The device stops as a user stops it (Ctrl-C): it writes its recording and exits.
-    let stopped = std::process::Command::new("kill")
-        .args(["-INT", &mock.child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(stopped.success());
-    let (status, _) = mock.finish();
+    let (status, _) = mock.interrupt();
     assert!(status.success(), "the mock device failed");
     for v in viewers {
         let (status, lines) = v.finish();
@@ -768,12 +763,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     server.assert_ticking();
     // Stopped as an operator stops it, its journal replays bit for bit, with every
     // command and who sent it.
-    let stopped = std::process::Command::new("kill")
-        .args(["-INT", &server.child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(stopped.success());
-    let (status, _) = server.finish();
+    let (status, _) = server.interrupt();
     assert!(status.success());
     let out = scalpel()
         .arg("replay")

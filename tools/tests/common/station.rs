@@ -116,6 +116,16 @@ impl Running {
         self.child.wait().unwrap();
     }
 
+    /// Stops the process as a user stops it (SIGINT, Ctrl-C) and waits for it to end.
+    pub fn interrupt(self) -> (std::process::ExitStatus, Vec<String>) {
+        let sent = Command::new("kill")
+            .args(["-INT", &self.child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success(), "kill -INT");
+        self.finish()
+    }
+
     /// Waits for the process to end and returns the rest of its output.
     pub fn finish(mut self) -> (std::process::ExitStatus, Vec<String>) {
         let status = self.child.wait().unwrap();
