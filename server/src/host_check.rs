@@ -144,17 +144,11 @@ fn device_check(config: &ServerConfig) -> Check {
 fn station_check(station: &str, needs_shm: bool) -> Check {
     match scalpel_proto::shm::station_nodes(station) {
         Ok(nodes) => {
-            if let Some(n) = nodes
-                .iter()
-                .find(|n| n.alive && n.name.starts_with("scalpel-server."))
-            {
+            if let Some(node) = crate::station::live_server(&nodes) {
                 return check(
                     "station",
                     Status::Fail,
-                    format!(
-                        "station {station} already has a running server (node {}): stop it, or give this one another `station` name",
-                        n.name
-                    ),
+                    crate::station::station_taken(station, node),
                 );
             }
             let dead = nodes.iter().filter(|n| !n.alive).count();
@@ -349,22 +343,19 @@ fn cpu_check(haptic_cpu: i32, haptics: bool) -> Check {
     let cpus = realtime::allowed_cpus();
     if haptic_cpu >= 0 && haptics {
         let c = haptic_cpu as usize;
-        return if cpus.contains(&c) && cpus.len() >= 2 {
-            check(
+        return match realtime::cpus_besides(c, &cpus) {
+            Ok(_) => check(
                 "cpus",
                 Status::Ok,
                 format!(
                     "the haptic thread pinned to CPU {c} of {cpus:?}, the network threads kept off it"
                 ),
-            )
-        } else {
-            check(
+            ),
+            Err(e) => check(
                 "cpus",
                 Status::Warn,
-                format!(
-                    "realtime.haptic_cpu {c} is not one of this process's CPUs {cpus:?} (or the only one): the haptic thread would share its CPU"
-                ),
-            )
+                format!("{e}: the haptic thread would share its CPU"),
+            ),
         };
     }
     if cpus.len() >= 2 {

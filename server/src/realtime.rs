@@ -126,6 +126,18 @@ pub fn sleep_until(deadline_s: f64) {
     }
 }
 
+/// The CPUs other than `cpu` among `cpus` (this process's), when `cpu` can have a CPU of
+/// its own: it is one of them and not the only one.
+pub fn cpus_besides(cpu: usize, cpus: &[usize]) -> Result<Vec<usize>, String> {
+    if cpus.contains(&cpu) && cpus.len() >= 2 {
+        Ok(cpus.iter().copied().filter(|&o| o != cpu).collect())
+    } else {
+        Err(format!(
+            "realtime.haptic_cpu {cpu}: not one of this process's CPUs {cpus:?} (or the only one)"
+        ))
+    }
+}
+
 /// The type libc gives resource numbers (glibc has its own).
 #[cfg(target_env = "gnu")]
 pub type Resource = libc::__rlimit_resource_t;

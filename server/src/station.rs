@@ -358,6 +358,21 @@ pub struct StationParams {
     pub network: Option<crate::net::NetworkParams>,
 }
 
+/// The live server among a station's nodes (one server per station).
+pub fn live_server(nodes: &[scalpel_proto::shm::NodeSeen]) -> Option<&str> {
+    nodes
+        .iter()
+        .find(|n| n.alive && n.name.starts_with("scalpel-server."))
+        .map(|n| n.name.as_str())
+}
+
+/// Why a second server on `station` is refused (its live `node`).
+pub fn station_taken(station: &str, node: &str) -> String {
+    format!(
+        "station {station} already has a running server (its node {node} is alive): stop it, or give this one another `station` name"
+    )
+}
+
 /// Runs a station until `stop` is set, calling `report` with a status line every interval
 /// and with events as they happen (on this thread). The device is made on the haptic
 /// thread. With `journal` (its header written), every tick's input is appended to it by a
@@ -394,15 +409,8 @@ pub fn run(
     // One server per station: the services are the station's.
     match scalpel_proto::shm::station_nodes(&params.station) {
         Ok(nodes) => {
-            if let Some(n) = nodes
-                .iter()
-                .find(|n| n.alive && n.name.starts_with("scalpel-server."))
-            {
-                anyhow::bail!(
-                    "station {} already has a running server (its node {} is alive): stop it, or give this one another `station` name",
-                    params.station,
-                    n.name
-                );
+            if let Some(n) = live_server(&nodes) {
+                anyhow::bail!("{}", station_taken(&params.station, n));
             }
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
@@ -410,15 +418,13 @@ pub fn run(
     // The haptic thread's own CPU, if one is given: the network threads run on the others.
     let cpus = realtime::allowed_cpus();
     let (haptic_cpu, other_cpus) = match params.haptic_cpu {
-        Some(c) if cpus.contains(&c) && cpus.len() >= 2 => {
-            (Some(c), cpus.iter().copied().filter(|&o| o != c).collect())
-        }
-        Some(c) => {
-            warnings.push(format!(
-                "realtime.haptic_cpu {c}: not one of this process's CPUs {cpus:?} (or the only one): the haptic thread shares its CPU"
-            ));
-            (None, Vec::new())
-        }
+        Some(c) => match realtime::cpus_besides(c, &cpus) {
+            Ok(others) => (Some(c), others),
+            Err(e) => {
+                warnings.push(format!("{e}: the haptic thread shares its CPU"));
+                (None, Vec::new())
+            }
+        },
         None => (None, Vec::new()),
     };
     // The network endpoint first: if it cannot listen, nothing else has started yet.
