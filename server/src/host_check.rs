@@ -47,7 +47,7 @@ fn check(name: &'static str, status: Status, detail: impl Into<String>) -> Check
 /// Runs every check for `config` (its scene already loaded, or the error it gave).
 pub fn run(
     config: &ServerConfig,
-    scene: Result<&scalpel_sim::scene::BuiltScene, String>,
+    scene: Result<&scalpel_sim::scene::BuiltScene, &str>,
 ) -> Vec<Check> {
     let observers = scene.as_ref().is_ok_and(|s| s.spec.features.observers);
     let haptics = scene.as_ref().map_or(true, |s| s.spec.features.haptics);
@@ -56,7 +56,7 @@ pub fn run(
     let needs_shm = config.device.kind == DeviceKind::SharedMemory;
     vec![
         scene_check(scene),
-        device_check(config),
+        device_check(config, scene.ok()),
         station_check(&config.station, needs_shm),
         fifo_check(
             config.realtime.fifo_priority,
@@ -76,7 +76,7 @@ pub fn passed(checks: &[Check]) -> bool {
     checks.iter().all(|c| c.status != Status::Fail)
 }
 
-fn scene_check(scene: Result<&scalpel_sim::scene::BuiltScene, String>) -> Check {
+fn scene_check(scene: Result<&scalpel_sim::scene::BuiltScene, &str>) -> Check {
     match scene {
         Ok(s) => {
             let f = &s.spec.features;
@@ -110,7 +110,7 @@ fn scene_check(scene: Result<&scalpel_sim::scene::BuiltScene, String>) -> Check 
     }
 }
 
-fn device_check(config: &ServerConfig) -> Check {
+fn device_check(config: &ServerConfig, scene: Option<&scalpel_sim::scene::BuiltScene>) -> Check {
     match config.device.kind {
         DeviceKind::SharedMemory => check(
             "device",
@@ -120,11 +120,27 @@ fn device_check(config: &ServerConfig) -> Check {
                 config.station
             ),
         ),
-        DeviceKind::Scripted if config.device.script.is_empty() => check(
-            "device",
-            Status::Ok,
-            "in-process scripted device, the scene's demo cut",
-        ),
+        // The demo cut the server would lay on the scene's surface (it refuses to start
+        // without one).
+        DeviceKind::Scripted if config.device.script.is_empty() => {
+            match scene.map(|s| scalpel_sim::pipeline::CutScript::default_for(&s.model.surface)) {
+                Some(Ok(_)) => check(
+                    "device",
+                    Status::Ok,
+                    "in-process scripted device, the scene's demo cut",
+                ),
+                Some(Err(e)) => check(
+                    "device",
+                    Status::Fail,
+                    format!("the scene has no place for the demo cut ({e}): give device.script"),
+                ),
+                None => check(
+                    "device",
+                    Status::Warn,
+                    "in-process scripted device, the scene's demo cut (not laid: the scene did not load)",
+                ),
+            }
+        }
         DeviceKind::Scripted => {
             match scalpel_sim::pipeline::CutScript::load(Path::new(&config.device.script)) {
                 Ok(_) => check(
@@ -307,6 +323,13 @@ fn rt_throttling_check() -> Check {
         Ok(Ok(p)) if p > 0 => p,
         _ => 1_000_000,
     };
+    let share = |us: i64| {
+        format!(
+            "real-time threads get at most {:.0} % of each {} ms ({path} = {us})",
+            us as f64 / period_us as f64 * 100.0,
+            period_us / 1000
+        )
+    };
     match read(path) {
         Ok(Ok(-1)) => check(
             "rt_throttling",
@@ -321,20 +344,11 @@ fn rt_throttling_check() -> Check {
             "rt_throttling",
             Status::Warn,
             format!(
-                "real-time threads get at most {:.0} % of each {} ms ({path} = {us}): too little for a real-time simulation thread; the default is 950000 of 1000000",
-                us as f64 / period_us as f64 * 100.0,
-                period_us / 1000
+                "{}: too little for a real-time simulation thread; the default is 950000 of 1000000",
+                share(us)
             ),
         ),
-        Ok(Ok(us)) => check(
-            "rt_throttling",
-            Status::Ok,
-            format!(
-                "real-time threads get at most {:.0} % of each {} ms ({path} = {us})",
-                us as f64 / period_us as f64 * 100.0,
-                period_us / 1000
-            ),
-        ),
+        Ok(Ok(us)) => check("rt_throttling", Status::Ok, share(us)),
         _ => check("rt_throttling", Status::Warn, format!("cannot read {path}")),
     }
 }
@@ -469,10 +483,7 @@ mod tests {
 
     #[test]
     fn a_scene_that_does_not_load_fails_the_check_and_the_rest_still_run() {
-        let checks = run(
-            &ServerConfig::default(),
-            Err("no such scene: nowhere".into()),
-        );
+        let checks = run(&ServerConfig::default(), Err("no such scene: nowhere"));
         assert!(!passed(&checks));
         assert_eq!(checks[0].name, "scene");
         assert_eq!(checks[0].status, Status::Fail);
@@ -528,7 +539,17 @@ mod tests {
     fn a_missing_device_script_fails_and_a_priority_of_zero_warns() {
         let mut config = ServerConfig::default();
         config.device.script = "/nonexistent/cut.toml".into();
-        let c = device_check(&config);
+        // The demo cut is laid on the scene as the server would lay it.
+        let liver = crate::scene_file::load_scene("liver").unwrap();
+        assert_eq!(
+            device_check(&ServerConfig::default(), Some(&liver)).status,
+            Status::Ok
+        );
+        assert_eq!(
+            device_check(&ServerConfig::default(), None).status,
+            Status::Warn
+        );
+        let c = device_check(&config, None);
         assert_eq!(c.status, Status::Fail);
         assert!(c.detail.contains("device.script"), "{}", c.detail);
         assert_eq!(fifo_check(0, 0, true).status, Status::Warn);

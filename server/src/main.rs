@@ -266,7 +266,7 @@ fn print_status(line: &StatusLine) {
 /// `--check`: the host check's report; exits 1 when something would stop the station.
 fn check_host(config: &ServerConfig, json: bool) -> anyhow::Result<()> {
     let scene = scene_file::load_scene(&config.scene).map_err(|e| format!("{e:#}"));
-    let checks = host_check::run(config, scene.as_ref().map_err(Clone::clone));
+    let checks = host_check::run(config, scene.as_ref().map_err(String::as_str));
     let passed = host_check::passed(&checks);
     if json {
         println!(

@@ -22,7 +22,7 @@ use std::time::Duration;
 use crate::realtime;
 
 /// Grid times are compared in whole nanoseconds since the station's start, with this much
-/// slack for the float sums the two threads keep their deadlines in.
+/// slack for float rounding (k·period at one rate against j·1 ms at the other).
 const SLACK_NS: u64 = 1_000;
 
 /// The two threads' shared word.

@@ -230,11 +230,12 @@ fn measure(
                     if let Some(f) = reader.wait(Duration::from_millis(50))?
                         && f.header.pose_received_ns > 0
                         && f.received_ns > f.header.pose_received_ns
-                        && f.header.server_time_ns >= f.header.pose_received_ns
                     {
                         let l = (f.received_ns - f.header.pose_received_ns) as f64 * 1e-9;
-                        let stamped =
-                            (f.header.server_time_ns - f.header.pose_received_ns) as f64 * 1e-9;
+                        // Signed: the split must not filter the frames the total counts.
+                        let stamped = (f.header.server_time_ns as f64
+                            - f.header.pose_received_ns as f64)
+                            * 1e-9;
                         latencies.push((started.elapsed().as_secs_f64(), l, stamped));
                     }
                 }
