@@ -4,6 +4,7 @@
 //! device's poses. Device I/O, render frames and the network endpoint attach to these.
 
 pub mod config;
+pub mod console;
 pub mod device;
 pub mod device_monitor;
 pub mod faults;

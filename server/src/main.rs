@@ -13,7 +13,7 @@ use scalpel_server::device::{DeviceFactory, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
 use scalpel_server::station::{self, StationParams, StationReport, StatusLine};
-use scalpel_server::{host_check, journal, scene_file};
+use scalpel_server::{host_check, journal, say, scene_file};
 use scalpel_sim::pipeline::CutScript;
 
 #[derive(Parser)]
@@ -42,7 +42,7 @@ struct Args {
 
 fn main() {
     if let Err(e) = run() {
-        eprintln!("scalpel-server: {e:#}");
+        scalpel_server::console::error(format_args!("{e:#}"));
         std::process::exit(1);
     }
 }
@@ -124,7 +124,7 @@ fn run() -> anyhow::Result<()> {
         network: network_params(&config, &scene)?,
     };
     if !args.json {
-        println!(
+        say!(
             "station {}: scene {} ({} points), {}, frames {} Hz",
             config.station,
             scene.spec.name,
@@ -138,7 +138,7 @@ fn run() -> anyhow::Result<()> {
         );
         // Repairs of the surface, and a scan remeshed on loading, said once.
         for w in &scene.mesh_warnings {
-            println!("  mesh: {w}");
+            say!("  mesh: {w}");
         }
         // A mesh's default sampling thinned (or still over) for a real-time tick, likewise.
         if let Some(plan) = scene
@@ -146,7 +146,7 @@ fn run() -> anyhow::Result<()> {
             .as_ref()
             .filter(|p| p.resampled() || !p.fits())
         {
-            println!("  sampling: {plan}");
+            say!("  sampling: {plan}");
         }
     }
     let stop = Arc::new(AtomicBool::new(false));
@@ -187,9 +187,9 @@ fn run() -> anyhow::Result<()> {
         print_report(report, json)
     })?;
     if json {
-        println!("{}", serde_json::to_string(&summary)?);
+        say!("{}", serde_json::to_string(&summary)?);
     } else {
-        println!(
+        say!(
             "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
             summary.haptic_ticks,
             summary.deadline_misses,
@@ -205,7 +205,7 @@ fn run() -> anyhow::Result<()> {
         );
         if shared_memory_device {
             use std::sync::atomic::Ordering::Relaxed;
-            println!(
+            say!(
                 "device: {} poses used, {} rejected as malformed, {} forces not sent",
                 shm_counters.poses.load(Relaxed),
                 shm_counters.rejected.load(Relaxed),
@@ -219,13 +219,13 @@ fn run() -> anyhow::Result<()> {
 fn print_report(report: &StationReport, json: bool) {
     if json {
         if let Ok(s) = serde_json::to_string(report) {
-            println!("{s}");
+            say!("{s}");
         }
         return;
     }
     match report {
         StationReport::Status(line) => print_status(line),
-        StationReport::Event(e) => println!("{:7.1} s  {}", e.uptime_s, e.event),
+        StationReport::Event(e) => say!("{:7.1} s  {}", e.uptime_s, e.event),
     }
 }
 
@@ -252,7 +252,7 @@ fn print_status(line: &StatusLine) {
         ),
         None => "no haptics".to_string(),
     };
-    println!(
+    say!(
         "{:7.1} s  {haptic}  | sim {} ticks, {} points × {} sub-step(s), cut {:.1} mm, {} frames",
         line.uptime_s,
         line.sim.ticks,
@@ -269,21 +269,21 @@ fn check_host(config: &ServerConfig, json: bool) -> anyhow::Result<()> {
     let checks = host_check::run(config, scene.as_ref().map_err(String::as_str));
     let passed = host_check::passed(&checks);
     if json {
-        println!(
+        say!(
             "{}",
             serde_json::json!({ "station": config.station, "checks": checks, "passed": passed })
         );
     } else {
-        println!("station {}:", config.station);
+        say!("station {}:", config.station);
         for c in &checks {
             let status = match c.status {
                 host_check::Status::Ok => "ok",
                 host_check::Status::Warn => "warn",
                 host_check::Status::Fail => "FAIL",
             };
-            println!("  {status:<5}{:<15}{}", c.name, c.detail);
+            say!("  {status:<5}{:<15}{}", c.name, c.detail);
         }
-        println!(
+        say!(
             "{}",
             if passed {
                 "the station can run here (warnings say what it would run without)"
@@ -309,10 +309,10 @@ fn network_params(
         return Ok(None);
     }
     if !scene.spec.features.observers {
-        eprintln!(
-            "scalpel-server: network.listen is set but scene {} has no `observers` feature: no endpoint",
+        scalpel_server::console::error(format_args!(
+            "network.listen is set but scene {} has no `observers` feature: no endpoint",
             scene.spec.name
-        );
+        ));
         return Ok(None);
     }
     let certs = PathBuf::from(&n.certs);

@@ -415,7 +415,8 @@ pub fn run(
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
     }
-    // The haptic thread's own CPU, if one is given: the network threads run on the others.
+    // The haptic thread's own CPU, if one is given: the simulation and the network threads
+    // run on the others.
     let cpus = realtime::allowed_cpus();
     let (haptic_cpu, other_cpus) = match params.haptic_cpu {
         Some(c) => match realtime::cpus_besides(c, &cpus) {
@@ -487,7 +488,10 @@ pub fn run(
         },
         stop.clone(),
         t0,
-        params.sim_fifo_priority,
+        SimThread {
+            fifo_priority: params.sim_fifo_priority,
+            cpus: other_cpus.clone(),
+        },
         sim_wake.clone(),
     )?;
     let haptic_thread = if let Some(sim_wake) = sim_wake {
@@ -559,7 +563,11 @@ pub fn run(
         }
         anyhow::bail!("cannot open the device: {e}");
     }
-    let mut running = vec!["simulation thread".to_string()];
+    let mut running = vec![if other_cpus.is_empty() {
+        "simulation thread".to_string()
+    } else {
+        format!("simulation thread (CPUs {other_cpus:?})")
+    }];
     let mut off = Vec::new();
     if haptic_thread.is_some() {
         running.push(format!(
@@ -1308,6 +1316,14 @@ fn frame_interval_ticks(frame_hz: f64) -> u64 {
     }
 }
 
+/// How the simulation thread is scheduled.
+struct SimThread {
+    /// SCHED_FIFO priority (0: normal scheduling).
+    fifo_priority: i32,
+    /// The CPUs it may run on (empty: any); the CPUs besides a pinned haptic thread's.
+    cpus: Vec<usize>,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn spawn_sim(
     mut sim: Simulation,
@@ -1319,16 +1335,22 @@ fn spawn_sim(
     frames: SimFrames,
     stop: Arc<AtomicBool>,
     t0: f64,
-    sim_fifo_priority: i32,
+    thread: SimThread,
     haptic: Option<Arc<SimWake>>,
 ) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
         .name("simulation".into())
         .spawn(move || {
-            if sim_fifo_priority > 0 {
+            if thread.fifo_priority > 0 {
                 // Refused is not fatal: the simulation then runs with normal scheduling
                 // (reported by the status line's late ticks).
-                let _ = realtime::make_thread_fifo(sim_fifo_priority);
+                let _ = realtime::make_thread_fifo(thread.fifo_priority);
+            }
+            if !thread.cpus.is_empty() {
+                // Off the haptic thread's own CPU: woken by each haptic tick, the
+                // simulation would otherwise often be placed beside it. Refused is not
+                // fatal either (the CPUs were checked against the allowed set).
+                let _ = realtime::pin_thread(&thread.cpus);
             }
             // Shared-memory ports belong to the thread that opens them.
             let mut publisher = None;

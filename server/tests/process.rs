@@ -92,3 +92,118 @@ fn a_bad_configuration_is_refused_with_its_key() {
     assert!(stderr.contains("outptu"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_station_whose_stdout_is_closed_runs_on() {
+    // The reader is gone before the server writes its first line (a `| head` that has
+    // what it wants, a log pipe whose reader exited): the station still runs its whole
+    // session and says once on stderr why its status lines stopped.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let dir = std::env::temp_dir().join(format!("scalpel-closed-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let journal = dir.join("session.journal");
+    // A station of its own: the embedded default's test runs beside this one.
+    let config = dir.join("server.toml");
+    std::fs::write(
+        &config,
+        format!("station = \"closed-out-{}\"\n", std::process::id()),
+    )
+    .unwrap();
+    let out = server()
+        .arg(&config)
+        .args(["--duration", "2.5", "--journal"])
+        .arg(&journal)
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{:?}: {stderr}", out.status);
+    assert_eq!(stderr.matches("stdout closed").count(), 1, "{stderr}");
+    // It ran the session to the end: the journal has its closing state hash.
+    let recorded = scalpel_server::journal::read(&journal).unwrap();
+    assert!(
+        recorded.ticks.len() > 1000,
+        "{} ticks",
+        recorded.ticks.len()
+    );
+    assert!(recorded.end.is_some());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn with_a_haptic_cpu_the_simulation_runs_on_the_other_cpus() {
+    let allowed = scalpel_server::realtime::allowed_cpus();
+    let Some(&haptic_cpu) = allowed.last().filter(|_| allowed.len() >= 2) else {
+        eprintln!("skipped: one CPU ({allowed:?}), nothing to keep the haptic CPU apart from");
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("scalpel-pinned-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("server.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "station = \"pinned-{}\"\n[realtime]\nhaptic_cpu = {haptic_cpu}\n",
+            std::process::id()
+        ),
+    )
+    .unwrap();
+    let mut child = server()
+        .arg(&config)
+        .args(["--duration", "20"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Once the station says what runs, its threads are placed.
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut runs = String::new();
+    while !runs.contains("runs:") {
+        runs.clear();
+        let n = std::io::BufRead::read_line(&mut stdout, &mut runs).unwrap();
+        assert!(n > 0, "the server ended before saying what runs");
+    }
+    let cpus_of = |thread: &str| -> String {
+        let tasks = std::path::PathBuf::from(format!("/proc/{}/task", child.id()));
+        for task in std::fs::read_dir(&tasks).unwrap().flatten() {
+            let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
+            if comm.trim() == thread {
+                let status = std::fs::read_to_string(task.path().join("status")).unwrap();
+                return status
+                    .lines()
+                    .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+                    .unwrap()
+                    .trim()
+                    .to_string();
+            }
+        }
+        panic!("no thread named {thread}");
+    };
+    let haptic = cpus_of("haptic");
+    let simulation = cpus_of("simulation");
+    let _ = child.kill();
+    let _ = child.wait();
+    std::fs::remove_dir_all(&dir).ok();
+    assert_eq!(haptic, haptic_cpu.to_string(), "{runs}");
+    let others: Vec<usize> = allowed
+        .iter()
+        .copied()
+        .filter(|&c| c != haptic_cpu)
+        .collect();
+    assert_eq!(parse_cpu_list(&simulation), others, "{runs}");
+    assert!(
+        runs.contains(&format!("simulation thread (CPUs {others:?})")),
+        "{runs}"
+    );
+}
+
+/// A kernel CPU list ("0-2,5") as CPU numbers.
+fn parse_cpu_list(list: &str) -> Vec<usize> {
+    list.split(',')
+        .flat_map(|part| match part.split_once('-') {
+            Some((a, b)) => (a.parse().unwrap()..=b.parse().unwrap()).collect::<Vec<usize>>(),
+            None => vec![part.parse().unwrap()],
+        })
+        .collect()
+}

@@ -323,6 +323,9 @@ enum BenchCommand {
         /// Viewers in the second phase.
         #[arg(long, default_value_t = 4)]
         viewers: usize,
+        /// Give the haptic thread this CPU to itself (the server's `realtime.haptic_cpu`).
+        #[arg(long)]
+        haptic_cpu: Option<usize>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -400,6 +403,20 @@ enum UnitArg {
     Mm,
 }
 
+/// A report piped into `head` ends the command quietly once the reader has what it wants,
+/// as `ls | head` does, instead of a panic in `println!` (Rust starts with SIGPIPE
+/// ignored). Not for `view`: its X11 connection is a socket, whose loss Xlib reports
+/// itself. The other sockets we use do not raise SIGPIPE (QUIC is UDP; iceoryx2 sends with
+/// MSG_NOSIGNAL).
+#[allow(unsafe_code)]
+fn end_quietly_when_the_reader_goes() {
+    // SAFETY: restores SIGPIPE's default disposition before any other thread exists; no
+    // handler runs Rust code.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 impl From<UnitArg> for LengthUnit {
     fn from(u: UnitArg) -> Self {
         match u {
@@ -412,6 +429,9 @@ impl From<UnitArg> for LengthUnit {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if !matches!(cli.command, Command::View { .. }) {
+        end_quietly_when_the_reader_goes();
+    }
     let result = match cli.command {
         Command::Demo { scene, json } => run_inspect(
             &TargetArgs {
@@ -557,8 +577,9 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Loop {
             seconds,
             viewers,
+            haptic_cpu,
             json,
-        }) => bench::loop_bench::run(seconds, viewers, json),
+        }) => bench::loop_bench::run(seconds, viewers, haptic_cpu, json),
         Command::Bench(BenchCommand::Net {
             seconds,
             observers,

@@ -281,6 +281,27 @@ fn validate_reports_json_and_rejects_unknown_names() {
 }
 
 #[test]
+fn a_report_piped_into_a_closed_reader_ends_quietly() {
+    // `scalpel scene list | head -0`: the reader is gone before the first line; the
+    // command ends by SIGPIPE, as `ls` would, with nothing on stderr (it used to panic in
+    // println! with exit status 101 and a backtrace).
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(env!("CARGO_BIN_EXE_scalpel"))
+        .args(["scene", "list"])
+        .stdout(writer)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.signal(), Some(libc::SIGPIPE), "{:?}", out.status);
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
 fn accuracy_bench_writes_csv_and_plot() {
     let dir = tempfile::tempdir().unwrap();
     let r = ok_json(&[

@@ -1,4 +1,4 @@
-//! `scalpel bench loop [--seconds S] [--viewers N] [--json]`: the station's real-time loop as
+//! `scalpel bench loop [--seconds S] [--viewers N] [--haptic-cpu C] [--json]`: the station's real-time loop as
 //! a device and renderers see it. Starts the release server (`scalpel-server`, beside this
 //! binary) on a station of its own with a shared-memory device (and the simulation thread at
 //! SCHED_FIFO 60: the liver's ticks keep well inside 1 ms in release), plays the demo cut with the
@@ -83,6 +83,9 @@ struct Phase {
 struct LoopBench {
     station: String,
     seconds_per_phase: f64,
+    /// The haptic thread's own CPU (`--haptic-cpu`; the simulation and the network
+    /// threads then run on the others), or none.
+    haptic_cpu: Option<usize>,
     phases: Vec<Phase>,
     jitter_p999_target_ms: f64,
     pose_to_frame_p99_target_ms: f64,
@@ -125,7 +128,12 @@ pub(crate) fn spawn_server(
 }
 
 /// Runs the benchmark.
-pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
+pub fn run(
+    seconds: f64,
+    viewers: usize,
+    haptic_cpu: Option<usize>,
+    json: bool,
+) -> anyhow::Result<()> {
     if !(seconds.is_finite() && (2.0..=3600.0).contains(&seconds)) {
         bail!("--seconds must be between 2 and 3600, got {seconds}");
     }
@@ -140,7 +148,8 @@ pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
     std::fs::write(
         &config,
         format!(
-            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[realtime]\nsim_fifo_priority = 60\n"
+            "station = \"{station}\"\n[device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 1.0\nframe_hz = 60.0\n[realtime]\nsim_fifo_priority = 60\nhaptic_cpu = {}\n",
+            haptic_cpu.map_or(-1, |c| c as i64)
         ),
     )?;
     let total = 2.0 * seconds + 4.0;
@@ -162,7 +171,8 @@ pub fn run(seconds: f64, viewers: usize, json: bool) -> anyhow::Result<()> {
             }
         });
     }
-    let result = measure(&station, seconds, viewers, &lines, started_rx);
+    let result = measure(&station, seconds, viewers, &lines, started_rx)
+        .map(|r| LoopBench { haptic_cpu, ..r });
     let _ = server.kill();
     let _ = server.wait();
     std::fs::remove_dir_all(&dir).ok();
@@ -377,6 +387,7 @@ fn measure(
     Ok(LoopBench {
         station: station.to_string(),
         seconds_per_phase: seconds,
+        haptic_cpu: None,
         phases,
         jitter_p999_target_ms: JITTER_P999_TARGET_MS,
         pose_to_frame_p99_target_ms: POSE_TO_FRAME_P99_TARGET_MS,
@@ -388,8 +399,11 @@ fn measure(
 
 fn print_report(r: &LoopBench) {
     println!(
-        "station {}: {} s per phase, release server, SCHED_FIFO haptic thread, mock device phase-locked",
-        r.station, r.seconds_per_phase
+        "station {}: {} s per phase, release server, SCHED_FIFO haptic thread{}, mock device phase-locked",
+        r.station,
+        r.seconds_per_phase,
+        r.haptic_cpu
+            .map_or(String::new(), |c| format!(" on CPU {c} (the rest off it)"))
     );
     for p in &r.phases {
         let h = &p.haptic;
