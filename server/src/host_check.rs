@@ -57,6 +57,7 @@ pub fn run(
     vec![
         scene_check(scene),
         device_check(config, scene.ok()),
+        simulation_check(config, scene.ok()),
         station_check(&config.station, needs_shm),
         fifo_check(
             config.realtime.fifo_priority,
@@ -154,6 +155,100 @@ fn device_check(config: &ServerConfig, scene: Option<&scalpel_sim::scene::BuiltS
                 Err(e) => check("device", Status::Fail, format!("device.script: {e:#}")),
             }
         }
+    }
+}
+
+/// Wall time the simulation check may take (a stiff scene's ticks can take 10 ms each).
+const TIMING_WALL_S: f64 = 2.0;
+
+/// The scene's simulation ticks timed on this host against the station's 1 ms tick: the
+/// device's script (with a shared-memory device, the scene's demo cut as a stand-in; no
+/// tool where neither can be laid) played from its start, as the simulation thread would,
+/// for up to [`TIMING_WALL_S`]. A scene too heavy for the host still runs — the haptic loop
+/// bridges late ticks with the local force model and the tissue lags the tool — so this
+/// warns and never fails.
+fn simulation_check(
+    config: &ServerConfig,
+    scene: Option<&scalpel_sim::scene::BuiltScene>,
+) -> Check {
+    use scalpel_sim::pipeline::{CutScript, SIMULATION_TICK_S, Simulation, Unobserved};
+    let Some(scene) = scene else {
+        return check(
+            "simulation",
+            Status::Warn,
+            "not timed: the scene did not load",
+        );
+    };
+    let (script, played) = match (&config.device.kind, config.device.script.as_str()) {
+        (DeviceKind::Scripted, file) if !file.is_empty() => {
+            (CutScript::load(Path::new(file)).ok(), "the device's script")
+        }
+        _ => (
+            CutScript::default_for(&scene.model.surface).ok(),
+            "the scene's demo cut",
+        ),
+    };
+    let played = if script.is_some() { played } else { "no tool" };
+    let mut sim = Simulation::new(scene);
+    sim.prepare(SIMULATION_TICK_S);
+    let ticks = script.as_ref().map_or(1000, |s| {
+        ((s.duration_s() / SIMULATION_TICK_S).ceil() as usize).max(1)
+    });
+    let mut wall_ms = Vec::with_capacity(ticks);
+    let mut most_substeps = 0;
+    let mut played_ticks = 0;
+    let started = std::time::Instant::now();
+    for k in 0..ticks {
+        if started.elapsed().as_secs_f64() > TIMING_WALL_S {
+            break;
+        }
+        sim.set_tool(
+            script
+                .as_ref()
+                .map(|s| s.pose_at(k as f64 * SIMULATION_TICK_S)),
+        );
+        let tick = std::time::Instant::now();
+        let report = sim.tick(SIMULATION_TICK_S, &mut Unobserved);
+        // A cutting scene integrates nothing until the tool touches it: those ticks
+        // would only dilute the figures.
+        if report.active_points > 0 {
+            wall_ms.push(tick.elapsed().as_secs_f64() * 1e3);
+        }
+        most_substeps = most_substeps.max(report.solver.substeps);
+        played_ticks = k + 1;
+    }
+    let timed = wall_ms.len();
+    if timed == 0 {
+        return check(
+            "simulation",
+            Status::Ok,
+            format!("{played_ticks} ticks of {played}: the tissue never moved, nothing to time"),
+        );
+    }
+    wall_ms.sort_by(f64::total_cmp);
+    let at = |q: f64| wall_ms[((timed - 1) as f64 * q).round() as usize];
+    let over = wall_ms.iter().filter(|&&ms| ms > 1.0).count();
+    let figures = format!(
+        "{timed} ticks with the tissue moving in {played_ticks}{} of {played}: p50 {:.3}, p99 {:.3}, max {:.2} ms of the 1 ms tick, at most {most_substeps} sub-step(s)",
+        if played_ticks < ticks {
+            format!(" (of {ticks}: {TIMING_WALL_S} s of wall time)")
+        } else {
+            String::new()
+        },
+        at(0.5),
+        at(0.99),
+        at(1.0),
+    );
+    if at(0.99) <= 1.0 {
+        check("simulation", Status::Ok, figures)
+    } else {
+        check(
+            "simulation",
+            Status::Warn,
+            format!(
+                "{figures}; {over} over 1 ms: the tissue will lag the tool (the haptic loop bridges late ticks with the local force model) — fewer points ([sampling]) or a softer material"
+            ),
+        )
     }
 }
 
@@ -493,6 +588,7 @@ mod tests {
             [
                 "scene",
                 "device",
+                "simulation",
                 "station",
                 "sched_fifo",
                 "memory_lock",
@@ -502,6 +598,23 @@ mod tests {
                 "network"
             ]
         );
+    }
+
+    #[test]
+    fn the_simulation_check_times_the_demo_cut_and_never_fails() {
+        // Whether it warns depends on this machine's speed; what it says does not.
+        let scene = crate::scene_file::load_scene("liver").unwrap();
+        let c = simulation_check(&ServerConfig::default(), Some(&scene));
+        assert_ne!(c.status, Status::Fail, "{}", c.detail);
+        assert!(
+            c.detail.contains("ticks with the tissue moving")
+                && c.detail.contains("of the scene's demo cut")
+                && c.detail.contains("sub-step(s)"),
+            "{}",
+            c.detail
+        );
+        let c = simulation_check(&ServerConfig::default(), None);
+        assert_eq!(c.status, Status::Warn);
     }
 
     #[test]

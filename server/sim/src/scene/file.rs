@@ -392,6 +392,17 @@ impl SceneSpec {
             set(&mut out.stiff_mode, f.stiff_mode);
             set(&mut out.frames, f.frames);
             set(&mut out.observers, f.observers);
+            // Turning cutting off turns off what only cutting uses, unless this file asks
+            // for it (then the check below says so): `extends = "liver"` with
+            // `cutting = false` is a deformation scene, not three errors one at a time.
+            if f.cutting == Some(false) {
+                if f.virtual_points.is_none() {
+                    out.virtual_points = false;
+                }
+                if f.ripple.is_none() {
+                    out.ripple = false;
+                }
+            }
         }
         for (on, name) in [
             (spec.features.virtual_points, "virtual_points"),
@@ -663,6 +674,21 @@ mod tests {
         assert_eq!(s.sampling.spacing, SpacingRule::TargetPoints(1526));
         assert_eq!(s.mesh.source, MeshSource::Builtin(BuiltinMesh::Liver));
         assert_eq!(s.name, "test");
+    }
+
+    #[test]
+    fn cutting_off_takes_what_only_cutting_uses_unless_asked_for() {
+        let s = parse("extends = \"liver\"\n[features]\ncutting = false\n").unwrap();
+        let f = &s.features;
+        assert!(!f.cutting && !f.virtual_points && !f.ripple);
+        assert!(f.haptics && f.frames, "the rest is the liver's");
+        let e = parse("extends = \"liver\"\n[features]\ncutting = false\nripple = true\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("features.ripple") && e.contains("cutting"),
+            "{e}"
+        );
     }
 
     #[test]
