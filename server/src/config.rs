@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use scalpel_sim::scene::file::MAX_DEVICE_FORCE_N;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -11,12 +12,12 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum ConfigError {
     /// Not readable.
-    #[error("{file}: cannot read: {source}")]
+    #[error("{file}: cannot read: {reason}")]
     Read {
         /// The file.
         file: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (said in the message, not chained as a source: it would be said twice).
+        reason: std::io::Error,
     },
     /// Not valid TOML, or a key that does not exist or has the wrong type.
     #[error("{file}: {message}")]
@@ -36,7 +37,7 @@ pub enum ConfigError {
         /// The value given.
         value: String,
         /// What is accepted.
-        expected: &'static str,
+        expected: String,
     },
 }
 
@@ -236,10 +237,11 @@ impl ServerConfig {
 
     /// Reads and checks a configuration file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            file: path.to_owned(),
-            source,
-        })?;
+        let text = crate::input_file::read_text_capped(path, crate::input_file::TOML_MAX_BYTES)
+            .map_err(|reason| ConfigError::Read {
+                file: path.to_owned(),
+                reason,
+            })?;
         Self::from_toml(&text, path)
     }
 
@@ -262,7 +264,7 @@ impl ServerConfig {
                     file: file.to_owned(),
                     key,
                     value: value.to_string(),
-                    expected,
+                    expected: expected.to_string(),
                 })
             }
         };
@@ -282,8 +284,8 @@ impl ServerConfig {
         range(
             "rates.frame_hz",
             r.frame_hz,
-            (0.0..=500.0).contains(&r.frame_hz),
-            "0 (no frames) or up to 500 Hz",
+            r.frame_hz == 0.0 || (1.0..=500.0).contains(&r.frame_hz),
+            "0 (no frames) or 1 to 500 Hz",
         )?;
         let p = self.realtime.fifo_priority;
         range(
@@ -296,8 +298,10 @@ impl ServerConfig {
         range(
             "realtime.sim_fifo_priority",
             f64::from(q),
-            (0..=99).contains(&q) && (q == 0 || p == 0 || q < p),
-            "0 (normal scheduling) or 1–99, below realtime.fifo_priority",
+            // A real-time simulation above a normally scheduled haptic thread would
+            // preempt it.
+            (0..=99).contains(&q) && (q == 0 || (p > 0 && q < p)),
+            "0 (normal scheduling) or 1–99, below a realtime.fifo_priority that is not 0",
         )?;
         let c = self.realtime.haptic_cpu;
         range(
@@ -310,7 +314,7 @@ impl ServerConfig {
         range(
             "output.max_force_n",
             o.max_force_n,
-            (0.0..=50.0).contains(&o.max_force_n),
+            (0.0..=MAX_DEVICE_FORCE_N).contains(&o.max_force_n),
             "between 0 (the scene's limit) and 50 N",
         )?;
         range(
@@ -322,12 +326,18 @@ impl ServerConfig {
         // A timeout shorter than two of the loop's periods would fade the force in and out
         // between samples.
         let period_ms = 1e3 / r.haptic_hz;
-        range(
-            "output.device_timeout_ms",
-            o.device_timeout_ms,
-            o.device_timeout_ms >= 2.0 * period_ms && o.device_timeout_ms <= 10_000.0,
-            "at least two haptic periods and at most 10000 ms",
-        )?;
+        if !(o.device_timeout_ms >= 2.0 * period_ms && o.device_timeout_ms <= 10_000.0) {
+            return Err(ConfigError::Range {
+                file: file.to_owned(),
+                key: "output.device_timeout_ms",
+                value: o.device_timeout_ms.to_string(),
+                expected: format!(
+                    "at least two haptic periods ({:.3} ms at rates.haptic_hz = {}) and at most 10000 ms",
+                    2.0 * period_ms,
+                    r.haptic_hz
+                ),
+            });
+        }
         range(
             "output.sim_timeout_ms",
             o.sim_timeout_ms,
@@ -379,7 +389,7 @@ impl ServerConfig {
                     file: file.to_owned(),
                     key: "network.listen",
                     value: n.listen.clone(),
-                    expected: "an address and port, like 127.0.0.1:4433 or [::]:4433",
+                    expected: "an address and port, like 127.0.0.1:4433 or [::]:4433".into(),
                 });
             }
             if n.certs.is_empty() {
@@ -387,7 +397,7 @@ impl ServerConfig {
                     file: file.to_owned(),
                     key: "network.certs",
                     value: String::new(),
-                    expected: "the lab's certificate folder (scalpel certs init --dir DIR)",
+                    expected: "the lab's certificate folder (scalpel certs init --dir DIR)".into(),
                 });
             }
         }
@@ -396,7 +406,29 @@ impl ServerConfig {
                 file: file.to_owned(),
                 key: "station",
                 value: self.station.clone(),
-                expected: "1 to 48 letters, digits, '-' and '_' (it names shared-memory services)",
+                expected: "1 to 48 letters, digits, '-' and '_' (it names shared-memory services)"
+                    .into(),
+            });
+        }
+        // The journal names the scene on a line of its own.
+        if self.scene.is_empty() || self.scene.chars().any(char::is_control) {
+            return Err(ConfigError::Range {
+                file: file.to_owned(),
+                key: "scene",
+                value: format!("{:?}", self.scene),
+                expected:
+                    "a built-in scene name or a scene file's path, without control characters"
+                        .into(),
+            });
+        }
+        if self.device.kind == DeviceKind::SharedMemory && !self.device.script.is_empty() {
+            return Err(ConfigError::Range {
+                file: file.to_owned(),
+                key: "device.script",
+                value: format!("{:?}", self.device.script),
+                expected:
+                    "empty with kind = \"shared_memory\" (the device process plays its own script)"
+                        .into(),
             });
         }
         Ok(())
@@ -468,5 +500,37 @@ mod tests {
             let text = format!("[output]\npassivity_memory_ms = {good}\n");
             assert!(ServerConfig::from_toml(&text, Path::new("s.toml")).is_ok());
         }
+    }
+
+    #[test]
+    fn settings_that_make_no_sense_together_are_refused() {
+        let refused = |text: &str| {
+            ServerConfig::from_toml(text, Path::new("s.toml"))
+                .unwrap_err()
+                .to_string()
+        };
+        let e = refused("[rates]\nframe_hz = 1e-9\n");
+        assert!(e.contains("rates.frame_hz"), "{e}");
+        // A real-time simulation above a normally scheduled haptic thread.
+        let e = refused("[realtime]\nfifo_priority = 0\nsim_fifo_priority = 10\n");
+        assert!(e.contains("realtime.sim_fifo_priority"), "{e}");
+        // The journal names the scene on one line.
+        let e = refused("scene = \"a\\nb.toml\"\n");
+        assert!(e.contains("scene") && e.contains("control"), "{e}");
+        let e = refused("[device]\nkind = \"shared_memory\"\nscript = \"x.toml\"\n");
+        assert!(e.contains("device.script"), "{e}");
+        // The timeout's bound, with the rate it comes from.
+        let e = refused("[rates]\nhaptic_hz = 333.3\n");
+        assert!(e.contains("6.001 ms at rates.haptic_hz = 333.3"), "{e}");
+        // The reason said once.
+        let e = format!(
+            "{:#}",
+            anyhow::Error::from(ServerConfig::load(Path::new("/nonexistent/s.toml")).unwrap_err())
+        );
+        assert_eq!(e.matches("No such file").count(), 1, "{e}");
+        let e = ServerConfig::load(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
     }
 }

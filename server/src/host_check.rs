@@ -143,7 +143,7 @@ fn device_check(config: &ServerConfig, scene: Option<&scalpel_sim::scene::BuiltS
             }
         }
         DeviceKind::Scripted => {
-            match scalpel_sim::pipeline::CutScript::load(Path::new(&config.device.script)) {
+            match crate::scene_file::load_script(Path::new(&config.device.script)) {
                 Ok(_) => check(
                     "device",
                     Status::Ok,
@@ -180,9 +180,10 @@ fn simulation_check(
         );
     };
     let (script, played) = match (&config.device.kind, config.device.script.as_str()) {
-        (DeviceKind::Scripted, file) if !file.is_empty() => {
-            (CutScript::load(Path::new(file)).ok(), "the device's script")
-        }
+        (DeviceKind::Scripted, file) if !file.is_empty() => (
+            crate::scene_file::load_script(Path::new(file)).ok(),
+            "the device's script",
+        ),
         _ => (
             CutScript::default_for(&scene.model.surface).ok(),
             "the scene's demo cut",

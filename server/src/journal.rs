@@ -23,7 +23,7 @@
 //! (delayed, noisy, dropped) and the stiffness lines — so a replay needs nothing else.
 
 use std::fmt::Write as _;
-use std::io::{BufRead, Write};
+use std::io::{BufRead, Read, Write};
 use std::path::Path;
 
 use anyhow::{Context, bail};
@@ -101,27 +101,69 @@ pub struct Journal {
     pub end: Option<(u64, u64)>,
 }
 
+/// The longest line a journal may have (bytes).
+const MAX_LINE_BYTES: u64 = 1 << 20;
+
 /// Reads a journal; errors name the file and line. A journal whose session was killed reads
 /// up to its last complete line.
 pub fn read(path: &Path) -> anyhow::Result<Journal> {
+    let journal = read_lines(path)?;
+    // The simulation does not read the configuration, but a journal whose configuration
+    // the server would have refused was not written by one.
+    if !journal.config.is_empty() {
+        crate::config::ServerConfig::from_toml(&journal.config, path)
+            .with_context(|| format!("{}: its config lines", path.display()))?;
+    }
+    Ok(journal)
+}
+
+fn read_lines(path: &Path) -> anyhow::Result<Journal> {
+    crate::input_file::check_regular(path)
+        .with_context(|| format!("cannot read journal {}", path.display()))?;
     let file = std::fs::File::open(path)
         .with_context(|| format!("cannot read journal {}", path.display()))?;
-    let mut lines = std::io::BufReader::new(file).lines().enumerate().peekable();
-    let mut next = |what: &str| -> anyhow::Result<(usize, String, bool)> {
-        match lines.next() {
-            Some((n, Ok(l))) => Ok((n + 1, l, lines.peek().is_none())),
-            Some((n, Err(e))) => bail!("{}:{}: {e}", path.display(), n + 1),
-            None => bail!("{}: ends before {what}", path.display()),
+    let mut reader = std::io::BufReader::new(file);
+    let mut number = 0;
+    // Each line read with a cap: a journal's longest lines (config, command) are far
+    // shorter, and a file of garbage must not be read into memory whole.
+    // `None` at the end of the file.
+    let mut next = || -> anyhow::Result<Option<(usize, String, bool)>> {
+        let mut line = String::new();
+        number += 1;
+        let n = (&mut reader)
+            .take(MAX_LINE_BYTES + 1)
+            .read_line(&mut line)
+            .with_context(|| format!("{}:{number}", path.display()))?;
+        if n == 0 {
+            return Ok(None);
         }
+        if n as u64 > MAX_LINE_BYTES {
+            bail!(
+                "{}:{number}: a line over {MAX_LINE_BYTES} bytes: not a journal",
+                path.display()
+            );
+        }
+        if line.ends_with('\n') {
+            line.pop();
+            if line.ends_with('\r') {
+                line.pop();
+            }
+        }
+        let last = reader
+            .fill_buf()
+            .with_context(|| format!("{}:{number}", path.display()))?
+            .is_empty();
+        Ok(Some((number, line, last)))
     };
-    let (n, first, _) = next("the header")?;
+    let ends_before = |what: &str| anyhow::anyhow!("{}: ends before {what}", path.display());
+    let (n, first, _) = next()?.ok_or_else(|| ends_before("the header"))?;
     if first != format!("scalpel-journal {JOURNAL_VERSION}") {
         bail!(
             "{}:{n}: not a scalpel journal of version {JOURNAL_VERSION} (starts with {first:?})",
             path.display()
         );
     }
-    let (n, scene, _) = next("the scene line")?;
+    let (n, scene, _) = next()?.ok_or_else(|| ends_before("the scene line"))?;
     let scene = scene
         .strip_prefix("scene ")
         .with_context(|| format!("{}:{n}: expected 'scene NAME'", path.display()))?
@@ -135,10 +177,9 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
     };
     let mut stiffness: Option<(u64, f64)> = None;
     loop {
-        let (n, line, last) = match next("its end") {
-            Ok(l) => l,
+        let Some((n, line, last)) = next()? else {
             // A session killed before it closed the journal still replays what it has.
-            Err(_) => return Ok(journal),
+            return Ok(journal);
         };
         if let Some(c) = line
             .strip_prefix("config ")
@@ -159,8 +200,12 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
         }
         let at = || format!("{}:{n}", path.display());
         if let Some(json) = line.strip_prefix("command ") {
-            let command = serde_json::from_str(json)
+            let command: serde_json::Value = serde_json::from_str(json)
                 .with_context(|| format!("{}: the command is not JSON", at()))?;
+            if let Some(action) = command.get("action") {
+                serde_json::from_value::<scalpel_proto::wire::Action>(action.clone())
+                    .with_context(|| format!("{}: the command's action", at()))?;
+            }
             journal.commands.push(command);
             continue;
         }
@@ -172,8 +217,15 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
                 let raw = u64::from_str_radix(bits, 16)
                     .with_context(|| format!("{}: bad number {bits:?}", at()))?;
                 let k = f64::from_bits(raw);
-                if !(k.is_finite() && k > 0.0) {
-                    bail!("{}: stiffness factor {k} is not a positive number", at());
+                let (lo, hi) = (
+                    f64::from(crate::faults::MIN_STIFFNESS),
+                    f64::from(crate::faults::MAX_STIFFNESS),
+                );
+                if !(lo..=hi).contains(&k) {
+                    bail!(
+                        "{}: stiffness factor {k:e} is outside {lo:.1}–{hi:.0} (the faults' range)",
+                        at()
+                    );
                 }
                 stiffness = Some((tick, k));
             }
@@ -195,10 +247,21 @@ pub fn read(path: &Path) -> anyhow::Result<Journal> {
                             *slot = f64::from_bits(raw);
                         }
                         let q = Quaternion::new(v[3], v[4], v[5], v[6]);
-                        Some(ToolPose {
+                        let pose = ToolPose {
                             tip_m: Vec3::new(v[0], v[1], v[2]),
                             orientation: UnitQuaternion::new_unchecked(q),
-                        })
+                        };
+                        // What the live server took from its device (`shm_device::pose_of`).
+                        if !pose.is_sound()
+                            || pose.tip_m.norm() > crate::shm_device::WORKSPACE_RADIUS_M
+                        {
+                            bail!(
+                                "{}: tick {tick}: the pose is not a finite tip within {} m and a unit quaternion",
+                                at(),
+                                crate::shm_device::WORKSPACE_RADIUS_M
+                            );
+                        }
+                        Some(pose)
                     }
                     _ => bail!("{}: expected '-' or seven numbers after the tick", at()),
                 };
@@ -307,6 +370,59 @@ mod tests {
         std::fs::write(&path, &text).unwrap();
         let e = read(&path).unwrap_err().to_string();
         assert!(e.contains("cut.journal:6"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_journal_the_server_could_not_have_written_is_refused_with_its_line() {
+        let dir = std::env::temp_dir().join(format!("scalpel-journal-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bad.journal");
+        let good = header("liver", "station = \"a\"\n");
+        let one = |hex: u64| format!("{hex:016x}");
+        let tip = [0.01f64, 0.0, 0.0].map(|c| one(c.to_bits())).join(" ");
+        let refused = |body: &str| -> String {
+            std::fs::write(&path, format!("{good}{body}tick 9 -\n")).unwrap();
+            format!("{:#}", read(&path).unwrap_err())
+        };
+        // A NaN and an unnormalised orientation (replay panicked on the first).
+        for q in [
+            [f64::NAN, 0.0, 0.0, 1.0],
+            [2.0, 0.0, 0.0, 0.0],
+            [f64::INFINITY, 0.0, 0.0, 0.0],
+        ] {
+            let q = q.map(|c| one(c.to_bits())).join(" ");
+            let e = refused(&format!("tick 1 {tip} {q}\n"));
+            assert!(
+                e.contains("bad.journal:4") && e.contains("unit quaternion"),
+                "{e}"
+            );
+        }
+        let far = [100.0f64, 0.0, 0.0].map(|c| one(c.to_bits())).join(" ");
+        let unit = [1.0f64, 0.0, 0.0, 0.0].map(|c| one(c.to_bits())).join(" ");
+        let e = refused(&format!("tick 1 {far} {unit}\n"));
+        assert!(e.contains("within 10 m"), "{e}");
+        let e = refused(&format!(
+            "stiffness 1 {}\ntick 1 -\n",
+            one(1.0e308f64.to_bits())
+        ));
+        assert!(e.contains("bad.journal:4") && e.contains("0.1–10"), "{e}");
+        let e = refused("command {\"by\":\"ann\",\"action\":{\"Schedule\":\"x\"}}\n");
+        assert!(e.contains("bad.journal:4") && e.contains("action"), "{e}");
+        // Config lines the server would have refused.
+        std::fs::write(
+            &path,
+            "scalpel-journal 1\nscene liver\nconfig [rates]\nconfig haptic_hz = nan\ntick 1 -\n",
+        )
+        .unwrap();
+        let e = format!("{:#}", read(&path).unwrap_err());
+        assert!(e.contains("config lines") && e.contains("haptic_hz"), "{e}");
+        // Not a file, and a line no journal has.
+        let e = format!("{:#}", read(Path::new("/dev/zero")).unwrap_err());
+        assert!(e.contains("not a regular file"), "{e}");
+        std::fs::write(&path, format!("{good}{}\n", "x".repeat(2 << 20))).unwrap();
+        let e = format!("{:#}", read(&path).unwrap_err());
+        assert!(e.contains("bad.journal:4") && e.contains("over"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

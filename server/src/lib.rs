@@ -11,6 +11,7 @@ pub mod faults;
 pub mod frames;
 pub mod grid_clock;
 pub mod host_check;
+pub mod input_file;
 pub mod journal;
 pub mod net;
 pub mod output;

@@ -70,7 +70,7 @@ fn run() -> anyhow::Result<()> {
                 CutScript::default_for(&scene.model.surface)
                     .context("the scene has no place for the demo cut")?
             } else {
-                CutScript::load(std::path::Path::new(script))?
+                scene_file::load_script(std::path::Path::new(script))?
             };
             let looping = config.device.loop_script;
             Box::new(move || {
@@ -94,11 +94,13 @@ fn run() -> anyhow::Result<()> {
         lock_memory: config.realtime.lock_memory,
         haptic_cpu: usize::try_from(config.realtime.haptic_cpu).ok(),
         limits: OutputLimits {
+            // Both are range-checked; the bound holds for built-in scenes too.
             max_force_n: if o.max_force_n > 0.0 {
                 o.max_force_n
             } else {
                 scene.spec.force.max_force_n
-            },
+            }
+            .min(scalpel_sim::scene::file::MAX_DEVICE_FORCE_N),
             rate_limit_n_per_ms: o.rate_limit_n_per_ms,
             device_timeout_s: o.device_timeout_ms * 1e-3,
             sim_timeout_s: o.sim_timeout_ms * 1e-3,
@@ -183,11 +185,39 @@ fn run() -> anyhow::Result<()> {
         }
         None => None,
     };
+    // Malformed poses a shared-memory device sent since the last status line: said with
+    // it (the force meanwhile fades as if the device were silent).
+    let mut rejected_said = 0;
     let summary = station::run(&scene, device, &params, journal, stop, |report| {
-        print_report(report, json)
+        print_report(report, json);
+        if let StationReport::Status(line) = report {
+            let rejected = shm_counters.rejected.load(Ordering::Relaxed);
+            if rejected > rejected_said {
+                print_report(
+                    &StationReport::Event(station::StationEvent {
+                        uptime_s: line.uptime_s,
+                        event: format!(
+                            "device: {} poses rejected as malformed (a tip not finite or beyond {} m, an orientation far from a unit quaternion, or another layout version; docs/PROTOCOL.md)",
+                            rejected - rejected_said,
+                            scalpel_server::shm_device::WORKSPACE_RADIUS_M
+                        ),
+                    }),
+                    json,
+                );
+                rejected_said = rejected;
+            }
+        }
     })?;
     if json {
-        say!("{}", serde_json::to_string(&summary)?);
+        let mut summary = serde_json::to_value(&summary)?;
+        if shared_memory_device {
+            summary["device"] = serde_json::json!({
+                "poses_used": shm_counters.poses.load(Ordering::Relaxed),
+                "poses_rejected": shm_counters.rejected.load(Ordering::Relaxed),
+                "forces_not_sent": shm_counters.send_failures.load(Ordering::Relaxed),
+            });
+        }
+        say!("{summary}");
     } else {
         say!(
             "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",

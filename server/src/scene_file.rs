@@ -1,12 +1,17 @@
 //! Scenes from disk: a built-in name or a scene file, and the mesh file a scene names (the
 //! simulation crate does no I/O). Shared by the server and the `scalpel` tools.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use scalpel_sim::geometry::MeshFormat;
+use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{self, BuiltScene, MeshSource, SceneSpec};
+
+use crate::input_file::{
+    SCRIPT_MAX_BYTES, TOML_MAX_BYTES, check_regular, read_capped, read_text_capped,
+};
 
 /// Reads the mesh file a scene names (if any), refusing files over the scene's size cap
 /// before reading them.
@@ -16,7 +21,7 @@ pub fn read_mesh_bytes(spec: &SceneSpec) -> anyhow::Result<Option<Vec<u8>>> {
     };
     // Check the extension before touching the file, so a wrong one gets the format message.
     MeshFormat::from_file_name(&path.display().to_string())?;
-    let len = std::fs::metadata(path)
+    let len = check_regular(path)
         .with_context(|| format!("cannot open mesh file {}", path.display()))?
         .len();
     if len > spec.mesh.limits.max_file_bytes {
@@ -26,9 +31,27 @@ pub fn read_mesh_bytes(spec: &SceneSpec) -> anyhow::Result<Option<Vec<u8>>> {
             spec.mesh.limits.max_file_bytes
         );
     }
-    let bytes =
-        std::fs::read(path).with_context(|| format!("cannot read mesh file {}", path.display()))?;
+    // Counted while reading too: the size on disk may change, or lie.
+    let bytes = read_capped(path, spec.mesh.limits.max_file_bytes)
+        .with_context(|| format!("cannot read mesh file {}", path.display()))?;
     Ok(Some(bytes))
+}
+
+/// Reads a scene file (TOML).
+pub fn read_scene_file(path: &Path) -> anyhow::Result<SceneSpec> {
+    let text = read_text_capped(path, TOML_MAX_BYTES)
+        .with_context(|| format!("cannot read scene file {}", path.display()))?;
+    Ok(SceneSpec::from_toml(&text, path)?)
+}
+
+/// Reads a blade script file (TOML keyframes, or CSV for a `.csv` name).
+pub fn load_script(path: &Path) -> anyhow::Result<CutScript> {
+    let text = read_text_capped(path, SCRIPT_MAX_BYTES)
+        .with_context(|| format!("cannot read script {}", path.display()))?;
+    Ok(CutScript::from_file_text(
+        &text,
+        &path.display().to_string(),
+    )?)
 }
 
 /// A built-in scene name or a scene file, built as a station runs it (cutting on).
@@ -37,13 +60,19 @@ pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
         Some(spec) => spec,
         None => {
             let path = PathBuf::from(name);
-            let text = std::fs::read_to_string(&path).with_context(|| {
-                format!(
-                    "'{name}' is neither a built-in scene ({}) nor a readable scene file",
+            if MeshFormat::from_file_name(name).is_ok() {
+                bail!(
+                    "'{name}' is a mesh file: a station runs a built-in scene ({}) or a scene file that names the mesh ([mesh] file = \"{name}\", docs/SCENES.md)",
                     scene::BUILTIN_SCENES.join(", ")
-                )
-            })?;
-            SceneSpec::from_toml(&text, &path)?
+                );
+            }
+            if !path.exists() {
+                bail!(
+                    "'{name}' is neither a built-in scene ({}) nor an existing scene file",
+                    scene::BUILTIN_SCENES.join(", ")
+                );
+            }
+            read_scene_file(&path)?
         }
     };
     let bytes = read_mesh_bytes(&spec)?;

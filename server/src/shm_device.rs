@@ -27,7 +27,7 @@ use scalpel_sim::math::Vec3;
 use crate::device::{DeviceSample, ForceStatus, HapticDevice};
 
 /// Tip positions farther than this from the scene origin are not a device's (m).
-const WORKSPACE_RADIUS_M: f64 = 10.0;
+pub const WORKSPACE_RADIUS_M: f64 = 10.0;
 
 /// Counters the device keeps for the status line (atomics: read from another thread).
 #[derive(Debug, Default)]

@@ -18,6 +18,10 @@ use crate::{TargetArgs, export, load};
 /// Colours of the render: skin, wound wall (linear RGB).
 const PALETTE: [[f32; 3]; 2] = [[0.50, 0.14, 0.11], [0.93, 0.62, 0.52]];
 
+/// The most strokes a session may have: each keeps its figures (about 1 MB of them) and
+/// takes seconds of simulated time.
+pub const MAX_SESSION_STROKES: usize = 1000;
+
 /// What a run plays.
 pub enum ScriptChoice {
     /// The scene's default stroke.
@@ -38,9 +42,12 @@ pub fn script_for(scene: &BuiltScene, choice: &ScriptChoice) -> anyhow::Result<C
     let surface = &scene.model.surface;
     Ok(match choice {
         ScriptChoice::Default => CutScript::default_for(surface)?,
-        ScriptChoice::File(path) => CutScript::load(path)?,
+        ScriptChoice::File(path) => scalpel_server::scene_file::load_script(path)?,
         ScriptChoice::Session { strokes, seed } => {
-            anyhow::ensure!(*strokes > 0, "a session needs at least one stroke");
+            anyhow::ensure!(
+                (1..=MAX_SESSION_STROKES).contains(strokes),
+                "--strokes must be 1 to {MAX_SESSION_STROKES} (a lab session is tens), got {strokes}"
+            );
             CutScript::session_for(surface, *strokes, *seed)?
         }
     })

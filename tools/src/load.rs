@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use scalpel_server::scene_file::read_mesh_bytes;
 use scalpel_sim::geometry::MeshFormat;
 use scalpel_sim::model::SpacingRule;
@@ -46,9 +46,7 @@ pub fn resolve(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
         if is_toml {
-            let text = std::fs::read_to_string(&path)
-                .with_context(|| format!("cannot read scene file {}", path.display()))?;
-            SceneSpec::from_toml(&text, &path)?
+            scalpel_server::scene_file::read_scene_file(&path)?
         } else if is_bare_mesh(target) {
             scene::for_mesh_file(path, target.units.into())
         } else if !path.exists() && path.extension().is_none() {
@@ -63,13 +61,18 @@ pub fn resolve(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
             unreachable!("from_file_name failed above")
         }
     };
+    // The bounds a scene file's `[sampling]` has.
     if let Some(mm) = target.spacing_mm {
-        if !(mm.is_finite() && mm > 0.0) {
-            bail!("--spacing-mm must be a positive length, got {mm}");
+        if !(mm.is_finite() && mm > 0.0 && mm <= 1000.0) {
+            bail!("--spacing-mm must be above 0 and at most 1000 mm, got {mm}");
         }
         spec.sampling.spacing = SpacingRule::Spacing(mm * 1e-3);
     }
     if let Some(n) = target.target_points {
+        let most = scalpel_sim::model::MAX_POINTS;
+        if !(8..=most).contains(&n) {
+            bail!("--target-points must be 8 to {most}, got {n}");
+        }
         spec.sampling.spacing = SpacingRule::TargetPoints(n);
     }
     Ok(spec)

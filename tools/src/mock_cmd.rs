@@ -34,7 +34,7 @@ pub struct MockArgs<'a> {
 pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
     scalpel_proto::shm::quiet_logging();
     let script = match args.script {
-        Some(path) => CutScript::load(path)?,
+        Some(path) => scalpel_server::scene_file::load_script(path)?,
         None => {
             let scene = scalpel_server::scene_file::load_scene(args.scene)?;
             CutScript::default_for(&scene.model.surface)?

@@ -207,6 +207,47 @@ fn malformed_inputs_fail_with_a_message_on_stderr() {
 
     let err = fails(&["scene", "inspect", "liver", "--spacing-mm=-1"]);
     assert!(err.contains("spacing"), "{err}");
+    // The command line keeps a scene file's sampling bounds.
+    let err = fails(&["scene", "inspect", "liver", "--spacing-mm=1e9"]);
+    assert!(
+        err.contains("--spacing-mm") && err.contains("1000 mm"),
+        "{err}"
+    );
+    let err = fails(&["scene", "inspect", "liver", "--target-points=1"]);
+    assert!(err.contains("--target-points must be 8"), "{err}");
+    let err = fails(&[
+        "cut",
+        "liver",
+        "--strokes",
+        "50000",
+        "--out",
+        "/nonexistent",
+    ]);
+    assert!(err.contains("--strokes must be 1 to 1000"), "{err}");
+
+    // A device or a pipe named like a mesh or a scene: refused at once (/dev/zero was read
+    // until memory ran out, a FIFO blocked for ever).
+    let zero_obj = dir.path().join("zero.obj");
+    std::os::unix::fs::symlink("/dev/zero", &zero_obj).unwrap();
+    let err = fails(&["scene", "inspect", zero_obj.to_str().unwrap()]);
+    assert!(
+        err.contains("zero.obj") && err.contains("not a regular file"),
+        "{err}"
+    );
+    let zero_toml = dir.path().join("zero.toml");
+    std::os::unix::fs::symlink("/dev/zero", &zero_toml).unwrap();
+    let err = fails(&["scene", "inspect", zero_toml.to_str().unwrap()]);
+    assert!(err.contains("not a regular file"), "{err}");
+    let fifo = dir.path().join("fifo.obj");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let err = fails(&["scene", "inspect", fifo.to_str().unwrap()]);
+    assert!(err.contains("not a regular file"), "{err}");
 }
 
 fn reimport(path: &Path) -> scalpel_sim::geometry::ValidatedMesh {

@@ -493,3 +493,55 @@ fn stations_run_side_by_side_isolated_by_name() {
     server_b.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn malformed_poses_from_a_device_are_said_and_counted() {
+    let _serial = one_at_a_time();
+    let dir = station::scratch("badposes");
+    let name = unique_station("badposes");
+    let mut server = start_server(&name, &dir, 60.0);
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    // A device that sends nothing but NaN tips.
+    let node = scalpel_proto::shm::node("scalpel-test-device", &name).unwrap();
+    let poses = scalpel_proto::shm::pose_service(&node, &name)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    for seq in 1..=40 {
+        let pose = scalpel_proto::shm::DevicePose {
+            layout_version: scalpel_proto::shm::LAYOUT_VERSION,
+            flags: 0,
+            seq,
+            device_time_ns: scalpel_client::frames::monotonic_ns(),
+            tip_m: [f64::NAN, 0.0, 0.0],
+            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        };
+        poses.send_copy(pose).unwrap();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let said = server.wait_for(Duration::from_secs(5), |l| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.contains("poses rejected as malformed"))
+    });
+    let said = json(&said);
+    let count: u64 = said["event"]
+        .as_str()
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=40).contains(&count), "{said}");
+    drop(poses);
+    drop(node);
+    let (status, lines) = server.interrupt();
+    assert!(status.success());
+    let summary = json(lines.last().unwrap());
+    let rejected = summary["device"]["poses_rejected"].as_u64().unwrap();
+    // The haptic thread drains the newest pose each tick and counts every one it drops.
+    assert!((count..=40).contains(&rejected), "{summary}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1043,3 +1043,49 @@ fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
     );
     assert_sound_surface(&sim);
 }
+
+#[test]
+fn a_pose_that_is_not_finite_takes_the_tool_away_mid_cut() {
+    // A caller that passed a NaN or unnormalised pose on (a hand-edited journal did) must
+    // not reach the contact and the force model: the tool is away for that tick.
+    let scene = scene("liver");
+    let z = top_mm(&scene, 0.0, 0.0) - 5.0;
+    let s = script(&[(0.0, [-10.0, 0.0, z]), (1.0, [0.0, 0.0, z])]);
+    let mut sim = Simulation::new(&scene);
+    sim.prepare(TICK_S);
+    for k in 0..1000 {
+        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
+        sim.tick(TICK_S, &mut Unobserved);
+    }
+    let sound = s.pose_at(1.0);
+    let nan = nalgebra::Quaternion::new(f64::NAN, 0.0, 0.0, 1.0);
+    for bad in [
+        ToolPose {
+            tip_m: Vec3::new(f64::NAN, 0.0, 0.0),
+            ..sound
+        },
+        ToolPose {
+            orientation: nalgebra::UnitQuaternion::new_unchecked(nan),
+            ..sound
+        },
+        ToolPose {
+            orientation: nalgebra::UnitQuaternion::new_unchecked(
+                sound.orientation.into_inner() * 2.0,
+            ),
+            ..sound
+        },
+    ] {
+        assert!(!bad.is_sound());
+        sim.set_tool(Some(bad));
+        let r = sim.tick(TICK_S, &mut Unobserved);
+        assert_eq!(r.tool_force_n, Vec3::zeros());
+        assert!(
+            sim.solver()
+                .positions()
+                .iter()
+                .all(|p| p.iter().all(|c| c.is_finite()))
+        );
+    }
+    assert!(sound.is_sound());
+    assert_sound_surface(&sim);
+}

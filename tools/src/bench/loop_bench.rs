@@ -140,6 +140,11 @@ pub fn run(
     if viewers > 7 {
         bail!("--viewers: at most 7 (the frame service takes 8 subscribers, one measures)");
     }
+    if let Some(c) = haptic_cpu {
+        let cpus = scalpel_server::realtime::allowed_cpus();
+        scalpel_server::realtime::cpus_besides(c, &cpus)
+            .map_err(|e| anyhow::anyhow!("--haptic-cpu: {e}"))?;
+    }
     scalpel_proto::shm::quiet_logging();
     let station = format!("bench-loop-{}", std::process::id());
     let dir = std::env::temp_dir().join(&station);

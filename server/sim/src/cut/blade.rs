@@ -24,6 +24,15 @@ pub struct ToolPose {
 }
 
 impl ToolPose {
+    /// Whether the pose can be simulated: a finite tip and a finite orientation of unit
+    /// length (to rounding).
+    pub fn is_sound(&self) -> bool {
+        let q = self.orientation.quaternion();
+        self.tip_m.iter().all(|c| c.is_finite())
+            && q.coords.iter().all(|c| c.is_finite())
+            && (q.norm() - 1.0).abs() <= 1e-9
+    }
+
     /// A pose with the edge pointing from the tip along `edge_direction` (any length).
     pub fn pointing(tip_m: Vec3, edge_direction: Vec3) -> Self {
         let orientation = UnitQuaternion::rotation_between(&Vec3::z(), &edge_direction)

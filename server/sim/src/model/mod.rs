@@ -69,7 +69,7 @@ pub const MAX_POINTS: usize = 4_000_000;
 pub enum ModelBuildError {
     /// The spacing would need an unreasonable lattice.
     #[error(
-        "spacing {spacing_mm:.4} mm needs {cells} lattice cells over the organ (limit {limit}); use a larger spacing or fewer target points"
+        "spacing {spacing_mm:.4e} mm needs more than the {limit} lattice cells allowed over the organ; use a larger spacing or fewer target points"
     )]
     LatticeTooLarge {
         /// Spacing tried (mm).

@@ -178,9 +178,11 @@ impl Simulation {
         }
     }
 
-    /// The tool's pose for the next tick; `None` takes the tool away.
+    /// The tool's pose for the next tick; `None` takes the tool away, and so does a pose
+    /// that is not [sound](ToolPose::is_sound) (the callers check theirs; a non-finite
+    /// pose must not reach the contact and the force model whatever the caller).
     pub fn set_tool(&mut self, pose: Option<ToolPose>) {
-        self.tool = pose;
+        self.tool = pose.filter(ToolPose::is_sound);
     }
 
     /// Advances by `dt` seconds.

@@ -185,20 +185,16 @@ impl CutScript {
         Self::from_raw(&RawScript { keyframe }, file)
     }
 
-    /// Reads a script file: CSV if its name ends in `.csv`, TOML otherwise.
-    pub fn load(path: &std::path::Path) -> Result<Self, ScriptError> {
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ScriptError::Parse {
-            file: file.clone(),
-            message: format!("cannot read: {e}"),
-        })?;
-        if path
+    /// A script file's text: CSV if its name ends in `.csv`, TOML otherwise (the caller
+    /// reads the file: `scalpel_server::scene_file::load_script`).
+    pub fn from_file_text(text: &str, file: &str) -> Result<Self, ScriptError> {
+        if std::path::Path::new(file)
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
         {
-            Self::from_csv(&text, &file)
+            Self::from_csv(text, file)
         } else {
-            Self::from_toml(&text, &file)
+            Self::from_toml(text, file)
         }
     }
 

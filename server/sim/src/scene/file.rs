@@ -232,6 +232,9 @@ impl Limit {
 /// mm → m.
 const MM: f64 = 1e-3;
 
+/// The largest force a scene or a server may ever send to a haptic device (N).
+pub const MAX_DEVICE_FORCE_N: f64 = 50.0;
+
 impl SceneSpec {
     /// Reads a scene from TOML `text`. `path` is the scene file: it names the file in messages
     /// and relative mesh paths are resolved against its folder.
@@ -526,7 +529,10 @@ impl SceneSpec {
                 &mut out.max_force_n,
                 f.max_force_n,
                 "force.max_force_n",
-                newtons,
+                // What a device is ever sent: the server's own limit on it
+                // (`output.max_force_n`) stops at 50 N too — no desktop haptic device
+                // renders more.
+                Limit::positive(MAX_DEVICE_FORCE_N, "N"),
                 1.0,
             )?;
         }
@@ -749,6 +755,10 @@ mod tests {
             (
                 "extends = \"block\"\n[features]\nripple = true\n",
                 "features.ripple",
+            ),
+            (
+                "extends = \"liver\"\n[force]\nmax_force_n = 100\n",
+                "force.max_force_n",
             ),
             ("[mesh]\nbuiltin = \"kidney\"\n", "mesh.builtin"),
             ("name = \"x\"\n", "mesh"),
