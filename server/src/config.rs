@@ -263,7 +263,7 @@ impl ServerConfig {
                 Err(ConfigError::Range {
                     file: file.to_owned(),
                     key,
-                    value: value.to_string(),
+                    value: scalpel_sim::scene::file::readable_number(value),
                     expected: expected.to_string(),
                 })
             }

@@ -40,6 +40,9 @@ struct Args {
     check: bool,
 }
 
+/// The longest `--duration` (s): a year.
+const MAX_DURATION_S: f64 = 3.2e7;
+
 fn main() {
     if let Err(e) = run() {
         scalpel_server::console::error(format_args!("{e:#}"));
@@ -54,9 +57,12 @@ fn run() -> anyhow::Result<()> {
         None => ServerConfig::default(),
     };
     if let Some(d) = args.duration
-        && !(d.is_finite() && d > 0.0)
+        && !(d > 0.0 && d <= MAX_DURATION_S)
     {
-        anyhow::bail!("--duration must be a positive number of seconds, got {d}");
+        anyhow::bail!(
+            "--duration must be above 0 and at most {MAX_DURATION_S:e} s (a year), got {}",
+            scalpel_sim::scene::file::readable_number(d)
+        );
     }
     scalpel_proto::shm::quiet_logging();
     if args.check {

@@ -72,24 +72,90 @@ pub fn cutting_spec(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
     Ok(spec)
 }
 
-/// Runs `script` on the built scene with a progress bar (on a terminal).
+/// Runs `script` on the built scene with a progress bar (on a terminal), and says once on
+/// stderr — terminal or not — when the run will take long: a stiff scene's single tick can
+/// take minutes.
 pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let bar = ProgressBar::hidden();
-    let run = cutrun::run_cut(scene, script, |done, total| {
-        if done == 1 {
-            bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-            bar.set_length(total as u64);
-            bar.set_style(
-                ProgressStyle::with_template("cutting {bar:40} {pos}/{len} ticks {eta}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
-            );
-        }
-        if done % 250 == 0 || done == total {
+    let done_ticks = AtomicUsize::new(0);
+    let finished = AtomicBool::new(false);
+    let total = (script.duration_s() / cutrun::TICK_S).ceil() as usize + 1;
+    std::thread::scope(|scope| {
+        scope.spawn(|| say_the_pace(&done_ticks, total, &finished, &bar));
+        let run = cutrun::run_cut(scene, script, |done, total| {
+            if done == 1 {
+                bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                bar.set_length(total as u64);
+                bar.set_style(
+                    ProgressStyle::with_template("cutting {bar:40} {pos}/{len} ticks {eta}")
+                        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+                );
+            }
+            // Every tick (indicatif limits the redrawing itself).
             bar.set_position(done as u64);
-        }
-    });
-    bar.finish_and_clear();
-    run
+            done_ticks.store(done, Ordering::Relaxed);
+        });
+        finished.store(true, Ordering::Relaxed);
+        bar.finish_and_clear();
+        run
+    })
+}
+
+/// Says once when the run will take long: a tick that has run for [`SLOW_TICK_S`], or, after
+/// that long, the ticks left projected to take over a minute at the pace since the last
+/// look (a cut's approach ticks are free, its ticks in the tissue are not).
+fn say_the_pace(
+    done: &std::sync::atomic::AtomicUsize,
+    total: usize,
+    finished: &std::sync::atomic::AtomicBool,
+    bar: &ProgressBar,
+) {
+    use std::sync::atomic::Ordering;
+    use std::time::{Duration, Instant};
+    const SLOW_TICK_S: f64 = 3.0;
+    let mut last = (0, Instant::now());
+    while !finished.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(50));
+        let now = done.load(Ordering::Relaxed);
+        let waited = last.1.elapsed().as_secs_f64();
+        let message = if now == last.0 {
+            if waited < SLOW_TICK_S {
+                continue;
+            }
+            format!(
+                "scalpel: tick {} of {total} has run for {waited:.0} s: this scene is too stiff (or too fine) for its time step (`scalpel scene inspect` shows the sub-steps a tick plans); Ctrl-C stops",
+                now + 1
+            )
+        } else {
+            if waited < SLOW_TICK_S {
+                continue;
+            }
+            let per_tick = waited / (now - last.0) as f64;
+            let left = per_tick * (total - now) as f64;
+            last = (now, Instant::now());
+            if left <= 60.0 {
+                continue;
+            }
+            format!(
+                "scalpel: at this pace the {} ticks left take about {:.0} min ({:.1} ms a tick; `scalpel scene inspect` shows the sub-steps a tick plans); Ctrl-C stops",
+                total - now,
+                left / 60.0,
+                per_tick * 1e3
+            )
+        };
+        bar.suspend(|| eprintln!("{message}"));
+        return;
+    }
+}
+
+/// The surface's bounding box as "x0..x1 × y0..y1 × z0..z1" in mm.
+fn bbox_mm(surface: &scalpel_sim::geometry::TriMesh) -> String {
+    let b = surface.bbox();
+    (0..3)
+        .map(|i| format!("{:.0}..{:.0}", b.min[i] * 1e3, b.max[i] * 1e3))
+        .collect::<Vec<_>>()
+        .join(" × ")
 }
 
 /// `scalpel cut`.
@@ -109,8 +175,36 @@ pub fn run(
     }
     let script = script_for(scene, script)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    // What the run writes, checked before it runs (a folder in the way failed after it).
+    let outputs = [
+        "metrics.json".to_string(),
+        "force.csv".into(),
+        "force.png".into(),
+        format!("incision.{mesh_format}"),
+        "incision.png".into(),
+    ];
+    for name in &outputs {
+        let path = out.join(name);
+        if path.is_dir() {
+            bail!(
+                "{} is a folder: the run writes a file there",
+                path.display()
+            );
+        }
+    }
     let run = run_with_progress(scene, &script);
     let metrics = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
+    // The figures first: whatever fails later, they are kept.
+    let metrics_path = out.join("metrics.json");
+    std::fs::write(&metrics_path, serde_json::to_string_pretty(&metrics)?)
+        .with_context(|| format!("cannot write {}", metrics_path.display()))?;
+    if metrics.cut_steps == 0 {
+        eprintln!(
+            "scalpel: the blade never reached the tissue ({}); the organ spans {} mm",
+            script.description,
+            bbox_mm(&scene.model.surface)
+        );
+    }
 
     let csv = out.join("force.csv");
     write_csv(&run, &csv)?;
@@ -126,9 +220,6 @@ pub fn run(
     )?;
     let render_path = out.join("incision.png");
     render_incision(&run, &render_path)?;
-    let metrics_path = out.join("metrics.json");
-    std::fs::write(&metrics_path, serde_json::to_string_pretty(&metrics)?)
-        .with_context(|| format!("cannot write {}", metrics_path.display()))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&metrics)?);
     } else {

@@ -46,6 +46,11 @@ pub const DEFAULT_STROKE_M: f64 = 0.060;
 pub const DEFAULT_DEPTH_M: f64 = 0.010;
 /// Most keyframes a script file may have.
 pub const MAX_KEYFRAMES: usize = 100_000;
+
+/// The fastest a script's tip may move between keyframes (m/s): a surgeon's quickest hand
+/// motions stay under 1 m/s; faster is a teleport, which the force model would read as a
+/// cut kilometres long.
+pub const MAX_TIP_SPEED_M_PER_S: f64 = 2.0;
 /// The header line of a CSV script.
 pub const CSV_HEADER: &str = "t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z";
 /// The columns a CSV script may add after [`CSV_HEADER`]: where the blade faces.
@@ -199,6 +204,12 @@ impl CutScript {
     }
 
     fn from_raw(raw: &RawScript, file: &str) -> Result<Self, ScriptError> {
+        // A unit vector along `v`, scaled first so that neither 1e-200 nor 1e200 is lost.
+        let direction = |v: [f64; 3]| {
+            let v = Vec3::from(v);
+            let largest = v.amax();
+            (largest.is_finite() && largest > 0.0).then(|| (v / largest).normalize())
+        };
         let invalid = |index: usize, message: String| ScriptError::Invalid {
             file: file.to_string(),
             index: index + 1,
@@ -222,6 +233,8 @@ impl CutScript {
         let mut keyframes = Vec::with_capacity(raw.keyframe.len());
         let mut edge: Option<Vec3> = None;
         let mut facing: Option<Vec3> = None;
+        // As written, for messages.
+        let (mut edge_given, mut facing_given) = ([0.0; 3], [0.0; 3]);
         for (index, k) in raw.keyframe.iter().enumerate() {
             if !k.t_s.is_finite() || k.t_s < 0.0 || k.t_s > 86_400.0 {
                 return Err(invalid(
@@ -247,17 +260,13 @@ impl CutScript {
                 ));
             }
             if let Some(e) = k.edge {
-                let e = Vec3::from(e);
-                if !e.iter().all(|c| c.is_finite()) || e.norm() < 1e-9 {
-                    return Err(invalid(
+                edge_given = e;
+                edge = Some(direction(e).ok_or_else(|| {
+                    invalid(
                         index,
-                        format!(
-                            "edge = {:?} must be a non-zero direction",
-                            k.edge.unwrap_or_default()
-                        ),
-                    ));
-                }
-                edge = Some(e);
+                        format!("edge = {e:?} must be a finite, non-zero direction"),
+                    )
+                })?);
             }
             let Some(e) = edge else {
                 return Err(invalid(
@@ -266,7 +275,13 @@ impl CutScript {
                 ));
             };
             if let Some(f) = k.facing {
-                facing = Some(Vec3::from(f));
+                facing_given = f;
+                facing = Some(direction(f).ok_or_else(|| {
+                    invalid(
+                        index,
+                        format!("facing = {f:?} must be a finite, non-zero direction"),
+                    )
+                })?);
             }
             // (Checked on every keyframe: a kept `facing` must also be across a new edge.)
             if let Some(f) = facing {
@@ -275,14 +290,25 @@ impl CutScript {
                     return Err(invalid(
                         index,
                         format!(
-                            "facing = {:?} must be a direction across the edge {:?}",
-                            f.as_slice(),
-                            e.as_slice()
+                            "facing = {facing_given:?} must be a direction across the edge {edge_given:?}"
                         ),
                     ));
                 }
             }
             let tip = Vec3::from(k.tip_mm) * 1e-3;
+            if let Some(prev) = keyframes.last() {
+                let speed = (tip - prev.pose.tip_m).norm() / (k.t_s - prev.t_s);
+                if speed > MAX_TIP_SPEED_M_PER_S {
+                    return Err(invalid(
+                        index,
+                        format!(
+                            "the tip moves {:.1} mm in {} s from the previous keyframe ({speed:.3e} m/s): at most {MAX_TIP_SPEED_M_PER_S} m/s, a hand's quickest",
+                            (tip - prev.pose.tip_m).norm() * 1e3,
+                            k.t_s - prev.t_s
+                        ),
+                    ));
+                }
+            }
             keyframes.push(Keyframe {
                 t_s: k.t_s,
                 pose: match facing {
@@ -792,12 +818,31 @@ mod tests {
                 "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [1, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\nedge = [2, 0, 0]\n",
                 "keyframe 2: facing = [1.0, 0.0, 0.0] must be a direction across the edge [2.0, 0.0, 0.0]",
             ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [0, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 1: facing = [0.0, 0.0, 0.0] must be a finite, non-zero direction",
+            ),
+            // A teleport: 100 mm in a millisecond.
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\n[[keyframe]]\nt_s = 0.001\ntip_mm = [100, 0, 0]\n",
+                "keyframe 2: the tip moves 100.0 mm in 0.001 s",
+            ),
         ];
         for (text, want) in cases {
             let e = CutScript::from_toml(text, "s.toml")
                 .expect_err(text)
                 .to_string();
             assert!(e.contains(want) && e.starts_with("s.toml"), "{e}");
+        }
+        // Directions of any finite size are directions (1e200 overflowed the norm and the
+        // blade turned upright; 1e-200 was called zero).
+        for size in ["1e200", "1e-200"] {
+            let text = format!(
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [{size}, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n"
+            );
+            let s = CutScript::from_toml(&text, "s.toml").expect("valid");
+            let edge = s.pose_at(0.5).orientation * Vec3::z();
+            assert!((edge - Vec3::x()).norm() < 1e-12, "{size}: {edge:?}");
         }
     }
 }

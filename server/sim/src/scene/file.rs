@@ -178,7 +178,10 @@ impl Checker<'_> {
         };
         Err(self.fail(
             key,
-            format!("{value}{unit} is out of range; allowed {bracket}{lo}, {hi}]{unit}"),
+            format!(
+                "{}{unit} is out of range; allowed {bracket}{lo}, {hi}]{unit}",
+                readable_number(value)
+            ),
         ))
     }
 
@@ -232,6 +235,16 @@ impl Limit {
 /// mm → m.
 const MM: f64 = 1e-3;
 
+/// `v` as people read it in a message: plain, or in exponent form when plain would run to
+/// hundreds of digits (`1e200`, `1e-300`).
+pub fn readable_number(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e9).contains(&v.abs()) {
+        v.to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// The largest force a scene or a server may ever send to a haptic device (N).
 pub const MAX_DEVICE_FORCE_N: f64 = 50.0;
 
@@ -258,15 +271,27 @@ impl SceneSpec {
             })?,
             None => for_mesh_file(Default::default(), LengthUnit::M),
         };
+        if raw.name.as_ref().is_some_and(|n| n.trim().is_empty()) {
+            return Err(check.fail(
+                "name",
+                "must not be empty (leave it out for the file's name)",
+            ));
+        }
         spec.name = raw.name.clone().unwrap_or_else(|| {
             path.file_stem()
                 .and_then(|s| s.to_str())
                 .unwrap_or("scene")
                 .to_string()
         });
+        // A scene that extends a built-in organ but swaps its mesh is no longer that organ:
+        // its description must not say it is.
+        let mesh_replaced = raw
+            .mesh
+            .as_ref()
+            .is_some_and(|m| m.builtin.is_some() || m.file.is_some());
         if let Some(d) = raw.description {
             spec.description = d;
-        } else if raw.extends.is_none() {
+        } else if raw.extends.is_none() || mesh_replaced {
             spec.description = format!("scene file {file}");
         }
 
@@ -604,7 +629,10 @@ fn apply_mesh(
             if !v.is_finite() || *v == 0.0 || v.abs() > 1e6 {
                 return Err(check.fail(
                     "mesh.scale",
-                    format!("component {a} is {v}; scale factors must be finite, non-zero and at most 1e6"),
+                    format!(
+                        "component {a} is {}; scale factors must be finite, non-zero and at most 1e6",
+                        readable_number(*v)
+                    ),
                 ));
             }
         }
@@ -680,6 +708,14 @@ mod tests {
         assert_eq!(s.sampling.spacing, SpacingRule::TargetPoints(1526));
         assert_eq!(s.mesh.source, MeshSource::Builtin(BuiltinMesh::Liver));
         assert_eq!(s.name, "test");
+    }
+
+    #[test]
+    fn a_scene_that_swaps_the_organ_does_not_keep_its_description() {
+        let s = parse("extends = \"liver\"\n[mesh]\nbuiltin = \"block\"\n").unwrap();
+        assert_eq!(s.description, "scene file scenes/test.toml");
+        let s = parse("extends = \"liver\"\n[material]\nyoungs_modulus_kpa = 8\n").unwrap();
+        assert_eq!(s.description, builtin("liver").unwrap().description);
     }
 
     #[test]
@@ -761,6 +797,7 @@ mod tests {
                 "force.max_force_n",
             ),
             ("[mesh]\nbuiltin = \"kidney\"\n", "mesh.builtin"),
+            ("extends = \"liver\"\nname = \" \"\n", "name"),
             ("name = \"x\"\n", "mesh"),
             ("extends = \"spleen\"\n", "extends"),
             (
@@ -786,6 +823,11 @@ mod tests {
                 other => panic!("{text}: expected an Invalid error on {key}, got {other:?}"),
             }
         }
+        // A huge or tiny value is said in exponent form, not in three hundred digits.
+        let e = parse("extends = \"liver\"\n[sampling]\nspacing_mm = 1e300\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("1e300 mm is out of range"), "{e}");
     }
 
     #[test]
