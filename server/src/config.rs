@@ -330,7 +330,7 @@ impl ServerConfig {
             return Err(ConfigError::Range {
                 file: file.to_owned(),
                 key: "output.device_timeout_ms",
-                value: o.device_timeout_ms.to_string(),
+                value: scalpel_sim::scene::file::readable_number(o.device_timeout_ms),
                 expected: format!(
                     "at least two haptic periods ({:.3} ms at rates.haptic_hz = {}) and at most 10000 ms",
                     2.0 * period_ms,

@@ -8,8 +8,9 @@ use std::path::Path;
 /// Configurations and scene files are a few kB; this leaves room for comments.
 pub const TOML_MAX_BYTES: u64 = 1 << 20;
 
-/// A blade script: an hour of CSV keyframes at 1 kHz is about 220 MB.
-pub const SCRIPT_MAX_BYTES: u64 = 256 << 20;
+/// A blade script: its 100 000 keyframes at most (`MAX_KEYFRAMES`) take about 6 MB as CSV
+/// and 20 MB as TOML with every key on every keyframe.
+pub const SCRIPT_MAX_BYTES: u64 = 32 << 20;
 
 /// Fails unless `path` names a regular file (after symbolic links).
 pub fn check_regular(path: &Path) -> std::io::Result<std::fs::Metadata> {

@@ -15,7 +15,7 @@
 //! output stage's watchdog fades the force out if the model stops coming.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 
 use scalpel_sim::cut::ToolPose;
@@ -471,6 +471,8 @@ pub fn run(
     };
     // The haptic thread wakes the simulation thread once its tick is done.
     let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
+    let sim_fifo_gate = Arc::new(AtomicU8::new(FIFO_PENDING));
+    let (sim_pinned_tx, sim_pinned_rx) = std::sync::mpsc::sync_channel(1);
     let sim_thread = spawn_sim(
         sim,
         pose_out,
@@ -490,7 +492,9 @@ pub fn run(
         t0,
         SimThread {
             fifo_priority: params.sim_fifo_priority,
+            fifo_gate: sim_fifo_gate.clone(),
             cpus: other_cpus.clone(),
+            pinned: sim_pinned_tx,
         },
         sim_wake.clone(),
     )?;
@@ -535,6 +539,25 @@ pub fn run(
         }
         (Some(_), Err(_)) => Some("the haptic thread ended before it started".to_string()),
     };
+    // The simulation takes SCHED_FIFO only above a haptic thread that got it (or with none).
+    sim_fifo_gate.store(
+        if haptic_thread.is_none() || fifo_priority > 0 {
+            FIFO_TAKE
+        } else {
+            FIFO_STAY_NORMAL
+        },
+        Ordering::Release,
+    );
+    let sim_pinned = match sim_pinned_rx.recv() {
+        Ok(Ok(())) => !other_cpus.is_empty(),
+        Ok(Err(e)) => {
+            warnings.push(format!(
+                "{e}: the simulation thread may share the haptic thread's CPU"
+            ));
+            false
+        }
+        Err(_) => false,
+    };
     let mut frames_running = false;
     if params.frame_hz > 0.0 {
         match frames_rx.recv() {
@@ -563,10 +586,10 @@ pub fn run(
         }
         anyhow::bail!("cannot open the device: {e}");
     }
-    let mut running = vec![if other_cpus.is_empty() {
-        "simulation thread".to_string()
-    } else {
+    let mut running = vec![if sim_pinned {
         format!("simulation thread (CPUs {other_cpus:?})")
+    } else {
+        "simulation thread".to_string()
     }];
     let mut off = Vec::new();
     if haptic_thread.is_some() {
@@ -1320,9 +1343,21 @@ fn frame_interval_ticks(frame_hz: f64) -> u64 {
 struct SimThread {
     /// SCHED_FIFO priority (0: normal scheduling).
     fifo_priority: i32,
+    /// Whether to take it: [`FIFO_PENDING`] until the haptic thread says what it got — a
+    /// real-time simulation must not run above a haptic thread left at normal scheduling.
+    fifo_gate: Arc<AtomicU8>,
     /// The CPUs it may run on (empty: any); the CPUs besides a pinned haptic thread's.
     cpus: Vec<usize>,
+    /// Where it says whether pinning to `cpus` worked (for the start report).
+    pinned: std::sync::mpsc::SyncSender<Result<(), String>>,
 }
+
+/// [`SimThread::fifo_gate`]: waiting for the haptic thread's scheduling.
+const FIFO_PENDING: u8 = 0;
+/// [`SimThread::fifo_gate`]: take SCHED_FIFO.
+const FIFO_TAKE: u8 = 1;
+/// [`SimThread::fifo_gate`]: stay at normal scheduling.
+const FIFO_STAY_NORMAL: u8 = 2;
 
 #[allow(clippy::too_many_arguments)]
 fn spawn_sim(
@@ -1341,17 +1376,15 @@ fn spawn_sim(
     std::thread::Builder::new()
         .name("simulation".into())
         .spawn(move || {
-            if thread.fifo_priority > 0 {
-                // Refused is not fatal: the simulation then runs with normal scheduling
-                // (reported by the status line's late ticks).
-                let _ = realtime::make_thread_fifo(thread.fifo_priority);
-            }
-            if !thread.cpus.is_empty() {
-                // Off the haptic thread's own CPU: woken by each haptic tick, the
-                // simulation would otherwise often be placed beside it. Refused is not
-                // fatal either (the CPUs were checked against the allowed set).
-                let _ = realtime::pin_thread(&thread.cpus);
-            }
+            // Off the haptic thread's own CPU: woken by each haptic tick, the simulation
+            // would otherwise often be placed beside it. Refused is not fatal (the start
+            // report says so).
+            let _ = thread.pinned.send(if thread.cpus.is_empty() {
+                Ok(())
+            } else {
+                realtime::pin_thread(&thread.cpus)
+            });
+            let mut fifo_pending = thread.fifo_priority > 0;
             // Shared-memory ports belong to the thread that opens them.
             let mut publisher = None;
             if frames.every_ticks > 0 {
@@ -1373,6 +1406,18 @@ fn spawn_sim(
             let mut credit = 0.0;
             let (mut stiffness, mut stiffness_asked) = (1.0, 1.0);
             while !stop.load(Ordering::Relaxed) {
+                if fifo_pending {
+                    match thread.fifo_gate.load(Ordering::Acquire) {
+                        FIFO_TAKE => {
+                            // Refused is not fatal: the simulation then runs with normal
+                            // scheduling (reported by the status line's late ticks).
+                            let _ = realtime::make_thread_fifo(thread.fifo_priority);
+                            fifo_pending = false;
+                        }
+                        FIFO_STAY_NORMAL => fifo_pending = false,
+                        _ => {}
+                    }
+                }
                 let k = clock.advance();
                 let deadline = clock.deadline(k) + SIM_PHASE_S;
                 match &haptic {
@@ -1440,7 +1485,8 @@ fn spawn_sim(
                 if let Some(records) = &mut journal.records {
                     let record = TickRecord {
                         tick: figures.ticks + 1,
-                        pose: tool,
+                        // What the simulation took (it drops an unsound pose).
+                        pose: tool.filter(ToolPose::is_sound),
                         stiffness: stiffness_change,
                     };
                     if records.push(record).is_err() {

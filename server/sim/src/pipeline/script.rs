@@ -205,10 +205,11 @@ impl CutScript {
 
     fn from_raw(raw: &RawScript, file: &str) -> Result<Self, ScriptError> {
         // A unit vector along `v`, scaled first so that neither 1e-200 nor 1e200 is lost.
+        // (`amax` skips a NaN: checked first.)
         let direction = |v: [f64; 3]| {
             let v = Vec3::from(v);
             let largest = v.amax();
-            (largest.is_finite() && largest > 0.0).then(|| (v / largest).normalize())
+            (v.iter().all(|c| c.is_finite()) && largest > 0.0).then(|| (v / largest).normalize())
         };
         let invalid = |index: usize, message: String| ScriptError::Invalid {
             file: file.to_string(),
@@ -817,6 +818,14 @@ mod tests {
             (
                 "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [1, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\nedge = [2, 0, 0]\n",
                 "keyframe 2: facing = [1.0, 0.0, 0.0] must be a direction across the edge [2.0, 0.0, 0.0]",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [1, nan, 2]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 1: edge = [1.0, NaN, 2.0] must be a finite, non-zero direction",
+            ),
+            (
+                "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [nan, 1, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
+                "keyframe 1: facing = [NaN, 1.0, 0.0] must be a finite, non-zero direction",
             ),
             (
                 "[[keyframe]]\nt_s = 0\ntip_mm = [0, 0, 0]\nedge = [0, 0, 1]\nfacing = [0, 0, 0]\n[[keyframe]]\nt_s = 1\ntip_mm = [0, 0, 0]\n",
