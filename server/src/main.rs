@@ -68,7 +68,7 @@ fn run() -> anyhow::Result<()> {
     if args.check {
         return check_host(&config, args.json);
     }
-    let scene = scene_file::load_scene(&config.scene)?;
+    let (scene, cutting_note) = scene_file::load_station_scene(&config.scene)?;
     let shm_counters = Arc::new(ShmDeviceCounters::default());
     let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, script) => {
@@ -144,6 +144,9 @@ fn run() -> anyhow::Result<()> {
             },
             params.frame_hz
         );
+        if let Some(note) = &cutting_note {
+            say!("  scene: {note}");
+        }
         // Repairs of the surface, and a scan remeshed on loading, said once.
         for w in &scene.mesh_warnings {
             say!("  mesh: {w}");

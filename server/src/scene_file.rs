@@ -56,6 +56,12 @@ pub fn load_script(path: &Path) -> anyhow::Result<CutScript> {
 
 /// A built-in scene name or a scene file, built as a station runs it (cutting on).
 pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
+    load_station_scene(name).map(|(scene, _)| scene)
+}
+
+/// [`load_scene`], and a note for the station's start when the scene file had cutting off
+/// (a station turns it on: what it renders is the blade's force).
+pub fn load_station_scene(name: &str) -> anyhow::Result<(BuiltScene, Option<String>)> {
     let mut spec = match scene::builtin(name) {
         Some(spec) => spec,
         None => {
@@ -77,6 +83,14 @@ pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
     };
     let bytes = read_mesh_bytes(&spec)?;
     // A station cuts: the force model and the blade contact are what it renders.
+    let note = (!spec.features.cutting).then(|| {
+        format!(
+            "{name} has features.cutting off; a station always cuts (its force is the blade's): on"
+        )
+    });
     spec.features.cutting = true;
-    Ok(scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?)
+    Ok((
+        scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?,
+        note,
+    ))
 }

@@ -207,3 +207,40 @@ fn parse_cpu_list(list: &str) -> Vec<usize> {
         })
         .collect()
 }
+
+#[test]
+fn a_scene_with_cutting_off_is_cut_and_the_station_says_so() {
+    let dir = std::env::temp_dir().join(format!("scalpel-nocut-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("nocut.toml"),
+        "extends = \"liver\"\n[features]\ncutting = false\n",
+    )
+    .unwrap();
+    let config = dir.join("server.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "station = \"nocut-{}\"\nscene = \"{}\"\n",
+            std::process::id(),
+            dir.join("nocut.toml").display()
+        ),
+    )
+    .unwrap();
+    let out = server()
+        .arg(&config)
+        .args(["--duration", "0.5"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("has features.cutting off; a station always cuts"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
