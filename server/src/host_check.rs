@@ -44,10 +44,12 @@ fn check(name: &'static str, status: Status, detail: impl Into<String>) -> Check
     }
 }
 
-/// Runs every check for `config` (its scene already loaded, or the error it gave).
+/// Runs every check for `config` (its scene already loaded, or the error it gave); `timing`
+/// times the scene's simulation on this host (up to [`TIMING_WALL_S`]).
 pub fn run(
     config: &ServerConfig,
     scene: Result<&scalpel_sim::scene::BuiltScene, &str>,
+    timing: bool,
 ) -> Vec<Check> {
     let observers = scene.as_ref().is_ok_and(|s| s.spec.features.observers);
     let haptics = scene.as_ref().map_or(true, |s| s.spec.features.haptics);
@@ -57,7 +59,11 @@ pub fn run(
     vec![
         scene_check(scene),
         device_check(config, scene.ok()),
-        simulation_check(config, scene.ok()),
+        if timing {
+            simulation_check(config, scene.ok())
+        } else {
+            check("simulation", Status::Ok, "not timed (--no-timing)")
+        },
         station_check(&config.station, needs_shm),
         fifo_check(
             config.realtime.fifo_priority,
@@ -626,7 +632,11 @@ mod tests {
 
     #[test]
     fn a_scene_that_does_not_load_fails_the_check_and_the_rest_still_run() {
-        let checks = run(&ServerConfig::default(), Err("no such scene: nowhere"));
+        let checks = run(
+            &ServerConfig::default(),
+            Err("no such scene: nowhere"),
+            true,
+        );
         assert!(!passed(&checks));
         assert_eq!(checks[0].name, "scene");
         assert_eq!(checks[0].status, Status::Fail);

@@ -29,12 +29,13 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-/// `scalpel-server CONFIG --check --json` run in `dir`: exit success and the report.
+/// `scalpel-server CONFIG --check --no-timing --json` run in `dir` (as the lab's unit runs
+/// it before each start): exit success and the report.
 fn check(dir: &Path, config: &Path) -> (bool, serde_json::Value) {
     let out = Command::new(station::server_binary())
         .current_dir(dir)
         .arg(config)
-        .args(["--check", "--json"])
+        .args(["--check", "--no-timing", "--json"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -45,6 +46,10 @@ fn check(dir: &Path, config: &Path) -> (bool, serde_json::Value) {
         String::from_utf8_lossy(&out.stderr)
     );
     assert_eq!(out.status.success(), report["passed"] == true, "{report}");
+    assert_eq!(
+        status_of(&report, "simulation"),
+        ("ok", "not timed (--no-timing)")
+    );
     (out.status.success(), report)
 }
 
