@@ -46,19 +46,21 @@ impl FaultSlot {
     }
 
     /// Ramp of a stiffness change, 0–1: in over `ramp_ms` from the start, out over `ramp_ms`
-    /// from the end (continuous even when cleared halfway through the ramp in).
+    /// from the end, down from where the ramp in had got to — continuous, and never rising
+    /// again once ended (cleared halfway through a 60 s ramp in, the old `min(rise, fall)`
+    /// climbed on for 30 s after the clear).
     fn ramp(&self, tick: u64, ramp_ms: u32) -> f64 {
         if tick < self.start_tick {
             return 0.0;
         }
         let ramp = f64::from(ramp_ms.max(1));
-        let rise = ((tick - self.start_tick) as f64 / ramp).min(1.0);
-        let fall = if self.end_tick == u64::MAX {
-            1.0
-        } else {
-            ((self.end_tick as f64 + ramp - tick as f64) / ramp).clamp(0.0, 1.0)
-        };
-        rise.min(fall)
+        let rise = |t: u64| ((t - self.start_tick) as f64 / ramp).min(1.0);
+        if tick < self.end_tick {
+            return rise(tick);
+        }
+        let end = self.end_tick.max(self.start_tick);
+        let fall = ((end as f64 + ramp - tick as f64) / ramp).clamp(0.0, 1.0);
+        rise(end) * fall
     }
 
     /// The last tick it has any effect on (a stiffness change ramps out after its end).
@@ -557,6 +559,29 @@ mod tests {
         let t = book.table();
         assert!((t.sim(450).stiffness - 2.0).abs() < 1e-12);
         assert_eq!(t.sim(500).stiffness, 1.0);
+        // Cleared halfway through a long ramp in, it ramps out from where it had got to and
+        // never rises again.
+        let mut slow_book = FaultBook::new();
+        let slow = Fault::TissueStiffness {
+            factor: 10.0,
+            ramp_ms: 60_000,
+        };
+        slow_book.command("ann", &schedule(1, slow, Start::Now, 0), 0);
+        let clear = Command {
+            seq: 2,
+            action: Action::Clear { id: None },
+        };
+        slow_book.command("ann", &clear, 2_500);
+        let t = slow_book.table();
+        let at_clear = t.sim(2_500).stiffness;
+        assert!((at_clear - 1.375).abs() < 1e-9, "{at_clear}");
+        let mut last = at_clear;
+        for tick in (2_500..=62_500).step_by(500) {
+            let k = t.sim(tick).stiffness;
+            assert!(k <= last + 1e-12, "rose to {k} at tick {tick} from {last}");
+            last = k;
+        }
+        assert_eq!(t.sim(62_500).stiffness, 1.0);
         let events = book.advance(400);
         // The stall was cleared before it started; the stiffness is ramping out.
         assert_eq!(events.len(), 2, "{events:?}");

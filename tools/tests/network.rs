@@ -215,6 +215,27 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
             .await
             .expect("the server closes a connection that announced 10 MB");
         assert!(why.contains("limit"), "{why}");
+        // A frame rate near zero (a period of centuries panicked the frame loop, and the
+        // session never gave its place in the per-address limit back): refused, and more
+        // such connections than the limit of 16 from one address leave it open.
+        for _ in 0..20 {
+            let mut slow = Observer::connect(
+                addr,
+                "localhost",
+                &Credentials::from_dir(&dir, "obs1"),
+                "slow",
+            )
+            .await
+            .expect("a place in the limit is free again");
+            slow.0.subscribe(1e-30).await.unwrap();
+            let why = tokio::time::timeout(Duration::from_secs(3), slow.0.closed())
+                .await
+                .expect("the server closes a connection that asked for 1e-30 Hz");
+            assert!(
+                why.contains("frame_hz") && why.contains("at least 0.1"),
+                "{why}"
+            );
+        }
         // The others are still served.
         for o in &mut many {
             let got = tokio::time::timeout(Duration::from_secs(2), o.0.next())

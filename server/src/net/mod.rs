@@ -114,6 +114,7 @@ impl AddressCounts {
     }
 
     fn release(&self, ip: IpAddr) {
+        // (Called by `Admitted::drop`.)
         let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(n) = m.get_mut(&ip) {
             *n = n.saturating_sub(1);
@@ -276,13 +277,30 @@ async fn accept_loop(
             commands: feeds.commands.clone(),
             stop: stop.clone(),
         };
-        let counts = counts.clone();
-        let open = open.clone();
+        let admitted = Admitted {
+            counts: counts.clone(),
+            open: open.clone(),
+            ip,
+        };
         tokio::spawn(async move {
+            // Released however the session ends, a panic included.
+            let _admitted = admitted;
             session::run(incoming, context).await;
-            counts.release(ip);
-            open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
         });
+    }
+}
+
+/// A connection's places in the limits, given back when its session ends.
+struct Admitted {
+    counts: AddressCounts,
+    open: Arc<std::sync::atomic::AtomicUsize>,
+    ip: IpAddr,
+}
+
+impl Drop for Admitted {
+    fn drop(&mut self) {
+        self.counts.release(self.ip);
+        self.open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
     }
 }
 

@@ -17,6 +17,9 @@ use tokio::sync::{broadcast, watch};
 use super::frames::{FrameEncoder, SourceFrame};
 use super::tls;
 
+/// The lowest frame rate an observer may ask for (Hz): a frame every ten seconds.
+pub const MIN_FRAME_HZ: f32 = 0.1;
+
 /// Connection close codes (QUIC application error codes).
 pub mod close {
     /// Normal close.
@@ -233,10 +236,14 @@ async fn control(
         let replies = match message {
             None => return Ok(()),
             Some(ClientMessage::Subscribe { frame_hz: hz }) => {
-                if !hz.is_finite() || hz < 0.0 {
+                // 0 is none; a rate near zero is a period of centuries (it panicked the
+                // frame loop's Duration).
+                if !(hz == 0.0 || (MIN_FRAME_HZ..=f32::MAX).contains(&hz)) {
                     return Err(Closed(
                         close::PROTOCOL,
-                        format!("Subscribe: frame_hz {hz} is not a rate"),
+                        format!(
+                            "Subscribe: frame_hz {hz} is not a rate: 0 (none) or at least {MIN_FRAME_HZ}"
+                        ),
                     ));
                 }
                 let _ = frame_hz.send(f64::from(hz).min(frame_hz_max));
@@ -337,7 +344,7 @@ async fn frames(
         let Some(frame) = source.borrow_and_update().clone() else {
             continue;
         };
-        next_due = now + Duration::from_secs_f64(1.0 / hz);
+        next_due = now + Duration::try_from_secs_f64(1.0 / hz).unwrap_or(Duration::from_secs(10));
         let message = encoder.encode(&frame);
         let keyframe = message.topology.is_some();
         let conn = conn.clone();
