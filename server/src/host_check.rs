@@ -10,6 +10,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use scalpel_sim::pipeline::CutScript;
+
 use crate::config::{DeviceKind, ServerConfig};
 use crate::realtime;
 
@@ -56,11 +58,13 @@ pub fn run(
     // The server refuses to start only when its device is on shared memory; render frames
     // and the monitor's clean-up are dropped with a warning.
     let needs_shm = config.device.kind == DeviceKind::SharedMemory;
+    // Laid or read once, for the device's check and the timing.
+    let script = station_script(config, scene.ok());
     vec![
         scene_check(scene),
-        device_check(config, scene.ok()),
+        device_check(config, script.as_ref()),
         if timing {
-            simulation_check(config, scene.ok())
+            simulation_check(config, scene.ok(), script.and_then(Result::ok))
         } else {
             check("simulation", Status::Ok, "not timed (--no-timing)")
         },
@@ -117,7 +121,27 @@ fn scene_check(scene: Result<&scalpel_sim::scene::BuiltScene, &str>) -> Check {
     }
 }
 
-fn device_check(config: &ServerConfig, scene: Option<&scalpel_sim::scene::BuiltScene>) -> Check {
+/// The blade script the station plays: the device's script file, or the demo cut laid on
+/// the scene (with a shared-memory device, as the timing's stand-in); `None` when it
+/// needs the scene and the scene did not load.
+fn station_script(
+    config: &ServerConfig,
+    scene: Option<&scalpel_sim::scene::BuiltScene>,
+) -> Option<Result<CutScript, String>> {
+    match (&config.device.kind, config.device.script.as_str()) {
+        (DeviceKind::Scripted, file) if !file.is_empty() => Some(
+            crate::scene_file::load_script(Path::new(file))
+                .map_err(|e| format!("device.script: {e:#}")),
+        ),
+        _ => scene.map(|s| {
+            CutScript::default_for(&s.model.surface).map_err(|e| {
+                format!("the scene has no place for the demo cut ({e}): give device.script")
+            })
+        }),
+    }
+}
+
+fn device_check(config: &ServerConfig, script: Option<&Result<CutScript, String>>) -> Check {
     match config.device.kind {
         DeviceKind::SharedMemory => check(
             "device",
@@ -127,40 +151,28 @@ fn device_check(config: &ServerConfig, scene: Option<&scalpel_sim::scene::BuiltS
                 config.station
             ),
         ),
-        // The demo cut the server would lay on the scene's surface (it refuses to start
-        // without one).
-        DeviceKind::Scripted if config.device.script.is_empty() => {
-            match scene.map(|s| scalpel_sim::pipeline::CutScript::default_for(&s.model.surface)) {
-                Some(Ok(_)) => check(
-                    "device",
-                    Status::Ok,
-                    "in-process scripted device, the scene's demo cut",
+        // The server refuses to start without the script it plays.
+        DeviceKind::Scripted => match script {
+            Some(Ok(_)) if config.device.script.is_empty() => check(
+                "device",
+                Status::Ok,
+                "in-process scripted device, the scene's demo cut",
+            ),
+            Some(Ok(_)) => check(
+                "device",
+                Status::Ok,
+                format!(
+                    "in-process scripted device playing {}",
+                    config.device.script
                 ),
-                Some(Err(e)) => check(
-                    "device",
-                    Status::Fail,
-                    format!("the scene has no place for the demo cut ({e}): give device.script"),
-                ),
-                None => check(
-                    "device",
-                    Status::Warn,
-                    "in-process scripted device, the scene's demo cut (not laid: the scene did not load)",
-                ),
-            }
-        }
-        DeviceKind::Scripted => {
-            match crate::scene_file::load_script(Path::new(&config.device.script)) {
-                Ok(_) => check(
-                    "device",
-                    Status::Ok,
-                    format!(
-                        "in-process scripted device playing {}",
-                        config.device.script
-                    ),
-                ),
-                Err(e) => check("device", Status::Fail, format!("device.script: {e:#}")),
-            }
-        }
+            ),
+            Some(Err(e)) => check("device", Status::Fail, e.clone()),
+            None => check(
+                "device",
+                Status::Warn,
+                "in-process scripted device, the scene's demo cut (not laid: the scene did not load)",
+            ),
+        },
     }
 }
 
@@ -186,8 +198,9 @@ struct TimedTick {
 fn simulation_check(
     config: &ServerConfig,
     scene: Option<&scalpel_sim::scene::BuiltScene>,
+    script: Option<CutScript>,
 ) -> Check {
-    use scalpel_sim::pipeline::{CutScript, SIMULATION_TICK_S, Simulation, Unobserved};
+    use scalpel_sim::pipeline::{SIMULATION_TICK_S, Simulation, Unobserved};
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::{Duration, Instant};
     let Some(scene) = scene else {
@@ -197,17 +210,11 @@ fn simulation_check(
             "not timed: the scene did not load",
         );
     };
-    let (script, played) = match (&config.device.kind, config.device.script.as_str()) {
-        (DeviceKind::Scripted, file) if !file.is_empty() => (
-            crate::scene_file::load_script(Path::new(file)).ok(),
-            "the device's script",
-        ),
-        _ => (
-            CutScript::default_for(&scene.model.surface).ok(),
-            "the scene's demo cut",
-        ),
+    let played = match (&script, config.device.script.as_str()) {
+        (None, _) => "no tool",
+        (Some(_), "") => "the scene's demo cut",
+        (Some(_), _) => "the device's script",
     };
-    let played = if script.is_some() { played } else { "no tool" };
     let ticks = script.as_ref().map_or(1000, |s| {
         ((s.duration_s() / SIMULATION_TICK_S).ceil() as usize).max(1)
     });
@@ -662,7 +669,10 @@ mod tests {
     fn the_simulation_check_times_the_demo_cut_and_never_fails() {
         // Whether it warns depends on this machine's speed; what it says does not.
         let scene = crate::scene_file::load_scene("liver").unwrap();
-        let c = simulation_check(&ServerConfig::default(), Some(&scene));
+        let config = ServerConfig::default();
+        let script = station_script(&config, Some(&scene)).and_then(Result::ok);
+        assert!(script.is_some(), "the liver has a place for the demo cut");
+        let c = simulation_check(&config, Some(&scene), script);
         assert!(
             c.detail.contains("ticks with the tissue moving")
                 && c.detail.contains("of the scene's demo cut")
@@ -670,7 +680,7 @@ mod tests {
             "{}",
             c.detail
         );
-        let c = simulation_check(&ServerConfig::default(), None);
+        let c = simulation_check(&ServerConfig::default(), None, None);
         assert_eq!(c.status, Status::Warn);
     }
 
@@ -711,15 +721,14 @@ mod tests {
         config.device.script = "/nonexistent/cut.toml".into();
         // The demo cut is laid on the scene as the server would lay it.
         let liver = crate::scene_file::load_scene("liver").unwrap();
-        assert_eq!(
-            device_check(&ServerConfig::default(), Some(&liver)).status,
-            Status::Ok
-        );
-        assert_eq!(
-            device_check(&ServerConfig::default(), None).status,
-            Status::Warn
-        );
-        let c = device_check(&config, None);
+        let default = ServerConfig::default();
+        let check_with = |config: &ServerConfig, scene| {
+            device_check(config, station_script(config, scene).as_ref())
+        };
+        assert_eq!(check_with(&default, Some(&liver)).status, Status::Ok);
+        assert_eq!(check_with(&default, None).status, Status::Warn);
+        // The device's own script is read whether or not the scene loaded.
+        let c = check_with(&config, None);
         assert_eq!(c.status, Status::Fail);
         assert!(c.detail.contains("device.script"), "{}", c.detail);
         assert_eq!(fifo_check(0, 0, true).status, Status::Warn);
