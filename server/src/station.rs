@@ -1494,7 +1494,9 @@ fn spawn_sim(
                     }
                 }
                 let report = sim.tick(SIM_TICK_S, &mut Unobserved);
-                let tip = tool.map(|p| p.tip_m);
+                // Where the blade went (a pose faster than a hand is followed at a hand's
+                // speed: the cut is as long as the blade's path, not the noise's).
+                let tip = sim.blade_pose().map(|p| p.tip_m);
                 let cutting = report
                     .cut
                     .as_ref()

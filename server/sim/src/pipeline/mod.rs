@@ -11,6 +11,7 @@
 //! contact and no force model, and integrates every point. Timing is the caller's business:
 //! the pipeline reports stage boundaries to a [`StageObserver`] and never reads a clock.
 
+pub mod blade_motion;
 pub mod cutting;
 pub mod incision;
 pub mod script;
@@ -93,7 +94,10 @@ pub struct Simulation {
     virtual_points: Option<VirtualPoints>,
     /// Scratch for the points whose lists virtual points changed.
     vp_changed: Vec<u32>,
+    /// The pose the tool asks for ...
     tool: Option<ToolPose>,
+    /// ... and where the blade is, following it at a hand's speed (blade_motion.rs).
+    blade_pose: Option<ToolPose>,
     time_s: f64,
     local_model: LocalForceModel,
     all_points: Vec<u32>,
@@ -148,6 +152,7 @@ impl Simulation {
             solver,
             cutting,
             tool: None,
+            blade_pose: None,
             time_s: 0.0,
             local_model: LocalForceModel {
                 f0_n: Vec3::zeros(),
@@ -180,14 +185,33 @@ impl Simulation {
 
     /// The tool's pose for the next tick; `None` takes the tool away, and so does a pose
     /// that is not [sound](ToolPose::is_sound) (the callers check theirs; a non-finite
-    /// pose must not reach the contact and the force model whatever the caller).
+    /// pose must not reach the contact and the force model whatever the caller). The blade
+    /// follows it from where it was at most at [`blade_motion::MAX_BLADE_SPEED_M_PER_S`]; a
+    /// tool that was away appears where it is put.
     pub fn set_tool(&mut self, pose: Option<ToolPose>) {
         self.tool = pose.filter(ToolPose::is_sound);
     }
 
+    /// Where the blade is after the last tick (`None`: no tool); it lags the tool's pose only
+    /// while that moves faster than a hand.
+    pub fn blade_pose(&self) -> Option<ToolPose> {
+        self.blade_pose
+    }
+
     /// Advances by `dt` seconds.
     pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
-        let blade = self.tool.map(|pose| Blade::at(&pose, &self.spec.tool));
+        self.blade_pose = match (self.tool, self.blade_pose) {
+            (Some(asked), Some(at)) => Some(blade_motion::follow(
+                &at,
+                &asked,
+                dt,
+                self.spec.tool.blade_length_m,
+            )),
+            (asked, _) => asked,
+        };
+        let blade = self
+            .blade_pose
+            .map(|pose| Blade::at(&pose, &self.spec.tool));
         let mut cut = None;
         let mut remeshed = false;
         let mut placed = false;
