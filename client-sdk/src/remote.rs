@@ -158,6 +158,10 @@ pub enum Update {
     Frame(DecodedFrame),
 }
 
+/// Longest [`Session::connect`] waits for the station's welcome (a TLS handshake and two
+/// messages take milliseconds, on a busy debug build a second).
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// A connection to a station, shared by [`Observer`] and [`Instructor`].
 pub struct Session {
     endpoint: quinn::Endpoint,
@@ -182,8 +186,30 @@ impl Session {
     }
 
     /// Connects, authenticates and says hello. `server_name` must be a name in the server's
-    /// certificate (`localhost` for one made by `scalpel certs init`).
+    /// certificate (`localhost` for one made by `scalpel certs init`). Gives up after
+    /// [`CONNECT_TIMEOUT`] without a welcome: nothing listening at `addr` answers nothing over
+    /// UDP, and QUIC's idle timeout alone would keep the caller waiting 30 s.
     pub async fn connect(
+        addr: SocketAddr,
+        server_name: &str,
+        config: quinn::ClientConfig,
+        client: &str,
+    ) -> Result<Self, ClientError> {
+        tokio::time::timeout(
+            CONNECT_TIMEOUT,
+            Self::handshake(addr, server_name, config, client),
+        )
+        .await
+        .unwrap_or_else(|_| {
+            Err(ClientError::Connection(format!(
+                "no answer from {addr} within {} s: is a station listening there (its \
+                 `network.listen`, and the `observers` feature in its scene)?",
+                CONNECT_TIMEOUT.as_secs()
+            )))
+        })
+    }
+
+    async fn handshake(
         addr: SocketAddr,
         server_name: &str,
         config: quinn::ClientConfig,

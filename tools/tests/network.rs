@@ -79,6 +79,39 @@ fn start_with(dir: &Path, station: &str, more: &str, args: &[&str]) -> (Running,
 }
 
 #[test]
+fn a_client_with_no_station_at_its_address_gives_up_and_says_why() {
+    let dir = station::scratch("network-nobody");
+    make_certs(&dir);
+    // A port that takes datagrams and never answers (a host whose station is down, or a
+    // firewall that drops them): QUIC's idle timeout alone kept the CLI waiting 30 s and
+    // then said only "timed out".
+    let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let addr = silent.local_addr().unwrap().to_string();
+    for args in [
+        ["instruct", "ann", "list"],
+        ["observe", "obs1", "--plain"],
+    ] {
+        let asked = std::time::Instant::now();
+        let out = scalpel()
+            .args([args[0], &addr, "--certs"])
+            .arg(&dir)
+            .args(["--name", args[1], args[2]])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?}");
+        assert!(
+            stderr.contains(&format!("no answer from {addr} within 10 s"))
+                && stderr.contains("network.listen"),
+            "{args:?}: {stderr}"
+        );
+        // Well before the 30 s of the idle timeout (the bound is 10 s; the rest is room for
+        // a busy machine).
+        assert!(asked.elapsed() < Duration::from_secs(25), "{args:?}");
+    }
+}
+
+#[test]
 fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     let dir = station::scratch("network");
     make_certs(&dir);
