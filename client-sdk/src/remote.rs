@@ -158,6 +158,23 @@ pub enum Update {
     Frame(DecodedFrame),
 }
 
+/// A failed handshake as the client error. QUIC's refusal of a connection has no room for
+/// a reason: a station refuses one only when it is at its limits, so that is said.
+fn refusal(e: quinn::ConnectionError) -> ClientError {
+    match &e {
+        quinn::ConnectionError::ConnectionClosed(c)
+            if c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED =>
+        {
+            ClientError::Refused(
+                "the station is at its limit of connections (`network.max_connections` at \
+                 once, `network.max_per_address` from one address); try again when one closes"
+                    .into(),
+            )
+        }
+        _ => ClientError::Connection(e.to_string()),
+    }
+}
+
 /// Longest [`Session::connect`] waits for the station's welcome (a TLS handshake and two
 /// messages take milliseconds, on a busy debug build a second).
 pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -227,7 +244,7 @@ impl Session {
             .connect(addr, server_name)
             .map_err(|e| ClientError::Setup(e.to_string()))?
             .await
-            .map_err(|e| ClientError::Connection(e.to_string()))?;
+            .map_err(refusal)?;
         let (mut send, mut recv) = connection
             .open_bi()
             .await

@@ -87,10 +87,7 @@ fn a_client_with_no_station_at_its_address_gives_up_and_says_why() {
     // then said only "timed out".
     let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let addr = silent.local_addr().unwrap().to_string();
-    for args in [
-        ["instruct", "ann", "list"],
-        ["observe", "obs1", "--plain"],
-    ] {
+    for args in [["instruct", "ann", "list"], ["observe", "obs1", "--plain"]] {
         let asked = std::time::Instant::now();
         let out = scalpel()
             .args([args[0], &addr, "--certs"])
@@ -276,6 +273,24 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
                 .expect("still served");
             assert!(got.is_some());
         }
+        // Past the limit of 16 from one address (ten are open here), a client is told why
+        // (QUIC's refusal carries no reason; it said "the server refused to accept a new
+        // connection").
+        let mut more = Vec::new();
+        let refusal = loop {
+            match Observer::connect(addr, "localhost", &Credentials::from_dir(&dir, "obs1"), "more")
+                .await
+            {
+                Ok(o) => more.push(o),
+                Err(e) => break e,
+            }
+            assert!(more.len() <= 16, "no limit");
+        };
+        assert!(
+            matches!(&refusal, ClientError::Refused(why) if why.contains("network.max_per_address")),
+            "{refusal}"
+        );
+        drop(more);
         let _ = ClientError::Setup(String::new());
     });
     // And the station never stopped ticking.

@@ -80,21 +80,16 @@ pub async fn run(incoming: quinn::Incoming, mut ctx: SessionContext) {
     conn.close(code.into(), reason.as_bytes());
 }
 
-fn identity(conn: &quinn::Connection) -> Option<(Role, String)> {
+fn identity(conn: &quinn::Connection) -> Result<(Role, String), String> {
     let certs = conn
-        .peer_identity()?
-        .downcast::<Vec<CertificateDer<'static>>>()
-        .ok()?;
-    tls::identity(certs.first()?)
+        .peer_identity()
+        .and_then(|i| i.downcast::<Vec<CertificateDer<'static>>>().ok())
+        .ok_or("no client certificate")?;
+    tls::identity(certs.first().ok_or("no client certificate")?)
 }
 
 async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(), Closed> {
-    let Some((role, name)) = identity(conn) else {
-        return Err(Closed(
-            close::FORBIDDEN,
-            "the client certificate names no role (observer or instructor)".into(),
-        ));
-    };
+    let (role, name) = identity(conn).map_err(|reason| Closed(close::FORBIDDEN, reason))?;
     let (mut send, mut recv) = tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi())
         .await
         .map_err(|_| Closed(close::PROTOCOL, "no control stream".into()))?

@@ -76,27 +76,79 @@ pub fn server_config(certs: &Path) -> anyhow::Result<rustls::ServerConfig> {
     Ok(tls)
 }
 
-/// Who a verified client certificate names: its role and common name. `None` for a
-/// certificate without a known role (refused).
-pub fn identity(cert: &CertificateDer<'_>) -> Option<(Role, String)> {
-    let (_, parsed) = x509_parser::parse_x509_certificate(cert.as_ref()).ok()?;
+/// Longest identity a certificate may name (`scalpel certs issue` makes at most 64).
+pub const MAX_IDENTITY: usize = 64;
+
+/// Who a verified client certificate names: its role and common name, or why it is refused:
+/// no known role, or a name that is not 1–[`MAX_IDENTITY`] characters without control
+/// characters. The name is printed in logs, events, journals and observers' terminals; a
+/// lab CA could sign anything (only `scalpel certs issue` checks), and an escape sequence in
+/// a name would then reach every terminal that shows it.
+pub fn identity(cert: &CertificateDer<'_>) -> Result<(Role, String), String> {
+    let unreadable = || "the client certificate cannot be read".to_string();
+    let (_, parsed) =
+        x509_parser::parse_x509_certificate(cert.as_ref()).map_err(|_| unreadable())?;
     let subject = parsed.subject();
-    let unit = subject
-        .iter_organizational_unit()
-        .next()?
-        .as_str()
-        .ok()?
-        .to_string();
-    let name = subject
-        .iter_common_name()
-        .next()?
-        .as_str()
-        .ok()?
-        .to_string();
-    let role = match unit.as_str() {
-        "observer" => Role::Observer,
-        "instructor" => Role::Instructor,
-        _ => return None,
+    let text = |field: Option<&x509_parser::x509::AttributeTypeAndValue<'_>>| {
+        field.and_then(|f| f.as_str().ok()).map(str::to_string)
     };
-    Some((role, name))
+    let role = match text(subject.iter_organizational_unit().next()).as_deref() {
+        Some("observer") => Role::Observer,
+        Some("instructor") => Role::Instructor,
+        _ => return Err("the client certificate names no role (observer or instructor)".into()),
+    };
+    let name = text(subject.iter_common_name().next()).unwrap_or_default();
+    if name.is_empty() || name.chars().count() > MAX_IDENTITY || name.chars().any(char::is_control)
+    {
+        // Debug formatting escapes what must not reach a terminal raw.
+        let shown: String = format!("{name:?}").chars().take(4 * MAX_IDENTITY).collect();
+        return Err(format!(
+            "the client certificate's name {shown} is not 1 to {MAX_IDENTITY} characters \
+             without control characters (issue it with `scalpel certs issue`)"
+        ));
+    }
+    Ok((role, name))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn certificate(name: &str, unit: &str) -> CertificateDer<'static> {
+        let mut params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+        params
+            .distinguished_name
+            .push(rcgen::DnType::CommonName, name);
+        params
+            .distinguished_name
+            .push(rcgen::DnType::OrganizationalUnitName, unit);
+        let key = rcgen::KeyPair::generate().unwrap();
+        params.self_signed(&key).unwrap().der().clone()
+    }
+
+    #[test]
+    fn an_identity_is_a_role_and_a_printable_name() {
+        assert_eq!(
+            identity(&certificate("ann", "instructor")),
+            Ok((Role::Instructor, "ann".into()))
+        );
+        assert_eq!(
+            identity(&certificate("Ève Ødegård", "observer")),
+            Ok((Role::Observer, "Ève Ødegård".into()))
+        );
+        let refused = |name: &str, unit: &str| identity(&certificate(name, unit)).unwrap_err();
+        assert!(refused("ann", "admin").contains("names no role"));
+        // An escape sequence that would turn a terminal red, a newline that would forge a
+        // log line: refused, and shown escaped.
+        let red = refused("eve\u{1b}[31m", "instructor");
+        assert!(
+            red.contains(r#""eve\u{1b}[31m""#) && !red.contains('\u{1b}'),
+            "{red}"
+        );
+        let forged = refused("eve\n 12.0 s  fault 1 cleared", "observer");
+        assert!(!forged.contains('\n'), "{forged}");
+        assert!(refused("", "observer").contains("not 1 to 64"));
+        assert!(refused(&"x".repeat(65), "observer").contains("not 1 to 64"));
+        assert!(identity(&CertificateDer::from(vec![1, 2, 3])).is_err());
+    }
 }
