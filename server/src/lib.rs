@@ -3,6 +3,7 @@
 //! model through the output stage, and a simulation thread that advances the scene with the
 //! device's poses. Device I/O, render frames and the network endpoint attach to these.
 
+pub mod command_audit;
 pub mod config;
 pub mod console;
 pub mod device;

@@ -24,6 +24,7 @@ use scalpel_sim::math::{Mat3, Vec3};
 use scalpel_sim::pipeline::{Simulation, Unobserved};
 use scalpel_sim::scene::BuiltScene;
 
+use crate::command_audit::{self, CommandAudit};
 use crate::device::{DeviceFactory, DeviceSample, ForceStatus, HapticDevice};
 use crate::device_monitor::{DeviceEvent, DeviceMonitor};
 use crate::faults::{FaultBook, FaultTable, HapticEffects, Transition};
@@ -660,6 +661,7 @@ pub fn run(
     let mut window_start = t0;
     let mut remote = RemoteFeed::default();
     let mut book = FaultBook::new();
+    let mut audit = CommandAudit::new();
     let mut stream_lost = false;
     // The table the threads have (rebuilt only when the book changes).
     let mut table = FaultTable::default();
@@ -702,26 +704,32 @@ pub fn run(
                 };
                 table_changed |=
                     matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
-                let record = serde_json::json!({
-                    "station_tick": tick,
-                    "sim_tick": sim_now.ticks,
-                    "by": request.by,
-                    "role": request.role,
-                    "seq": request.command.seq,
-                    "action": request.command.action,
-                    "outcome": outcome,
-                });
-                // No journal: nobody reads the channel, and that is fine.
-                let _ = commands_journal.send(journal::command_line(&record));
-                report(&StationReport::Event(StationEvent {
-                    uptime_s: now - t0,
-                    event: format!(
-                        "instructor {}: command {} {:?} -> {:?}",
-                        request.by, request.command.seq, request.command.action, outcome
-                    ),
-                }));
+                let refused = matches!(outcome, Outcome::Rejected { .. });
+                if audit.record(&request.by, refused, tick) == command_audit::Record::Full {
+                    let record = serde_json::json!({
+                        "station_tick": tick,
+                        "sim_tick": sim_now.ticks,
+                        "by": request.by,
+                        "role": request.role,
+                        "seq": request.command.seq,
+                        "action": request.command.action,
+                        "outcome": outcome,
+                    });
+                    // No journal: nobody reads the channel, and that is fine.
+                    let _ = commands_journal.send(journal::command_line(&record));
+                    report(&StationReport::Event(StationEvent {
+                        uptime_s: now - t0,
+                        event: format!(
+                            "instructor {}: command {} {:?} -> {:?}",
+                            request.by, request.command.seq, request.command.action, outcome
+                        ),
+                    }));
+                }
                 // The session may have gone: its answer has nowhere to go.
                 let _ = request.reply.send((outcome, listed));
+            }
+            for summary in audit.summaries(tick, false) {
+                record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
             }
         }
         for transition in book.advance(tick) {
@@ -805,6 +813,11 @@ pub fn run(
             stop.store(true, Ordering::Relaxed);
         }
     }
+    let now = realtime::monotonic_s();
+    for summary in audit.summaries(station_tick(now - t0), true) {
+        let sim_now = *status_out.read();
+        record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
+    }
     let haptic_result = match haptic_thread {
         Some(h) => h.join(),
         None => Ok(()),
@@ -844,6 +857,33 @@ pub fn run(
         memory_locked,
         warnings,
     })
+}
+
+/// Writes out refusals the audit counted: one journal line (`refused_unrecorded`, which
+/// `scalpel replay` lists) and one event.
+fn record_refusals(
+    summary: &command_audit::Summary,
+    sim_now: &SimStatus,
+    uptime_s: f64,
+    journal: &std::sync::mpsc::Sender<String>,
+    report: &mut dyn FnMut(&StationReport),
+) {
+    let record = serde_json::json!({
+        "station_tick": summary.ticks.1,
+        "sim_tick": sim_now.ticks,
+        "by": summary.by,
+        "refused_unrecorded": summary.refused,
+        "from_station_tick": summary.ticks.0,
+    });
+    let _ = journal.send(journal::command_line(&record));
+    report(&StationReport::Event(StationEvent {
+        uptime_s,
+        event: format!(
+            "instructor {}: {} more commands refused from station tick {} to {} (a flood: \
+             counted, not written out one by one)",
+            summary.by, summary.refused, summary.ticks.0, summary.ticks.1
+        ),
+    }));
 }
 
 #[derive(Clone, Copy)]

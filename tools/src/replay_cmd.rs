@@ -40,6 +40,14 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
         );
     } else {
         for c in &recorded.commands {
+            if let Some(n) = c.get("refused_unrecorded") {
+                // A flood the station counted rather than journaled one by one.
+                println!(
+                    "{n} more commands by {} refused from station tick {} to {} (counted, not journaled one by one)",
+                    c["by"], c["from_station_tick"], c["station_tick"]
+                );
+                continue;
+            }
             println!(
                 "command at station tick {} (simulation tick {}) by {}: {} -> {}",
                 c["station_tick"], c["sim_tick"], c["by"], c["action"], c["outcome"]

@@ -162,6 +162,11 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
             matches!(&outcome, Outcome::Rejected { reason } if reason.contains("observer")),
             "{outcome:?}"
         );
+        // Nor can it flood the log and the journal with its refusals (below).
+        for _ in 0..100 {
+            let (outcome, _) = observer.0.command(Action::List).await.unwrap();
+            assert!(matches!(&outcome, Outcome::Rejected { .. }), "{outcome:?}");
+        }
 
         // An instructor's replayed command is refused; a flood is cut off by the rate limit.
         let mut ann = Instructor::connect(
@@ -295,6 +300,33 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     });
     // And the station never stopped ticking.
     server.assert_ticking();
+    // obs2's 101 refused commands: the first ones written out one by one, the rest of the
+    // flood counted and said in a summary (within a second).
+    let summary = server.wait_for(Duration::from_secs(3), |l| {
+        json(l)["event"].as_str().is_some_and(|e| {
+            e.starts_with("instructor obs2: ") && e.contains("more commands refused")
+        })
+    });
+    let events: Vec<String> = server
+        .seen
+        .iter()
+        .filter_map(|l| json(l)["event"].as_str().map(str::to_string))
+        .filter(|e| e.starts_with("instructor obs2: "))
+        .collect();
+    let one_by_one = events.iter().filter(|e| e.contains(": command ")).count();
+    let counted: usize = events
+        .iter()
+        .filter_map(|e| {
+            e.split(": ")
+                .nth(1)?
+                .split(' ')
+                .next()?
+                .parse::<usize>()
+                .ok()
+        })
+        .sum();
+    assert!((20..=25).contains(&one_by_one), "{one_by_one}: {summary}");
+    assert_eq!(one_by_one + counted, 101, "{events:?}");
     server.kill_9();
     std::fs::remove_dir_all(&dir).ok();
 }
