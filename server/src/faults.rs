@@ -325,8 +325,21 @@ impl FaultBook {
             ));
         }
         if self.booked.len() >= MAX_FAULTS {
+            let ramping: Vec<u64> = self
+                .booked
+                .iter()
+                .filter(|b| b.slot.end_tick <= now)
+                .map(|b| b.slot.expires_tick() - now)
+                .collect();
+            let ramping = match ramping.iter().min() {
+                Some(soonest) => format!(
+                    " ({} of them stiffness changes ramping out, the first free in {soonest} ms)",
+                    ramping.len()
+                ),
+                None => String::new(),
+            };
             return Err(format!(
-                "{MAX_FAULTS} faults are booked already: clear some first"
+                "{MAX_FAULTS} faults are booked already{ramping}: clear some first"
             ));
         }
         let id = self.next_id;
@@ -378,15 +391,27 @@ impl FaultBook {
         Ok((Outcome::Cleared { count }, None))
     }
 
-    /// The booked faults at station tick `now`.
+    /// The booked faults at station tick `now`, each with the start the station gave it and,
+    /// once its end is known (cleared, or its time up), the duration it had: a cleared
+    /// "until cleared" fault is not listed as such. `active`: it acts now — a stiffness
+    /// change ramping out after its end included (it still holds its place in the book).
     pub fn list(&self, now: u64) -> Vec<ScheduledFault> {
         self.booked
             .iter()
-            .map(|b| ScheduledFault {
-                id: b.slot.id,
-                spec: b.spec.clone(),
-                by: b.by.clone(),
-                active: b.slot.active(now),
+            .map(|b| {
+                let mut spec = b.spec.clone();
+                spec.start = Start::AtTick(b.slot.start_tick);
+                if b.slot.end_tick <= now && !b.cancelled {
+                    spec.duration_ms =
+                        u32::try_from(b.slot.end_tick - b.slot.start_tick).unwrap_or(u32::MAX);
+                }
+                ScheduledFault {
+                    id: b.slot.id,
+                    spec,
+                    by: b.by.clone(),
+                    active: (b.slot.start_tick..b.slot.expires_tick()).contains(&now)
+                        && !b.cancelled,
+                }
             })
             .collect()
     }
@@ -585,7 +610,14 @@ mod tests {
         let events = book.advance(400);
         // The stall was cleared before it started; the stiffness is ramping out.
         assert_eq!(events.len(), 2, "{events:?}");
-        assert_eq!(book.list(400).len(), 1);
+        // Listed as what it was — started at tick 0, cleared after 400 ms — and still acting
+        // while it ramps out (it was listed "start Now, until cleared, scheduled").
+        let listed = book.list(450);
+        assert_eq!(listed.len(), 1);
+        assert_eq!(listed[0].spec.start, Start::AtTick(0));
+        assert_eq!(listed[0].spec.duration_ms, 400);
+        assert!(listed[0].active);
+        assert!(!book.list(500)[0].active);
         assert!(matches!(book.advance(500)[..], [Transition::Ended(_)]));
         let (o, _) = book.command(
             "ann",
@@ -620,6 +652,25 @@ mod tests {
             matches!(o, Outcome::Rejected { ref reason } if reason.contains("booked")),
             "{o:?}"
         );
+        // A stiffness change cleared and ramping out keeps its place until it has ramped out
+        // (the real-time threads still need it): the refusal says so.
+        let clear = |seq, id| Command {
+            seq,
+            action: Action::Clear { id: Some(id) },
+        };
+        let stiffness_id = 6;
+        assert_eq!(book.list(0)[5].spec.fault, Fault::EXAMPLES[5]);
+        book.command("ann", &clear(100, stiffness_id), 1000);
+        book.advance(1000);
+        let (o, _) = book.command("ann", &schedule(101, Fault::SimStall, Start::Now, 0), 1050);
+        assert!(
+            matches!(o, Outcome::Rejected { ref reason }
+                if reason.contains("1 of them stiffness changes ramping out, the first free in 150 ms")),
+            "{o:?}"
+        );
+        book.advance(1200);
+        let (o, _) = book.command("ann", &schedule(102, Fault::SimStall, Start::Now, 0), 1200);
+        assert!(matches!(o, Outcome::Scheduled { .. }), "{o:?}");
     }
 
     #[test]
