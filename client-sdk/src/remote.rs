@@ -159,7 +159,8 @@ pub enum Update {
 }
 
 /// A failed handshake as the client error. QUIC's refusal of a connection has no room for
-/// a reason: a station refuses one only when it is at its limits, so that is said.
+/// a reason: a station refuses one when it is at its limits (or its endpoint's incoming
+/// buffers are full, or it is stopping), so that is said.
 fn refusal(e: quinn::ConnectionError) -> ClientError {
     match &e {
         quinn::ConnectionError::ConnectionClosed(c)
@@ -167,7 +168,8 @@ fn refusal(e: quinn::ConnectionError) -> ClientError {
         {
             ClientError::Refused(
                 "the station is at its limit of connections (`network.max_connections` at \
-                 once, `network.max_per_address` from one address); try again when one closes"
+                 once, `network.max_per_address` from one address), or too busy or stopping; \
+                 try again when one closes"
                     .into(),
             )
         }

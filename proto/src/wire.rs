@@ -281,11 +281,12 @@ pub enum Outcome {
 pub struct ScheduledFault {
     /// Its id.
     pub id: u64,
-    /// What was asked.
+    /// What was asked, with the start resolved to the station tick it got and, once it has
+    /// ended, the duration it had.
     pub spec: FaultSpec,
     /// Who asked (certificate common name).
     pub by: String,
-    /// It is in effect now.
+    /// It is in effect now (a stiffness change ramping out after its end included).
     pub active: bool,
 }
 

@@ -1,5 +1,5 @@
-//! Which remote commands are written out one by one (the text log, the observers' events and
-//! the journal) and which are only counted.
+//! Which remote commands are written out one by one (the station's log and the journal) and
+//! which are only counted.
 //!
 //! Every command that changes something, and every refusal while an identity refuses at a
 //! human pace, is written out: that is the lab's record of who did what. A client that
@@ -67,14 +67,21 @@ impl CommandAudit {
         if !refused {
             return Record::Full;
         }
-        let sender = self.senders.entry(by.to_string()).or_insert(Sender {
-            tokens: REFUSALS_BURST,
-            refilled_tick: now,
-            counted: 0,
-            first_counted: now,
-            last_counted: now,
-            summarised_tick: now,
-        });
+        if !self.senders.contains_key(by) {
+            // Once per identity: a flood's commands find their entry without allocating.
+            self.senders.insert(
+                by.to_string(),
+                Sender {
+                    tokens: REFUSALS_BURST,
+                    refilled_tick: now,
+                    counted: 0,
+                    first_counted: now,
+                    last_counted: now,
+                    summarised_tick: now,
+                },
+            );
+        }
+        let sender = self.senders.get_mut(by).expect("inserted above");
         let elapsed_s = now.saturating_sub(sender.refilled_tick) as f64 * 1e-3;
         sender.tokens = (sender.tokens + elapsed_s * REFUSALS_PER_S).min(REFUSALS_BURST);
         sender.refilled_tick = now;

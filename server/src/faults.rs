@@ -325,10 +325,12 @@ impl FaultBook {
             ));
         }
         if self.booked.len() >= MAX_FAULTS {
+            // Ended but still acting: a stiffness change ramping out. (A fault whose effect
+            // is over waits for the next `advance` to leave the book: at most 10 ms.)
             let ramping: Vec<u64> = self
                 .booked
                 .iter()
-                .filter(|b| b.slot.end_tick <= now)
+                .filter(|b| !b.cancelled && b.slot.end_tick <= now && now < b.slot.expires_tick())
                 .map(|b| b.slot.expires_tick() - now)
                 .collect();
             let ramping = match ramping.iter().min() {
@@ -402,8 +404,10 @@ impl FaultBook {
                 let mut spec = b.spec.clone();
                 spec.start = Start::AtTick(b.slot.start_tick);
                 if b.slot.end_tick <= now && !b.cancelled {
-                    spec.duration_ms =
-                        u32::try_from(b.slot.end_tick - b.slot.start_tick).unwrap_or(u32::MAX);
+                    // At least 1: 0 means "until cleared" (a fault cleared on its first tick).
+                    spec.duration_ms = u32::try_from(b.slot.end_tick - b.slot.start_tick)
+                        .unwrap_or(u32::MAX)
+                        .max(1);
                 }
                 ScheduledFault {
                     id: b.slot.id,
@@ -668,9 +672,17 @@ mod tests {
                 if reason.contains("1 of them stiffness changes ramping out, the first free in 150 ms")),
             "{o:?}"
         );
+        // A fault whose time is up but which the book has not yet seen leave (the station
+        // takes commands before it advances the book): not counted as ramping, and no
+        // arithmetic on its expiry (it underflowed).
         book.advance(1200);
-        let (o, _) = book.command("ann", &schedule(102, Fault::SimStall, Start::Now, 0), 1200);
+        let (o, _) = book.command("ann", &schedule(102, Fault::SimStall, Start::Now, 1), 1200);
         assert!(matches!(o, Outcome::Scheduled { .. }), "{o:?}");
+        let (o, _) = book.command("ann", &schedule(103, Fault::SimStall, Start::Now, 0), 1205);
+        assert!(
+            matches!(o, Outcome::Rejected { ref reason } if reason.ends_with("already: clear some first")),
+            "{o:?}"
+        );
     }
 
     #[test]

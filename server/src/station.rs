@@ -860,7 +860,7 @@ pub fn run(
 }
 
 /// Writes out refusals the audit counted: one journal line (`refused_unrecorded`, which
-/// `scalpel replay` lists) and one event.
+/// `scalpel replay` lists) and one line of the station's log.
 fn record_refusals(
     summary: &command_audit::Summary,
     sim_now: &SimStatus,
@@ -868,12 +868,15 @@ fn record_refusals(
     journal: &std::sync::mpsc::Sender<String>,
     report: &mut dyn FnMut(&StationReport),
 ) {
+    // Station and simulation ticks of the summary, like every command line's; the refusals
+    // it counts came between the first and the last tick given.
     let record = serde_json::json!({
-        "station_tick": summary.ticks.1,
+        "station_tick": station_tick(uptime_s),
         "sim_tick": sim_now.ticks,
         "by": summary.by,
         "refused_unrecorded": summary.refused,
-        "from_station_tick": summary.ticks.0,
+        "first_station_tick": summary.ticks.0,
+        "last_station_tick": summary.ticks.1,
     });
     let _ = journal.send(journal::command_line(&record));
     report(&StationReport::Event(StationEvent {
@@ -1498,16 +1501,18 @@ fn spawn_sim(
                     figures.stiffness_factor = k;
                 }
                 let tool = pose.map(|p| p.pose);
-                // The frame goes out first: it shows the pose just taken, on the surface
-                // of the last tick (a tick of cutting takes a few hundred microseconds
-                // that the frame need not wait for).
+                sim.set_tool(tool);
+                // The frame goes out first: it shows the pose just taken (where this tick
+                // puts the blade: the pose itself but for a jump faster than a hand), on the
+                // surface of the last tick (a tick of cutting takes a few hundred
+                // microseconds that the frame need not wait for).
                 if let Some(p) = &mut publisher
                     && (figures.ticks + 1) % frames.every_ticks == 0
                     && !effects.renderer_freeze
                 {
                     let info = FrameInfo {
                         sim_tick: figures.ticks,
-                        tool,
+                        tool: sim.next_blade_pose(SIM_TICK_S),
                         pose_seq: pose.map_or(0, |p| p.seq),
                         pose_received_ns: pose.map_or(0, |p| p.received_ns),
                         force_n: last.force_n,
@@ -1521,7 +1526,6 @@ fn spawn_sim(
                         Err(_) => figures.frames_failed += 1,
                     }
                 }
-                sim.set_tool(tool);
                 if let Some(records) = &mut journal.records {
                     let record = TickRecord {
                         tick: figures.ticks + 1,

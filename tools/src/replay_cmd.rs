@@ -44,7 +44,7 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
                 // A flood the station counted rather than journaled one by one.
                 println!(
                     "{n} more commands by {} refused from station tick {} to {} (counted, not journaled one by one)",
-                    c["by"], c["from_station_tick"], c["station_tick"]
+                    c["by"], c["first_station_tick"], c["last_station_tick"]
                 );
                 continue;
             }

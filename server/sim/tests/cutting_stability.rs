@@ -1087,6 +1087,24 @@ fn a_pose_that_is_not_finite_takes_the_tool_away_mid_cut() {
         );
     }
     assert!(sound.is_sound());
+    // A glitch followed by a jump (a tracker that reads NaN, then 30 mm off): the blade goes
+    // on from where it was at a hand's speed; it is not put down at the jump.
+    let jumped = ToolPose {
+        tip_m: sound.tip_m + Vec3::new(0.0, 0.03, 0.0),
+        ..sound
+    };
+    sim.set_tool(Some(jumped));
+    sim.tick(TICK_S, &mut Unobserved);
+    // (From the last sound tick, 10 µm short of `sound`.)
+    let moved = (sim.blade_pose().unwrap().tip_m - sound.tip_m).norm();
+    assert!(moved < 2.1e-3, "{moved} m in a tick");
+    // A tool taken away (`None`) and put back appears where it is put.
+    sim.set_tool(None);
+    sim.tick(TICK_S, &mut Unobserved);
+    assert_eq!(sim.blade_pose(), None);
+    sim.set_tool(Some(jumped));
+    sim.tick(TICK_S, &mut Unobserved);
+    assert_eq!(sim.blade_pose(), Some(jumped));
     assert_sound_surface(&sim);
 }
 

@@ -26,7 +26,7 @@ pub mod close {
     pub const DONE: u32 = 0;
     /// A malformed, oversized or unexpected message.
     pub const PROTOCOL: u32 = 1;
-    /// The certificate carries no role.
+    /// The certificate carries no role, or a name that cannot be shown (`tls::identity`).
     pub const FORBIDDEN: u32 = 2;
     /// Another protocol version.
     pub const VERSION: u32 = 3;

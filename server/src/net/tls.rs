@@ -80,31 +80,38 @@ pub fn server_config(certs: &Path) -> anyhow::Result<rustls::ServerConfig> {
 pub const MAX_IDENTITY: usize = 64;
 
 /// Who a verified client certificate names: its role and common name, or why it is refused:
-/// no known role, or a name that is not 1–[`MAX_IDENTITY`] characters without control
-/// characters. The name is printed in logs, events, journals and observers' terminals; a
-/// lab CA could sign anything (only `scalpel certs issue` checks), and an escape sequence in
-/// a name would then reach every terminal that shows it.
+/// no known role, or a name that is not 1–[`MAX_IDENTITY`] characters of text that prints
+/// as itself. The name is printed in logs, events, journals and observers' terminals; a lab
+/// CA could sign anything (only `scalpel certs issue` checks), and an escape sequence, a
+/// newline or a bidirectional override in a name would reach every terminal that shows it.
 pub fn identity(cert: &CertificateDer<'_>) -> Result<(Role, String), String> {
-    let unreadable = || "the client certificate cannot be read".to_string();
-    let (_, parsed) =
-        x509_parser::parse_x509_certificate(cert.as_ref()).map_err(|_| unreadable())?;
+    let (_, parsed) = x509_parser::parse_x509_certificate(cert.as_ref())
+        .map_err(|_| "the client certificate cannot be read".to_string())?;
     let subject = parsed.subject();
-    let text = |field: Option<&x509_parser::x509::AttributeTypeAndValue<'_>>| {
-        field.and_then(|f| f.as_str().ok()).map(str::to_string)
-    };
-    let role = match text(subject.iter_organizational_unit().next()).as_deref() {
+    let role = match subject
+        .iter_organizational_unit()
+        .next()
+        .and_then(|u| u.as_str().ok())
+    {
         Some("observer") => Role::Observer,
         Some("instructor") => Role::Instructor,
         _ => return Err("the client certificate names no role (observer or instructor)".into()),
     };
-    let name = text(subject.iter_common_name().next()).unwrap_or_default();
-    if name.is_empty() || name.chars().count() > MAX_IDENTITY || name.chars().any(char::is_control)
-    {
-        // Debug formatting escapes what must not reach a terminal raw.
-        let shown: String = format!("{name:?}").chars().take(4 * MAX_IDENTITY).collect();
+    let name = subject
+        .iter_common_name()
+        .next()
+        .ok_or("the client certificate has no common name")?
+        .as_str()
+        .map_err(|_| "the client certificate's common name is not UTF-8 text".to_string())?
+        .to_string();
+    // Debug formatting escapes control, format and separator characters (and quotes and
+    // backslashes): a name it leaves alone prints as itself.
+    let shown = format!("{name:?}");
+    if name.is_empty() || name.chars().count() > MAX_IDENTITY || shown != format!("\"{name}\"") {
+        let shown: String = shown.chars().take(4 * MAX_IDENTITY).collect();
         return Err(format!(
-            "the client certificate's name {shown} is not 1 to {MAX_IDENTITY} characters \
-             without control characters (issue it with `scalpel certs issue`)"
+            "the client certificate's name {shown} is not 1 to {MAX_IDENTITY} characters that \
+             print as themselves (issue it with `scalpel certs issue`)"
         ));
     }
     Ok((role, name))
@@ -147,7 +154,14 @@ mod tests {
         );
         let forged = refused("eve\n 12.0 s  fault 1 cleared", "observer");
         assert!(!forged.contains('\n'), "{forged}");
+        // A right-to-left override, which turns what follows it round on screen.
+        let turned = refused("eve\u{202e}nna", "instructor");
+        assert!(
+            !turned.contains('\u{202e}') && turned.contains(r"\u{202e}"),
+            "{turned}"
+        );
         assert!(refused("", "observer").contains("not 1 to 64"));
+        assert!(refused("a\"b", "observer").contains("not 1 to 64"));
         assert!(refused(&"x".repeat(65), "observer").contains("not 1 to 64"));
         assert!(identity(&CertificateDer::from(vec![1, 2, 3])).is_err());
     }

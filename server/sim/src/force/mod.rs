@@ -144,10 +144,26 @@ pub struct LocalForceModel {
     pub stored_energy_j: f64,
 }
 
+/// How far from its origin a [`LocalForceModel`] is extrapolated (m): two simulation ticks
+/// of the blade at a hand's quickest (2 m/s, `pipeline::blade_motion`), as far as a device
+/// gets from the blade between two models. Farther — a device that jumped while the blade
+/// follows at a hand's speed — the linearisation means nothing: the force is held at what it
+/// gives at this distance in that direction (a jump back out of a cut would otherwise read as
+/// a pull of stiffness × jump toward the tissue, bounded only by the output stage).
+pub const LOCAL_MODEL_REACH_M: f64 = 0.004;
+
 impl LocalForceModel {
-    /// The force the model predicts at `x` (N).
+    /// The force the model predicts at `x` (N), with `x` taken at most
+    /// [`LOCAL_MODEL_REACH_M`] from the origin.
     pub fn force_at(&self, x: Vec3) -> Vec3 {
-        self.f0_n + self.stiffness_n_per_m * (x - self.x0_m)
+        let offset = x - self.x0_m;
+        let distance = offset.norm();
+        let offset = if distance > LOCAL_MODEL_REACH_M {
+            offset * (LOCAL_MODEL_REACH_M / distance)
+        } else {
+            offset
+        };
+        self.f0_n + self.stiffness_n_per_m * offset
     }
 }
 
@@ -622,5 +638,11 @@ mod tests {
         // Loading stiffens: advancing further along +x gives a larger force against +x.
         let ahead = model.force_at(model.x0_m + Vec3::new(1e-4, 0.0, 0.0));
         assert!(ahead.x < f.force_n.x);
+        // Extrapolated no farther than its reach: a device 50 mm away feels what it would
+        // 4 mm away in the same direction.
+        let far = model.force_at(model.x0_m + Vec3::new(0.05, 0.0, 0.0));
+        let reach = model.force_at(model.x0_m + Vec3::new(LOCAL_MODEL_REACH_M, 0.0, 0.0));
+        assert_eq!(far, reach);
+        assert!(far.x < ahead.x);
     }
 }

@@ -3,12 +3,12 @@
 //! A pose that jumps — a tracker glitch, a device re-homing, an instructor's pose-noise
 //! fault (σ up to 20 mm, white per tick) — would otherwise drag the blade through the tissue
 //! at metres per second: the points it holds move several lattice spacings per sub-step, the
-//! solver rolls back and doubles its sub-steps (to 1920 in a measured run), ticks take
-//! hundreds of milliseconds and the force model books a cut of tens of metres. A blade moved
-//! at most [`MAX_BLADE_SPEED_M_PER_S`] per tick never asks that of the solver, and a real
-//! hand's motion, always slower, passes unchanged. The force the haptic loop renders still
-//! follows the device's own position (the local force model is evaluated there), so a jump is
-//! felt at once while the tissue catches up.
+//! solver rolls back and doubles its sub-steps (to 1472 in a measured station run), ticks
+//! take hundreds of milliseconds and the force model books a cut of tens of metres. A blade
+//! moved at most [`MAX_BLADE_SPEED_M_PER_S`] per tick never asks that of the solver, and a
+//! real hand's motion, always slower, passes unchanged. The force the haptic loop renders
+//! still follows the device's own position (the local force model is evaluated there, within
+//! its reach), so a jump is felt at once while the tissue catches up.
 
 use crate::cut::ToolPose;
 

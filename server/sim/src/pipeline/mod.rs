@@ -98,6 +98,9 @@ pub struct Simulation {
     tool: Option<ToolPose>,
     /// ... and where the blade is, following it at a hand's speed (blade_motion.rs).
     blade_pose: Option<ToolPose>,
+    /// Where the blade was when an unsound pose took the tool away: it goes on from there
+    /// (a tracker that glitches to NaN and then to a jumped position must not teleport it).
+    resume_blade: Option<ToolPose>,
     time_s: f64,
     local_model: LocalForceModel,
     all_points: Vec<u32>,
@@ -153,6 +156,7 @@ impl Simulation {
             cutting,
             tool: None,
             blade_pose: None,
+            resume_blade: None,
             time_s: 0.0,
             local_model: LocalForceModel {
                 f0_n: Vec3::zeros(),
@@ -187,9 +191,15 @@ impl Simulation {
     /// that is not [sound](ToolPose::is_sound) (the callers check theirs; a non-finite
     /// pose must not reach the contact and the force model whatever the caller). The blade
     /// follows it from where it was at most at [`blade_motion::MAX_BLADE_SPEED_M_PER_S`]; a
-    /// tool that was away appears where it is put.
+    /// tool taken away appears where it is next put (one dropped as unsound goes on from where
+    /// it was).
     pub fn set_tool(&mut self, pose: Option<ToolPose>) {
         self.tool = pose.filter(ToolPose::is_sound);
+        self.resume_blade = match (pose, self.tool) {
+            (Some(_), None) => self.blade_pose.or(self.resume_blade),
+            (None, _) => None,
+            (Some(_), Some(_)) => self.resume_blade,
+        };
     }
 
     /// Where the blade is after the last tick (`None`: no tool); it lags the tool's pose only
@@ -198,9 +208,10 @@ impl Simulation {
         self.blade_pose
     }
 
-    /// Advances by `dt` seconds.
-    pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
-        self.blade_pose = match (self.tool, self.blade_pose) {
+    /// Where the next tick of `dt` will put the blade (the tool's pose when it moves at a
+    /// hand's speed): what a frame drawn before that tick shows.
+    pub fn next_blade_pose(&self, dt: f64) -> Option<ToolPose> {
+        match (self.tool, self.blade_pose.or(self.resume_blade)) {
             (Some(asked), Some(at)) => Some(blade_motion::follow(
                 &at,
                 &asked,
@@ -208,7 +219,15 @@ impl Simulation {
                 self.spec.tool.blade_length_m,
             )),
             (asked, _) => asked,
-        };
+        }
+    }
+
+    /// Advances by `dt` seconds.
+    pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
+        self.blade_pose = self.next_blade_pose(dt);
+        if self.blade_pose.is_some() {
+            self.resume_blade = None;
+        }
         let blade = self
             .blade_pose
             .map(|pose| Blade::at(&pose, &self.spec.tool));
