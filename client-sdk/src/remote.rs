@@ -71,13 +71,41 @@ impl Credentials {
     }
 }
 
+/// Most bytes a certificate or key file may have (a PEM chain is a few kilobytes; a wrong
+/// path must not be read whole).
+const PEM_MAX_BYTES: u64 = 1 << 20;
+
+/// The bytes of a PEM file, at most [`PEM_MAX_BYTES`] of a regular file.
+fn read_pem(path: &Path) -> Result<Vec<u8>, ClientError> {
+    use std::io::Read;
+    let bad = |detail: String| ClientError::Credentials {
+        file: path.to_owned(),
+        detail,
+    };
+    // Before opening: opening a FIFO waits for a writer.
+    if !std::fs::metadata(path)
+        .map_err(|e| bad(e.to_string()))?
+        .is_file()
+    {
+        return Err(bad("not a regular file".into()));
+    }
+    let file = std::fs::File::open(path).map_err(|e| bad(e.to_string()))?;
+    let mut bytes = Vec::new();
+    file.take(PEM_MAX_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| bad(e.to_string()))?;
+    if bytes.len() as u64 > PEM_MAX_BYTES {
+        return Err(bad(format!("over {PEM_MAX_BYTES} bytes: not a PEM file")));
+    }
+    Ok(bytes)
+}
+
 fn certs(path: &Path) -> Result<Vec<CertificateDer<'static>>, ClientError> {
     let bad = |detail: String| ClientError::Credentials {
         file: path.to_owned(),
         detail,
     };
-    let certs: Vec<_> = CertificateDer::pem_file_iter(path)
-        .map_err(|e| bad(e.to_string()))?
+    let certs: Vec<_> = CertificateDer::pem_slice_iter(&read_pem(path)?)
         .collect::<Result<_, _>>()
         .map_err(|e| bad(e.to_string()))?;
     if certs.is_empty() {
@@ -109,11 +137,12 @@ pub fn client_config(
         .with_root_certificates(roots);
     let mut tls = match credentials {
         Some(c) => {
-            let key =
-                PrivateKeyDer::from_pem_file(&c.key).map_err(|e| ClientError::Credentials {
+            let key = PrivateKeyDer::from_pem_slice(&read_pem(&c.key)?).map_err(|e| {
+                ClientError::Credentials {
                     file: c.key.clone(),
                     detail: e.to_string(),
-                })?;
+                }
+            })?;
             builder
                 .with_client_auth_cert(certs(&c.cert)?, key)
                 .map_err(|e| ClientError::Credentials {

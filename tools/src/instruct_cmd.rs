@@ -18,26 +18,27 @@ pub struct InstructArgs<'a> {
 }
 
 /// A fault's parameters as the command line gives them; [`fault`] checks that the kind
-/// has what it needs.
+/// has what it needs. Negative numbers parse (clap took `--newtons -5` for a flag and told
+/// the user to write `-- -5`), so the range check can say what is allowed.
 #[derive(Debug, Clone, Copy, Default, clap::Args)]
 pub struct FaultParams {
     /// Added device latency (ms, 0–1000).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub ms: Option<f32>,
     /// Noise on the device position, standard deviation (mm, 0–20).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub sigma_mm: Option<f32>,
     /// Spike magnitude (N, 0–1000; the output stage still limits the force).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub newtons: Option<f32>,
     /// Force cap (N).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub max_n: Option<f32>,
     /// Stiffness factor (0.1–10) or slowdown factor (1–100).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub factor: Option<f32>,
     /// Stiffness ramp in and out (ms, default 200).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub ramp_ms: Option<u32>,
 }
 

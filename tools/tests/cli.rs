@@ -155,6 +155,43 @@ fn malformed_inputs_fail_with_a_message_on_stderr() {
         "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n",
     )
     .unwrap();
+    // A negative fault parameter reaches the range check (clap took `-5` for a flag and
+    // advised `-- -5`, which does not work either); checked before any connection.
+    let err = fails(&[
+        "instruct",
+        "127.0.0.1:9",
+        "--certs",
+        dir.path().to_str().unwrap(),
+        "--name",
+        "ann",
+        "fault",
+        "force-spike",
+        "--newtons",
+        "-5",
+    ]);
+    assert!(err.contains("newtons -5 is outside 0..=1000"), "{err}");
+    // A certificate that is a device or huge is refused, not read whole (/dev/zero was read
+    // until memory ran out).
+    let lab = dir.path().join("lab");
+    std::fs::create_dir(&lab).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", lab.join("ca.pem")).unwrap();
+    let instruct = |lab: &std::path::Path| {
+        fails(&[
+            "instruct",
+            "127.0.0.1:9",
+            "--certs",
+            lab.to_str().unwrap(),
+            "--name",
+            "ann",
+            "list",
+        ])
+    };
+    let err = instruct(&lab);
+    assert!(err.contains("ca.pem: not a regular file"), "{err}");
+    std::fs::remove_file(lab.join("ca.pem")).unwrap();
+    std::fs::write(lab.join("ca.pem"), vec![b'A'; 2 << 20]).unwrap();
+    let err = instruct(&lab);
+    assert!(err.contains("ca.pem: over 1048576 bytes"), "{err}");
     let err = fails(&["scene", "inspect", open.to_str().unwrap()]);
     assert!(
         err.contains("open.obj") && err.contains("not closed"),

@@ -25,10 +25,18 @@ pub fn provider() -> Arc<rustls::crypto::CryptoProvider> {
     Arc::new(rustls::crypto::ring::default_provider())
 }
 
+/// Most bytes a certificate or key file may have: a PEM chain is a few kilobytes, and a
+/// wrong path (a device, a log) must not be read whole.
+pub const PEM_MAX_BYTES: u64 = 1 << 20;
+
+fn read_pem(path: &Path) -> anyhow::Result<Vec<u8>> {
+    crate::input_file::read_capped(path, PEM_MAX_BYTES)
+        .with_context(|| format!("cannot read {}", path.display()))
+}
+
 /// Certificates of a PEM file.
 pub fn read_certs(path: &Path) -> anyhow::Result<Vec<CertificateDer<'static>>> {
-    let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_file_iter(path)
-        .with_context(|| format!("cannot read {}", path.display()))?
+    let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_slice_iter(&read_pem(path)?)
         .collect::<Result<_, _>>()
         .with_context(|| format!("{}: not a PEM certificate file", path.display()))?;
     if certs.is_empty() {
@@ -39,7 +47,7 @@ pub fn read_certs(path: &Path) -> anyhow::Result<Vec<CertificateDer<'static>>> {
 
 /// The private key of a PEM file.
 pub fn read_key(path: &Path) -> anyhow::Result<PrivateKeyDer<'static>> {
-    PrivateKeyDer::from_pem_file(path)
+    PrivateKeyDer::from_pem_slice(&read_pem(path)?)
         .with_context(|| format!("{}: not a PEM private key", path.display()))
 }
 
@@ -164,5 +172,16 @@ mod tests {
         assert!(refused("a\"b", "observer").contains("not 1 to 64"));
         assert!(refused(&"x".repeat(65), "observer").contains("not 1 to 64"));
         assert!(identity(&CertificateDer::from(vec![1, 2, 3])).is_err());
+    }
+
+    #[test]
+    fn certificate_files_are_read_within_a_cap() {
+        let huge = std::env::temp_dir().join(format!("scalpel-huge-{}.pem", std::process::id()));
+        std::fs::write(&huge, vec![b'A'; 2 << 20]).unwrap();
+        let err = format!("{:#}", read_certs(&huge).unwrap_err());
+        std::fs::remove_file(&huge).ok();
+        assert!(err.contains("over the limit of 1048576 bytes"), "{err}");
+        let err = format!("{:#}", read_key(Path::new("/dev/zero")).unwrap_err());
+        assert!(err.contains("not a regular file"), "{err}");
     }
 }
