@@ -175,7 +175,7 @@ fn malformed_inputs_fail_with_a_message_on_stderr() {
     let lab = dir.path().join("lab");
     std::fs::create_dir(&lab).unwrap();
     std::os::unix::fs::symlink("/dev/zero", lab.join("ca.pem")).unwrap();
-    let instruct = |lab: &std::path::Path| {
+    let instruct = |lab: &Path| {
         fails(&[
             "instruct",
             "127.0.0.1:9",
