@@ -115,7 +115,7 @@ pub struct FrameHeader {
     pub sim_tick: u64,
     /// Server's monotonic clock when the frame was written (ns).
     pub server_time_ns: u64,
-    /// The device's sample counter of the tool pose shown (0: none).
+    /// The device's sample counter of the tool pose the frame's blade answers (0: none).
     pub pose_seq: u64,
     /// When the server's haptic thread took that pose (CLOCK_MONOTONIC, ns; 0: none):
     /// a renderer on the same machine gets its pose-to-screen latency from it.

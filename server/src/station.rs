@@ -1476,7 +1476,12 @@ fn spawn_sim(
                     clock.resync(started);
                 }
                 while let Ok(p) = poses.pop() {
-                    pose = Some(p);
+                    // An unsound pose (none of today's devices pass one on) is skipped: the
+                    // last sound one holds, as the journal — which has only sound poses —
+                    // will replay it.
+                    if p.pose.is_sound() {
+                        pose = Some(p);
+                    }
                 }
                 let effects = faults.read().sim(station_tick(started - t0));
                 if effects.stall {
@@ -1529,8 +1534,8 @@ fn spawn_sim(
                 if let Some(records) = &mut journal.records {
                     let record = TickRecord {
                         tick: figures.ticks + 1,
-                        // What the simulation took (it drops an unsound pose).
-                        pose: tool.filter(ToolPose::is_sound),
+                        // What the simulation took (only sound poses are latched above).
+                        pose: tool,
                         stiffness: stiffness_change,
                     };
                     if records.push(record).is_err() {

@@ -26,11 +26,12 @@ fn haptic_ticks_do_not_allocate() {
     let script = CutScript::default_for(&scene.model.surface).unwrap();
     let mut device = ScriptedDevice::new(script, true);
     let limits = OutputLimits::default();
-    // A stiff model pushing up: the coupling, clamp, rate limit and passivity all act.
+    // A stiff model pushing up: the coupling (at its 4 mm reach: 2000 N/m gives 8 N), the
+    // clamp, the rate limit and passivity all act.
     let model = LocalForceModel {
         f0_n: Vec3::new(0.0, 0.0, 2.0),
         x0_m: Vec3::zeros(),
-        stiffness_n_per_m: Mat3::identity() * -500.0,
+        stiffness_n_per_m: Mat3::identity() * -2000.0,
         stored_energy_j: 0.0,
     };
     // The instructor's faults that act on the haptic thread, over parts of the run: the

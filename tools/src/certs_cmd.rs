@@ -134,13 +134,15 @@ pub fn issue(dir: &Path, role: &str, name: &str) -> anyhow::Result<String> {
     }
     let read = |file: &str| {
         let path = dir.join(file);
-        std::fs::read_to_string(&path).with_context(|| {
-            format!(
-                "cannot read {} (make a lab CA with `scalpel certs init --dir {}`)",
-                path.display(),
-                dir.display()
-            )
-        })
+        // Capped (a PEM file is kilobytes; a wrong path must not be read whole).
+        scalpel_server::input_file::read_text_capped(&path, scalpel_server::net::tls::PEM_MAX_BYTES)
+            .with_context(|| {
+                format!(
+                    "cannot read {} (make a lab CA with `scalpel certs init --dir {}`)",
+                    path.display(),
+                    dir.display()
+                )
+            })
     };
     let ca_key = KeyPair::from_pem(&read(CA_KEY)?).context("the CA key")?;
     let issuer = Issuer::from_ca_cert_pem(&read(CA_CERT)?, ca_key).context("the CA certificate")?;

@@ -147,23 +147,28 @@ pub struct LocalForceModel {
 /// How far from its origin a [`LocalForceModel`] is extrapolated (m): two simulation ticks
 /// of the blade at a hand's quickest (2 m/s, `pipeline::blade_motion`), as far as a device
 /// gets from the blade between two models. Farther — a device that jumped while the blade
-/// follows at a hand's speed — the linearisation means nothing: the force is held at what it
-/// gives at this distance in that direction (a jump back out of a cut would otherwise read as
-/// a pull of stiffness × jump toward the tissue, bounded only by the output stage).
+/// follows at a hand's speed — the linearisation means nothing: the force changes from `f0`
+/// at most as much as this displacement along the stiffest direction would change it (a jump
+/// back out of a cut would otherwise read as a pull of stiffness × jump toward the tissue,
+/// bounded only by the output stage).
 pub const LOCAL_MODEL_REACH_M: f64 = 0.004;
 
 impl LocalForceModel {
-    /// The force the model predicts at `x` (N), with `x` taken at most
-    /// [`LOCAL_MODEL_REACH_M`] from the origin.
+    /// The force the model predicts at `x` (N): `f0 + K (x − x0)`, the change `K (x − x0)`
+    /// bounded by ‖K‖ · [`LOCAL_MODEL_REACH_M`] (Frobenius norm: the largest stiffness for the
+    /// rank-one models the cutting force gives). The bound is on the change, not on the
+    /// offset: motion across the stiffness (along the edge, say) must not weaken the part
+    /// along it. No allocation (the haptic thread calls it every tick); NaN in, NaN out (the
+    /// output stage guards).
     pub fn force_at(&self, x: Vec3) -> Vec3 {
-        let offset = x - self.x0_m;
-        let distance = offset.norm();
-        let offset = if distance > LOCAL_MODEL_REACH_M {
-            offset * (LOCAL_MODEL_REACH_M / distance)
+        let change = self.stiffness_n_per_m * (x - self.x0_m);
+        let most = self.stiffness_n_per_m.norm() * LOCAL_MODEL_REACH_M;
+        let size = change.norm();
+        if size > most {
+            self.f0_n + change * (most / size)
         } else {
-            offset
-        };
-        self.f0_n + self.stiffness_n_per_m * offset
+            self.f0_n + change
+        }
     }
 }
 
@@ -638,11 +643,17 @@ mod tests {
         // Loading stiffens: advancing further along +x gives a larger force against +x.
         let ahead = model.force_at(model.x0_m + Vec3::new(1e-4, 0.0, 0.0));
         assert!(ahead.x < f.force_n.x);
-        // Extrapolated no farther than its reach: a device 50 mm away feels what it would
-        // 4 mm away in the same direction.
+        // Extrapolated no farther than its reach: a device 50 mm ahead feels what it would
+        // 4 mm ahead ...
         let far = model.force_at(model.x0_m + Vec3::new(0.05, 0.0, 0.0));
         let reach = model.force_at(model.x0_m + Vec3::new(LOCAL_MODEL_REACH_M, 0.0, 0.0));
-        assert_eq!(far, reach);
-        assert!(far.x < ahead.x);
+        assert!(
+            (far - reach).norm() < 1e-12 && far.x < ahead.x,
+            "{far:?} {reach:?}"
+        );
+        // ... and motion across the stiffness does not weaken the part along it.
+        let across = model.force_at(model.x0_m + Vec3::new(1e-3, 0.0, 0.02));
+        let along = model.force_at(model.x0_m + Vec3::new(1e-3, 0.0, 0.0));
+        assert!((across - along).norm() < 1e-12, "{across:?} {along:?}");
     }
 }
