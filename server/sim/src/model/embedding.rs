@@ -182,16 +182,6 @@ impl SurfaceEmbedding {
         blockers: &[[Vec3; 3]],
         blocker_boxes: &[Aabb],
     ) -> Vec<(u32, f64)> {
-        let tmp_t = std::time::Instant::now();
-        struct TmpT(std::time::Instant);
-        impl Drop for TmpT {
-            fn drop(&mut self) {
-                if std::env::var_os("TMPROW").is_some() {
-                    eprintln!("TMPROW {:.3}", self.0.elapsed().as_secs_f64() * 1e3);
-                }
-            }
-        }
-        let _tmp = TmpT(tmp_t);
         let mut radius = kernel.support_m;
         let mut found = Vec::new();
         // Only the blockers whose box comes within the search radius can hide a point
