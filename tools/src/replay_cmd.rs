@@ -40,18 +40,7 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
         );
     } else {
         for c in &recorded.commands {
-            if let Some(n) = c.get("refused_unrecorded") {
-                // A flood the station counted rather than journaled one by one.
-                println!(
-                    "{n} more commands by {} refused from station tick {} to {} (counted, not journaled one by one)",
-                    c["by"], c["first_station_tick"], c["last_station_tick"]
-                );
-                continue;
-            }
-            println!(
-                "command at station tick {} (simulation tick {}) by {}: {} -> {}",
-                c["station_tick"], c["sim_tick"], c["by"], c["action"], c["outcome"]
-            );
+            println!("{}", command_text(c));
         }
         println!(
             "replayed {} ticks of {}: state hash {hash:016x}",
@@ -68,4 +57,44 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
         bail!("the replay's state differs from the live run's");
     }
     Ok(())
+}
+
+/// A journaled command as `scalpel replay` lists it.
+fn command_text(c: &serde_json::Value) -> String {
+    match c.get("refused_unrecorded") {
+        // A flood the station counted rather than journaled one by one.
+        Some(n) => format!(
+            "{n} more commands by {} refused from station tick {} to {} (counted, not journaled one by one)",
+            c["by"], c["first_station_tick"], c["last_station_tick"]
+        ),
+        None => format!(
+            "command at station tick {} (simulation tick {}) by {}: {} -> {}",
+            c["station_tick"], c["sim_tick"], c["by"], c["action"], c["outcome"]
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn commands_and_counted_refusals_are_listed() {
+        let command = serde_json::json!({
+            "station_tick": 3935, "sim_tick": 3932, "by": "ann", "seq": 7,
+            "action": "List", "outcome": "Listed",
+        });
+        assert_eq!(
+            command_text(&command),
+            r#"command at station tick 3935 (simulation tick 3932) by "ann": "List" -> "Listed""#
+        );
+        let counted = serde_json::json!({
+            "station_tick": 5000, "sim_tick": 4990, "by": "obs2", "refused_unrecorded": 80,
+            "first_station_tick": 4012, "last_station_tick": 4870,
+        });
+        assert_eq!(
+            command_text(&counted),
+            r#"80 more commands by "obs2" refused from station tick 4012 to 4870 (counted, not journaled one by one)"#
+        );
+    }
 }
