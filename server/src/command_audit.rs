@@ -12,6 +12,8 @@
 
 use std::collections::HashMap;
 
+use crate::faults::TokenBucket;
+
 /// Refusals an identity may have written out in a burst ...
 pub const REFUSALS_BURST: f64 = 20.0;
 /// ... and per second after it.
@@ -41,8 +43,7 @@ pub struct Summary {
 
 #[derive(Debug, Clone)]
 struct Sender {
-    tokens: f64,
-    refilled_tick: u64,
+    bucket: TokenBucket,
     counted: u64,
     first_counted: u64,
     last_counted: u64,
@@ -72,8 +73,7 @@ impl CommandAudit {
             self.senders.insert(
                 by.to_string(),
                 Sender {
-                    tokens: REFUSALS_BURST,
-                    refilled_tick: now,
+                    bucket: TokenBucket::full(REFUSALS_PER_S, REFUSALS_BURST, now),
                     counted: 0,
                     first_counted: now,
                     last_counted: now,
@@ -82,11 +82,7 @@ impl CommandAudit {
             );
         }
         let sender = self.senders.get_mut(by).expect("inserted above");
-        let elapsed_s = now.saturating_sub(sender.refilled_tick) as f64 * 1e-3;
-        sender.tokens = (sender.tokens + elapsed_s * REFUSALS_PER_S).min(REFUSALS_BURST);
-        sender.refilled_tick = now;
-        if sender.tokens >= 1.0 {
-            sender.tokens -= 1.0;
+        if sender.bucket.take(now) {
             return Record::Full;
         }
         if sender.counted == 0 {

@@ -202,8 +202,43 @@ struct Booked {
 #[derive(Debug, Clone)]
 struct Client {
     last_seq: u64,
+    bucket: TokenBucket,
+}
+
+/// A token bucket on the station clock: `burst` tokens, refilled at `per_s` a second; the
+/// command rate limit here and the refusal audit (command_audit.rs) each keep one per
+/// identity.
+#[derive(Debug, Clone, Copy)]
+pub struct TokenBucket {
     tokens: f64,
     refilled_tick: u64,
+    per_s: f64,
+    burst: f64,
+}
+
+impl TokenBucket {
+    /// A full bucket at station tick `now`.
+    pub fn full(per_s: f64, burst: f64, now: u64) -> Self {
+        Self {
+            tokens: burst,
+            refilled_tick: now,
+            per_s,
+            burst,
+        }
+    }
+
+    /// Takes a token at station tick `now`, after the refill since the last call; `false`
+    /// when there is none.
+    pub fn take(&mut self, now: u64) -> bool {
+        let elapsed_s = now.saturating_sub(self.refilled_tick) as f64 * 1e-3;
+        self.tokens = (self.tokens + elapsed_s * self.per_s).min(self.burst);
+        self.refilled_tick = now;
+        let took = self.tokens >= 1.0;
+        if took {
+            self.tokens -= 1.0;
+        }
+        took
+    }
 }
 
 /// Something the station reports about a fault.
@@ -261,20 +296,14 @@ impl FaultBook {
         let rejected = |reason: String| (Outcome::Rejected { reason }, None);
         let client = self.clients.entry(by.to_string()).or_insert(Client {
             last_seq: 0,
-            tokens: COMMAND_BURST,
-            refilled_tick: now,
+            bucket: TokenBucket::full(COMMANDS_PER_S, COMMAND_BURST, now),
         });
-        // Token bucket on the station clock: every command costs one, refused ones too
-        // (a flood is a flood).
-        let elapsed_s = now.saturating_sub(client.refilled_tick) as f64 * 1e-3;
-        client.tokens = (client.tokens + elapsed_s * COMMANDS_PER_S).min(COMMAND_BURST);
-        client.refilled_tick = now;
-        if client.tokens < 1.0 {
+        // Every command costs a token, refused ones too (a flood is a flood).
+        if !client.bucket.take(now) {
             return rejected(format!(
                 "rate limit: at most {COMMANDS_PER_S} commands a second (bursts of {COMMAND_BURST}) per identity"
             ));
         }
-        client.tokens -= 1.0;
         if command.seq <= client.last_seq {
             return rejected(format!(
                 "seq {} is not above {}, the last this identity used (a replayed or reordered command)",
