@@ -65,13 +65,8 @@ fn write(path: &Path, text: &str, secret: bool) -> anyhow::Result<()> {
 }
 
 fn check_name(name: &str) -> anyhow::Result<()> {
-    if name.is_empty()
-        || name.len() > 64
-        || !name
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_' || b == b'.')
-        || name.starts_with('.')
-    {
+    // The station's own rule for identities, and no leading '.' (a hidden file).
+    if !scalpel_server::net::tls::is_identity(name) || name.starts_with('.') {
         bail!(
             "name {name:?}: use 1 to 64 letters, digits, '-', '_' or '.' (it names the certificate's files)"
         );

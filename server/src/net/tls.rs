@@ -87,6 +87,13 @@ pub fn server_config(certs: &Path) -> anyhow::Result<rustls::ServerConfig> {
 /// Longest identity a certificate may name (`scalpel certs issue` makes at most 64).
 pub const MAX_IDENTITY: usize = 64;
 
+/// Whether `name` is an identity as `scalpel certs issue` makes them (and the station
+/// accepts): 1 to [`MAX_IDENTITY`] ASCII letters, digits, `-`, `_` or `.`.
+pub fn is_identity(name: &str) -> bool {
+    let plain = |b: u8| b.is_ascii_alphanumeric() || b"-_.".contains(&b);
+    !name.is_empty() && name.len() <= MAX_IDENTITY && name.bytes().all(plain)
+}
+
 /// Who a verified client certificate names: its role and common name, or why it is refused:
 /// no known role, or a name that is not what `scalpel certs issue` makes — 1 to
 /// [`MAX_IDENTITY`] ASCII letters, digits, `-`, `_` or `.`. The name is printed in logs,
@@ -114,8 +121,7 @@ pub fn identity(cert: &CertificateDer<'_>) -> Result<(Role, String), String> {
         .as_str()
         .map_err(|_| "the client certificate's common name is not UTF-8 text".to_string())?
         .to_string();
-    let plain = |b: u8| b.is_ascii_alphanumeric() || b"-_.".contains(&b);
-    if name.is_empty() || name.len() > MAX_IDENTITY || !name.bytes().all(plain) {
+    if !is_identity(&name) {
         // Debug formatting escapes what must not reach a terminal raw.
         let shown: String = format!("{name:?}").chars().take(4 * MAX_IDENTITY).collect();
         return Err(format!(
