@@ -55,6 +55,17 @@ fn force_evaluation(c: &mut Criterion) {
     );
 }
 
+/// The same without the lattice stencil: every point through the pair kernels (the
+/// stencil runs and the single-point kernel), as a cut region is evaluated.
+fn force_evaluation_pair_kernels(c: &mut Criterion) {
+    force_evaluation_with(
+        c,
+        "force_evaluation_pair_kernels",
+        &["liver", "cerebroma"],
+        Threads::One,
+    );
+}
+
 /// The force evaluation split over two threads (rayon), measured from inside a pool of two
 /// as the solver runs it (`SolverConfig::threads = 2`). Meaningful on a machine with two
 /// free cores.
@@ -79,6 +90,9 @@ fn force_evaluation_with(c: &mut Criterion, group_name: &str, scenes: &[&str], t
         let p = solver.positions().to_vec();
         let mut f = vec![Vec3::zeros(); p.len()];
         let mut scratch = ForceScratch::new(p.len()).with_threads(threads);
+        if group_name.ends_with("pair_kernels") {
+            scratch = scratch.without_stencil();
+        }
         let mut evaluate = || {
             f.iter_mut().for_each(|x| *x = Vec3::zeros());
             black_box(add_elastic_forces(
@@ -162,6 +176,6 @@ fn projective_tick(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(4));
-    targets = force_evaluation, force_evaluation_two_threads, explicit_tick, explicit_tick_two_threads, projective_tick
+    targets = force_evaluation, force_evaluation_pair_kernels, force_evaluation_two_threads, explicit_tick, explicit_tick_two_threads, projective_tick
 }
 criterion_main!(benches);

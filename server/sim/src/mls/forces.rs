@@ -21,6 +21,7 @@ use crate::mls::material::{
     DET_RANGE, ElasticModel, ElasticParams, StressSample, stress, stress_differential,
 };
 use crate::mls::operator::{LANES, MAX_RUN_ROW, MlsOperator, PointRank, complete};
+use crate::mls::stencil_kernel::{self, StencilFields, StencilInputs};
 
 /// Figures from one force evaluation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,7 +53,7 @@ impl ForceStats {
 
     /// Adds one point's energies and stress checks. The hourglass energy is
     /// `½ k (Σ w |u|² − F_p : B)` for the least-squares F_p, clipped at 0 against rounding.
-    fn add_point(&mut self, strain: f64, hourglass: f64, check: PointCheck) {
+    pub(crate) fn add_point(&mut self, strain: f64, hourglass: f64, check: PointCheck) {
         self.strain_energy += strain;
         self.hourglass_energy += hourglass.max(0.0);
         self.min_det_f = self.min_det_f.min(check.det);
@@ -81,7 +82,7 @@ impl ForceStats {
 
 /// What one point's stress evaluation tells the statistics.
 #[derive(Debug, Clone, Copy)]
-struct PointCheck {
+pub(crate) struct PointCheck {
     /// det F before any clamping.
     det: f64,
     /// The singular values were clamped.
@@ -100,7 +101,7 @@ impl PointCheck {
     }
 
     /// Plain StVK inside the ordinary det F range (so finite, not clamped).
-    fn plain(det: f64) -> Self {
+    pub(crate) fn plain(det: f64) -> Self {
         Self {
             det,
             clamped: false,
@@ -141,6 +142,59 @@ pub struct ForceScratch {
     parts: [PartForces; PARTS],
     /// Where the two parts run.
     threads: Threads,
+    /// The box fields of the lattice stencil (`stencil_kernel`), sized at first use.
+    stencil: StencilFields,
+    /// Whole-body evaluations never take the lattice stencil (otherwise they do where the
+    /// operator has one).
+    pairs_only: bool,
+    /// Beside the stencil, what is left to the pair kernels.
+    pair_work: PairWork,
+}
+
+/// The points a whole-body evaluation leaves to the pair kernels (those the lattice stencil
+/// does not evaluate), and the points their rows reach, for one topology of the operator.
+/// Only those points' positions are copied and force buffers read.
+#[derive(Debug, Clone, Default)]
+struct PairWork {
+    /// The operator's [`MlsOperator::topology_version`] the lists are for.
+    version: Option<u64>,
+    points: Vec<u32>,
+    touched: Vec<u32>,
+    flags: Vec<bool>,
+}
+
+impl PairWork {
+    /// Brings the lists up to date with `op` (a pass over the points after a cut; the
+    /// buffers are sized for every point at the first call, so later ones do not allocate).
+    fn refresh(&mut self, op: &MlsOperator, evaluated: &[bool]) {
+        if self.version == Some(op.topology_version()) {
+            return;
+        }
+        let n = op.len();
+        if self.flags.len() != n {
+            self.flags = vec![false; n];
+            self.points = Vec::with_capacity(n);
+            self.touched = Vec::with_capacity(n);
+        }
+        for &i in &self.touched {
+            self.flags[i as usize] = false;
+        }
+        self.points.clear();
+        self.touched.clear();
+        for i in 0..n {
+            if evaluated[i] {
+                continue;
+            }
+            self.points.push(i as u32);
+            for &j in std::iter::once(&(i as u32)).chain(op.neighbours(i)) {
+                if !std::mem::replace(&mut self.flags[j as usize], true) {
+                    self.touched.push(j);
+                }
+            }
+        }
+        self.touched.sort_unstable();
+        self.version = Some(op.topology_version());
+    }
 }
 
 impl ForceScratch {
@@ -149,6 +203,24 @@ impl ForceScratch {
         let mut s = Self::default();
         s.resize(n);
         s
+    }
+
+    /// Sizes every buffer an evaluation with `op` needs (the lattice stencil's fields and
+    /// lists included), so that the first evaluation does not allocate: for callers that
+    /// count allocations from their first tick.
+    pub fn fit_to(&mut self, op: &MlsOperator) {
+        self.resize(op.len());
+        if let Some(stencil) = op.stencil() {
+            self.stencil.fit(stencil);
+            self.pair_work.refresh(op, stencil.evaluated());
+        }
+    }
+
+    /// The same buffers, never taking the lattice stencil: every point through the pair
+    /// kernels (to compare the two paths).
+    pub fn without_stencil(mut self) -> Self {
+        self.pairs_only = true;
+        self
     }
 
     /// The same buffers, evaluated with `threads`.
@@ -320,34 +392,72 @@ pub fn add_elastic_forces(
         p.len(),
         op.len()
     );
-    let runs: &[u32] = match set {
-        Some(s) => &s.runs,
-        None => op.runs(),
+    // A whole-body evaluation takes the uncut lattice's points through the fixed stencil
+    // (`stencil_kernel`); the pair kernels then take only the points it does not evaluate.
+    // A set that holds every point is the whole body.
+    let set = set.filter(|s| s.stress.len() < op.len());
+    let stencil = match set {
+        None if !scratch.pairs_only => op.stencil(),
+        _ => None,
     };
+    let runs: &[u32] = match (set, stencil) {
+        (Some(s), _) => &s.runs,
+        (None, Some(_)) => &[],
+        (None, None) => op.runs(),
+    };
+    let mut work = std::mem::take(&mut scratch.pair_work);
+    if let (None, Some(stencil)) = (set, stencil) {
+        work.refresh(op, stencil.evaluated());
+    }
     // Both kernels read positions and write forces in their own layout: runs as
     // structure-of-arrays (contiguous lanes), single points as (x, y, z, 0) vectors (one
     // neighbour is one aligned load). The forces are summed into `f` at the end.
-    scratch.prepare(p, set.map(|s| &s.touched[..]));
+    let touched: Option<&[u32]> = match (set, stencil) {
+        (Some(s), _) => Some(&s.touched),
+        (None, Some(_)) => Some(&work.touched),
+        (None, None) => None,
+    };
+    scratch.prepare(p, touched);
     let ForceScratch {
         pos,
         pos4,
         parts,
         threads,
+        stencil: fields,
+        ..
     } = scratch;
+    let stencil_stats = stencil.map(|stencil| {
+        let inputs = StencilInputs {
+            stencil,
+            params,
+            volumes,
+        };
+        let (a, b) = stencil_kernel::evaluate(inputs, p, fields, *threads);
+        a.merge(&b)
+    });
     let shared = Shared {
         op,
         params,
         volumes,
         pos: [&pos[0][..], &pos[1][..], &pos[2][..]],
         pos4,
-        in_runs: set.map(|s| &s.in_runs[..]),
+        skip: match (set, stencil) {
+            (Some(s), _) => Skip::InRuns(&s.in_runs),
+            (None, Some(st)) => Skip::Stencil(st.evaluated()),
+            (None, None) => Skip::OperatorRuns,
+        },
     };
     // Half of the runs and half of the single points each: the two kernels' costs per point
     // differ, so both are split.
     let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
-    let (points_a, points_b) = match set {
-        Some(s) => {
-            let (a, b) = s.stress.split_at(s.stress.len() / 2);
+    let listed = match (set, stencil) {
+        (Some(s), _) => Some(&s.stress[..]),
+        (None, Some(_)) => Some(&work.points[..]),
+        (None, None) => None,
+    };
+    let (points_a, points_b) = match listed {
+        Some(list) => {
+            let (a, b) = list.split_at(list.len() / 2);
             (Points::Listed(a), Points::Listed(b))
         }
         None => {
@@ -377,11 +487,25 @@ pub fn add_elastic_forces(
         part_a.lanes[i] = f64x4::ZERO;
         part_b.lanes[i] = f64x4::ZERO;
     };
-    match set {
-        Some(s) => s.touched.iter().for_each(|&i| add(i as usize)),
+    match touched {
+        Some(list) => list.iter().for_each(|&i| add(i as usize)),
         None => (0..n).for_each(add),
     }
-    stats_a.merge(&stats_b)
+    scratch.pair_work = work;
+    let pair_stats = stats_a.merge(&stats_b);
+    match (stencil, stencil_stats) {
+        (Some(stencil), Some(stats)) => {
+            // The stencil's gathered forces: every site of a lattice point is written by
+            // each evaluation, so nothing needs clearing.
+            for (i, &site) in stencil.site_of().iter().enumerate() {
+                for c in 0..3 {
+                    f[i][c] += fields.f[c][site as usize];
+                }
+            }
+            stats.merge(&pair_stats)
+        }
+        _ => pair_stats,
+    }
 }
 
 /// Where a force evaluation runs its parts.
@@ -408,8 +532,19 @@ struct Shared<'a> {
     volumes: &'a [f64],
     pos: [&'a [f64]; 3],
     pos4: &'a [f64x4],
-    /// With an evaluation set: which points its runs cover.
-    in_runs: Option<&'a [bool]>,
+    /// The points the single-point kernel leaves to another.
+    skip: Skip<'a>,
+}
+
+/// Which points the single-point kernel leaves out.
+#[derive(Clone, Copy)]
+enum Skip<'a> {
+    /// Those the operator's runs cover.
+    OperatorRuns,
+    /// Those an evaluation set's runs cover.
+    InRuns(&'a [bool]),
+    /// Those the lattice stencil evaluates.
+    Stencil(&'a [bool]),
 }
 
 impl Shared<'_> {
@@ -431,11 +566,11 @@ impl Shared<'_> {
         }
         let mut offsets = [f64x4::ZERO; BUFFERED];
         let mut one = |i: usize| {
-            let in_run = match self.in_runs {
-                Some(flags) => flags[i],
-                None => self.op.in_run(i),
+            let elsewhere = match self.skip {
+                Skip::OperatorRuns => self.op.in_run(i),
+                Skip::InRuns(flags) | Skip::Stencil(flags) => flags[i],
             };
-            if !in_run {
+            if !elsewhere {
                 point_kernel(
                     self.op,
                     self.params,
@@ -779,7 +914,7 @@ fn point_stvk(params: &ElasticParams, fc: &[f64x4; 3]) -> Option<([f64x4; 3], f6
 /// StVK stress and energy density for four lanes, or `None` when the model is not plain
 /// StVK or some lane needs the clamp fallback.
 #[inline]
-fn lane_stvk(
+pub(crate) fn lane_stvk(
     params: &ElasticParams,
     f: &[[f64x4; 3]; 3],
 ) -> Option<([[f64x4; 3]; 3], f64x4, f64x4)> {
@@ -830,7 +965,7 @@ fn lane_stvk(
 }
 
 /// Per-lane stress through the general (scalar) constitutive code.
-fn lane_stress_scalar(
+pub(crate) fn lane_stress_scalar(
     params: &ElasticParams,
     f: &[[f64x4; 3]; 3],
 ) -> ([[f64x4; 3]; 3], f64x4, [PointCheck; LANES]) {

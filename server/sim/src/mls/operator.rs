@@ -19,6 +19,7 @@
 //! itself and carry zero weights, so they add nothing wherever they are read.
 
 use crate::math::{Mat3, Vec3};
+use crate::mls::stencil::LatticeStencil;
 use crate::model::{Kernel, Neighbourhoods};
 
 /// A direction is unsampled when its eigenvalue is below σ_max divided by this.
@@ -117,6 +118,10 @@ pub struct MlsOperator {
     runs: Vec<u32>,
     in_run: Vec<bool>,
     run_start: Vec<u32>,
+    /// The uncut lattice's points as a box with a fixed stencil, for whole-body evaluations.
+    stencil: Option<LatticeStencil>,
+    /// Counts the updates of rows, so that what is derived from them can tell it is stale.
+    topology_version: u64,
 }
 
 /// Counts of each rank class, for reports.
@@ -156,12 +161,28 @@ impl MlsOperator {
             runs: Vec::new(),
             in_run: vec![false; n],
             run_start: vec![0; n],
+            stencil: None,
+            topology_version: 0,
         };
         for i in 0..n {
             op.compute_point(i, rest, neighbours, kernel);
         }
         op.detect_runs();
+        op.stencil = match &op.lattice {
+            Some(l) => LatticeStencil::build(&op, rest, l, kernel),
+            None => None,
+        };
         op
+    }
+
+    /// Changes whenever rows are recomputed ([`MlsOperator::update_points`]).
+    pub fn topology_version(&self) -> u64 {
+        self.topology_version
+    }
+
+    /// The lattice stencil, when the operator has one (see `stencil`).
+    pub fn stencil(&self) -> Option<&LatticeStencil> {
+        self.stencil.as_ref()
     }
 
     /// Recomputes the rows of `points` after their neighbour lists changed (a cut). Call it
@@ -174,8 +195,13 @@ impl MlsOperator {
         neighbours: &Neighbourhoods,
         kernel: &Kernel,
     ) {
+        self.topology_version += 1;
         for &i in points {
             self.compute_point(i as usize, rest, neighbours, kernel);
+            // Its row is no longer the stencil's (or may not be): the pair kernels take it.
+            if let Some(stencil) = &mut self.stencil {
+                stencil.demote(i as usize);
+            }
         }
         // Runs containing a changed point no longer share one row: their points go back to
         // the single-point kernel. Local work only (new runs are not formed after a cut).

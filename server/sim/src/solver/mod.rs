@@ -429,6 +429,7 @@ impl Solver {
             eval_seed: Vec::with_capacity(n),
         };
         solver.precond = statics::diagonal_stiffness(&solver.op, &solver.params, &solver.volume);
+        solver.force_scratch.fit_to(&solver.op);
         solver
     }
 
