@@ -498,9 +498,7 @@ pub fn add_elastic_forces(
             // The stencil's gathered forces: every site of a lattice point is written by
             // each evaluation, so nothing needs clearing.
             for (i, &site) in stencil.site_of().iter().enumerate() {
-                for c in 0..3 {
-                    f[i][c] += fields.f[c][site as usize];
-                }
+                f[i] += fields.force_at(site);
             }
             stats.merge(&pair_stats)
         }

@@ -8,11 +8,13 @@
 //! there is an empty site holding zero, and the boundary layer goes through the same code
 //! as the interior. The evaluation itself is in `stencil_kernel`.
 //!
-//! Four consecutive sites of a box row form a *quad*, the kernel's SIMD lanes; the quads
-//! cover every site holding a point. A point whose row stops being the stencil (a cut, a
-//! transparent pair, a virtual point joining it) is *demoted*: its lane's terms become zero
-//! and the single-point kernel takes its stress; the quad still gathers the forces its
-//! stencil neighbours put on it.
+//! The box is cut into *chunks* of four consecutive sites in x, the kernel's SIMD lanes;
+//! box rows are a whole number of chunks, so a site's y and z neighbours are in the chunks
+//! a fixed number of chunks away. The kernel walks *spans*: runs of consecutive chunks
+//! holding the points (a box row's, joined with the next row's across short gaps). A point
+//! whose row stops being the stencil (a cut, a transparent pair, a virtual point joining
+//! it) is *demoted*: its lane's terms become zero and the single-point kernel takes its
+//! stress; its chunk still gathers the forces its stencil neighbours put on it.
 
 use wide::f64x4;
 
@@ -23,9 +25,13 @@ use crate::model::Kernel;
 /// No point (an empty site), or no site (a point off the lattice).
 pub(crate) const NONE: u32 = u32::MAX;
 
-/// Per-lane terms of one quad (lane = consecutive site in x).
+/// Spans of two box rows are joined when at most this many chunks lie between them (the
+/// kernel's work on the gap is less than a span's set-up).
+const JOIN_GAP_CHUNKS: usize = 3;
+
+/// Per-lane terms of one chunk (lane = consecutive site in x).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub(crate) struct QuadTerms {
+pub(crate) struct ChunkTerms {
     /// A⁻¹ of each lane, entry (r, c) at `3r + c`; zero for a lane the stencil does not
     /// evaluate.
     pub a_inv: [f64x4; 9],
@@ -41,6 +47,13 @@ pub(crate) struct QuadTerms {
     pub evaluated: [bool; LANES],
 }
 
+impl ChunkTerms {
+    /// Whether any site of the chunk holds a point.
+    pub(crate) fn has_points(&self) -> bool {
+        self.point.iter().any(|&i| i != NONE)
+    }
+}
+
 /// `v` with lane `lane` set to `x`.
 fn with_lane(v: f64x4, lane: usize, x: f64) -> f64x4 {
     let mut a = v.to_array();
@@ -48,21 +61,30 @@ fn with_lane(v: f64x4, lane: usize, x: f64) -> f64x4 {
     f64x4::from(a)
 }
 
-/// The lattice's sites, quads and the per-lane terms of the points the stencil evaluates.
+/// A run of consecutive chunks the kernel walks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Span {
+    /// First chunk (box index).
+    pub chunk: u32,
+    /// Chunks in the span.
+    pub len: u32,
+    /// Index of its first chunk's terms (the spans' terms are stored one after another).
+    pub terms: u32,
+}
+
+/// The lattice's box, its spans and the per-lane terms of the points the stencil evaluates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LatticeStencil {
-    /// Sites along x, y, z (x fastest).
+    /// Sites along x, y, z (x fastest; x a multiple of four).
     dims: [usize; 3],
     /// Per lattice point: its site.
     site_of: Vec<u32>,
     /// Per lattice point: its rest position (the kernel works on displacements).
     rest: Vec<Vec3>,
-    /// First site of each quad, ascending.
-    quads: Vec<u32>,
-    /// Runs of quads along one box row: (first quad, count).
-    spans: Vec<(u32, u32)>,
-    terms: Vec<QuadTerms>,
-    /// Per lattice point: `quad · LANES + lane`.
+    spans: Vec<Span>,
+    /// Terms of every chunk of every span, in span order.
+    terms: Vec<ChunkTerms>,
+    /// Per lattice point: index of its chunk's terms · LANES + lane.
     lane_of: Vec<u32>,
     /// Per point of the operator (virtual nodes included): stress evaluated by the stencil.
     evaluated: Vec<bool>,
@@ -104,17 +126,21 @@ impl LatticeStencil {
         let lo = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).min().unwrap_or(0));
         let hi = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).max().unwrap_or(0));
         let extent = [0, 1, 2].map(|a| (hi[a] - lo[a]) as usize + 1);
-        // An empty layer on every side, and in x room for the last quad of a row to run
-        // over (3 sites) and for the kernel, which reads a span's rows in chunks of four
-        // from x − 1 to two chunks past the last quad (7 more).
-        let dims = [extent[0] + 2 + LANES + 6, extent[1] + 2, extent[2] + 2];
+        // An empty site on every side (in x, the row's first and last), rows a whole
+        // number of chunks, and an empty layer of two rows below and above in y and z so
+        // that the kernel's reads one chunk before and after a span stay in the box.
+        let dims = [
+            (extent[0] + 2).div_ceil(LANES) * LANES,
+            extent[1] + 4,
+            extent[2] + 4,
+        ];
         let sites = dims[0].checked_mul(dims[1])?.checked_mul(dims[2])?;
         if sites >= NONE as usize {
             return None;
         }
         let site_at = |c: [u32; 3]| {
             (c[0] - lo[0] + 1) as usize
-                + dims[0] * ((c[1] - lo[1] + 1) as usize + dims[1] * (c[2] - lo[2] + 1) as usize)
+                + dims[0] * ((c[1] - lo[1] + 2) as usize + dims[1] * (c[2] - lo[2] + 2) as usize)
         };
         let mut occupant = vec![NONE; sites];
         let mut site_of = Vec::with_capacity(coords.len());
@@ -176,59 +202,62 @@ impl LatticeStencil {
         if evaluated_count == 0 {
             return None;
         }
-        // Quads over each box row's span of points, in site order.
-        let mut quads = Vec::new();
-        let mut spans = Vec::new();
+        // The chunks holding points, in box order, as spans joined across short gaps.
+        let occupied = |chunk: usize| {
+            occupant[LANES * chunk..LANES * (chunk + 1)]
+                .iter()
+                .any(|&i| i != NONE)
+        };
+        let mut spans: Vec<Span> = Vec::new();
+        for chunk in 0..sites / LANES {
+            if !occupied(chunk) {
+                continue;
+            }
+            match spans.last_mut() {
+                Some(last) if chunk - (last.chunk + last.len) as usize <= JOIN_GAP_CHUNKS => {
+                    last.len = (chunk + 1) as u32 - last.chunk;
+                }
+                _ => spans.push(Span {
+                    chunk: chunk as u32,
+                    len: 1,
+                    terms: 0,
+                }),
+            }
+        }
         let mut terms = Vec::new();
         let mut lane_of = vec![NONE; coords.len()];
-        for z in 1..dims[2] - 1 {
-            for y in 1..dims[1] - 1 {
-                let row = dims[0] * (y + dims[1] * z);
-                let occupied = |x: usize| occupant[row + x] != NONE;
-                let Some(first) = (0..dims[0]).find(|&x| occupied(x)) else {
-                    continue;
-                };
-                let last = (0..dims[0]).rev().find(|&x| occupied(x)).unwrap_or(first);
-                spans.push((
-                    quads.len() as u32,
-                    (last - first + LANES) as u32 / LANES as u32,
-                ));
-                let mut x = first;
-                while x <= last {
-                    let mut quad = QuadTerms::default();
-                    for lane in 0..LANES {
-                        let i = occupant[row + x + lane];
-                        quad.point[lane] = i;
-                        if i == NONE {
-                            continue;
-                        }
-                        lane_of[i as usize] = (quads.len() * LANES + lane) as u32;
-                        if evaluated[i as usize] {
-                            let t = op.point(i as usize);
-                            let q = &mut quad;
-                            for r in 0..3 {
-                                for c in 0..3 {
-                                    q.a_inv[3 * r + c] =
-                                        with_lane(q.a_inv[3 * r + c], lane, t.a_pinv[(r, c)]);
-                                }
-                                q.sum_wx[r] = with_lane(q.sum_wx[r], lane, t.sum_wx[r]);
-                            }
-                            q.sum_w = with_lane(q.sum_w, lane, t.sum_w);
-                            q.inv_trace_a = with_lane(q.inv_trace_a, lane, 1.0 / t.trace_a);
-                            q.evaluated[lane] = true;
-                        }
+        for span in &mut spans {
+            span.terms = terms.len() as u32;
+            for chunk in span.chunk as usize..(span.chunk + span.len) as usize {
+                let mut t = ChunkTerms::default();
+                for lane in 0..LANES {
+                    let i = occupant[LANES * chunk + lane];
+                    t.point[lane] = i;
+                    if i == NONE {
+                        continue;
                     }
-                    quads.push((row + x) as u32);
-                    terms.push(quad);
-                    x += LANES;
+                    lane_of[i as usize] = (terms.len() * LANES + lane) as u32;
+                    if evaluated[i as usize] {
+                        let p = op.point(i as usize);
+                        for r in 0..3 {
+                            for c in 0..3 {
+                                t.a_inv[3 * r + c] =
+                                    with_lane(t.a_inv[3 * r + c], lane, p.a_pinv[(r, c)]);
+                            }
+                            t.sum_wx[r] = with_lane(t.sum_wx[r], lane, p.sum_wx[r]);
+                        }
+                        t.sum_w = with_lane(t.sum_w, lane, p.sum_w);
+                        t.inv_trace_a = with_lane(t.inv_trace_a, lane, 1.0 / p.trace_a);
+                        t.evaluated[lane] = true;
+                    }
                 }
+                terms.push(t);
             }
         }
         Some(Self {
             dims,
             site_of,
             rest: rest[..coords.len()].to_vec(),
-            quads,
             spans,
             terms,
             lane_of,
@@ -248,8 +277,8 @@ impl LatticeStencil {
         self.evaluated[i] = false;
         self.evaluated_count -= 1;
         let at = self.lane_of[i] as usize;
-        let (quad, lane) = (at / LANES, at % LANES);
-        let t = &mut self.terms[quad];
+        let (chunk, lane) = (at / LANES, at % LANES);
+        let t = &mut self.terms[chunk];
         t.a_inv
             .iter_mut()
             .for_each(|v| *v = with_lane(*v, lane, 0.0));
@@ -271,14 +300,14 @@ impl LatticeStencil {
         self.evaluated_count
     }
 
-    /// Sites in the box.
-    pub(crate) fn sites(&self) -> usize {
-        self.dims[0] * self.dims[1] * self.dims[2]
+    /// Chunks in the box.
+    pub(crate) fn chunks(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2] / LANES
     }
 
-    /// Site steps in y and z.
-    pub(crate) fn strides(&self) -> (usize, usize) {
-        (self.dims[0], self.dims[0] * self.dims[1])
+    /// Chunk steps in y and z.
+    pub(crate) fn chunk_strides(&self) -> (usize, usize) {
+        (self.dims[0] / LANES, self.dims[0] * self.dims[1] / LANES)
     }
 
     /// Sites of the lattice points.
@@ -291,14 +320,19 @@ impl LatticeStencil {
         &self.rest
     }
 
-    /// First sites of the quads and their terms.
-    pub(crate) fn quads(&self) -> (&[u32], &[QuadTerms]) {
-        (&self.quads, &self.terms)
+    /// The spans, in box order.
+    pub(crate) fn spans(&self) -> &[Span] {
+        &self.spans
     }
 
-    /// The quads as runs along box rows: (first quad, count), in quad order.
-    pub(crate) fn spans(&self) -> &[(u32, u32)] {
-        &self.spans
+    /// The chunks' terms, span after span.
+    pub(crate) fn terms(&self) -> &[ChunkTerms] {
+        &self.terms
+    }
+
+    /// The longest span (chunks).
+    pub(crate) fn longest_span(&self) -> usize {
+        self.spans.iter().map(|s| s.len as usize).max().unwrap_or(0)
     }
 
     /// w and s·w of a face, edge and corner neighbour.
@@ -313,8 +347,8 @@ mod tests {
     use crate::scene::{Material, build_scene, builtin};
     use crate::solver::{Solver, SolverConfig};
 
-    /// On the built organs every full-rank point is the stencil's, and the quads add few
-    /// empty lanes.
+    /// On the built organs every full-rank point is the stencil's, and the spans' chunks
+    /// add few empty lanes.
     #[test]
     fn the_stencil_takes_every_full_rank_point_of_the_built_organs() {
         for name in ["liver", "cerebroma", "block"] {
@@ -325,10 +359,9 @@ mod tests {
             let op = solver.operator();
             let stencil = op.stencil().expect("a lattice with h = 2s has a stencil");
             assert_eq!(stencil.evaluated_count(), op.rank_counts().full, "{name}");
-            let (quads, _) = stencil.quads();
-            let lanes = quads.len() * super::LANES;
+            let lanes = stencil.terms().len() * super::LANES;
             assert!(
-                lanes as f64 <= 1.15 * op.len() as f64,
+                lanes as f64 <= 2.0 * op.len() as f64,
                 "{name}: {lanes} lanes for {} points",
                 op.len()
             );

@@ -32,34 +32,40 @@ use wide::f64x4;
 use super::forces::{ForceStats, PointCheck, Threads, lane_stress_scalar, lane_stvk};
 use super::material::ElasticParams;
 use super::operator::LANES;
-use super::stencil::{LatticeStencil, NONE, QuadTerms};
+use super::stencil::{ChunkTerms, LatticeStencil, NONE, Span};
 use crate::math::Vec3;
 
-/// Box fields of one evaluation, allocated once (at the first evaluation).
+/// Four sites in x: one SIMD vector's worth of a field.
+type Chunk = [f64; LANES];
+
+/// A run of chunks.
+type Chunks<'a> = &'a [Chunk];
+
+/// Box fields of one evaluation, chunk by chunk, allocated once (at the first evaluation).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct StencilFields {
     /// Displacements.
-    u: [Vec<f64>; 3],
+    u: [Vec<Chunk>; 3],
     /// |u|².
-    z: Vec<f64>,
+    z: Vec<Chunk>,
     /// M', entry (r, c) at 3r + c.
-    m: [Vec<f64>; 9],
+    m: [Vec<Chunk>; 9],
     /// k u.
-    ku: [Vec<f64>; 3],
+    ku: [Vec<Chunk>; 3],
     /// Hourglass stiffness k.
-    k: Vec<f64>,
+    k: Vec<Chunk>,
     /// The forces: the first pass writes each point's reaction −Σ_j g_ij, the second adds
     /// the pair forces it gathers.
-    pub(crate) f: [Vec<f64>; 3],
-    /// Plane sums along a span, five fields' worth for each half of the quads.
-    sums: [[PlaneSums; 5]; 2],
+    f: [Vec<Chunk>; 3],
+    /// Scratch along a span, for each half of the spans.
+    spans: [SpanScratch; 2],
 }
 
 impl StencilFields {
     /// Sizes the fields for `stencil` (allocates only when the box changes).
     pub(crate) fn fit(&mut self, stencil: &LatticeStencil) {
-        let sites = stencil.sites();
-        if self.z.len() == sites {
+        let chunks = stencil.chunks();
+        if self.z.len() == chunks {
             return;
         }
         let all = self
@@ -72,22 +78,33 @@ impl StencilFields {
             .chain(self.f.iter_mut());
         for field in all {
             field.clear();
-            field.resize(sites, 0.0);
+            field.resize(chunks, [0.0; LANES]);
         }
-        let row = stencil.strides().0;
-        self.sums.iter_mut().flatten().for_each(|s| s.fit(row));
+        let longest = stencil.longest_span();
+        self.spans.iter_mut().for_each(|s| s.fit(longest));
     }
 
     /// Writes the displacements of the lattice points at `p` into the box.
     pub(crate) fn scatter(&mut self, stencil: &LatticeStencil, p: &[Vec3]) {
         for ((&site, x), pi) in stencil.site_of().iter().zip(stencil.rest()).zip(p) {
-            let site = site as usize;
+            let (chunk, lane) = (site as usize / LANES, site as usize % LANES);
             let u = pi - x;
             for c in 0..3 {
-                self.u[c][site] = u[c];
+                self.u[c][chunk][lane] = u[c];
             }
-            self.z[site] = u.norm_squared();
+            self.z[chunk][lane] = u.norm_squared();
         }
+    }
+
+    /// The gathered force at `site`.
+    #[inline]
+    pub(crate) fn force_at(&self, site: u32) -> Vec3 {
+        let (chunk, lane) = (site as usize / LANES, site as usize % LANES);
+        Vec3::new(
+            self.f[0][chunk][lane],
+            self.f[1][chunk][lane],
+            self.f[2][chunk][lane],
+        )
     }
 }
 
@@ -100,10 +117,18 @@ struct Coefficients {
     cw: [f64x4; 3],
 }
 
-/// Sums over the yz-plane around each site of a span of quads, from x − 1 of the first
-/// quad to x + 4 of the last (index 0 is x − 1). With them every stencil sum is a few
-/// terms in x: for a face, edge and corner neighbour the yz-offset has 0, 1 or 2 non-zero
-/// components, so
+fn coefficients(stencil: &LatticeStencil) -> Coefficients {
+    let (w, cw) = stencil.coefficients();
+    Coefficients {
+        w: w.map(f64x4::splat),
+        cw: cw.map(f64x4::splat),
+    }
+}
+
+/// Sums over the yz-plane around each site of a span, from the chunk before the span to
+/// the chunk after it (local chunk 0 is the one before). With them every stencil sum is a
+/// few terms in x: for a face, edge and corner neighbour the yz-offset has 0, 1 or 2
+/// non-zero components, so
 ///
 /// ```text
 /// Σ_o (w x)_x v = cw₁ δv + cw₂ δP + cw₃ δQ                 δa = a[x+1] − a[x−1]
@@ -116,43 +141,50 @@ struct Coefficients {
 /// likewise). About a quarter of the arithmetic of summing the 26 sites directly.
 #[derive(Debug, Clone, Default)]
 struct PlaneSums {
-    p: Vec<f64>,
-    q: Vec<f64>,
-    ey: Vec<f64>,
-    fy: Vec<f64>,
-    ez: Vec<f64>,
-    fz: Vec<f64>,
+    p: Vec<Chunk>,
+    q: Vec<Chunk>,
+    ey: Vec<Chunk>,
+    fy: Vec<Chunk>,
+    ez: Vec<Chunk>,
+    fz: Vec<Chunk>,
 }
 
 /// Which plane sums a field needs.
 #[derive(Clone, Copy)]
-struct Needs {
-    /// P and Q (for x derivatives and weighted sums).
-    pq: bool,
+enum Needs {
+    /// All six (a displacement component: every stencil sum of it).
+    All,
+    /// P and Q (x derivatives and weighted sums).
+    PQ,
     /// E_y and F_y.
-    y: bool,
+    Y,
     /// E_z and F_z.
-    z: bool,
+    Z,
 }
 
-/// Four-site chunks.
-type Chunks<'a> = &'a [[f64; LANES]];
-
-/// The first `n` chunks of four sites of `flat`.
-#[inline(always)]
-fn chunks(flat: &[f64], n: usize) -> Chunks<'_> {
-    &flat[..LANES * n].as_chunks::<LANES>().0[..n]
+/// Where a span is in the box: its first chunk, its length, and the chunk steps in y, z.
+#[derive(Clone, Copy)]
+struct Place {
+    chunk: usize,
+    len: usize,
+    cy: usize,
+    cz: usize,
 }
 
-/// The same, writable.
-#[inline(always)]
-fn chunks_mut(flat: &mut [f64], n: usize) -> &mut [[f64; LANES]] {
-    &mut flat[..LANES * n].as_chunks_mut::<LANES>().0[..n]
+impl Place {
+    /// A field's chunks from the one before the span to the one after it, moved by
+    /// (dy, dz) rows.
+    #[inline(always)]
+    fn around<'a>(&self, field: &'a [Chunk], dy: usize, dz: usize) -> Chunks<'a> {
+        // dy, dz are 0, 1, 2 for −1, 0, +1.
+        let start = self.chunk - 1 - self.cy - self.cz + dy * self.cy + dz * self.cz;
+        &field[start..start + self.len + 2]
+    }
 }
 
 impl PlaneSums {
-    /// Room for a span as long as a box row of `sites`.
-    fn fit(&mut self, sites: usize) {
+    /// Room for spans of up to `chunks` chunks.
+    fn fit(&mut self, chunks: usize) {
         for v in [
             &mut self.p,
             &mut self.q,
@@ -162,55 +194,72 @@ impl PlaneSums {
             &mut self.fz,
         ] {
             v.clear();
-            v.resize(sites + 2 * LANES, 0.0);
+            v.resize(chunks + 2, [0.0; LANES]);
         }
     }
 
-    /// The sums of `rows` (a field's nine rows along a span of `quads` quads), over
-    /// `quads + 1` chunks from x − 1 of the first quad.
-    #[inline(always)]
-    fn fill(&mut self, rows: &SpanRows<'_>, quads: usize, needs: Needs) {
-        let n = quads + 1;
-        let r = &rows.rows;
-        let (r00, r01, r02) = (chunks(r[0][0], n), chunks(r[0][1], n), chunks(r[0][2], n));
-        let (r10, r12) = (chunks(r[1][0], n), chunks(r[1][2], n));
-        let (r20, r21, r22) = (chunks(r[2][0], n), chunks(r[2][1], n), chunks(r[2][2], n));
+    /// The sums of `field` that `needs` names, around the span at `at`.
+    fn fill(&mut self, field: &[Chunk], at: Place, needs: Needs) {
+        let n = at.len + 2;
+        let r = |y: usize, z: usize| at.around(field, y, z);
         let v = f64x4::from;
-        if needs.pq {
-            let p = chunks_mut(&mut self.p, n);
-            for i in 0..n {
-                p[i] = ((v(r01[i]) + v(r21[i])) + (v(r10[i]) + v(r12[i]))).to_array();
+        match needs {
+            Needs::All => {
+                let (r01, r21, r10, r12) = (r(0, 1), r(2, 1), r(1, 0), r(1, 2));
+                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
+                let (p, q) = (&mut self.p[..n], &mut self.q[..n]);
+                let (ey, fy) = (&mut self.ey[..n], &mut self.fy[..n]);
+                let (ez, fz) = (&mut self.ez[..n], &mut self.fz[..n]);
+                for i in 0..n {
+                    let (a01, a21, a10, a12) = (v(r01[i]), v(r21[i]), v(r10[i]), v(r12[i]));
+                    let (a00, a20, a02, a22) = (v(r00[i]), v(r20[i]), v(r02[i]), v(r22[i]));
+                    p[i] = ((a01 + a21) + (a10 + a12)).to_array();
+                    q[i] = ((a00 + a20) + (a02 + a22)).to_array();
+                    ey[i] = (a21 - a01).to_array();
+                    fy[i] = ((a20 - a00) + (a22 - a02)).to_array();
+                    ez[i] = (a12 - a10).to_array();
+                    fz[i] = ((a02 - a00) + (a22 - a20)).to_array();
+                }
             }
-            let q = chunks_mut(&mut self.q, n);
-            for i in 0..n {
-                q[i] = ((v(r00[i]) + v(r20[i])) + (v(r02[i]) + v(r22[i]))).to_array();
+            Needs::PQ => {
+                let (r01, r21, r10, r12) = (r(0, 1), r(2, 1), r(1, 0), r(1, 2));
+                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
+                let (p, q) = (&mut self.p[..n], &mut self.q[..n]);
+                for i in 0..n {
+                    p[i] = ((v(r01[i]) + v(r21[i])) + (v(r10[i]) + v(r12[i]))).to_array();
+                    q[i] = ((v(r00[i]) + v(r20[i])) + (v(r02[i]) + v(r22[i]))).to_array();
+                }
             }
-        }
-        if needs.y {
-            let e = chunks_mut(&mut self.ey, n);
-            for i in 0..n {
-                e[i] = (v(r21[i]) - v(r01[i])).to_array();
+            Needs::Y => {
+                let (r01, r21) = (r(0, 1), r(2, 1));
+                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
+                let (e, f) = (&mut self.ey[..n], &mut self.fy[..n]);
+                for i in 0..n {
+                    e[i] = (v(r21[i]) - v(r01[i])).to_array();
+                    f[i] = ((v(r20[i]) - v(r00[i])) + (v(r22[i]) - v(r02[i]))).to_array();
+                }
             }
-            let f = chunks_mut(&mut self.fy, n);
-            for i in 0..n {
-                f[i] = ((v(r20[i]) - v(r00[i])) + (v(r22[i]) - v(r02[i]))).to_array();
-            }
-        }
-        if needs.z {
-            let e = chunks_mut(&mut self.ez, n);
-            for i in 0..n {
-                e[i] = (v(r12[i]) - v(r10[i])).to_array();
-            }
-            let f = chunks_mut(&mut self.fz, n);
-            for i in 0..n {
-                f[i] = ((v(r02[i]) - v(r00[i])) + (v(r22[i]) - v(r20[i]))).to_array();
+            Needs::Z => {
+                let (r10, r12) = (r(1, 0), r(1, 2));
+                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
+                let (e, f) = (&mut self.ez[..n], &mut self.fz[..n]);
+                for i in 0..n {
+                    e[i] = (v(r12[i]) - v(r10[i])).to_array();
+                    f[i] = ((v(r02[i]) - v(r00[i])) + (v(r22[i]) - v(r20[i]))).to_array();
+                }
             }
         }
     }
 }
 
-/// A buffer along a span (index 0 at x − 1 of the first quad) seen three times, one site
-/// apart: quad q's lanes at x − 1, x and x + 1 are chunk q of each view.
+/// `n` chunks of four sites of `flat` from site `start`.
+#[inline(always)]
+fn chunks_at(flat: &[f64], start: usize, n: usize) -> Chunks<'_> {
+    &flat[start..start + LANES * n].as_chunks::<LANES>().0[..n]
+}
+
+/// A buffer's lanes at x − 1, x and x + 1 of each chunk of a span: three views of it one
+/// site apart (an unaligned vector load each).
 #[derive(Clone, Copy)]
 struct Shifted<'a> {
     minus: Chunks<'a>,
@@ -219,158 +268,137 @@ struct Shifted<'a> {
 }
 
 impl<'a> Shifted<'a> {
-    /// The views of `flat` for `quads` quads.
+    /// The views of `n` chunks of `buffer` from chunk `first`.
     #[inline(always)]
-    fn of(flat: &'a [f64], quads: usize) -> Self {
+    fn of(buffer: &'a [Chunk], first: usize, n: usize) -> Self {
+        let flat = buffer.as_flattened();
+        let start = LANES * first;
         Self {
-            minus: chunks(flat, quads),
-            centre: chunks(&flat[1..], quads),
-            plus: chunks(&flat[2..], quads),
+            minus: chunks_at(flat, start - 1, n),
+            centre: chunks_at(flat, start, n),
+            plus: chunks_at(flat, start + 1, n),
         }
     }
 
     #[inline(always)]
-    fn at(&self, q: usize) -> (f64x4, f64x4, f64x4) {
+    fn at(&self, i: usize) -> (f64x4, f64x4, f64x4) {
         (
-            f64x4::from(self.minus[q]),
-            f64x4::from(self.centre[q]),
-            f64x4::from(self.plus[q]),
+            f64x4::from(self.minus[i]),
+            f64x4::from(self.centre[i]),
+            f64x4::from(self.plus[i]),
         )
     }
 }
 
-/// Σ_o (w x)_x(o) v[i+o] at quad q, from the field's row and its P and Q.
-#[inline(always)]
-fn grad_x(k: &Coefficients, v: &Shifted<'_>, p: &Shifted<'_>, qq: &Shifted<'_>, q: usize) -> f64x4 {
-    let (v0, _, v2) = v.at(q);
-    let (p0, _, p2) = p.at(q);
-    let (q0, _, q2) = qq.at(q);
-    k.cw[0].mul_add(v2 - v0, k.cw[1].mul_add(p2 - p0, k.cw[2] * (q2 - q0)))
+/// Per chunk of a span: Σ_o (w x)(o) v[i+o] (x, y, z), Σ_o w(o) v[i+o] and v itself, of one
+/// field.
+#[derive(Debug, Clone, Copy, Default)]
+struct FieldSums {
+    grad: [f64x4; 3],
+    weighted: f64x4,
+    centre: f64x4,
 }
 
-/// Σ_o (w x)_y(o) v[i+o] (or z) at quad q, from E and F of the field.
-#[inline(always)]
-fn grad_yz(k: &Coefficients, e: &Shifted<'_>, f: &Shifted<'_>, q: usize) -> f64x4 {
-    let (e0, e1, e2) = e.at(q);
-    let (f0, f1, f2) = f.at(q);
-    k.cw[0].mul_add(e1, k.cw[1].mul_add(f1 + (e0 + e2), k.cw[2] * (f0 + f2)))
-}
-
-/// Σ_o w(o) v[i+o] (the centre left out) at quad q, from the field's row and its P and Q.
-#[inline(always)]
-fn weighted_sum(
-    k: &Coefficients,
-    v: &Shifted<'_>,
-    p: &Shifted<'_>,
-    qq: &Shifted<'_>,
-    q: usize,
-) -> f64x4 {
-    let (v0, _, v2) = v.at(q);
-    let (p0, p1, p2) = p.at(q);
-    let (q0, q1, q2) = qq.at(q);
-    k.w[0].mul_add(
-        p1 + (v0 + v2),
-        k.w[1].mul_add(q1 + (p0 + p2), k.w[2] * (q0 + q2)),
-    )
-}
-
-/// A field's views along a span for x derivatives and weighted sums: its own row, P, Q.
-struct PqViews<'a> {
-    v: Shifted<'a>,
-    p: Shifted<'a>,
-    q: Shifted<'a>,
-}
-
-impl<'a> PqViews<'a> {
-    #[inline(always)]
-    fn of(rows: &SpanRows<'a>, sums: &'a PlaneSums, quads: usize) -> Self {
-        Self {
-            v: Shifted::of(rows.rows[1][1], quads),
-            p: Shifted::of(&sums.p, quads),
-            q: Shifted::of(&sums.q, quads),
-        }
-    }
-
-    #[inline(always)]
-    fn grad_x(&self, k: &Coefficients, q: usize) -> f64x4 {
-        grad_x(k, &self.v, &self.p, &self.q, q)
-    }
-
-    #[inline(always)]
-    fn weighted_sum(&self, k: &Coefficients, q: usize) -> f64x4 {
-        weighted_sum(k, &self.v, &self.p, &self.q, q)
-    }
-}
-
-/// A field's views along a span for a y (or z) derivative: E and F.
-struct EfViews<'a> {
-    e: Shifted<'a>,
-    f: Shifted<'a>,
-}
-
-impl<'a> EfViews<'a> {
-    #[inline(always)]
-    fn y(sums: &'a PlaneSums, quads: usize) -> Self {
-        Self {
-            e: Shifted::of(&sums.ey, quads),
-            f: Shifted::of(&sums.fy, quads),
-        }
-    }
-
-    #[inline(always)]
-    fn z(sums: &'a PlaneSums, quads: usize) -> Self {
-        Self {
-            e: Shifted::of(&sums.ez, quads),
-            f: Shifted::of(&sums.fz, quads),
-        }
-    }
-
-    #[inline(always)]
-    fn grad(&self, k: &Coefficients, q: usize) -> f64x4 {
-        grad_yz(k, &self.e, &self.f, q)
-    }
-}
-
-/// One field's nine box rows along a span of quads, from x − 1 of the first quad, cut once
-/// per span so that the quads' reads need no bounds checks of their own.
-struct SpanRows<'a> {
-    /// Indexed [y][z] with 0, 1, 2 for −1, 0, +1; `4 (quads + 2)` sites each.
-    rows: [[&'a [f64]; 3]; 3],
-}
-
-impl<'a> SpanRows<'a> {
-    /// The rows of `field` for `quads` quads whose block of rows starts at `starts`.
-    #[inline(always)]
-    fn of(field: &'a [f64], starts: &[[usize; 3]; 3], quads: usize) -> Self {
-        let len = LANES * (quads + 2);
-        let row = |y: usize, z: usize| -> &'a [f64] {
-            let s = starts[y][z];
-            &field[s..s + len]
+/// `out[i]` for the chunks of a span: the stencil sums of a field (`v` its own chunks, `s`
+/// its plane sums).
+fn field_sums(k: &Coefficients, v: Shifted<'_>, s: &PlaneSums, out: &mut [FieldSums]) {
+    let n = out.len();
+    let (p, q) = (Shifted::of(&s.p, 1, n), Shifted::of(&s.q, 1, n));
+    let (ey, fy) = (Shifted::of(&s.ey, 1, n), Shifted::of(&s.fy, 1, n));
+    let (ez, fz) = (Shifted::of(&s.ez, 1, n), Shifted::of(&s.fz, 1, n));
+    for i in 0..n {
+        let (v0, v1, v2) = v.at(i);
+        let (p0, p1, p2) = p.at(i);
+        let (q0, q1, q2) = q.at(i);
+        let gx = k.cw[0].mul_add(v2 - v0, k.cw[1].mul_add(p2 - p0, k.cw[2] * (q2 - q0)));
+        let weighted = k.w[0].mul_add(
+            p1 + (v0 + v2),
+            k.w[1].mul_add(q1 + (p0 + p2), k.w[2] * (q0 + q2)),
+        );
+        let (e0, e1, e2) = ey.at(i);
+        let (f0, f1, f2) = fy.at(i);
+        let gy = k.cw[0].mul_add(e1, k.cw[1].mul_add(f1 + (e0 + e2), k.cw[2] * (f0 + f2)));
+        let (e0, e1, e2) = ez.at(i);
+        let (f0, f1, f2) = fz.at(i);
+        let gz = k.cw[0].mul_add(e1, k.cw[1].mul_add(f1 + (e0 + e2), k.cw[2] * (f0 + f2)));
+        out[i] = FieldSums {
+            grad: [gx, gy, gz],
+            weighted,
+            centre: v1,
         };
-        Self {
-            rows: [
-                [row(0, 0), row(0, 1), row(0, 2)],
-                [row(1, 0), row(1, 1), row(1, 2)],
-                [row(2, 0), row(2, 1), row(2, 2)],
-            ],
-        }
     }
 }
 
-#[inline(always)]
-fn store(field: &mut [f64], site: usize, v: f64x4) {
-    field[site..site + LANES].copy_from_slice(&v.to_array());
+/// `out[i] = Σ_o w(o) v[i+o]` for the chunks of a span.
+fn weighted_sums(k: &Coefficients, v: Shifted<'_>, s: &PlaneSums, out: &mut [f64x4]) {
+    let n = out.len();
+    let (p, q) = (Shifted::of(&s.p, 1, n), Shifted::of(&s.q, 1, n));
+    for i in 0..n {
+        let (v0, _, v2) = v.at(i);
+        let (p0, p1, p2) = p.at(i);
+        let (q0, q1, q2) = q.at(i);
+        out[i] = k.w[0].mul_add(
+            p1 + (v0 + v2),
+            k.w[1].mul_add(q1 + (p0 + p2), k.w[2] * (q0 + q2)),
+        );
+    }
 }
 
-/// Where a quad's block of rows starts in each field: `site − 1 + dy·sy + dz·sz`.
-#[inline(always)]
-fn block_starts(site: usize, sy: usize, sz: usize) -> [[usize; 3]; 3] {
-    let o = site - 1 - sy - sz;
-    [
-        [o, o + sz, o + 2 * sz],
-        [o + sy, o + sy + sz, o + sy + 2 * sz],
-        [o + 2 * sy, o + 2 * sy + sz, o + 2 * sy + 2 * sz],
-    ]
+/// `out[i] −= Σ_o (w x)_x(o) v[i+o]` for the chunks of a span.
+fn sub_grad_x(k: &Coefficients, v: Shifted<'_>, s: &PlaneSums, out: &mut [f64x4]) {
+    let n = out.len();
+    let (p, q) = (Shifted::of(&s.p, 1, n), Shifted::of(&s.q, 1, n));
+    for i in 0..n {
+        let (v0, _, v2) = v.at(i);
+        let (p0, _, p2) = p.at(i);
+        let (q0, _, q2) = q.at(i);
+        out[i] -= k.cw[0].mul_add(v2 - v0, k.cw[1].mul_add(p2 - p0, k.cw[2] * (q2 - q0)));
+    }
+}
+
+/// `out[i] −= Σ_o (w x)_y(o) v[i+o]` (or z, from that axis' E and F) for the chunks of a
+/// span.
+fn sub_grad_yz(k: &Coefficients, e: &[Chunk], f: &[Chunk], out: &mut [f64x4]) {
+    let n = out.len();
+    let (e, f) = (Shifted::of(e, 1, n), Shifted::of(f, 1, n));
+    for i in 0..n {
+        let (e0, e1, e2) = e.at(i);
+        let (f0, f1, f2) = f.at(i);
+        out[i] -= k.cw[0].mul_add(e1, k.cw[1].mul_add(f1 + (e0 + e2), k.cw[2] * (f0 + f2)));
+    }
+}
+
+/// What the passes keep along one span.
+#[derive(Debug, Clone, Default)]
+struct SpanScratch {
+    /// Plane sums of the field at hand.
+    sums: PlaneSums,
+    /// Per chunk: the stencil sums of u's components.
+    u: [Vec<FieldSums>; 3],
+    /// Per chunk: Σ w |u_j|², Σ w k, a component's gathered stress force, Σ w (k u).
+    z: Vec<f64x4>,
+    kw: Vec<f64x4>,
+    force: Vec<f64x4>,
+    hourglass: Vec<f64x4>,
+}
+
+impl SpanScratch {
+    fn fit(&mut self, chunks: usize) {
+        self.sums.fit(chunks);
+        for u in &mut self.u {
+            u.clear();
+            u.resize(chunks, FieldSums::default());
+        }
+        for v in [
+            &mut self.z,
+            &mut self.kw,
+            &mut self.force,
+            &mut self.hourglass,
+        ] {
+            v.clear();
+            v.resize(chunks, f64x4::ZERO);
+        }
+    }
 }
 
 /// Runs `a` and `b`, one after the other or as a `rayon::join`.
@@ -385,11 +413,11 @@ fn both<A: Send, B: Send>(
     }
 }
 
-/// Each field cut at site `at`: the first parts, then the second.
+/// Each field cut at chunk `at`: the first parts, then the second.
 fn split_each<const N: usize>(
-    fields: &mut [Vec<f64>; N],
+    fields: &mut [Vec<Chunk>; N],
     at: usize,
-) -> ([&mut [f64]; N], [&mut [f64]; N]) {
+) -> ([&mut [Chunk]; N], [&mut [Chunk]; N]) {
     let mut parts = fields.each_mut().map(|f| {
         let (a, b) = f.split_at_mut(at);
         (Some(a), Some(b))
@@ -399,9 +427,24 @@ fn split_each<const N: usize>(
     (first, second)
 }
 
+/// The spans clipped to the chunks `range`, each as (first chunk, length, index of its first
+/// chunk's terms).
+fn spans_within(
+    spans: &[Span],
+    range: std::ops::Range<usize>,
+) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+    spans.iter().filter_map(move |s| {
+        let (first, end) = (s.chunk as usize, (s.chunk + s.len) as usize);
+        let lo = first.max(range.start);
+        let hi = end.min(range.end);
+        (lo < hi).then(|| (lo, hi - lo, s.terms as usize + lo - first))
+    })
+}
+
 /// Evaluates the stencil's points at positions `p`: their statistics (the first half of
-/// the quads, then the second), and in `fields.f` the pair forces of their rows gathered at
-/// every site. The halves run on one thread or two with the same bits.
+/// the chunks, then the second), and in the fields the pair forces of their rows gathered
+/// at every site ([`StencilFields::force_at`]). The halves run on one thread or two with
+/// the same bits.
 pub(crate) fn evaluate(
     inputs: StencilInputs<'_>,
     p: &[Vec3],
@@ -411,9 +454,19 @@ pub(crate) fn evaluate(
     let stencil = inputs.stencil;
     fields.fit(stencil);
     fields.scatter(stencil, p);
-    let (quads, _) = stencil.quads();
-    let half = quads.len() / 2;
-    let split = quads.get(half).map_or(stencil.sites(), |&s| s as usize);
+    // Half of the spans' chunks each.
+    let spans = stencil.spans();
+    let total: usize = spans.iter().map(|s| s.len as usize).sum();
+    let mut left = total / 2;
+    let mut split = stencil.chunks();
+    for s in spans {
+        if (s.len as usize) > left {
+            split = s.chunk as usize + left;
+            break;
+        }
+        left -= s.len as usize;
+    }
+    let (half_a, half_b) = (0..split, split..stencil.chunks());
     let StencilFields {
         u,
         z,
@@ -421,9 +474,9 @@ pub(crate) fn evaluate(
         ku,
         k,
         f,
-        sums,
+        spans: scratch,
     } = fields;
-    let [sums_a, sums_b] = sums;
+    let [scratch_a, scratch_b] = scratch;
     let (mut f_a, mut f_b) = split_each(f, split);
     let stats = {
         let (m_a, m_b) = split_each(m, split);
@@ -446,8 +499,8 @@ pub(crate) fn evaluate(
         };
         both(
             threads,
-            || pass_one(&inputs, 0..half, &read, sums_a, &mut a),
-            || pass_one(&inputs, half..quads.len(), &read, sums_b, &mut b),
+            || pass_one(&inputs, half_a.clone(), &read, scratch_a, &mut a),
+            || pass_one(&inputs, half_b.clone(), &read, scratch_b, &mut b),
         )
     };
     let read = PassTwoIn { m, ku, k, u };
@@ -461,153 +514,123 @@ pub(crate) fn evaluate(
     };
     both(
         threads,
-        || pass_two(&inputs, 0..half, &read, sums_a, &mut a),
-        || pass_two(&inputs, half..quads.len(), &read, sums_b, &mut b),
+        || pass_two(&inputs, half_a, &read, scratch_a, &mut a),
+        || pass_two(&inputs, half_b, &read, scratch_b, &mut b),
     );
     stats
 }
 
 /// What the first pass reads.
 struct PassOneIn<'a> {
-    u: &'a [Vec<f64>; 3],
-    z: &'a [f64],
+    u: &'a [Vec<Chunk>; 3],
+    z: &'a [Chunk],
 }
 
-/// The fields the first pass writes, for the sites from `offset` on.
+/// The fields the first pass writes, for the chunks from `offset` on.
 struct PassOneOut<'a, 'b, 'f> {
     offset: usize,
-    m: [&'a mut [f64]; 9],
-    ku: [&'a mut [f64]; 3],
-    k: &'a mut [f64],
+    m: [&'a mut [Chunk]; 9],
+    ku: [&'a mut [Chunk]; 3],
+    k: &'a mut [Chunk],
     /// The forces, where each point's reaction goes.
-    own: &'b mut [&'f mut [f64]; 3],
+    own: &'b mut [&'f mut [Chunk]; 3],
 }
 
 /// What the second pass reads.
 struct PassTwoIn<'a> {
-    m: &'a [Vec<f64>; 9],
-    ku: &'a [Vec<f64>; 3],
-    k: &'a [f64],
-    u: &'a [Vec<f64>; 3],
+    m: &'a [Vec<Chunk>; 9],
+    ku: &'a [Vec<Chunk>; 3],
+    k: &'a [Chunk],
+    u: &'a [Vec<Chunk>; 3],
 }
 
-/// The forces the second pass adds to, for the sites from `offset` on.
+/// The forces the second pass adds to, for the chunks from `offset` on.
 struct PassTwoOut<'a, 'b> {
     offset: usize,
-    f: &'b mut [&'a mut [f64]; 3],
+    f: &'b mut [&'a mut [Chunk]; 3],
 }
 
-fn coefficients(stencil: &LatticeStencil) -> Coefficients {
-    let (w, cw) = stencil.coefficients();
-    Coefficients {
-        w: w.map(f64x4::splat),
-        cw: cw.map(f64x4::splat),
-    }
+/// One span's slices of the first pass's outputs.
+struct SpanOut<'a> {
+    m: [&'a mut [Chunk]; 9],
+    ku: [&'a mut [Chunk]; 3],
+    k: &'a mut [Chunk],
+    own: [&'a mut [Chunk]; 3],
 }
 
-/// The spans of quads within `range`, each as (first quad, count, site of the first).
-fn spans_within(
-    stencil: &LatticeStencil,
-    range: std::ops::Range<usize>,
-) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
-    let (quads, _) = stencil.quads();
-    stencil.spans().iter().filter_map(move |&(first, count)| {
-        let lo = (first as usize).max(range.start);
-        let hi = (first as usize + count as usize).min(range.end);
-        (lo < hi).then(|| (lo, hi - lo, quads[lo] as usize))
-    })
-}
-
-/// Stress of the points of quads `range`: M', k u, k and the reaction −Σ g into the fields.
+/// Stress of the points of the spans' chunks within `range`: M', k u, k and the reaction
+/// −Σ g into the fields.
 fn pass_one(
     inputs: &StencilInputs<'_>,
     range: std::ops::Range<usize>,
     read: &PassOneIn<'_>,
-    sums: &mut [PlaneSums; 5],
+    scratch: &mut SpanScratch,
     out: &mut PassOneOut<'_, '_, '_>,
 ) -> ForceStats {
     let stencil = inputs.stencil;
-    let (sy, sz) = stencil.strides();
-    let (_, terms) = stencil.quads();
+    let (cy, cz) = stencil.chunk_strides();
+    let terms = stencil.terms();
     let coef = coefficients(stencil);
     let params = inputs.params;
     let alpha_e = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus());
-    let half = f64x4::splat(0.5);
     let mut stats = ForceStats::EMPTY;
-    let all = Needs {
-        pq: true,
-        y: true,
-        z: true,
-    };
-    let weighted = Needs {
-        pq: true,
-        y: false,
-        z: false,
-    };
-    let [s0, s1, s2, s3, _] = sums;
-    for (first, count, site0) in spans_within(stencil, range) {
-        let starts = block_starts(site0, sy, sz);
-        let u_rows = [
-            SpanRows::of(&read.u[0], &starts, count),
-            SpanRows::of(&read.u[1], &starts, count),
-            SpanRows::of(&read.u[2], &starts, count),
-        ];
-        let z_rows = SpanRows::of(read.z, &starts, count);
-        s0.fill(&u_rows[0], count, all);
-        s1.fill(&u_rows[1], count, all);
-        s2.fill(&u_rows[2], count, all);
-        s3.fill(&z_rows, count, weighted);
-        let views = [
-            (
-                PqViews::of(&u_rows[0], s0, count),
-                EfViews::y(s0, count),
-                EfViews::z(s0, count),
-            ),
-            (
-                PqViews::of(&u_rows[1], s1, count),
-                EfViews::y(s1, count),
-                EfViews::z(s1, count),
-            ),
-            (
-                PqViews::of(&u_rows[2], s2, count),
-                EfViews::y(s2, count),
-                EfViews::z(s2, count),
-            ),
-        ];
-        let z_views = PqViews::of(&z_rows, s3, count);
-        for q in 0..count {
-            let t = &terms[first + q];
-            let sum_wx = t.sum_wx;
-            let mut b = [[f64x4::ZERO; 3]; 3];
-            let mut sw = [f64x4::ZERO; 3];
-            let mut uc = [f64x4::ZERO; 3];
-            for r in 0..3 {
-                let (pq, y, z) = &views[r];
-                uc[r] = pq.v.at(q).1;
-                let neg = -uc[r];
-                b[r][0] = neg.mul_add(sum_wx[0], pq.grad_x(&coef, q));
-                b[r][1] = neg.mul_add(sum_wx[1], y.grad(&coef, q));
-                b[r][2] = neg.mul_add(sum_wx[2], z.grad(&coef, q));
-                sw[r] = pq.weighted_sum(&coef, q);
+    let SpanScratch { sums, u, z, .. } = scratch;
+    for (chunk, len, first_term) in spans_within(stencil.spans(), range) {
+        let at = Place { chunk, len, cy, cz };
+        for r in 0..3 {
+            sums.fill(&read.u[r], at, Needs::All);
+            field_sums(
+                &coef,
+                Shifted::of(&read.u[r], chunk, len),
+                sums,
+                &mut u[r][..len],
+            );
+        }
+        sums.fill(read.z, at, Needs::PQ);
+        weighted_sums(&coef, Shifted::of(read.z, chunk, len), sums, &mut z[..len]);
+        let o = chunk - out.offset;
+        let mut slices = SpanOut {
+            m: out.m.each_mut().map(|f| &mut f[o..o + len]),
+            ku: out.ku.each_mut().map(|f| &mut f[o..o + len]),
+            k: &mut out.k[o..o + len],
+            own: out.own.each_mut().map(|f| &mut f[o..o + len]),
+        };
+        let terms = &terms[first_term..first_term + len];
+        let (u0, u1, u2, z) = (&u[0][..len], &u[1][..len], &u[2][..len], &z[..len]);
+        for i in 0..len {
+            let t = &terms[i];
+            if !t.has_points() {
+                // A gap: nothing is ever stored here but the reaction the second pass
+                // adds to.
+                for c in 0..3 {
+                    slices.own[c][i] = [0.0; LANES];
+                }
+                continue;
             }
-            let zs = z_views.weighted_sum(&coef, q);
-            let point = QuadPoint {
-                site: site0 + LANES * q - out.offset,
+            let each = [&u0[i], &u1[i], &u2[i]];
+            let uc = [each[0].centre, each[1].centre, each[2].centre];
+            let sw = [each[0].weighted, each[1].weighted, each[2].weighted];
+            let mut b = [[f64x4::ZERO; 3]; 3];
+            for r in 0..3 {
+                for c in 0..3 {
+                    // B = Σ w x ⊗ u − u_i ⊗ Σ w x.
+                    b[r][c] = (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[c]);
+                }
+            }
+            let sums = PointSums {
                 b,
                 sw,
                 uc,
-                zs,
+                zs: z[i],
             };
-            point_stress(inputs, t, alpha_e, half, point, out, &mut stats);
+            point_stress(inputs, t, alpha_e, sums, &mut slices, i, &mut stats);
         }
     }
     stats
 }
 
-/// One quad's sums from the first pass.
-struct QuadPoint {
-    /// Where the quad's lanes are in the output fields.
-    site: usize,
+/// One chunk's sums from the first pass.
+struct PointSums {
     /// B = Σ w x ⊗ u − u_i ⊗ Σ w x.
     b: [[f64x4; 3]; 3],
     /// S = Σ w u_j.
@@ -618,24 +641,19 @@ struct QuadPoint {
     zs: f64x4,
 }
 
-/// The stress of a quad's points from their sums, into the output fields and `stats`.
+/// The stress of a chunk's points from their sums, into chunk `i` of the span's outputs
+/// and `stats`.
 #[inline(always)]
 fn point_stress(
     inputs: &StencilInputs<'_>,
-    t: &QuadTerms,
+    t: &ChunkTerms,
     alpha_e: f64x4,
-    half: f64x4,
-    point: QuadPoint,
-    out: &mut PassOneOut<'_, '_, '_>,
+    sums: PointSums,
+    out: &mut SpanOut<'_>,
+    i: usize,
     stats: &mut ForceStats,
 ) {
-    let QuadPoint {
-        site,
-        b,
-        sw,
-        uc,
-        zs,
-    } = point;
+    let PointSums { b, sw, uc, zs } = sums;
     let params = inputs.params;
     let a = &t.a_inv;
     let sum_wx = t.sum_wx;
@@ -678,18 +696,17 @@ fn point_stress(
     for r in 0..3 {
         let mr = [times_a(&kb, r, 0), times_a(&kb, r, 1), times_a(&kb, r, 2)];
         for c in 0..3 {
-            store(out.m[3 * r + c], site, mr[c]);
+            out.m[3 * r + c][i] = mr[c].to_array();
             hb = h[r][c].mul_add(b[r][c], hb);
         }
         // −Σ_j g_ij = −M' Σ w x + k (S − u_i Σ w).
         let reaction = mr[0].mul_add(sum_wx[0], mr[1].mul_add(sum_wx[1], mr[2] * sum_wx[2]));
-        let own = k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction;
-        store(out.own[r], site, own);
-        store(out.ku[r], site, k * uc[r]);
+        out.own[r][i] = (k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction).to_array();
+        out.ku[r][i] = (k * uc[r]).to_array();
         us = uc[r].mul_add(uc[r].mul_add(sum_w, f64x4::splat(-2.0) * sw[r]), us);
     }
-    store(out.k, site, k);
-    let hourglass = (half * k * (zs + us - hb)).to_array();
+    out.k[i] = k.to_array();
+    let hourglass = (f64x4::splat(0.5) * k * (zs + us - hb)).to_array();
     let strain = (psi * volume).to_array();
     for lane in 0..LANES {
         if t.evaluated[lane] {
@@ -698,49 +715,49 @@ fn point_stress(
     }
 }
 
-/// Gathers at each site of quads `range` the pair forces of the stencil points around it.
+/// Gathers at each site of the spans' chunks within `range` the pair forces of the stencil
+/// points around it.
 fn pass_two(
     inputs: &StencilInputs<'_>,
     range: std::ops::Range<usize>,
     read: &PassTwoIn<'_>,
-    sums: &mut [PlaneSums; 5],
+    scratch: &mut SpanScratch,
     out: &mut PassTwoOut<'_, '_>,
 ) {
     let stencil = inputs.stencil;
-    let (sy, sz) = stencil.strides();
+    let (cy, cz) = stencil.chunk_strides();
     let coef = coefficients(stencil);
-    let only = |pq: bool, y: bool, z: bool| Needs { pq, y, z };
-    let [s0, s1, s2, s3, s4] = sums;
-    for (_, count, site0) in spans_within(stencil, range) {
-        let starts = block_starts(site0, sy, sz);
-        let k_rows = SpanRows::of(read.k, &starts, count);
-        s4.fill(&k_rows, count, only(true, false, false));
-        let k = PqViews::of(&k_rows, s4, count);
+    let SpanScratch {
+        sums,
+        kw,
+        force,
+        hourglass,
+        ..
+    } = scratch;
+    for (chunk, len, _) in spans_within(stencil.spans(), range) {
+        let at = Place { chunk, len, cy, cz };
+        let (kw, force, hourglass) = (&mut kw[..len], &mut force[..len], &mut hourglass[..len]);
+        sums.fill(read.k, at, Needs::PQ);
+        weighted_sums(&coef, Shifted::of(read.k, chunk, len), sums, kw);
         for r in 0..3 {
-            let mx = SpanRows::of(&read.m[3 * r], &starts, count);
-            let my = SpanRows::of(&read.m[3 * r + 1], &starts, count);
-            let mz = SpanRows::of(&read.m[3 * r + 2], &starts, count);
-            let ku = SpanRows::of(&read.ku[r], &starts, count);
-            s0.fill(&mx, count, only(true, false, false));
-            s1.fill(&my, count, only(false, true, false));
-            s2.fill(&mz, count, only(false, false, true));
-            s3.fill(&ku, count, only(true, false, false));
-            let u = chunks(&read.u[r][site0..], count);
-            let at = site0 - out.offset;
-            let f = chunks_mut(&mut out.f[r][at..], count);
-            let (x, y, z) = (
-                PqViews::of(&mx, s0, count),
-                EfViews::y(s1, count),
-                EfViews::z(s2, count),
-            );
-            let h = PqViews::of(&ku, s3, count);
-            for q in 0..count {
-                let kw = k.weighted_sum(&coef, q);
-                let stress = x.grad_x(&coef, q) + y.grad(&coef, q) + z.grad(&coef, q);
-                let hourglass = h.weighted_sum(&coef, q);
-                let uc = f64x4::from(u[q]);
-                let sum = (-uc).mul_add(kw, hourglass) - stress + f64x4::from(f[q]);
-                f[q] = sum.to_array();
+            force.iter_mut().for_each(|f| *f = f64x4::ZERO);
+            let mx = &read.m[3 * r];
+            sums.fill(mx, at, Needs::PQ);
+            sub_grad_x(&coef, Shifted::of(mx, chunk, len), sums, force);
+            sums.fill(&read.m[3 * r + 1], at, Needs::Y);
+            sub_grad_yz(&coef, &sums.ey, &sums.fy, force);
+            sums.fill(&read.m[3 * r + 2], at, Needs::Z);
+            sub_grad_yz(&coef, &sums.ez, &sums.fz, force);
+            let ku = &read.ku[r];
+            sums.fill(ku, at, Needs::PQ);
+            weighted_sums(&coef, Shifted::of(ku, chunk, len), sums, hourglass);
+            let u = &read.u[r][chunk..chunk + len];
+            let o = chunk - out.offset;
+            let f = &mut out.f[r][o..o + len];
+            for i in 0..len {
+                let uc = f64x4::from(u[i]);
+                let sum = (-uc).mul_add(kw[i], hourglass[i]) + force[i] + f64x4::from(f[i]);
+                f[i] = sum.to_array();
             }
         }
     }
