@@ -26,7 +26,7 @@ impl Solver {
         let mut rollbacks = 0;
         loop {
             match self.run_substeps(dt) {
-                Ok((stats, work)) => {
+                Ok((stats, work, kinetic)) => {
                     // Slaved nodes where the tick's last positions put them.
                     self.slaves.interpolate(&mut self.p);
                     self.note_clamping(&stats);
@@ -38,7 +38,7 @@ impl Solver {
                         diverged: false,
                         // Points outside the active set are at rest (their velocity is
                         // zeroed when they leave it): O(active), not O(body).
-                        kinetic_energy: self.active_kinetic_energy(),
+                        kinetic_energy: kinetic,
                         elastic_energy: stats.energy(),
                         min_det_f: stats.min_det_f,
                         clamped_points: stats.clamped_points,
@@ -125,9 +125,9 @@ impl Solver {
     }
 
     /// One attempt at the tick. Fixed dofs move linearly from their tick-start positions to
-    /// their targets. Returns the last force statistics and the work put in, or why the
-    /// attempt diverged and in which sub-step.
-    fn run_substeps(&mut self, dt: f64) -> Result<(ForceStats, f64), (DivergenceReason, u32)> {
+    /// their targets. Returns the last force statistics, the work put in and the kinetic
+    /// energy at the end, or why the attempt diverged and in which sub-step.
+    fn run_substeps(&mut self, dt: f64) -> Result<(ForceStats, f64, f64), (DivergenceReason, u32)> {
         let n = self.substeps;
         let h = dt / n as f64;
         let decay = (-self.config.damping_per_s * h).exp();
@@ -136,6 +136,7 @@ impl Solver {
         let mut reference: Option<f64> = None;
         let mut work = 0.0;
         let mut stats = None;
+        let mut kinetic = 0.0;
         // Moves of the fixed dofs in the previous sub-step: their work is the trapezoid
         // −½(f_before + f_after)·d, completed once the force after the move is known.
         let mut moved_fixed = std::mem::take(&mut self.scratch[2]);
@@ -152,10 +153,15 @@ impl Solver {
             &mut work,
             &mut stats,
             &mut moved_fixed,
+            &mut kinetic,
         );
         self.scratch[2] = moved_fixed;
         result?;
-        Ok((stats.expect("a tick has at least one sub-step"), work))
+        Ok((
+            stats.expect("a tick has at least one sub-step"),
+            work,
+            kinetic,
+        ))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -170,7 +176,12 @@ impl Solver {
         work: &mut f64,
         stats: &mut Option<ForceStats>,
         moved_fixed: &mut [Vec3],
+        kinetic_out: &mut f64,
     ) -> Result<(), (DivergenceReason, u32)> {
+        // The kinetic energy of the state each sub-step starts from: summed once here, then
+        // by the integration loop as it sets the velocities (the same terms in the same
+        // order as `active_kinetic_energy`, without a second pass over the points).
+        let mut kinetic = self.active_kinetic_energy();
         for s in 0..n {
             let st = self.evaluate_elastic(ForceBuffer::Force);
             if !st.finite {
@@ -180,39 +191,58 @@ impl Solver {
                 let i = i as usize;
                 *work -= 0.5 * self.force[i].dot(&moved_fixed[i]);
             }
-            let energy = self.active_kinetic_energy() + st.energy();
+            let energy = kinetic + st.energy();
             let e0 = *reference.get_or_insert(energy);
             let bound = ENERGY_GROWTH * (e0 + *work) + ENERGY_FLOOR;
             if energy.is_nan() || energy > bound {
                 return Err((DivergenceReason::EnergyGrowth, s));
             }
             let frac = (s + 1) as f64 / n as f64;
+            kinetic = 0.0;
             for idx in 0..self.active_list.len() {
                 let i = self.active_list[idx] as usize;
                 let applied = self.external[i] + gravity * self.mass[i];
-                let mut moved = Vec3::zeros();
-                for a in 0..3 {
-                    if self.fixed[i][a] {
-                        let goal =
-                            self.snap_p[i][a] + frac * (self.target[i][a] - self.snap_p[i][a]);
-                        let d = goal - self.p[i][a];
-                        // The constraint holds the dof against the elastic force, so it does
-                        // −f_elastic·d of work on the body (the applied load's own work
-                        // cancels); this is the first half of the trapezoid.
-                        *work -= 0.5 * self.force[i][a] * d;
-                        moved_fixed[i][a] = d;
-                        self.p[i][a] = goal;
-                        self.v[i][a] = d / h;
-                    } else {
-                        moved_fixed[i][a] = 0.0;
-                        let total = self.force[i][a] + applied[a];
-                        self.v[i][a] = (self.v[i][a] + h * total / self.mass[i]) * decay;
-                        let d = h * self.v[i][a];
-                        *work += applied[a] * d;
-                        self.p[i][a] += d;
-                        moved[a] = d;
+                let mass = self.mass[i];
+                let moved = if self.fixed[i] == [false; 3] {
+                    // A free point (nearly all of them): its three dofs at once.
+                    moved_fixed[i] = Vec3::zeros();
+                    let total = self.force[i] + applied;
+                    let v = (self.v[i] + total * h / mass) * decay;
+                    let d = v * h;
+                    *work += applied.dot(&d);
+                    self.v[i] = v;
+                    self.p[i] += d;
+                    kinetic += 0.5 * mass * v.x * v.x;
+                    kinetic += 0.5 * mass * v.y * v.y;
+                    kinetic += 0.5 * mass * v.z * v.z;
+                    d
+                } else {
+                    let mut moved = Vec3::zeros();
+                    for a in 0..3 {
+                        if self.fixed[i][a] {
+                            let goal =
+                                self.snap_p[i][a] + frac * (self.target[i][a] - self.snap_p[i][a]);
+                            let d = goal - self.p[i][a];
+                            // The constraint holds the dof against the elastic force, so it
+                            // does −f_elastic·d of work on the body (the applied load's own
+                            // work cancels); this is the first half of the trapezoid.
+                            *work -= 0.5 * self.force[i][a] * d;
+                            moved_fixed[i][a] = d;
+                            self.p[i][a] = goal;
+                            self.v[i][a] = d / h;
+                        } else {
+                            moved_fixed[i][a] = 0.0;
+                            let total = self.force[i][a] + applied[a];
+                            self.v[i][a] = (self.v[i][a] + h * total / mass) * decay;
+                            let d = h * self.v[i][a];
+                            *work += applied[a] * d;
+                            self.p[i][a] += d;
+                            moved[a] = d;
+                            kinetic += 0.5 * mass * self.v[i][a] * self.v[i][a];
+                        }
                     }
-                }
+                    moved
+                };
                 let step = moved.norm();
                 if !step.is_finite() {
                     return Err((DivergenceReason::NonFinite, s));
@@ -223,6 +253,7 @@ impl Solver {
             }
             *stats = Some(st);
         }
+        *kinetic_out = kinetic;
         Ok(())
     }
 
