@@ -21,7 +21,8 @@ use crate::mls::material::{
     DET_RANGE, ElasticModel, ElasticParams, StressSample, stress, stress_differential,
 };
 use crate::mls::operator::{LANES, MAX_RUN_ROW, MlsOperator, PointRank, complete};
-use crate::mls::stencil_kernel::{self, StencilFields, StencilInputs};
+use crate::mls::stencil::LatticeStencil;
+use crate::mls::stencil_kernel::{self, Restriction, StencilFields, StencilInputs};
 
 /// Figures from one force evaluation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -280,6 +281,56 @@ pub struct EvalSet {
     in_runs: Vec<bool>,
     in_stress: Vec<bool>,
     in_touched: Vec<bool>,
+    /// Where the operator has a lattice stencil (and the set may use it): the box chunks
+    /// holding a point of `stress` (the stencil's first pass) and of `touched` (its second),
+    /// sorted.
+    stencil_chunks: Option<StencilChunks>,
+}
+
+/// The box chunks an evaluation set's stencil passes cover.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct StencilChunks {
+    /// Chunks holding a point of `stress`.
+    pub stress: Vec<u32>,
+    /// Chunks holding a point of `touched`.
+    pub touched: Vec<u32>,
+    /// Per box chunk: 1 when listed in `stress`, 2 in `touched` (bits).
+    flags: Vec<u8>,
+}
+
+impl StencilChunks {
+    /// The lists for `set` on `stencil`, reusing the buffers.
+    fn rebuild(&mut self, stencil: &LatticeStencil, stress: &[u32], touched: &[u32]) {
+        let chunks = stencil.chunks();
+        if self.flags.len() != chunks {
+            self.flags = vec![0; chunks];
+            // Room for every chunk up front (no growth on the real-time path).
+            self.stress = Vec::with_capacity(chunks);
+            self.touched = Vec::with_capacity(chunks);
+        }
+        for &c in self.stress.iter().chain(&self.touched) {
+            self.flags[c as usize] = 0;
+        }
+        self.stress.clear();
+        self.touched.clear();
+        let sites = stencil.site_of();
+        for (points, bit, list) in [
+            (stress, 1u8, &mut self.stress),
+            (touched, 2, &mut self.touched),
+        ] {
+            for &i in points {
+                let Some(&site) = sites.get(i as usize) else {
+                    continue;
+                };
+                let c = site as usize / LANES;
+                if self.flags[c] & bit == 0 {
+                    self.flags[c] |= bit;
+                    list.push(c as u32);
+                }
+            }
+            list.sort_unstable();
+        }
+    }
 }
 
 impl EvalSet {
@@ -291,7 +342,8 @@ impl EvalSet {
         set
     }
 
-    /// Like [`EvalSet::for_active`] but never using the SIMD runs (the single-point kernel only).
+    /// Like [`EvalSet::for_active`] but never using the SIMD runs or the lattice stencil
+    /// (the single-point kernel only).
     pub fn scalar_only(op: &MlsOperator, active: &[u32]) -> Self {
         let mut set = Self::default();
         set.rebuild(op, active, false);
@@ -345,6 +397,13 @@ impl EvalSet {
             }
         }
         self.touched.sort_unstable();
+        match op.stencil() {
+            Some(stencil) if use_runs => self
+                .stencil_chunks
+                .get_or_insert_with(StencilChunks::default)
+                .rebuild(stencil, &self.stress, &self.touched),
+            _ => self.stencil_chunks = None,
+        }
         if use_runs {
             for &i in &self.stress {
                 let i = i as usize;
@@ -364,6 +423,11 @@ impl EvalSet {
     /// Whether point i's stress is evaluated.
     pub fn has_stress(&self, i: usize) -> bool {
         self.in_stress[i]
+    }
+
+    /// The stencil's chunks for this set, when it may use the stencil.
+    pub(crate) fn stencil_chunks(&self) -> Option<&StencilChunks> {
+        self.stencil_chunks.as_ref()
     }
 }
 
@@ -396,13 +460,15 @@ pub fn add_elastic_forces(
     // (`stencil_kernel`); the pair kernels then take only the points it does not evaluate.
     // A set that holds every point is the whole body.
     let set = set.filter(|s| s.stress.len() < op.len());
+    // A restricted evaluation takes the stencil over the chunks of its points.
     let stencil = match set {
-        None if !scratch.pairs_only => op.stencil(),
-        _ => None,
+        _ if scratch.pairs_only => None,
+        None => op.stencil(),
+        Some(s) => s.stencil_chunks().and(op.stencil()),
     };
     let runs: &[u32] = match (set, stencil) {
-        (Some(s), _) => &s.runs,
-        (None, Some(_)) => &[],
+        (_, Some(_)) => &[],
+        (Some(s), None) => &s.runs,
         (None, None) => op.runs(),
     };
     let mut work = std::mem::take(&mut scratch.pair_work);
@@ -432,7 +498,12 @@ pub fn add_elastic_forces(
             params,
             volumes,
         };
-        let (a, b) = stencil_kernel::evaluate(inputs, p, fields, *threads);
+        let restriction = set.map(|s| Restriction {
+            chunks: s.stencil_chunks().expect("a set with stencil chunks"),
+            stress: &s.in_stress,
+            touched: &s.touched,
+        });
+        let (a, b) = stencil_kernel::evaluate(inputs, p, restriction, fields, *threads);
         a.merge(&b)
     });
     let shared = Shared {
@@ -442,8 +513,8 @@ pub fn add_elastic_forces(
         pos: [&pos[0][..], &pos[1][..], &pos[2][..]],
         pos4,
         skip: match (set, stencil) {
-            (Some(s), _) => Skip::InRuns(&s.in_runs),
-            (None, Some(st)) => Skip::Stencil(st.evaluated()),
+            (_, Some(st)) => Skip::Stencil(st.evaluated()),
+            (Some(s), None) => Skip::InRuns(&s.in_runs),
             (None, None) => Skip::OperatorRuns,
         },
     };
@@ -495,10 +566,22 @@ pub fn add_elastic_forces(
     let pair_stats = stats_a.merge(&stats_b);
     match (stencil, stencil_stats) {
         (Some(stencil), Some(stats)) => {
-            // The stencil's gathered forces: every site of a lattice point is written by
-            // each evaluation, so nothing needs clearing.
-            for (i, &site) in stencil.site_of().iter().enumerate() {
-                f[i] += fields.force_at(site);
+            // The stencil's gathered forces: the sites of the points that can receive force
+            // are written by each evaluation, so nothing needs clearing.
+            let sites = stencil.site_of();
+            match set {
+                None => {
+                    for (i, &site) in sites.iter().enumerate() {
+                        f[i] += fields.force_at(site);
+                    }
+                }
+                Some(s) => {
+                    for &i in &s.touched {
+                        if let Some(&site) = sites.get(i as usize) {
+                            f[i as usize] += fields.force_at(site);
+                        }
+                    }
+                }
             }
             stats.merge(&pair_stats)
         }

@@ -27,7 +27,7 @@ pub(crate) const NONE: u32 = u32::MAX;
 
 /// Spans of two box rows are joined when at most this many chunks lie between them (the
 /// kernel's work on the gap is less than a span's set-up).
-const JOIN_GAP_CHUNKS: usize = 3;
+pub(crate) const JOIN_GAP_CHUNKS: usize = 3;
 
 /// Per-lane terms of one chunk (lane = consecutive site in x).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -86,6 +86,8 @@ pub struct LatticeStencil {
     terms: Vec<ChunkTerms>,
     /// Per lattice point: index of its chunk's terms · LANES + lane.
     lane_of: Vec<u32>,
+    /// Per box chunk: index of its terms, or [`NONE`] outside the spans.
+    terms_of_chunk: Vec<u32>,
     /// Per point of the operator (virtual nodes included): stress evaluated by the stencil.
     evaluated: Vec<bool>,
     evaluated_count: usize,
@@ -226,9 +228,11 @@ impl LatticeStencil {
         }
         let mut terms = Vec::new();
         let mut lane_of = vec![NONE; coords.len()];
+        let mut terms_of_chunk = vec![NONE; sites / LANES];
         for span in &mut spans {
             span.terms = terms.len() as u32;
             for chunk in span.chunk as usize..(span.chunk + span.len) as usize {
+                terms_of_chunk[chunk] = terms.len() as u32;
                 let mut t = ChunkTerms::default();
                 for lane in 0..LANES {
                     let i = occupant[LANES * chunk + lane];
@@ -261,6 +265,7 @@ impl LatticeStencil {
             spans,
             terms,
             lane_of,
+            terms_of_chunk,
             evaluated,
             evaluated_count,
             weight: [w1, w2, w3],
@@ -323,6 +328,11 @@ impl LatticeStencil {
     /// The spans, in box order.
     pub(crate) fn spans(&self) -> &[Span] {
         &self.spans
+    }
+
+    /// Index of the terms of a chunk holding points.
+    pub(crate) fn terms_of_chunk(&self, chunk: usize) -> u32 {
+        self.terms_of_chunk[chunk]
     }
 
     /// The chunks' terms, span after span.

@@ -29,10 +29,11 @@
 
 use wide::f64x4;
 
+use super::forces::StencilChunks;
 use super::forces::{ForceStats, PointCheck, Threads, lane_stress_scalar, lane_stvk};
 use super::material::ElasticParams;
 use super::operator::LANES;
-use super::stencil::{ChunkTerms, LatticeStencil, NONE, Span};
+use super::stencil::{ChunkTerms, JOIN_GAP_CHUNKS, LatticeStencil, NONE, Span};
 use crate::math::Vec3;
 
 /// Four sites in x: one SIMD vector's worth of a field.
@@ -59,6 +60,37 @@ pub(crate) struct StencilFields {
     f: [Vec<Chunk>; 3],
     /// Scratch along a span, for each half of the spans.
     spans: [SpanScratch; 2],
+    /// Which chunks of M', k u and k the last evaluation left non-zero.
+    written: Written,
+    /// The chunks of the last restricted evaluation's first pass.
+    written_chunks: Vec<u32>,
+    /// A restricted evaluation's runs of chunks for the first and the second pass.
+    runs: [Vec<Span>; 2],
+}
+
+/// What the previous evaluation left in M', k u and k, which the second pass reads around
+/// every site it gathers at: they must be zero wherever this evaluation does not write.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+enum Written {
+    /// Nothing yet.
+    #[default]
+    Nothing,
+    /// Every chunk holding a point (a whole-body evaluation).
+    Everything,
+    /// The chunks in `written_chunks` (a restricted evaluation).
+    Chunks,
+}
+
+/// A restricted evaluation (an evaluation set): the stencil's points in `stress` have
+/// stress, the forces are wanted on `touched`.
+#[derive(Clone, Copy)]
+pub(crate) struct Restriction<'a> {
+    /// The chunks of the set's points.
+    pub chunks: &'a StencilChunks,
+    /// Per point: its stress is evaluated.
+    pub stress: &'a [bool],
+    /// The points that can receive force.
+    pub touched: &'a [u32],
 }
 
 impl StencilFields {
@@ -82,17 +114,60 @@ impl StencilFields {
         }
         let longest = stencil.longest_span();
         self.spans.iter_mut().for_each(|s| s.fit(longest));
+        // Room for as many runs and chunks as the box has (no growth later).
+        self.written = Written::Nothing;
+        self.written_chunks = Vec::with_capacity(chunks);
+        self.runs = [Vec::with_capacity(chunks), Vec::with_capacity(chunks)];
     }
 
-    /// Writes the displacements of the lattice points at `p` into the box.
-    pub(crate) fn scatter(&mut self, stencil: &LatticeStencil, p: &[Vec3]) {
-        for ((&site, x), pi) in stencil.site_of().iter().zip(stencil.rest()).zip(p) {
-            let (chunk, lane) = (site as usize / LANES, site as usize % LANES);
-            let u = pi - x;
+    /// Sets M', k u and k to zero where the last evaluation wrote them, but for the chunks
+    /// a whole-body evaluation is about to write anyway.
+    fn clear_written(&mut self, whole: bool) {
+        let clear = |fields: &mut Self, c: usize| {
+            for m in &mut fields.m {
+                m[c] = [0.0; LANES];
+            }
+            for ku in &mut fields.ku {
+                ku[c] = [0.0; LANES];
+            }
+            fields.k[c] = [0.0; LANES];
+        };
+        match (self.written, whole) {
+            (Written::Nothing, _) | (Written::Everything, true) => {}
+            (Written::Everything, false) => {
+                for c in 0..self.k.len() {
+                    clear(self, c);
+                }
+            }
+            (Written::Chunks, _) => {
+                for i in 0..self.written_chunks.len() {
+                    let c = self.written_chunks[i] as usize;
+                    clear(self, c);
+                }
+            }
+        }
+    }
+
+    /// Writes the displacements of the lattice points at `p` into the box (of those in
+    /// `points` only, when given).
+    fn scatter(&mut self, stencil: &LatticeStencil, p: &[Vec3], points: Option<&[u32]>) {
+        let (sites, rest) = (stencil.site_of(), stencil.rest());
+        let one = |i: usize| {
+            let site = sites[i] as usize;
+            let (chunk, lane) = (site / LANES, site % LANES);
+            let u = p[i] - rest[i];
             for c in 0..3 {
                 self.u[c][chunk][lane] = u[c];
             }
             self.z[chunk][lane] = u.norm_squared();
+        };
+        match points {
+            None => (0..sites.len()).for_each(one),
+            Some(list) => list
+                .iter()
+                .map(|&i| i as usize)
+                .filter(|&i| i < sites.len())
+                .for_each(one),
         }
     }
 
@@ -441,32 +516,97 @@ fn spans_within(
     })
 }
 
-/// Evaluates the stencil's points at positions `p`: their statistics (the first half of
-/// the chunks, then the second), and in the fields the pair forces of their rows gathered
-/// at every site ([`StencilFields::force_at`]). The halves run on one thread or two with
-/// the same bits.
+/// Runs of consecutive chunks of a sorted list, with their terms, joined across gaps of up
+/// to [`JOIN_GAP_CHUNKS`] chunks within one span (the lanes of a gap chunk have no stress in
+/// the evaluation, and what is gathered there is not read): a short run costs its set-up and
+/// the plane sums of a chunk on either side.
+fn runs_of(stencil: &LatticeStencil, chunks: &[u32], runs: &mut Vec<Span>) {
+    runs.clear();
+    for &c in chunks {
+        let terms = stencil.terms_of_chunk(c as usize);
+        match runs.last_mut() {
+            Some(last)
+                if c - (last.chunk + last.len) <= JOIN_GAP_CHUNKS as u32
+                    && terms - last.terms == c - last.chunk =>
+            {
+                last.len = c + 1 - last.chunk;
+            }
+            _ => runs.push(Span {
+                chunk: c,
+                len: 1,
+                terms,
+            }),
+        }
+    }
+}
+
+/// The chunk that splits `runs` into halves of about the same number of chunks.
+fn halfway(runs: &[Span], end: usize) -> usize {
+    let total: usize = runs.iter().map(|s| s.len as usize).sum();
+    let mut left = total / 2;
+    for s in runs {
+        if (s.len as usize) > left {
+            return s.chunk as usize + left;
+        }
+        left -= s.len as usize;
+    }
+    end
+}
+
+/// Evaluates the stencil's points at positions `p` (with `restriction`, those of an
+/// evaluation set): their statistics (the first half of the chunks, then the second), and
+/// in the fields the pair forces of their rows gathered at every site the evaluation
+/// covers ([`StencilFields::force_at`]). The halves run on one thread or two with the same
+/// bits.
 pub(crate) fn evaluate(
     inputs: StencilInputs<'_>,
     p: &[Vec3],
+    restriction: Option<Restriction<'_>>,
     fields: &mut StencilFields,
     threads: Threads,
 ) -> (ForceStats, ForceStats) {
     let stencil = inputs.stencil;
     fields.fit(stencil);
-    fields.scatter(stencil, p);
-    // Half of the spans' chunks each.
-    let spans = stencil.spans();
-    let total: usize = spans.iter().map(|s| s.len as usize).sum();
-    let mut left = total / 2;
-    let mut split = stencil.chunks();
-    for s in spans {
-        if (s.len as usize) > left {
-            split = s.chunk as usize + left;
-            break;
-        }
-        left -= s.len as usize;
+    fields.scatter(stencil, p, restriction.map(|r| r.touched));
+    // The sub-steps of a tick evaluate one set again and again: what the last evaluation
+    // wrote is then exactly what this one overwrites.
+    let same_set = matches!(
+        (fields.written, restriction),
+        (Written::Chunks, Some(r)) if fields.written_chunks == r.chunks.stress
+    );
+    if !same_set {
+        fields.clear_written(restriction.is_none());
     }
+    let [runs_one, runs_two] = &mut fields.runs;
+    let (one, two): (&[Span], &[Span]) = match restriction {
+        None => (stencil.spans(), stencil.spans()),
+        Some(r) => {
+            runs_of(stencil, &r.chunks.stress, runs_one);
+            runs_of(stencil, &r.chunks.touched, runs_two);
+            // The second pass adds to the reaction the first writes: none where the first
+            // does not run.
+            for run in runs_two.iter() {
+                for f in &mut fields.f {
+                    f[run.chunk as usize..(run.chunk + run.len) as usize].fill([0.0; LANES]);
+                }
+            }
+            (runs_one, runs_two)
+        }
+    };
+    match restriction {
+        None => fields.written = Written::Everything,
+        Some(_) if same_set => {}
+        Some(r) => {
+            fields.written = Written::Chunks;
+            fields.written_chunks.clear();
+            fields.written_chunks.extend_from_slice(&r.chunks.stress);
+        }
+    }
+    let split = halfway(two, stencil.chunks());
     let (half_a, half_b) = (0..split, split..stencil.chunks());
+    let lanes = Lanes {
+        stress: restriction.map(|r| r.stress),
+    };
     let StencilFields {
         u,
         z,
@@ -475,6 +615,7 @@ pub(crate) fn evaluate(
         k,
         f,
         spans: scratch,
+        ..
     } = fields;
     let [scratch_a, scratch_b] = scratch;
     let (mut f_a, mut f_b) = split_each(f, split);
@@ -499,8 +640,28 @@ pub(crate) fn evaluate(
         };
         both(
             threads,
-            || pass_one(&inputs, half_a.clone(), &read, scratch_a, &mut a),
-            || pass_one(&inputs, half_b.clone(), &read, scratch_b, &mut b),
+            || {
+                pass_one(
+                    &inputs,
+                    one,
+                    half_a.clone(),
+                    lanes,
+                    &read,
+                    scratch_a,
+                    &mut a,
+                )
+            },
+            || {
+                pass_one(
+                    &inputs,
+                    one,
+                    half_b.clone(),
+                    lanes,
+                    &read,
+                    scratch_b,
+                    &mut b,
+                )
+            },
         )
     };
     let read = PassTwoIn { m, ku, k, u };
@@ -514,10 +675,29 @@ pub(crate) fn evaluate(
     };
     both(
         threads,
-        || pass_two(&inputs, half_a, &read, scratch_a, &mut a),
-        || pass_two(&inputs, half_b, &read, scratch_b, &mut b),
+        || pass_two(&inputs, two, half_a, &read, scratch_a, &mut a),
+        || pass_two(&inputs, two, half_b, &read, scratch_b, &mut b),
     );
     stats
+}
+
+/// Which lanes of a chunk have stress: those the stencil evaluates, and of a restricted
+/// evaluation only those in its set.
+#[derive(Clone, Copy)]
+struct Lanes<'a> {
+    stress: Option<&'a [bool]>,
+}
+
+impl Lanes<'_> {
+    #[inline(always)]
+    fn of(&self, t: &ChunkTerms) -> [bool; LANES] {
+        match self.stress {
+            None => t.evaluated,
+            Some(flags) => {
+                std::array::from_fn(|lane| t.evaluated[lane] && flags[t.point[lane] as usize])
+            }
+        }
+    }
 }
 
 /// What the first pass reads.
@@ -562,7 +742,9 @@ struct SpanOut<'a> {
 /// −Σ g into the fields.
 fn pass_one(
     inputs: &StencilInputs<'_>,
+    runs: &[Span],
     range: std::ops::Range<usize>,
+    lanes: Lanes<'_>,
     read: &PassOneIn<'_>,
     scratch: &mut SpanScratch,
     out: &mut PassOneOut<'_, '_, '_>,
@@ -575,7 +757,7 @@ fn pass_one(
     let alpha_e = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus());
     let mut stats = ForceStats::EMPTY;
     let SpanScratch { sums, u, z, .. } = scratch;
-    for (chunk, len, first_term) in spans_within(stencil.spans(), range) {
+    for (chunk, len, first_term) in spans_within(runs, range) {
         let at = Place { chunk, len, cy, cz };
         for r in 0..3 {
             sums.fill(&read.u[r], at, Needs::All);
@@ -623,7 +805,8 @@ fn pass_one(
                 uc,
                 zs: z[i],
             };
-            point_stress(inputs, t, alpha_e, sums, &mut slices, i, &mut stats);
+            let mask = lanes.of(t);
+            point_stress(inputs, t, mask, alpha_e, sums, &mut slices, i, &mut stats);
         }
     }
     stats
@@ -644,9 +827,11 @@ struct PointSums {
 /// The stress of a chunk's points from their sums, into chunk `i` of the span's outputs
 /// and `stats`.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn point_stress(
     inputs: &StencilInputs<'_>,
     t: &ChunkTerms,
+    mask: [bool; LANES],
     alpha_e: f64x4,
     sums: PointSums,
     out: &mut SpanOut<'_>,
@@ -691,25 +876,29 @@ fn point_stress(
         }
     }
     let sum_w = t.sum_w;
+    // Lanes without stress of their own write zeros: selected, not multiplied, so that
+    // whatever a lane outside the evaluation computed (from stale neighbours) never leaks.
+    let on = f64x4::from(mask.map(|m| if m { f64::from_bits(u64::MAX) } else { 0.0 }));
+    let keep = |v: f64x4| on.bitselect(v, f64x4::ZERO).to_array();
     let mut hb = f64x4::ZERO;
     let mut us = f64x4::ZERO;
     for r in 0..3 {
         let mr = [times_a(&kb, r, 0), times_a(&kb, r, 1), times_a(&kb, r, 2)];
         for c in 0..3 {
-            out.m[3 * r + c][i] = mr[c].to_array();
+            out.m[3 * r + c][i] = keep(mr[c]);
             hb = h[r][c].mul_add(b[r][c], hb);
         }
         // −Σ_j g_ij = −M' Σ w x + k (S − u_i Σ w).
         let reaction = mr[0].mul_add(sum_wx[0], mr[1].mul_add(sum_wx[1], mr[2] * sum_wx[2]));
-        out.own[r][i] = (k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction).to_array();
-        out.ku[r][i] = (k * uc[r]).to_array();
+        out.own[r][i] = keep(k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction);
+        out.ku[r][i] = keep(k * uc[r]);
         us = uc[r].mul_add(uc[r].mul_add(sum_w, f64x4::splat(-2.0) * sw[r]), us);
     }
-    out.k[i] = k.to_array();
+    out.k[i] = keep(k);
     let hourglass = (f64x4::splat(0.5) * k * (zs + us - hb)).to_array();
     let strain = (psi * volume).to_array();
     for lane in 0..LANES {
-        if t.evaluated[lane] {
+        if mask[lane] {
             stats.add_point(strain[lane], hourglass[lane], checks[lane]);
         }
     }
@@ -719,6 +908,7 @@ fn point_stress(
 /// points around it.
 fn pass_two(
     inputs: &StencilInputs<'_>,
+    runs: &[Span],
     range: std::ops::Range<usize>,
     read: &PassTwoIn<'_>,
     scratch: &mut SpanScratch,
@@ -734,7 +924,7 @@ fn pass_two(
         hourglass,
         ..
     } = scratch;
-    for (chunk, len, _) in spans_within(stencil.spans(), range) {
+    for (chunk, len, _) in spans_within(runs, range) {
         let at = Place { chunk, len, cy, cz };
         let (kw, force, hourglass) = (&mut kw[..len], &mut force[..len], &mut hourglass[..len]);
         sums.fill(read.k, at, Needs::PQ);
@@ -916,6 +1106,75 @@ mod tests {
             clamped.clamped_points > 0,
             "the largest deformation should reach the clamp"
         );
+    }
+
+    /// Evaluations over sets of active points, between whole-body ones in the same scratch
+    /// (what one leaves in the box fields must not reach the next): the stencil gives the
+    /// pair kernels' forces on every point that can receive force, and their statistics.
+    #[test]
+    fn evaluation_sets_take_the_stencil_over_their_chunks() {
+        use crate::mls::forces::EvalSet;
+        let (rest, nb, kernel, lattice, volumes) = ball();
+        let op = MlsOperator::build(&rest, &nb, &kernel, Some(lattice));
+        let params = ElasticParams::stvk(5000.0, 0.45);
+        let n = rest.len();
+        let near = |centre: usize, radius: f64| -> Vec<u32> {
+            (0..n as u32)
+                .filter(|&i| (rest[i as usize] - rest[centre]).norm() < radius)
+                .collect()
+        };
+        let sets = [
+            Some(EvalSet::for_active(&op, &near(n / 2, 3.0 * S))),
+            None,
+            Some(EvalSet::for_active(&op, &near(n / 5, 2.0 * S))),
+            Some(EvalSet::for_active(&op, &near(n / 2, 4.5 * S))),
+            None,
+            Some(EvalSet::for_active(&op, &near(4 * n / 5, 2.5 * S))),
+        ];
+        let mut scratch = ForceScratch::new(n);
+        for (step, set) in sets.iter().enumerate() {
+            let p = deformed(&rest, 2e-4 * (1.0 + step as f64));
+            let mut fs = vec![Vec3::zeros(); n];
+            let a = add_elastic_forces(
+                &op,
+                &params,
+                &volumes,
+                &p,
+                set.as_ref(),
+                &mut fs,
+                &mut scratch,
+            );
+            let mut fp = vec![Vec3::zeros(); n];
+            let b = add_elastic_forces(
+                &op,
+                &params,
+                &volumes,
+                &p,
+                set.as_ref(),
+                &mut fp,
+                &mut ForceScratch::new(n).without_stencil(),
+            );
+            let scale = fp.iter().map(|x| x.norm()).fold(0.0, f64::max);
+            for i in 0..n {
+                assert!(
+                    (fs[i] - fp[i]).norm() <= 1e-10 * scale,
+                    "evaluation {step}, point {i}: {} against {}",
+                    fs[i],
+                    fp[i]
+                );
+            }
+            assert!((a.strain_energy - b.strain_energy).abs() <= 1e-10 * b.strain_energy);
+            assert!((a.hourglass_energy - b.hourglass_energy).abs() <= 1e-6 * b.energy());
+            assert!((a.min_det_f - b.min_det_f).abs() <= 1e-12);
+            if let Some(set) = set {
+                let outside = (0..n).filter(|&i| set.touched.binary_search(&(i as u32)).is_err());
+                assert!(
+                    outside.clone().count() > 0,
+                    "evaluation {step} covers the ball"
+                );
+                assert!(outside.clone().all(|i| fs[i] == Vec3::zeros()));
+            }
+        }
     }
 
     /// A cut through the ball: the points whose rows it changes leave the stencil for the pair
