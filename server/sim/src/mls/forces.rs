@@ -287,7 +287,8 @@ pub struct EvalSet {
     stencil_chunks: Option<StencilChunks>,
 }
 
-/// The box chunks an evaluation set's stencil passes cover.
+/// The box chunks an evaluation set's stencil passes cover, and what it leaves to the pair
+/// kernels.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub(crate) struct StencilChunks {
     /// Chunks holding a point of `stress`.
@@ -296,11 +297,22 @@ pub(crate) struct StencilChunks {
     pub touched: Vec<u32>,
     /// Per box chunk: 1 when listed in `stress`, 2 in `touched` (bits).
     flags: Vec<u8>,
+    /// The points of `stress` the stencil does not evaluate (sorted), and the points their
+    /// rows reach (sorted): only those are copied for the pair kernels and read back.
+    pub pair_points: Vec<u32>,
+    pub pair_touched: Vec<u32>,
+    pair_flags: Vec<bool>,
 }
 
 impl StencilChunks {
     /// The lists for `set` on `stencil`, reusing the buffers.
-    fn rebuild(&mut self, stencil: &LatticeStencil, stress: &[u32], touched: &[u32]) {
+    fn rebuild(
+        &mut self,
+        op: &MlsOperator,
+        stencil: &LatticeStencil,
+        stress: &[u32],
+        touched: &[u32],
+    ) {
         let chunks = stencil.chunks();
         if self.flags.len() != chunks {
             self.flags = vec![0; chunks];
@@ -308,6 +320,30 @@ impl StencilChunks {
             self.stress = Vec::with_capacity(chunks);
             self.touched = Vec::with_capacity(chunks);
         }
+        let n = op.len();
+        if self.pair_flags.len() != n {
+            self.pair_flags = vec![false; n];
+            self.pair_points = Vec::with_capacity(n);
+            self.pair_touched = Vec::with_capacity(n);
+        }
+        for &i in &self.pair_touched {
+            self.pair_flags[i as usize] = false;
+        }
+        self.pair_points.clear();
+        self.pair_touched.clear();
+        let evaluated = stencil.evaluated();
+        for &i in stress {
+            if evaluated[i as usize] {
+                continue;
+            }
+            self.pair_points.push(i);
+            for &j in std::iter::once(&i).chain(op.neighbours(i as usize)) {
+                if !std::mem::replace(&mut self.pair_flags[j as usize], true) {
+                    self.pair_touched.push(j);
+                }
+            }
+        }
+        self.pair_touched.sort_unstable();
         for &c in self.stress.iter().chain(&self.touched) {
             self.flags[c as usize] = 0;
         }
@@ -401,7 +437,7 @@ impl EvalSet {
             Some(stencil) if use_runs => self
                 .stencil_chunks
                 .get_or_insert_with(StencilChunks::default)
-                .rebuild(stencil, &self.stress, &self.touched),
+                .rebuild(op, stencil, &self.stress, &self.touched),
             _ => self.stencil_chunks = None,
         }
         if use_runs {
@@ -479,7 +515,8 @@ pub fn add_elastic_forces(
     // structure-of-arrays (contiguous lanes), single points as (x, y, z, 0) vectors (one
     // neighbour is one aligned load). The forces are summed into `f` at the end.
     let touched: Option<&[u32]> = match (set, stencil) {
-        (Some(s), _) => Some(&s.touched),
+        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pair_touched[..]),
+        (Some(s), None) => Some(&s.touched),
         (None, Some(_)) => Some(&work.touched),
         (None, None) => None,
     };
@@ -522,7 +559,8 @@ pub fn add_elastic_forces(
     // differ, so both are split.
     let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
     let listed = match (set, stencil) {
-        (Some(s), _) => Some(&s.stress[..]),
+        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pair_points[..]),
+        (Some(s), None) => Some(&s.stress[..]),
         (None, Some(_)) => Some(&work.points[..]),
         (None, None) => None,
     };

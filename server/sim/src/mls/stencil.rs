@@ -75,8 +75,10 @@ pub(crate) struct Span {
 /// The lattice's box, its spans and the per-lane terms of the points the stencil evaluates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LatticeStencil {
-    /// Sites along x, y, z (x fastest; x a multiple of four).
+    /// Sites along the box's x, y, z (x fastest; x a multiple of four).
     dims: [usize; 3],
+    /// The lattice axis of each box axis (the longest first).
+    axes: [usize; 3],
     /// Per lattice point: its site.
     site_of: Vec<u32>,
     /// Per lattice point: its rest position (the kernel works on displacements).
@@ -125,9 +127,14 @@ impl LatticeStencil {
         let (w1, cw1) = class(1);
         let (w2, cw2) = class(2);
         let (w3, cw3) = class(3);
-        let lo = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).min().unwrap_or(0));
-        let hi = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).max().unwrap_or(0));
-        let extent = [0, 1, 2].map(|a| (hi[a] - lo[a]) as usize + 1);
+        let low = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).min().unwrap_or(0));
+        let high = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).max().unwrap_or(0));
+        // The box's rows run along the body's longest axis: long rows make long spans (a
+        // bent shoulder's rows across its width held two chunks for every three points).
+        let mut axes = [0, 1, 2];
+        axes.sort_by_key(|&a| std::cmp::Reverse(high[a] - low[a]));
+        let lo = axes.map(|a| low[a]);
+        let extent = axes.map(|a| (high[a] - low[a]) as usize + 1);
         // An empty site on every side (in x, the row's first and last), rows a whole
         // number of chunks, and an empty layer of two rows below and above in y and z so
         // that the kernel's reads one chunk before and after a span stay in the box.
@@ -141,6 +148,7 @@ impl LatticeStencil {
             return None;
         }
         let site_at = |c: [u32; 3]| {
+            let c = axes.map(|a| c[a]);
             (c[0] - lo[0] + 1) as usize
                 + dims[0] * ((c[1] - lo[1] + 2) as usize + dims[1] * (c[2] - lo[2] + 2) as usize)
         };
@@ -260,6 +268,7 @@ impl LatticeStencil {
         }
         Some(Self {
             dims,
+            axes,
             site_of,
             rest: rest[..coords.len()].to_vec(),
             spans,
@@ -345,6 +354,11 @@ impl LatticeStencil {
         self.spans.iter().map(|s| s.len as usize).max().unwrap_or(0)
     }
 
+    /// The lattice axis of each box axis.
+    pub(crate) fn axes(&self) -> [usize; 3] {
+        self.axes
+    }
+
     /// w and s·w of a face, edge and corner neighbour.
     pub(crate) fn coefficients(&self) -> ([f64; 3], [f64; 3]) {
         (self.weight, self.weighted_offset)
@@ -361,7 +375,7 @@ mod tests {
     /// add few empty lanes.
     #[test]
     fn the_stencil_takes_every_full_rank_point_of_the_built_organs() {
-        for name in ["liver", "cerebroma", "block"] {
+        for name in ["liver", "shoulder", "cerebroma", "block"] {
             let model = build_scene(&builtin(name).expect("built-in"), None, &mut Silent)
                 .expect("builds")
                 .model;

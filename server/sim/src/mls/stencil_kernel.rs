@@ -756,6 +756,7 @@ fn pass_one(
     let params = inputs.params;
     let alpha_e = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus());
     let mut stats = ForceStats::EMPTY;
+    let axes = stencil.axes();
     let SpanScratch { sums, u, z, .. } = scratch;
     for (chunk, len, first_term) in spans_within(runs, range) {
         let at = Place { chunk, len, cy, cz };
@@ -794,9 +795,10 @@ fn pass_one(
             let sw = [each[0].weighted, each[1].weighted, each[2].weighted];
             let mut b = [[f64x4::ZERO; 3]; 3];
             for r in 0..3 {
-                for c in 0..3 {
-                    // B = Σ w x ⊗ u − u_i ⊗ Σ w x.
-                    b[r][c] = (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[c]);
+                for (box_axis, &c) in axes.iter().enumerate() {
+                    // B = Σ w x ⊗ u − u_i ⊗ Σ w x (column c is the lattice axis of the box
+                    // axis the sum ran along).
+                    b[r][c] = (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[box_axis]);
                 }
             }
             let sums = PointSums {
@@ -917,6 +919,7 @@ fn pass_two(
     let stencil = inputs.stencil;
     let (cy, cz) = stencil.chunk_strides();
     let coef = coefficients(stencil);
+    let axes = stencil.axes();
     let SpanScratch {
         sums,
         kw,
@@ -931,12 +934,13 @@ fn pass_two(
         weighted_sums(&coef, Shifted::of(read.k, chunk, len), sums, kw);
         for r in 0..3 {
             force.iter_mut().for_each(|f| *f = f64x4::ZERO);
-            let mx = &read.m[3 * r];
+            // The column of M' for the lattice axis of each box axis.
+            let mx = &read.m[3 * r + axes[0]];
             sums.fill(mx, at, Needs::PQ);
             sub_grad_x(&coef, Shifted::of(mx, chunk, len), sums, force);
-            sums.fill(&read.m[3 * r + 1], at, Needs::Y);
+            sums.fill(&read.m[3 * r + axes[1]], at, Needs::Y);
             sub_grad_yz(&coef, &sums.ey, &sums.fy, force);
-            sums.fill(&read.m[3 * r + 2], at, Needs::Z);
+            sums.fill(&read.m[3 * r + axes[2]], at, Needs::Z);
             sub_grad_yz(&coef, &sums.ez, &sums.fz, force);
             let ku = &read.ku[r];
             sums.fill(ku, at, Needs::PQ);
@@ -974,14 +978,15 @@ mod tests {
 
     const S: f64 = 0.002;
 
-    /// A ball of lattice points, off the origin (every kind of missing neighbour on its
-    /// rough boundary), and volumes that differ from point to point.
+    /// An egg of lattice points, off the origin (every kind of missing neighbour on its
+    /// rough boundary), longest along z (so the box's rows run along z, not x), and volumes
+    /// that differ from point to point.
     fn ball() -> (Vec<Vec3>, Neighbourhoods, Kernel, LatticeOffsets, Vec<f64>) {
         let (mut rest, mut coords, mut volumes) = (Vec::new(), Vec::new(), Vec::new());
-        for k in 0..11u32 {
+        for k in 0..15u32 {
             for j in 0..11u32 {
                 for i in 0..11u32 {
-                    let d = Vec3::new(i as f64 - 5.0, j as f64 - 4.6, k as f64 - 5.3);
+                    let d = Vec3::new(i as f64 - 5.0, j as f64 - 4.6, 0.7 * (k as f64 - 7.3));
                     if d.norm() <= 4.8 {
                         rest.push(
                             Vec3::new(0.031, -0.017, 0.052)
@@ -1078,6 +1083,11 @@ mod tests {
         let op = MlsOperator::build(&rest, &nb, &kernel, Some(lattice));
         let stencil = op.stencil().expect("a lattice with h = 2s");
         assert_eq!(stencil.evaluated_count(), op.rank_counts().full);
+        assert_eq!(
+            stencil.axes()[0],
+            2,
+            "the rows run along the egg's long axis"
+        );
         for model in [
             ElasticModel::StVK,
             ElasticModel::MuellerCompat,
