@@ -61,7 +61,7 @@ fn force_evaluation_pair_kernels(c: &mut Criterion) {
     force_evaluation_with(
         c,
         "force_evaluation_pair_kernels",
-        &["liver", "cerebroma"],
+        &["liver", "shoulder", "cerebroma"],
         Threads::One,
     );
 }
