@@ -30,11 +30,17 @@ struct Recording {
     sampled: bool,
     ticks: u64,
     trace: Arc<Mutex<Vec<TraceRow>>>,
+    /// Script time at which the device stops the run (s).
+    end_s: f64,
+    stop: Arc<AtomicBool>,
 }
 
 impl HapticDevice for Recording {
     fn sample(&mut self, now_s: f64) -> Option<DeviceSample> {
         self.now_s = now_s;
+        if now_s >= self.end_s {
+            self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
         self.sampled = true;
         self.device.sample(now_s)
     }
@@ -50,6 +56,7 @@ impl HapticDevice for Recording {
             t_s: self.now_s,
             force_n: force_n.into(),
             server_tick: self.ticks,
+            device_zeroed: false,
         });
     }
 }
@@ -62,8 +69,12 @@ fn conformance_of_the_in_process_scripted_device() {
     let trace = Arc::new(Mutex::new(Vec::with_capacity(20_000)));
     let script = cut.script.clone();
     let recorder = trace.clone();
+    let stop = Arc::new(AtomicBool::new(false));
+    let done = stop.clone();
     let factory: DeviceFactory = Box::new(move || {
         Ok(Box::new(Recording {
+            end_s: script.duration_s() + 0.01,
+            stop: done.clone(),
             device: ScriptedDevice::new(script, false),
             now_s: 0.0,
             sampled: false,
@@ -89,12 +100,15 @@ fn conformance_of_the_in_process_scripted_device() {
         haptics: true,
         network: None,
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let timer = stop.clone();
+    // The device ends the run when its script is done: a timer started here would also
+    // count the station's start-up (scene, solver, threads), which a busy machine
+    // stretches (seen: 0.45 s, 5 % of the ticks). A long backstop ends a run whose
+    // device never got that far.
+    let backstop = stop.clone();
     let duration = cut.script.duration_s();
     std::thread::spawn(move || {
-        std::thread::sleep(Duration::from_secs_f64(duration + 0.01));
-        timer.store(true, std::sync::atomic::Ordering::Relaxed);
+        std::thread::sleep(Duration::from_secs_f64(duration + 60.0));
+        backstop.store(true, std::sync::atomic::Ordering::Relaxed);
     });
     let summary = run(&scene, factory, &params, None, stop, |_| {}).unwrap();
     assert!(summary.haptic_ticks > 0);
@@ -133,6 +147,9 @@ fn read_trace(csv: &std::path::Path) -> Vec<TraceRow> {
                 t_s: c[0] + c[12] * 1e-3,
                 force_n: [c[5], c[6], c[7]],
                 server_tick: c[10] as u64,
+                // Once a force has come (tick 0: none yet, zero anyway).
+                device_zeroed: c[10] > 0.0
+                    && c[8] > scalpel_client::mock_device::DEVICE_WATCHDOG_S * 1e3,
             }
         })
         .collect()

@@ -15,6 +15,9 @@ pub struct TraceRow {
     /// The server's haptic tick of that force (consecutive forces differ by at most the
     /// rate limit per tick between them).
     pub server_tick: u64,
+    /// The device rendered zero on its own: its newest force was older than its watchdog
+    /// (the server's forces stopped coming for a while, not a force the server sent).
+    pub device_zeroed: bool,
 }
 
 /// The conformance cut on the liver: from the demo cut's start, down 15 mm into the top
@@ -108,14 +111,14 @@ pub fn check(trace: &[TraceRow], cut: &ConformanceCut, max_force_n: f64, rate_li
     // Ticks in order, and hardly a gap the output stage's watchdog (5 ms) has to cover:
     // the device process itself never sleeps that long, but a 2-vCPU VM running the
     // other tests beside this one stalls a vCPU for a few milliseconds now and then (seen:
-    // one of 8 ms; four of 5–9 ms in one 5 s run in CI). Timing is the benchmarks'
-    // business; this bounds it loosely: each gap under 50 ms, together under 2 % of the
-    // run.
+    // one of 8 ms; four of 5–9 ms in one 5 s run in CI; once, both processes at once for
+    // 56 ms). Timing is the benchmarks' business; this bounds it loosely: each gap under
+    // 100 ms, together under 2 % of the run.
     let mut gaps = Vec::new();
     for w in trace.windows(2) {
         let dt = w[1].t_s - w[0].t_s;
         assert!(
-            dt > 0.0 && dt < 0.05,
+            dt > 0.0 && dt < 0.1,
             "device ticks {dt} s apart at {}",
             w[0].t_s
         );
@@ -138,7 +141,19 @@ pub fn check(trace: &[TraceRow], cut: &ConformanceCut, max_force_n: f64, rate_li
             r.t_s
         );
     }
-    for w in trace.windows(2) {
+    // The device's own watchdog zeroes the force when none has come for 10 ms: the
+    // server's haptic thread stalled by the VM (seen in CI: one 2.2 N cutting force,
+    // zeroed by the device, then the server's next tick with the same force). That is
+    // the device keeping itself safe, bounded here like the gaps; the rate limit holds on
+    // what the server sent, from one force it sent to the next.
+    let zeroed = trace.iter().filter(|r| r.device_zeroed).count();
+    assert!(
+        zeroed as f64 <= 0.02 * expected as f64,
+        "the device zeroed a stale force on {zeroed} of {} ticks",
+        trace.len()
+    );
+    let sent: Vec<&TraceRow> = trace.iter().filter(|r| !r.device_zeroed).collect();
+    for w in sent.windows(2) {
         let ticks = w[1].server_tick.saturating_sub(w[0].server_tick).max(1) as f64;
         let step = (Vec3::from(w[1].force_n) - Vec3::from(w[0].force_n)).norm();
         assert!(
