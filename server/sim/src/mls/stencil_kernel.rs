@@ -42,6 +42,10 @@ type Chunk = [f64; LANES];
 /// A run of chunks.
 type Chunks<'a> = &'a [Chunk];
 
+/// What the second pass reads of one force component r at a chunk, side by side (one row
+/// pointer reaches all four): the columns of M' for the box's x, y and z axes, and k u_r.
+type Stress = [Chunk; 4];
+
 /// Box fields of one evaluation, chunk by chunk, allocated once (at the first evaluation).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct StencilFields {
@@ -49,10 +53,8 @@ pub(crate) struct StencilFields {
     u: [Vec<Chunk>; 3],
     /// |u|².
     z: Vec<Chunk>,
-    /// M', entry (r, c) at 3r + c.
-    m: [Vec<Chunk>; 9],
-    /// k u.
-    ku: [Vec<Chunk>; 3],
+    /// Per force component: M' by box axis and k u.
+    stress: [Vec<Stress>; 3],
     /// Hourglass stiffness k.
     k: Vec<Chunk>,
     /// The forces: the first pass writes each point's reaction −Σ_j g_ij, the second adds
@@ -104,13 +106,15 @@ impl StencilFields {
             .u
             .iter_mut()
             .chain(std::iter::once(&mut self.z))
-            .chain(self.m.iter_mut())
-            .chain(self.ku.iter_mut())
             .chain(std::iter::once(&mut self.k))
             .chain(self.f.iter_mut());
         for field in all {
             field.clear();
             field.resize(chunks, [0.0; LANES]);
+        }
+        for field in &mut self.stress {
+            field.clear();
+            field.resize(chunks, [[0.0; LANES]; 4]);
         }
         let longest = stencil.longest_span();
         self.spans.iter_mut().for_each(|s| s.fit(longest));
@@ -124,11 +128,8 @@ impl StencilFields {
     /// a whole-body evaluation is about to write anyway.
     fn clear_written(&mut self, whole: bool) {
         let clear = |fields: &mut Self, c: usize| {
-            for m in &mut fields.m {
-                m[c] = [0.0; LANES];
-            }
-            for ku in &mut fields.ku {
-                ku[c] = [0.0; LANES];
+            for stress in &mut fields.stress {
+                stress[c] = [[0.0; LANES]; 4];
             }
             fields.k[c] = [0.0; LANES];
         };
@@ -229,12 +230,8 @@ struct PlaneSums {
 enum Needs {
     /// All six (a displacement component: every stencil sum of it).
     All,
-    /// P and Q (x derivatives and weighted sums).
+    /// P and Q (weighted sums).
     PQ,
-    /// E_y and F_y.
-    Y,
-    /// E_z and F_z.
-    Z,
 }
 
 /// Where a span is in the box: its first chunk, its length, and the chunk steps in y, z.
@@ -303,24 +300,6 @@ impl PlaneSums {
                 for i in 0..n {
                     p[i] = ((v(r01[i]) + v(r21[i])) + (v(r10[i]) + v(r12[i]))).to_array();
                     q[i] = ((v(r00[i]) + v(r20[i])) + (v(r02[i]) + v(r22[i]))).to_array();
-                }
-            }
-            Needs::Y => {
-                let (r01, r21) = (r(0, 1), r(2, 1));
-                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
-                let (e, f) = (&mut self.ey[..n], &mut self.fy[..n]);
-                for i in 0..n {
-                    e[i] = (v(r21[i]) - v(r01[i])).to_array();
-                    f[i] = ((v(r20[i]) - v(r00[i])) + (v(r22[i]) - v(r02[i]))).to_array();
-                }
-            }
-            Needs::Z => {
-                let (r10, r12) = (r(1, 0), r(1, 2));
-                let (r00, r20, r02, r22) = (r(0, 0), r(2, 0), r(0, 2), r(2, 2));
-                let (e, f) = (&mut self.ez[..n], &mut self.fz[..n]);
-                for i in 0..n {
-                    e[i] = (v(r12[i]) - v(r10[i])).to_array();
-                    f[i] = ((v(r02[i]) - v(r00[i])) + (v(r22[i]) - v(r20[i]))).to_array();
                 }
             }
         }
@@ -419,27 +398,95 @@ fn weighted_sums(k: &Coefficients, v: Shifted<'_>, s: &PlaneSums, out: &mut [f64
     }
 }
 
-/// `out[i] −= Σ_o (w x)_x(o) v[i+o]` for the chunks of a span.
-fn sub_grad_x(k: &Coefficients, v: Shifted<'_>, s: &PlaneSums, out: &mut [f64x4]) {
-    let n = out.len();
-    let (p, q) = (Shifted::of(&s.p, 1, n), Shifted::of(&s.q, 1, n));
-    for i in 0..n {
-        let (v0, _, v2) = v.at(i);
-        let (p0, _, p2) = p.at(i);
-        let (q0, _, q2) = q.at(i);
-        out[i] -= k.cw[0].mul_add(v2 - v0, k.cw[1].mul_add(p2 - p0, k.cw[2] * (q2 - q0)));
-    }
+/// The second pass's stencil sums of one force component, regrouped by the x offset they
+/// are read at. With m_x, m_y, m_z the columns of M' for the box's x, y and z axes and
+/// (plane sums as in [`PlaneSums`], per site)
+///
+/// ```text
+/// G  = cw₁ m_x + cw₂ P(m_x) + cw₃ Q(m_x)
+/// Yc = cw₁ E_y(m_y) + cw₂ F_y(m_y)      Ys = cw₂ E_y(m_y) + cw₃ F_y(m_y)   (Zc, Zs of m_z)
+/// Wc = w₁ P(ku) + w₂ Q(ku)              Ws = w₁ ku + w₂ P(ku) + w₃ Q(ku)
+/// ```
+///
+/// the gathered force −Σ (w x)·M' + Σ w (k u) is
+///
+/// ```text
+/// (Wc − Yc − Zc)[x] + (Ws − Ys − Zs + G)[x−1] + (Ws − Ys − Zs − G)[x+1]
+/// ```
+///
+/// so one loop over the span's planes reads each of the four fields' rows once and
+/// writes three sums, and one loop in x adds them (instead of a plane-sum pass and a
+/// stencil-sum pass per field).
+#[derive(Debug, Clone, Default)]
+struct GatherPlanes {
+    /// Read at x.
+    centre: Vec<Chunk>,
+    /// Read at x − 1.
+    minus: Vec<Chunk>,
+    /// Read at x + 1.
+    plus: Vec<Chunk>,
 }
 
-/// `out[i] −= Σ_o (w x)_y(o) v[i+o]` (or z, from that axis' E and F) for the chunks of a
-/// span.
-fn sub_grad_yz(k: &Coefficients, e: &[Chunk], f: &[Chunk], out: &mut [f64x4]) {
-    let n = out.len();
-    let (e, f) = (Shifted::of(e, 1, n), Shifted::of(f, 1, n));
-    for i in 0..n {
-        let (e0, e1, e2) = e.at(i);
-        let (f0, f1, f2) = f.at(i);
-        out[i] -= k.cw[0].mul_add(e1, k.cw[1].mul_add(f1 + (e0 + e2), k.cw[2] * (f0 + f2)));
+impl GatherPlanes {
+    fn fit(&mut self, chunks: usize) {
+        for v in [&mut self.centre, &mut self.minus, &mut self.plus] {
+            v.clear();
+            v.resize(chunks + 2, [0.0; LANES]);
+        }
+    }
+
+    /// The three sums of one component's `stress` around the span at `at`.
+    fn fill(&mut self, k: &Coefficients, stress: &[Stress], at: Place) {
+        let n = at.len + 2;
+        let start = at.chunk - 1;
+        let (cy, cz) = (at.cy, at.cz);
+        // Row (dy, dz) at 3 (dz + 1) + dy + 1, each from the chunk before the span.
+        let row = |dy: isize, dz: isize| {
+            let first = start.wrapping_add_signed(dy * cy as isize + dz * cz as isize);
+            &stress[first..first + n]
+        };
+        let rows = [
+            row(-1, -1),
+            row(0, -1),
+            row(1, -1),
+            row(-1, 0),
+            row(0, 0),
+            row(1, 0),
+            row(-1, 1),
+            row(0, 1),
+            row(1, 1),
+        ];
+        let (centre, minus, plus) = (
+            &mut self.centre[..n],
+            &mut self.minus[..n],
+            &mut self.plus[..n],
+        );
+        let v = |row: usize, i: usize, field: usize| f64x4::from(rows[row][i][field]);
+        const X: usize = 0;
+        const Y: usize = 1;
+        const Z: usize = 2;
+        const KU: usize = 3;
+        for i in 0..n {
+            let edges = |f| (v(3, i, f) + v(5, i, f)) + (v(1, i, f) + v(7, i, f));
+            let corners = |f| (v(0, i, f) + v(2, i, f)) + (v(6, i, f) + v(8, i, f));
+            let (p, q) = (edges(X), corners(X));
+            let g = k.cw[0].mul_add(v(4, i, X), k.cw[1].mul_add(p, k.cw[2] * q));
+            let (p, q) = (edges(KU), corners(KU));
+            let wc = k.w[0].mul_add(p, k.w[1] * q);
+            let ws = k.w[0].mul_add(v(4, i, KU), k.w[1].mul_add(p, k.w[2] * q));
+            let ey = v(5, i, Y) - v(3, i, Y);
+            let fy = (v(2, i, Y) - v(0, i, Y)) + (v(8, i, Y) - v(6, i, Y));
+            let ez = v(7, i, Z) - v(1, i, Z);
+            let fz = (v(6, i, Z) - v(0, i, Z)) + (v(8, i, Z) - v(2, i, Z));
+            let yc = k.cw[0].mul_add(ey, k.cw[1] * fy);
+            let ys = k.cw[1].mul_add(ey, k.cw[2] * fy);
+            let zc = k.cw[0].mul_add(ez, k.cw[1] * fz);
+            let zs = k.cw[1].mul_add(ez, k.cw[2] * fz);
+            let side = ws - (ys + zs);
+            centre[i] = (wc - (yc + zc)).to_array();
+            minus[i] = (side + g).to_array();
+            plus[i] = (side - g).to_array();
+        }
     }
 }
 
@@ -448,28 +495,24 @@ fn sub_grad_yz(k: &Coefficients, e: &[Chunk], f: &[Chunk], out: &mut [f64x4]) {
 struct SpanScratch {
     /// Plane sums of the field at hand.
     sums: PlaneSums,
+    /// The second pass's sums of a force component.
+    gather: GatherPlanes,
     /// Per chunk: the stencil sums of u's components.
     u: [Vec<FieldSums>; 3],
-    /// Per chunk: Σ w |u_j|², Σ w k, a component's gathered stress force, Σ w (k u).
+    /// Per chunk: Σ w |u_j|², Σ w k.
     z: Vec<f64x4>,
     kw: Vec<f64x4>,
-    force: Vec<f64x4>,
-    hourglass: Vec<f64x4>,
 }
 
 impl SpanScratch {
     fn fit(&mut self, chunks: usize) {
         self.sums.fit(chunks);
+        self.gather.fit(chunks);
         for u in &mut self.u {
             u.clear();
             u.resize(chunks, FieldSums::default());
         }
-        for v in [
-            &mut self.z,
-            &mut self.kw,
-            &mut self.force,
-            &mut self.hourglass,
-        ] {
+        for v in [&mut self.z, &mut self.kw] {
             v.clear();
             v.resize(chunks, f64x4::ZERO);
         }
@@ -489,10 +532,10 @@ fn both<A: Send, B: Send>(
 }
 
 /// Each field cut at chunk `at`: the first parts, then the second.
-fn split_each<const N: usize>(
-    fields: &mut [Vec<Chunk>; N],
+fn split_each<T, const N: usize>(
+    fields: &mut [Vec<T>; N],
     at: usize,
-) -> ([&mut [Chunk]; N], [&mut [Chunk]; N]) {
+) -> ([&mut [T]; N], [&mut [T]; N]) {
     let mut parts = fields.each_mut().map(|f| {
         let (a, b) = f.split_at_mut(at);
         (Some(a), Some(b))
@@ -610,8 +653,7 @@ pub(crate) fn evaluate(
     let StencilFields {
         u,
         z,
-        m,
-        ku,
+        stress,
         k,
         f,
         spans: scratch,
@@ -620,21 +662,18 @@ pub(crate) fn evaluate(
     let [scratch_a, scratch_b] = scratch;
     let (mut f_a, mut f_b) = split_each(f, split);
     let stats = {
-        let (m_a, m_b) = split_each(m, split);
-        let (ku_a, ku_b) = split_each(ku, split);
+        let (stress_a, stress_b) = split_each(stress, split);
         let (k_a, k_b) = k.split_at_mut(split);
         let read = PassOneIn { u, z };
         let mut a = PassOneOut {
             offset: 0,
-            m: m_a,
-            ku: ku_a,
+            stress: stress_a,
             k: k_a,
             own: &mut f_a,
         };
         let mut b = PassOneOut {
             offset: split,
-            m: m_b,
-            ku: ku_b,
+            stress: stress_b,
             k: k_b,
             own: &mut f_b,
         };
@@ -664,7 +703,7 @@ pub(crate) fn evaluate(
             },
         )
     };
-    let read = PassTwoIn { m, ku, k, u };
+    let read = PassTwoIn { stress, k, u };
     let mut a = PassTwoOut {
         offset: 0,
         f: &mut f_a,
@@ -709,8 +748,7 @@ struct PassOneIn<'a> {
 /// The fields the first pass writes, for the chunks from `offset` on.
 struct PassOneOut<'a, 'b, 'f> {
     offset: usize,
-    m: [&'a mut [Chunk]; 9],
-    ku: [&'a mut [Chunk]; 3],
+    stress: [&'a mut [Stress]; 3],
     k: &'a mut [Chunk],
     /// The forces, where each point's reaction goes.
     own: &'b mut [&'f mut [Chunk]; 3],
@@ -718,8 +756,7 @@ struct PassOneOut<'a, 'b, 'f> {
 
 /// What the second pass reads.
 struct PassTwoIn<'a> {
-    m: &'a [Vec<Chunk>; 9],
-    ku: &'a [Vec<Chunk>; 3],
+    stress: &'a [Vec<Stress>; 3],
     k: &'a [Chunk],
     u: &'a [Vec<Chunk>; 3],
 }
@@ -732,8 +769,7 @@ struct PassTwoOut<'a, 'b> {
 
 /// One span's slices of the first pass's outputs.
 struct SpanOut<'a> {
-    m: [&'a mut [Chunk]; 9],
-    ku: [&'a mut [Chunk]; 3],
+    stress: [&'a mut [Stress]; 3],
     k: &'a mut [Chunk],
     own: [&'a mut [Chunk]; 3],
 }
@@ -773,8 +809,7 @@ fn pass_one(
         weighted_sums(&coef, Shifted::of(read.z, chunk, len), sums, &mut z[..len]);
         let o = chunk - out.offset;
         let mut slices = SpanOut {
-            m: out.m.each_mut().map(|f| &mut f[o..o + len]),
-            ku: out.ku.each_mut().map(|f| &mut f[o..o + len]),
+            stress: out.stress.each_mut().map(|f| &mut f[o..o + len]),
             k: &mut out.k[o..o + len],
             own: out.own.each_mut().map(|f| &mut f[o..o + len]),
         };
@@ -887,13 +922,18 @@ fn point_stress(
     for r in 0..3 {
         let mr = [times_a(&kb, r, 0), times_a(&kb, r, 1), times_a(&kb, r, 2)];
         for c in 0..3 {
-            out.m[3 * r + c][i] = keep(mr[c]);
             hb = h[r][c].mul_add(b[r][c], hb);
         }
+        let axes = inputs.stencil.axes();
+        out.stress[r][i] = [
+            keep(mr[axes[0]]),
+            keep(mr[axes[1]]),
+            keep(mr[axes[2]]),
+            keep(k * uc[r]),
+        ];
         // −Σ_j g_ij = −M' Σ w x + k (S − u_i Σ w).
         let reaction = mr[0].mul_add(sum_wx[0], mr[1].mul_add(sum_wx[1], mr[2] * sum_wx[2]));
         out.own[r][i] = keep(k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction);
-        out.ku[r][i] = keep(k * uc[r]);
         us = uc[r].mul_add(uc[r].mul_add(sum_w, f64x4::splat(-2.0) * sw[r]), us);
     }
     out.k[i] = keep(k);
@@ -919,38 +959,27 @@ fn pass_two(
     let stencil = inputs.stencil;
     let (cy, cz) = stencil.chunk_strides();
     let coef = coefficients(stencil);
-    let axes = stencil.axes();
     let SpanScratch {
-        sums,
-        kw,
-        force,
-        hourglass,
-        ..
+        sums, gather, kw, ..
     } = scratch;
     for (chunk, len, _) in spans_within(runs, range) {
         let at = Place { chunk, len, cy, cz };
-        let (kw, force, hourglass) = (&mut kw[..len], &mut force[..len], &mut hourglass[..len]);
+        let kw = &mut kw[..len];
         sums.fill(read.k, at, Needs::PQ);
         weighted_sums(&coef, Shifted::of(read.k, chunk, len), sums, kw);
         for r in 0..3 {
-            force.iter_mut().for_each(|f| *f = f64x4::ZERO);
-            // The column of M' for the lattice axis of each box axis.
-            let mx = &read.m[3 * r + axes[0]];
-            sums.fill(mx, at, Needs::PQ);
-            sub_grad_x(&coef, Shifted::of(mx, chunk, len), sums, force);
-            sums.fill(&read.m[3 * r + axes[1]], at, Needs::Y);
-            sub_grad_yz(&coef, &sums.ey, &sums.fy, force);
-            sums.fill(&read.m[3 * r + axes[2]], at, Needs::Z);
-            sub_grad_yz(&coef, &sums.ez, &sums.fz, force);
-            let ku = &read.ku[r];
-            sums.fill(ku, at, Needs::PQ);
-            weighted_sums(&coef, Shifted::of(ku, chunk, len), sums, hourglass);
+            gather.fill(&coef, &read.stress[r], at);
+            let centre = Shifted::of(&gather.centre, 1, len).centre;
+            let minus = Shifted::of(&gather.minus, 1, len).minus;
+            let plus = Shifted::of(&gather.plus, 1, len).plus;
             let u = &read.u[r][chunk..chunk + len];
             let o = chunk - out.offset;
             let f = &mut out.f[r][o..o + len];
             for i in 0..len {
                 let uc = f64x4::from(u[i]);
-                let sum = (-uc).mul_add(kw[i], hourglass[i]) + force[i] + f64x4::from(f[i]);
+                let gathered =
+                    f64x4::from(centre[i]) + (f64x4::from(minus[i]) + f64x4::from(plus[i]));
+                let sum = (-uc).mul_add(kw[i], gathered) + f64x4::from(f[i]);
                 f[i] = sum.to_array();
             }
         }
