@@ -607,16 +607,21 @@ pub fn add_elastic_forces(
             // The stencil's gathered forces: the sites of the points that can receive force
             // are written by each evaluation, so nothing needs clearing.
             let sites = stencil.site_of();
+            let [fx, fy, fz] = fields.forces();
+            let at = |site: u32| {
+                let s = site as usize;
+                Vec3::new(fx[s], fy[s], fz[s])
+            };
             match set {
                 None => {
-                    for (i, &site) in sites.iter().enumerate() {
-                        f[i] += fields.force_at(site);
+                    for (f, &site) in f.iter_mut().zip(sites) {
+                        *f += at(site);
                     }
                 }
                 Some(s) => {
                     for &i in &s.touched {
                         if let Some(&site) = sites.get(i as usize) {
-                            f[i as usize] += fields.force_at(site);
+                            f[i as usize] += at(site);
                         }
                     }
                 }

@@ -153,34 +153,38 @@ impl StencilFields {
     /// `points` only, when given).
     fn scatter(&mut self, stencil: &LatticeStencil, p: &[Vec3], points: Option<&[u32]>) {
         let (sites, rest) = (stencil.site_of(), stencil.rest());
-        let one = |i: usize| {
-            let site = sites[i] as usize;
-            let (chunk, lane) = (site / LANES, site % LANES);
-            let u = p[i] - rest[i];
-            for c in 0..3 {
-                self.u[c][chunk][lane] = u[c];
-            }
-            self.z[chunk][lane] = u.norm_squared();
+        let [ux, uy, uz] = self.u.each_mut().map(|f| f.as_flattened_mut());
+        let z = self.z.as_flattened_mut();
+        let mut one = |site: u32, p: Vec3, rest: Vec3| {
+            let site = site as usize;
+            let u = p - rest;
+            ux[site] = u.x;
+            uy[site] = u.y;
+            uz[site] = u.z;
+            z[site] = u.norm_squared();
         };
         match points {
-            None => (0..sites.len()).for_each(one),
-            Some(list) => list
-                .iter()
-                .map(|&i| i as usize)
-                .filter(|&i| i < sites.len())
-                .for_each(one),
+            None => {
+                for ((&site, &p), &rest) in sites.iter().zip(p).zip(rest) {
+                    one(site, p, rest);
+                }
+            }
+            Some(list) => {
+                for &i in list {
+                    let i = i as usize;
+                    if let (Some(&site), Some(&rest)) = (sites.get(i), rest.get(i)) {
+                        one(site, p[i], rest);
+                    }
+                }
+            }
         }
     }
 
-    /// The gathered force at `site`.
+    /// The gathered forces, one array per component indexed by site
+    /// ([`LatticeStencil::site_of`]).
     #[inline]
-    pub(crate) fn force_at(&self, site: u32) -> Vec3 {
-        let (chunk, lane) = (site as usize / LANES, site as usize % LANES);
-        Vec3::new(
-            self.f[0][chunk][lane],
-            self.f[1][chunk][lane],
-            self.f[2][chunk][lane],
-        )
+    pub(crate) fn forces(&self) -> [&[f64]; 3] {
+        self.f.each_ref().map(|f| f.as_flattened())
     }
 }
 
@@ -599,7 +603,7 @@ fn halfway(runs: &[Span], end: usize) -> usize {
 /// Evaluates the stencil's points at positions `p` (with `restriction`, those of an
 /// evaluation set): their statistics (the first half of the chunks, then the second), and
 /// in the fields the pair forces of their rows gathered at every site the evaluation
-/// covers ([`StencilFields::force_at`]). The halves run on one thread or two with the same
+/// covers ([`StencilFields::forces`]). The halves run on one thread or two with the same
 /// bits.
 pub(crate) fn evaluate(
     inputs: StencilInputs<'_>,
@@ -833,7 +837,11 @@ fn pass_one(
                 for (box_axis, &c) in axes.iter().enumerate() {
                     // B = Σ w x ⊗ u − u_i ⊗ Σ w x (column c is the lattice axis of the box
                     // axis the sum ran along).
-                    b[r][c] = (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[box_axis]);
+                    b[r][c] = if t.diagonal {
+                        each[r].grad[box_axis]
+                    } else {
+                        (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[box_axis])
+                    };
                 }
             }
             let sums = PointSums {
@@ -843,7 +851,11 @@ fn pass_one(
                 zs: z[i],
             };
             let mask = lanes.of(t);
-            point_stress(inputs, t, mask, alpha_e, sums, &mut slices, i, &mut stats);
+            if t.diagonal {
+                point_stress::<true>(inputs, t, mask, alpha_e, sums, &mut slices, i, &mut stats);
+            } else {
+                point_stress::<false>(inputs, t, mask, alpha_e, sums, &mut slices, i, &mut stats);
+            }
         }
     }
     stats
@@ -862,10 +874,12 @@ struct PointSums {
 }
 
 /// The stress of a chunk's points from their sums, into chunk `i` of the span's outputs
-/// and `stats`.
+/// and `stats`. `DIAGONAL`: the chunk's A⁻¹ are diagonal and its Σ w x zero
+/// ([`ChunkTerms::diagonal`]), so the products with A⁻¹ are three columns scaled and the
+/// reaction −M' Σ w x vanishes.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn point_stress(
+fn point_stress<const DIAGONAL: bool>(
     inputs: &StencilInputs<'_>,
     t: &ChunkTerms,
     mask: [bool; LANES],
@@ -880,7 +894,11 @@ fn point_stress(
     let a = &t.a_inv;
     let sum_wx = t.sum_wx;
     let times_a = |m: &[[f64x4; 3]; 3], r: usize, c: usize| {
-        m[r][0].mul_add(a[c], m[r][1].mul_add(a[3 + c], m[r][2] * a[6 + c]))
+        if DIAGONAL {
+            m[r][c] * a[4 * c]
+        } else {
+            m[r][0].mul_add(a[c], m[r][1].mul_add(a[3 + c], m[r][2] * a[6 + c]))
+        }
     };
     let mut h = [[f64x4::ZERO; 3]; 3];
     let mut f = [[f64x4::ZERO; 3]; 3];
@@ -932,8 +950,12 @@ fn point_stress(
             keep(k * uc[r]),
         ];
         // −Σ_j g_ij = −M' Σ w x + k (S − u_i Σ w).
-        let reaction = mr[0].mul_add(sum_wx[0], mr[1].mul_add(sum_wx[1], mr[2] * sum_wx[2]));
-        out.own[r][i] = keep(k * (-uc[r]).mul_add(sum_w, sw[r]) - reaction);
+        let spring = k * (-uc[r]).mul_add(sum_w, sw[r]);
+        out.own[r][i] = keep(if DIAGONAL {
+            spring
+        } else {
+            spring - mr[0].mul_add(sum_wx[0], mr[1].mul_add(sum_wx[1], mr[2] * sum_wx[2]))
+        });
         us = uc[r].mul_add(uc[r].mul_add(sum_w, f64x4::splat(-2.0) * sw[r]), us);
     }
     out.k[i] = keep(k);
