@@ -424,7 +424,10 @@ mod tests {
                 }
             }
             let with_points = terms.iter().filter(|t| t.has_points()).count();
-            let diagonal = terms.iter().filter(|t| t.has_points() && t.diagonal).count();
+            let diagonal = terms
+                .iter()
+                .filter(|t| t.has_points() && t.diagonal)
+                .count();
             println!("{name}: {diagonal} of {with_points} chunks with points diagonal");
             assert!(diagonal > 0, "{name}: no diagonal chunk of {with_points}");
         }

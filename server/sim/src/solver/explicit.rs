@@ -139,9 +139,14 @@ impl Solver {
         let mut kinetic = 0.0;
         // Moves of the fixed dofs in the previous sub-step: their work is the trapezoid
         // −½(f_before + f_after)·d, completed once the force after the move is known.
+        // A free point's entry stays zero all tick (only fixed dofs move by constraint).
         let mut moved_fixed = std::mem::take(&mut self.scratch[2]);
+        self.fixed_active.clear();
         for &i in &self.active_list {
             moved_fixed[i as usize] = Vec3::zeros();
+            if self.fixed[i as usize] != [false; 3] {
+                self.fixed_active.push(i);
+            }
         }
         let result = self.substep_loop(
             n,
@@ -187,7 +192,7 @@ impl Solver {
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));
             }
-            for &i in &self.active_list {
+            for &i in &self.fixed_active {
                 let i = i as usize;
                 *work -= 0.5 * self.force[i].dot(&moved_fixed[i]);
             }
@@ -205,9 +210,8 @@ impl Solver {
                 let mass = self.mass[i];
                 let moved = if self.fixed[i] == [false; 3] {
                     // A free point (nearly all of them): its three dofs at once.
-                    moved_fixed[i] = Vec3::zeros();
                     let total = self.force[i] + applied;
-                    let v = (self.v[i] + total * h / mass) * decay;
+                    let v = (self.v[i] + total * (h / mass)) * decay;
                     let d = v * h;
                     *work += applied.dot(&d);
                     self.v[i] = v;
@@ -243,12 +247,14 @@ impl Solver {
                     }
                     moved
                 };
-                let step = moved.norm();
-                if !step.is_finite() {
-                    return Err((DivergenceReason::NonFinite, s));
-                }
-                if step > max_move {
-                    return Err((DivergenceReason::Speed, s));
+                // Squared: no root per point (an overflow of a finite move is a move too far).
+                let step = moved.norm_squared();
+                if !(step <= max_move * max_move) {
+                    return Err(if moved.iter().all(|c| c.is_finite()) {
+                        (DivergenceReason::Speed, s)
+                    } else {
+                        (DivergenceReason::NonFinite, s)
+                    });
                 }
             }
             *stats = Some(st);

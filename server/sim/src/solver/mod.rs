@@ -204,6 +204,9 @@ pub struct Solver {
     active_list: Vec<u32>,
     /// The previous active list while a new one is set (buffer reuse).
     retired: Vec<u32>,
+    /// The active points with a fixed dof, listed for a tick's sub-steps (room for every
+    /// point: filled without allocating).
+    fixed_active: Vec<u32>,
     is_active: Vec<bool>,
     /// Evaluation set for a restricted active list; `None` when every point is active.
     eval_set: Option<EvalSet>,
@@ -398,6 +401,7 @@ impl Solver {
             pool,
             active_list: (0..n as u32).collect(),
             retired: Vec::with_capacity(n),
+            fixed_active: Vec::with_capacity(n),
             is_active: vec![true; n],
             eval_set: None,
             snap_p: zeros.clone(),
