@@ -249,7 +249,7 @@ impl Solver {
                 };
                 // Squared: no root per point (an overflow of a finite move is a move too far).
                 let step = moved.norm_squared();
-                if !(step <= max_move * max_move) {
+                if !step.is_finite() || step > max_move * max_move {
                     return Err(if moved.iter().all(|c| c.is_finite()) {
                         (DivergenceReason::Speed, s)
                     } else {
