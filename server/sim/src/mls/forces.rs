@@ -268,9 +268,14 @@ impl ForceScratch {
 
 /// Which points a force evaluation covers, so that its cost follows the active region and
 /// not the body. Points outside `stress` carry no stress of their own (they are frozen
-/// neighbours); forces land on `touched` = stress ∪ their neighbours.
+/// neighbours); forces land on `touched` = stress ∪ their neighbours, and are whole on the
+/// `active` points the set was made for (the ones that are integrated). The lattice
+/// stencil gathers only there: the other touched points get just what the pair kernels
+/// scatter onto them, which nothing reads (a frozen point does not move).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct EvalSet {
+    /// The points the set was made for, sorted: their forces are whole.
+    pub active: Vec<u32>,
     /// Points whose stress is evaluated, sorted.
     pub stress: Vec<u32>,
     /// Points that can receive force, sorted.
@@ -282,7 +287,7 @@ pub struct EvalSet {
     in_stress: Vec<bool>,
     in_touched: Vec<bool>,
     /// Where the operator has a lattice stencil (and the set may use it): the box chunks
-    /// holding a point of `stress` (the stencil's first pass) and of `touched` (its second),
+    /// holding a point of `stress` (the stencil's first pass) and of `active` (its second),
     /// sorted.
     stencil_chunks: Option<StencilChunks>,
 }
@@ -293,9 +298,9 @@ pub struct EvalSet {
 pub(crate) struct StencilChunks {
     /// Chunks holding a point of `stress`.
     pub stress: Vec<u32>,
-    /// Chunks holding a point of `touched`.
-    pub touched: Vec<u32>,
-    /// Per box chunk: 1 when listed in `stress`, 2 in `touched` (bits).
+    /// Chunks holding an active point (where the second pass gathers forces).
+    pub active: Vec<u32>,
+    /// Per box chunk: 1 when listed in `stress`, 2 in `active` (bits).
     flags: Vec<u8>,
     /// The points of `stress` the stencil does not evaluate (sorted), and the points their
     /// rows reach (sorted): only those are copied for the pair kernels and read back.
@@ -311,14 +316,14 @@ impl StencilChunks {
         op: &MlsOperator,
         stencil: &LatticeStencil,
         stress: &[u32],
-        touched: &[u32],
+        active: &[u32],
     ) {
         let chunks = stencil.chunks();
         if self.flags.len() != chunks {
             self.flags = vec![0; chunks];
             // Room for every chunk up front (no growth on the real-time path).
             self.stress = Vec::with_capacity(chunks);
-            self.touched = Vec::with_capacity(chunks);
+            self.active = Vec::with_capacity(chunks);
         }
         let n = op.len();
         if self.pair_flags.len() != n {
@@ -344,15 +349,15 @@ impl StencilChunks {
             }
         }
         self.pair_touched.sort_unstable();
-        for &c in self.stress.iter().chain(&self.touched) {
+        for &c in self.stress.iter().chain(&self.active) {
             self.flags[c as usize] = 0;
         }
         self.stress.clear();
-        self.touched.clear();
+        self.active.clear();
         let sites = stencil.site_of();
         for (points, bit, list) in [
             (stress, 1u8, &mut self.stress),
-            (touched, 2, &mut self.touched),
+            (active, 2, &mut self.active),
         ] {
             for &i in points {
                 let Some(&site) = sites.get(i as usize) else {
@@ -394,11 +399,13 @@ impl EvalSet {
             self.in_stress = vec![false; n];
             self.in_runs = vec![false; n];
             self.in_touched = vec![false; n];
+            self.active.clear();
             self.stress.clear();
             self.touched.clear();
             self.runs.clear();
             // Room for the whole body up front: an active region that grows while cutting
             // must not grow these on the real-time path.
+            self.active.reserve(n);
             self.stress.reserve(n);
             self.touched.reserve(n);
             self.runs.reserve(n / LANES + 1);
@@ -414,6 +421,10 @@ impl EvalSet {
         self.stress.clear();
         self.touched.clear();
         self.runs.clear();
+        self.active.clear();
+        self.active.extend_from_slice(active);
+        self.active.sort_unstable();
+        self.active.dedup();
         let mark = |i: u32, list: &mut Vec<u32>, flags: &mut Vec<bool>| {
             if !std::mem::replace(&mut flags[i as usize], true) {
                 list.push(i);
@@ -437,7 +448,7 @@ impl EvalSet {
             Some(stencil) if use_runs => self
                 .stencil_chunks
                 .get_or_insert_with(StencilChunks::default)
-                .rebuild(op, stencil, &self.stress, &self.touched),
+                .rebuild(op, stencil, &self.stress, &self.active),
             _ => self.stencil_chunks = None,
         }
         if use_runs {
@@ -468,7 +479,8 @@ impl EvalSet {
 }
 
 /// Adds the elastic forces at positions `p` to `f` (N): of every point, or, with `set`, of
-/// the points in `set.stress` (forces then land only on `set.touched`).
+/// the points in `set.stress` (forces then land only on `set.touched`, and are whole on
+/// `set.active`).
 ///
 /// Runs of four interior points with identical stencils go through a 4-lane SIMD kernel
 /// (contiguous loads, shared rows); every other point through the single-point kernel.
@@ -604,8 +616,9 @@ pub fn add_elastic_forces(
     let pair_stats = stats_a.merge(&stats_b);
     match (stencil, stencil_stats) {
         (Some(stencil), Some(stats)) => {
-            // The stencil's gathered forces: the sites of the points that can receive force
-            // are written by each evaluation, so nothing needs clearing.
+            // The stencil's gathered forces: the sites of the points whose forces are whole
+            // (all, or the set's active points) are written by each evaluation, so nothing
+            // needs clearing.
             let sites = stencil.site_of();
             let [fx, fy, fz] = fields.forces();
             let at = |site: u32| {
@@ -619,7 +632,7 @@ pub fn add_elastic_forces(
                     }
                 }
                 Some(s) => {
-                    for &i in &s.touched {
+                    for &i in &s.active {
                         if let Some(&site) = sites.get(i as usize) {
                             f[i as usize] += at(site);
                         }
