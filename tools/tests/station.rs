@@ -201,8 +201,11 @@ fn conformance_of_the_mock_device_over_shared_memory() {
     assert!(status.success(), "{out:?}");
     let summary = json(out.last().unwrap());
     assert_eq!(summary["forces_rejected"], 0, "{summary}");
+    // One force per server tick while the device is there: 8500 on a calm machine, fewer
+    // when the VM stalls the server (the conformance check says how much is allowed).
     assert!(
-        summary["forces_received"].as_u64().unwrap() > 8000,
+        summary["forces_received"].as_u64().unwrap() as f64
+            > 0.8 * 1000.0 * cut.script.duration_s(),
         "{summary}"
     );
     server.wait_for(Duration::from_secs(5), |l| {
