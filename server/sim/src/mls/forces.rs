@@ -152,25 +152,26 @@ pub struct ForceScratch {
     pair_work: PairWork,
 }
 
-/// The points a whole-body evaluation leaves to the pair kernels (those the lattice stencil
-/// does not evaluate), and the points their rows reach, for one topology of the operator.
-/// Only those points' positions are copied and force buffers read.
-#[derive(Debug, Clone, Default)]
-struct PairWork {
-    /// The operator's [`MlsOperator::topology_version`] the lists are for.
-    version: Option<u64>,
-    points: Vec<u32>,
-    touched: Vec<u32>,
+/// The points the pair kernels take beside the lattice stencil (those it does not
+/// evaluate), and the points their rows reach (sorted): only those points' positions are
+/// copied and force buffers read.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct PairLists {
+    pub points: Vec<u32>,
+    pub touched: Vec<u32>,
     flags: Vec<bool>,
 }
 
-impl PairWork {
-    /// Brings the lists up to date with `op` (a pass over the points after a cut; the
-    /// buffers are sized for every point at the first call, so later ones do not allocate).
-    fn refresh(&mut self, op: &MlsOperator, evaluated: &[bool]) {
-        if self.version == Some(op.topology_version()) {
-            return;
-        }
+impl PairLists {
+    /// The lists for the `candidates` (in order) that the stencil does not evaluate,
+    /// reusing the buffers (sized for every point at the first call, so later ones do not
+    /// allocate).
+    fn fill(
+        &mut self,
+        op: &MlsOperator,
+        evaluated: &[bool],
+        candidates: impl IntoIterator<Item = u32>,
+    ) {
         let n = op.len();
         if self.flags.len() != n {
             self.flags = vec![false; n];
@@ -182,18 +183,37 @@ impl PairWork {
         }
         self.points.clear();
         self.touched.clear();
-        for i in 0..n {
-            if evaluated[i] {
+        for i in candidates {
+            if evaluated[i as usize] {
                 continue;
             }
-            self.points.push(i as u32);
-            for &j in std::iter::once(&(i as u32)).chain(op.neighbours(i)) {
+            self.points.push(i);
+            for &j in std::iter::once(&i).chain(op.neighbours(i as usize)) {
                 if !std::mem::replace(&mut self.flags[j as usize], true) {
                     self.touched.push(j);
                 }
             }
         }
         self.touched.sort_unstable();
+    }
+}
+
+/// What a whole-body evaluation leaves to the pair kernels, for one topology of the
+/// operator.
+#[derive(Debug, Clone, Default)]
+struct PairWork {
+    /// The operator's [`MlsOperator::topology_version`] the lists are for.
+    version: Option<u64>,
+    lists: PairLists,
+}
+
+impl PairWork {
+    /// Brings the lists up to date with `op` (a pass over the points after a cut).
+    fn refresh(&mut self, op: &MlsOperator, evaluated: &[bool]) {
+        if self.version == Some(op.topology_version()) {
+            return;
+        }
+        self.lists.fill(op, evaluated, 0..op.len() as u32);
         self.version = Some(op.topology_version());
     }
 }
@@ -302,11 +322,8 @@ pub(crate) struct StencilChunks {
     pub active: Vec<u32>,
     /// Per box chunk: 1 when listed in `stress`, 2 in `active` (bits).
     flags: Vec<u8>,
-    /// The points of `stress` the stencil does not evaluate (sorted), and the points their
-    /// rows reach (sorted): only those are copied for the pair kernels and read back.
-    pub pair_points: Vec<u32>,
-    pub pair_touched: Vec<u32>,
-    pair_flags: Vec<bool>,
+    /// The points of `stress` the stencil does not evaluate, for the pair kernels.
+    pub pairs: PairLists,
 }
 
 impl StencilChunks {
@@ -325,30 +342,8 @@ impl StencilChunks {
             self.stress = Vec::with_capacity(chunks);
             self.active = Vec::with_capacity(chunks);
         }
-        let n = op.len();
-        if self.pair_flags.len() != n {
-            self.pair_flags = vec![false; n];
-            self.pair_points = Vec::with_capacity(n);
-            self.pair_touched = Vec::with_capacity(n);
-        }
-        for &i in &self.pair_touched {
-            self.pair_flags[i as usize] = false;
-        }
-        self.pair_points.clear();
-        self.pair_touched.clear();
-        let evaluated = stencil.evaluated();
-        for &i in stress {
-            if evaluated[i as usize] {
-                continue;
-            }
-            self.pair_points.push(i);
-            for &j in std::iter::once(&i).chain(op.neighbours(i as usize)) {
-                if !std::mem::replace(&mut self.pair_flags[j as usize], true) {
-                    self.pair_touched.push(j);
-                }
-            }
-        }
-        self.pair_touched.sort_unstable();
+        self.pairs
+            .fill(op, stencil.evaluated(), stress.iter().copied());
         for &c in self.stress.iter().chain(&self.active) {
             self.flags[c as usize] = 0;
         }
@@ -527,9 +522,9 @@ pub fn add_elastic_forces(
     // structure-of-arrays (contiguous lanes), single points as (x, y, z, 0) vectors (one
     // neighbour is one aligned load). The forces are summed into `f` at the end.
     let touched: Option<&[u32]> = match (set, stencil) {
-        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pair_touched[..]),
+        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pairs.touched[..]),
         (Some(s), None) => Some(&s.touched),
-        (None, Some(_)) => Some(&work.touched),
+        (None, Some(_)) => Some(&work.lists.touched),
         (None, None) => None,
     };
     scratch.prepare(p, touched);
@@ -571,9 +566,9 @@ pub fn add_elastic_forces(
     // differ, so both are split.
     let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
     let listed = match (set, stencil) {
-        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pair_points[..]),
+        (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pairs.points[..]),
         (Some(s), None) => Some(&s.stress[..]),
-        (None, Some(_)) => Some(&work.points[..]),
+        (None, Some(_)) => Some(&work.lists.points[..]),
         (None, None) => None,
     };
     let (points_a, points_b) = match listed {
