@@ -428,7 +428,6 @@ mod tests {
                 .iter()
                 .filter(|t| t.has_points() && t.diagonal)
                 .count();
-            println!("{name}: {diagonal} of {with_points} chunks with points diagonal");
             assert!(diagonal > 0, "{name}: no diagonal chunk of {with_points}");
         }
     }

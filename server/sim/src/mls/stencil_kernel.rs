@@ -84,14 +84,16 @@ enum Written {
 }
 
 /// A restricted evaluation (an evaluation set): the stencil's points in `stress` have
-/// stress, the forces are wanted on `touched`.
+/// stress, their displacements and those of the points around them (`touched`) are read,
+/// and the forces are gathered at the chunks of the set's active points.
 #[derive(Clone, Copy)]
 pub(crate) struct Restriction<'a> {
     /// The chunks of the set's points.
     pub chunks: &'a StencilChunks,
     /// Per point: its stress is evaluated.
     pub stress: &'a [bool],
-    /// The points that can receive force.
+    /// The points whose displacements the passes read: the stress points and their
+    /// neighbours.
     pub touched: &'a [u32],
 }
 
@@ -832,25 +834,21 @@ fn pass_one(
             let each = [&u0[i], &u1[i], &u2[i]];
             let uc = [each[0].centre, each[1].centre, each[2].centre];
             let sw = [each[0].weighted, each[1].weighted, each[2].weighted];
-            let mut b = [[f64x4::ZERO; 3]; 3];
+            // Σ w x ⊗ u with column c the lattice axis of the box axis the sum ran along.
+            let mut grad = [[f64x4::ZERO; 3]; 3];
             for r in 0..3 {
                 for (box_axis, &c) in axes.iter().enumerate() {
-                    // B = Σ w x ⊗ u − u_i ⊗ Σ w x (column c is the lattice axis of the box
-                    // axis the sum ran along).
-                    b[r][c] = if t.diagonal {
-                        each[r].grad[box_axis]
-                    } else {
-                        (-uc[r]).mul_add(t.sum_wx[c], each[r].grad[box_axis])
-                    };
+                    grad[r][c] = each[r].grad[box_axis];
                 }
             }
             let sums = PointSums {
-                b,
+                grad,
                 sw,
                 uc,
                 zs: z[i],
             };
             let mask = lanes.of(t);
+            // Direct calls, so that each stays inlined.
             if t.diagonal {
                 point_stress::<true>(inputs, t, mask, alpha_e, sums, &mut slices, i, &mut stats);
             } else {
@@ -863,8 +861,8 @@ fn pass_one(
 
 /// One chunk's sums from the first pass.
 struct PointSums {
-    /// B = Σ w x ⊗ u − u_i ⊗ Σ w x.
-    b: [[f64x4; 3]; 3],
+    /// Σ w x ⊗ u (lattice axes).
+    grad: [[f64x4; 3]; 3],
     /// S = Σ w u_j.
     sw: [f64x4; 3],
     /// u_i.
@@ -889,10 +887,20 @@ fn point_stress<const DIAGONAL: bool>(
     i: usize,
     stats: &mut ForceStats,
 ) {
-    let PointSums { b, sw, uc, zs } = sums;
+    let PointSums { grad, sw, uc, zs } = sums;
     let params = inputs.params;
     let a = &t.a_inv;
     let sum_wx = t.sum_wx;
+    // B = Σ w x ⊗ u − u_i ⊗ Σ w x.
+    let b: [[f64x4; 3]; 3] = std::array::from_fn(|r| {
+        std::array::from_fn(|c| {
+            if DIAGONAL {
+                grad[r][c]
+            } else {
+                (-uc[r]).mul_add(sum_wx[c], grad[r][c])
+            }
+        })
+    });
     let times_a = |m: &[[f64x4; 3]; 3], r: usize, c: usize| {
         if DIAGONAL {
             m[r][c] * a[4 * c]
@@ -935,6 +943,7 @@ fn point_stress<const DIAGONAL: bool>(
     // whatever a lane outside the evaluation computed (from stale neighbours) never leaks.
     let on = f64x4::from(mask.map(|m| if m { f64::from_bits(u64::MAX) } else { 0.0 }));
     let keep = |v: f64x4| on.bitselect(v, f64x4::ZERO).to_array();
+    let axes = inputs.stencil.axes();
     let mut hb = f64x4::ZERO;
     let mut us = f64x4::ZERO;
     for r in 0..3 {
@@ -942,7 +951,6 @@ fn point_stress<const DIAGONAL: bool>(
         for c in 0..3 {
             hb = h[r][c].mul_add(b[r][c], hb);
         }
-        let axes = inputs.stencil.axes();
         out.stress[r][i] = [
             keep(mr[axes[0]]),
             keep(mr[axes[1]]),
@@ -1022,7 +1030,7 @@ pub(crate) struct StencilInputs<'a> {
 #[cfg(test)]
 mod tests {
     use crate::math::Vec3;
-    use crate::mls::forces::{ForceScratch, ForceStats, add_elastic_forces};
+    use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, add_elastic_forces};
     use crate::mls::material::{ElasticModel, ElasticParams};
     use crate::mls::operator::{LatticeOffsets, MlsOperator};
     use crate::model::{Kernel, Neighbourhoods, RestGrid};
@@ -1083,8 +1091,20 @@ mod tests {
         if !stencil {
             scratch = scratch.without_stencil();
         }
+        evaluate_in(op, params, volumes, p, None, &mut scratch)
+    }
+
+    /// Forces and statistics of one evaluation over `set` in `scratch`.
+    fn evaluate_in(
+        op: &MlsOperator,
+        params: &ElasticParams,
+        volumes: &[f64],
+        p: &[Vec3],
+        set: Option<&EvalSet>,
+        scratch: &mut ForceScratch,
+    ) -> (Vec<Vec3>, ForceStats) {
         let mut f = vec![Vec3::zeros(); p.len()];
-        let stats = add_elastic_forces(op, params, volumes, p, None, &mut f, &mut scratch);
+        let stats = add_elastic_forces(op, params, volumes, p, set, &mut f, scratch);
         (f, stats)
     }
 
@@ -1171,10 +1191,9 @@ mod tests {
 
     /// Evaluations over sets of active points, between whole-body ones in the same scratch
     /// (what one leaves in the box fields must not reach the next): the stencil gives the
-    /// pair kernels' forces on every point that can receive force, and their statistics.
+    /// pair kernels' forces on every active point, and their statistics.
     #[test]
     fn evaluation_sets_take_the_stencil_over_their_chunks() {
-        use crate::mls::forces::EvalSet;
         let (rest, nb, kernel, lattice, volumes) = ball();
         let op = MlsOperator::build(&rest, &nb, &kernel, Some(lattice));
         let params = ElasticParams::stvk(5000.0, 0.45);
@@ -1195,26 +1214,9 @@ mod tests {
         let mut scratch = ForceScratch::new(n);
         for (step, set) in sets.iter().enumerate() {
             let p = deformed(&rest, 2e-4 * (1.0 + step as f64));
-            let mut fs = vec![Vec3::zeros(); n];
-            let a = add_elastic_forces(
-                &op,
-                &params,
-                &volumes,
-                &p,
-                set.as_ref(),
-                &mut fs,
-                &mut scratch,
-            );
-            let mut fp = vec![Vec3::zeros(); n];
-            let b = add_elastic_forces(
-                &op,
-                &params,
-                &volumes,
-                &p,
-                set.as_ref(),
-                &mut fp,
-                &mut ForceScratch::new(n).without_stencil(),
-            );
+            let (fs, a) = evaluate_in(&op, &params, &volumes, &p, set.as_ref(), &mut scratch);
+            let mut pairs = ForceScratch::new(n).without_stencil();
+            let (fp, b) = evaluate_in(&op, &params, &volumes, &p, set.as_ref(), &mut pairs);
             let scale = fp.iter().map(|x| x.norm()).fold(0.0, f64::max);
             // A set's forces are whole on its active points (the others are not read).
             let whole = |i: usize| {
