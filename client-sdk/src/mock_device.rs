@@ -36,6 +36,11 @@ const POSE_TIMES: usize = 256;
 /// No force for this long and the device renders zero (s).
 pub const DEVICE_WATCHDOG_S: f64 = 0.010;
 
+/// Whether the device renders zero for a force received `force_age_s` ago (its watchdog).
+pub fn too_old(force_age_s: f64) -> bool {
+    force_age_s > DEVICE_WATCHDOG_S
+}
+
 pub use crate::frames::monotonic_ns;
 
 /// How to run the mock device.
@@ -307,7 +312,7 @@ impl MockDevice {
                     tick.force_flags = f.flags;
                     tick.server_tick = f.tick;
                     tick.pose_seq = f.pose_seq;
-                    if tick.force_age_s <= DEVICE_WATCHDOG_S {
+                    if !too_old(tick.force_age_s) {
                         tick.force_n = f.force_n;
                     } else {
                         tick.force_n = [0.0; 3];

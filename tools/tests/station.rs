@@ -74,7 +74,7 @@ fn conformance_of_the_in_process_scripted_device() {
     let factory: DeviceFactory = Box::new(move || {
         Ok(Box::new(Recording {
             end_s: script.duration_s() + 0.01,
-            stop: done.clone(),
+            stop: done,
             device: ScriptedDevice::new(script, false),
             now_s: 0.0,
             sampled: false,
@@ -148,8 +148,7 @@ fn read_trace(csv: &std::path::Path) -> Vec<TraceRow> {
                 force_n: [c[5], c[6], c[7]],
                 server_tick: c[10] as u64,
                 // Once a force has come (tick 0: none yet, zero anyway).
-                device_zeroed: c[10] > 0.0
-                    && c[8] > scalpel_client::mock_device::DEVICE_WATCHDOG_S * 1e3,
+                device_zeroed: c[10] > 0.0 && scalpel_client::mock_device::too_old(c[8] * 1e-3),
             }
         })
         .collect()
