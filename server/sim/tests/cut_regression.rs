@@ -10,7 +10,7 @@
 //! with it, saying why in the commit:
 //!
 //! ```sh
-//! SCALPEL_BLESS=1 cargo test -p scalpel-sim --test cut_regression
+//! SCALPEL_BLESS=1 cargo test --release -p scalpel-sim --test cut_regression
 //! ```
 
 use std::path::PathBuf;

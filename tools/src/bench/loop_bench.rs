@@ -103,7 +103,7 @@ fn server_binary() -> anyhow::Result<PathBuf> {
     let path = exe.with_file_name("scalpel-server");
     if !path.exists() {
         bail!(
-            "{} is missing: build it with `cargo build --release -p scalpel-server`",
+            "{} is missing: build it with `cargo build --release --bin scalpel-server`",
             path.display()
         );
     }
