@@ -1,5 +1,5 @@
 //! Regression against stored references: the default scripted cut on each built-in organ,
-//! compared with what an earlier, checked build did (the force on the tool through the
+//! and a lab session of several strokes on the liver, compared with what an earlier, checked build did (the force on the tool through the
 //! stroke; the surface and the meshless field every second of it), within bands far below
 //! what a trainee can feel or see and far above rounding.
 //!
@@ -101,11 +101,39 @@ fn weight(k: usize, i: usize) -> f64 {
     (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
 }
 
-/// The default stroke on a built-in scene, run as `scalpel cut <scene>` runs it.
-fn run_default_cut(scene_name: &str) -> CutReference {
+/// A scripted cut that has a reference.
+#[derive(Clone, Copy)]
+enum Cut {
+    /// The default stroke, as `scalpel cut <scene>` runs it.
+    Default,
+    /// A lab session, as `scalpel cut <scene> --strokes N --seed S` runs it: several
+    /// wounds, crossing and beside each other, with virtual points on all of them.
+    Session { strokes: usize, seed: u64 },
+}
+
+impl Cut {
+    /// The reference's file name (without `_cut.toml`) and how a failure names the cut.
+    fn names(self, scene: &str) -> (String, String) {
+        match self {
+            Cut::Default => (scene.to_owned(), format!("the default cut on {scene}")),
+            Cut::Session { strokes, seed } => (
+                format!("{scene}_session_{strokes}_seed_{seed}"),
+                format!("the {strokes}-stroke session (seed {seed}) on {scene}"),
+            ),
+        }
+    }
+}
+
+/// `cut` on a built-in scene, recorded.
+fn run_cut(scene_name: &str, cut: Cut) -> CutReference {
     let spec = builtin(scene_name).unwrap();
     let scene = build_scene(&spec, None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let surface = &scene.model.surface;
+    let script = match cut {
+        Cut::Default => CutScript::default_for(surface),
+        Cut::Session { strokes, seed } => CutScript::session_for(surface, strokes, seed),
+    }
+    .unwrap();
     let dt = SIMULATION_TICK_S;
     let mut sim = Simulation::new(&scene);
     sim.prepare(dt);
@@ -151,10 +179,10 @@ fn snapshot(tick: usize, sim: &Simulation) -> Snapshot {
     }
 }
 
-fn reference_path(scene: &str) -> PathBuf {
+fn reference_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/reference")
-        .join(format!("{scene}_cut.toml"))
+        .join(format!("{name}_cut.toml"))
 }
 
 /// Every difference between a run and its reference, one line each.
@@ -224,13 +252,14 @@ fn differences(run: &CutReference, reference: &CutReference) -> Vec<String> {
     out
 }
 
-fn check_against_reference(scene: &str) {
-    let run = run_default_cut(scene);
-    let path = reference_path(scene);
+fn check_against_reference(scene: &str, cut: Cut) {
+    let run = run_cut(scene, cut);
+    let (name, what) = cut.names(scene);
+    let path = reference_path(&name);
     if std::env::var_os("SCALPEL_BLESS").is_some() {
         let text = format!(
-            "# The default cut on `{scene}`, recorded by tests/cut_regression.rs \
-             (SCALPEL_BLESS=1). Do not edit by hand.\n{}",
+            "# {what}, recorded by tests/cut_regression.rs (SCALPEL_BLESS=1). \
+             Do not edit by hand.\n{}",
             toml::to_string(&run).unwrap()
         );
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -240,7 +269,7 @@ fn check_against_reference(scene: &str) {
     }
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!(
-            "no reference for {scene} at {} ({e}); record one with SCALPEL_BLESS=1",
+            "no reference for {what} at {} ({e}); record one with SCALPEL_BLESS=1",
             path.display()
         )
     });
@@ -255,7 +284,7 @@ fn check_against_reference(scene: &str) {
     };
     assert!(
         found.is_empty(),
-        "the default cut on {scene} differs from {}:\n  {}{more}\n\
+        "{what} differs from {}:\n  {}{more}\n\
          If the change is meant, re-record with SCALPEL_BLESS=1 and say why in the commit.",
         path.display(),
         found[..found.len().min(SHOWN)].join("\n  ")
@@ -264,17 +293,28 @@ fn check_against_reference(scene: &str) {
 
 #[test]
 fn the_default_liver_cut_is_what_it_was() {
-    check_against_reference("liver");
+    check_against_reference("liver", Cut::Default);
 }
 
 #[test]
 fn the_default_shoulder_cut_is_what_it_was() {
-    check_against_reference("shoulder");
+    check_against_reference("shoulder", Cut::Default);
 }
 
 #[test]
 fn the_default_cerebroma_cut_is_what_it_was() {
-    check_against_reference("cerebroma");
+    check_against_reference("cerebroma", Cut::Default);
+}
+
+#[test]
+fn a_six_stroke_liver_session_is_what_it_was() {
+    check_against_reference(
+        "liver",
+        Cut::Session {
+            strokes: 6,
+            seed: 1,
+        },
+    );
 }
 
 /// The comparison itself: a reference differs from a copy of itself nowhere, and from a
