@@ -1,7 +1,8 @@
 //! Regression against stored references: the default scripted cut on each built-in organ,
-//! and a lab session of several strokes on the liver, compared with what an earlier, checked build did (the force on the tool through the
-//! stroke; the surface and the meshless field every second of it), within bands far below
-//! what a trainee can feel or see and far above rounding.
+//! and a lab session of several strokes on the liver, compared with what an earlier,
+//! checked build did (the force on the tool through the stroke; the surface and the
+//! meshless field every second of it), within bands far below what a trainee can feel or
+//! see and far above rounding.
 //!
 //! The checks of `cutting.rs` say a cut is right (rupture force, J_c d, a sound surface);
 //! these say it has not *changed*. A change that moves the force by a tenth of a millinewton
