@@ -596,9 +596,9 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
         std::thread::sleep(Duration::from_millis(50));
     }
 
-    // The instructor schedules the vocabulary, one window each, with the CLI (ten runs of
-    // a debug build with a TLS handshake each: five seconds is room enough on a busy
-    // machine).
+    // The instructor schedules the vocabulary, one window each, with the CLI (ten runs,
+    // each with a TLS handshake; a debug build's too: five seconds is room enough on a
+    // busy machine).
     let t = station_now() + 5000;
     let plan: [(&[&str], u64, u64); 10] = [
         (

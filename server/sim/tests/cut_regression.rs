@@ -11,7 +11,7 @@
 //! with it, saying why in the commit:
 //!
 //! ```sh
-//! SCALPEL_BLESS=1 cargo test --release -p scalpel-sim --test cut_regression
+//! SCALPEL_BLESS=1 cargo test --workspace --locked --release --test cut_regression
 //! ```
 
 use std::path::PathBuf;
@@ -31,8 +31,8 @@ const POSITION_BAND_M: f64 = 1e-6;
 /// A force sample every this many ticks (20 ms: the ripple's wavelength at 5 mm/s is
 /// several of them).
 const FORCE_EVERY_TICKS: usize = 20;
-/// Random projections of a field (below): enough that a change escaping all of them is
-/// out of the question.
+/// Random-sign sums of a field (below): several, so that changes of many entries that
+/// happen to cancel in one sum show in another.
 const PROJECTIONS: usize = 4;
 /// The surface and the field every second of the stroke.
 const SNAPSHOT_EVERY_TICKS: usize = 1000;
@@ -62,9 +62,10 @@ struct Snapshot {
     points: FieldSummary,
 }
 
-/// A field of 3-vectors seen through a few fixed random weightings: Σ_i w_k,i · x_i for
-/// each k. Any change of any entry by δ moves them by about δ/2 (a sum, not a mean, so
-/// that one vertex among thousands still counts), and a reference stays a few lines long.
+/// A field of 3-vectors seen through a few fixed random signs: Σ_i s_k,i · x_i for each
+/// k. One entry moving by δ moves every sum by δ (a sum, not a mean, so that one vertex
+/// among thousands still counts); many entries moving together cancel in some sums and
+/// add up in others, so a coherent change shows too. A reference stays a few lines long.
 #[derive(Debug, Serialize, Deserialize, PartialEq)]
 struct FieldSummary {
     count: usize,
@@ -86,20 +87,26 @@ impl FieldSummary {
             .collect();
         Self {
             count: values.len(),
-            largest_m: values.clone().map(|x| x.norm()).fold(0.0, f64::max),
+            largest_m: values.clone().map(|x| x.norm()).fold(0.0, nan_max),
             sums_m,
         }
     }
 }
 
-/// A fixed pseudo-random weight in [−1, 1] for entry `i` of projection `k` (splitmix64:
-/// the same on every machine and in every release, unlike a library's generator).
+/// A fixed pseudo-random sign for entry `i` of projection `k` (splitmix64: the same on
+/// every machine and in every release, unlike a library's generator). ±1, not a weight in
+/// [−1, 1]: one entry moving by more than the band then moves every sum by more than it.
 fn weight(k: usize, i: usize) -> f64 {
     let mut z = (((k as u64) << 32) ^ i as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    if z >> 63 == 0 { 1.0 } else { -1.0 }
+}
+
+/// The larger of two lengths, NaN if either is (`f64::max` would drop a NaN).
+fn nan_max(m: f64, d: f64) -> f64 {
+    if d.is_nan() || d > m { d } else { m }
 }
 
 /// A scripted cut that has a reference.
@@ -213,14 +220,23 @@ fn differences(run: &CutReference, reference: &CutReference) -> Vec<String> {
         );
         exact(&at("surface vertices"), a.surface.count, b.surface.count);
         exact(&at("points"), a.points.count, b.points.count);
+        exact(
+            &at("surface sums"),
+            a.surface.sums_m.len(),
+            b.surface.sums_m.len(),
+        );
+        exact(
+            &at("point sums"),
+            a.points.sums_m.len(),
+            b.points.sums_m.len(),
+        );
     }
     let mut near = |what: String, a: &[f64], b: &[f64], band: f64, unit: &str| {
-        // NaN-propagating (f64::max would drop a NaN and pass it).
         let worst = a
             .iter()
             .zip(b)
             .map(|(x, y)| (x - y).abs())
-            .fold(0.0, |m, d| if d.is_nan() || d > m { d } else { m });
+            .fold(0.0, nan_max);
         if worst.is_nan() || worst > band {
             out.push(format!(
                 "{what}: {a:?} {unit}, reference {b:?} (off by {worst:.3e}, band {band:.0e})"
@@ -257,7 +273,7 @@ fn check_against_reference(scene: &str, cut: Cut) {
     let run = run_cut(scene, cut);
     let (name, what) = cut.names(scene);
     let path = reference_path(&name);
-    if std::env::var_os("SCALPEL_BLESS").is_some() {
+    if std::env::var_os("SCALPEL_BLESS").is_some_and(|v| v == "1") {
         let text = format!(
             "# {what}, recorded by tests/cut_regression.rs (SCALPEL_BLESS=1). \
              Do not edit by hand.\n{}",
@@ -354,4 +370,10 @@ fn a_nudged_force_sample_is_reported_where_it_is() {
     let found = differences(&nudged, &reference);
     assert_eq!(found.len(), 2, "NaN must not pass: {found:?}");
     assert!(found[1].starts_with("tick 99: surface positions, largest"));
+    // A reference with fewer sums (recorded with another PROJECTIONS) is no match.
+    let mut fewer = toml::from_str::<CutReference>(&text).unwrap();
+    fewer.snapshots[0].points.sums_m.pop();
+    let found = differences(&fewer, &reference);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(found[0].starts_with("tick 99: point sums"), "{found:?}");
 }

@@ -17,7 +17,7 @@ pub fn server_binary() -> PathBuf {
     let path = Path::new(env!("CARGO_BIN_EXE_scalpel")).with_file_name("scalpel-server");
     assert!(
         path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace` (or `cargo build --bin scalpel-server` first)",
+        "{} is missing: run the tests with `cargo test --workspace --release` (or first `cargo build [--release] --bin scalpel-server`, in the tests' profile)",
         path.display()
     );
     path
