@@ -80,7 +80,7 @@ pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
     let bar = ProgressBar::hidden();
     let done_ticks = AtomicUsize::new(0);
     let finished = AtomicBool::new(false);
-    let total = cutrun::tick_count(script);
+    let total = script.tick_count(cutrun::TICK_S);
     std::thread::scope(|scope| {
         scope.spawn(|| say_the_pace(&done_ticks, total, &finished, &bar));
         let run = cutrun::run_cut(scene, script, |done, total| {

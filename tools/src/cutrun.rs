@@ -81,11 +81,6 @@ pub struct CutRun {
     pub sim: Simulation,
 }
 
-/// The ticks [`run_cut`] plays for `script`: its whole length and the tick at its end.
-pub fn tick_count(script: &CutScript) -> usize {
-    (script.duration_s() / TICK_S).ceil() as usize + 1
-}
-
 /// Runs `script` on `scene` at 1 kHz; `tick` is told the progress (done, total).
 pub fn run_cut(
     scene: &BuiltScene,
@@ -94,7 +89,7 @@ pub fn run_cut(
 ) -> CutRun {
     let mut sim = Simulation::new(scene);
     sim.prepare(TICK_S);
-    let ticks = tick_count(script);
+    let ticks = script.tick_count(TICK_S);
     let mut rows = Vec::with_capacity(ticks);
     let mut travel = 0.0;
     let mut last_tip: Option<Vec3> = None;

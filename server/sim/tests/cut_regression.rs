@@ -80,7 +80,7 @@ impl FieldSummary {
             .map(|k| {
                 let mut sum = Vec3::zeros();
                 for (i, x) in values.clone().enumerate() {
-                    sum += x * weight(k, i);
+                    sum += x * sign(k, i);
                 }
                 sum.into()
             })
@@ -96,7 +96,7 @@ impl FieldSummary {
 /// A fixed pseudo-random sign for entry `i` of projection `k` (splitmix64: the same on
 /// every machine and in every release, unlike a library's generator). ±1, not a weight in
 /// [−1, 1]: one entry moving by more than the band then moves every sum by more than it.
-fn weight(k: usize, i: usize) -> f64 {
+fn sign(k: usize, i: usize) -> f64 {
     let mut z = (((k as u64) << 32) ^ i as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -145,7 +145,7 @@ fn run_cut(scene_name: &str, cut: Cut) -> CutReference {
     let dt = SIMULATION_TICK_S;
     let mut sim = Simulation::new(&scene);
     sim.prepare(dt);
-    let ticks = (script.duration_s() / dt).ceil() as usize + 1;
+    let ticks = script.tick_count(dt);
     let mut force_n = Vec::with_capacity(ticks / FORCE_EVERY_TICKS + 1);
     let mut snapshots = Vec::new();
     let mut ruptures = 0;
@@ -196,6 +196,12 @@ fn reference_path(name: &str) -> PathBuf {
 /// Every difference between a run and its reference, one line each.
 fn differences(run: &CutReference, reference: &CutReference) -> Vec<String> {
     let mut out = Vec::new();
+    if run.scene != reference.scene {
+        out.push(format!(
+            "scene: {}, reference {}",
+            run.scene, reference.scene
+        ));
+    }
     let mut exact = |what: &str, a: usize, b: usize| {
         if a != b {
             out.push(format!("{what}: {a}, reference {b}"));

@@ -487,6 +487,13 @@ impl CutScript {
         self.keyframes.last().map_or(0.0, |k| k.t_s)
     }
 
+    /// The ticks of `dt` that play the whole script: tick k takes the pose at k·dt, and
+    /// the last one the pose at (or just past) the end. What `scalpel cut` runs, and the
+    /// cut regression tests with it.
+    pub fn tick_count(&self, dt: f64) -> usize {
+        (self.duration_s() / dt).ceil() as usize + 1
+    }
+
     /// The pose at time `t` (held at the ends).
     pub fn pose_at(&self, t: f64) -> ToolPose {
         let k = &self.keyframes;
