@@ -228,3 +228,47 @@ fn a_scene_without_mass_scaling_keeps_its_masses() {
         scene.model.points.mass_kg[..]
     );
 }
+
+/// Mid-stroke re-cuts run on the tracker's worker thread and land a fixed number of ticks
+/// after they were asked for, whatever the thread's timing; the stroke's last one lands in
+/// the tick the blade leaves.
+#[test]
+fn mid_stroke_re_cuts_land_a_fixed_number_of_ticks_later() {
+    use scalpel_sim::pipeline::RECUT_HANDOVER_TICKS;
+    let spec = builtin("liver").unwrap();
+    let scene = build_scene(&spec, None, &mut Silent).unwrap();
+    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let mut sim = Simulation::new(&scene);
+    let dt = 1e-3;
+    let (mut asked, mut landed) = (Vec::new(), Vec::new());
+    let mut was_cutting = false;
+    let mut left_at = None;
+    for k in 0..script.tick_count(dt) as u64 {
+        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
+        let runs = sim.incisions().unwrap().runs;
+        let r = sim.tick(dt, &mut Unobserved);
+        let cutting = r.cut.as_ref().unwrap().force.phase == CutPhase::Cutting;
+        if sim.incisions().unwrap().runs > runs && cutting {
+            asked.push(k);
+        }
+        if r.remeshed {
+            landed.push(k);
+        }
+        if was_cutting && !cutting && left_at.is_none() {
+            left_at = Some(k);
+        }
+        was_cutting = cutting;
+    }
+    assert!(asked.len() >= 3, "re-cuts asked for: {asked:?}");
+    let left_at = left_at.expect("the blade leaves");
+    let expected: Vec<u64> = asked
+        .iter()
+        .map(|&k| k + RECUT_HANDOVER_TICKS)
+        .filter(|&k| k < left_at)
+        .chain(std::iter::once(left_at))
+        .collect();
+    assert_eq!(
+        landed, expected,
+        "asked at {asked:?}, the blade left at {left_at}"
+    );
+}

@@ -16,13 +16,16 @@
 use serde::Serialize;
 
 use crate::cut::wound::first_hit;
-use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface, Wound, open_stroke};
+use std::sync::Arc;
+
+use crate::cut::{FaceKind, IncisionParams, PathSample, StrokeOutcome, SweptSurface};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
 use crate::model::RestGrid;
 
+use super::recut_worker::{BaseShape, RECUT_HANDOVER_TICKS, RecutJob, RecutWorker};
 use super::surface::CurrentSurface;
 
 /// Figures of the incisions so far.
@@ -48,11 +51,14 @@ pub struct IncisionStats {
 
 /// The surface at the start of the current stroke.
 struct Base {
-    mesh: TriMesh,
-    kinds: Vec<FaceKind>,
-    wounds: Vec<Wound>,
+    shape: Arc<BaseShape>,
     /// The current vertex each base vertex is now.
     to_current: Vec<Option<u32>>,
+}
+
+/// A re-cut handed to the worker, applied at tick `due`.
+struct InFlight {
+    due: u64,
 }
 
 /// Follows the blade along the surface and keeps the drawn incision up to date.
@@ -77,6 +83,12 @@ pub struct IncisionTracker {
     /// run: a stroke that only stabbed is drawn when it ends.
     slit: Option<Vec3>,
     slit_grew: bool,
+    /// Ticks so far (`update` runs once a tick).
+    tick: u64,
+    /// Where mid-stroke re-cuts run (`None`: on the simulation thread), and the one
+    /// running there.
+    worker: Option<RecutWorker>,
+    in_flight: Option<InFlight>,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -99,8 +111,16 @@ pub struct IncisionInputs<'a> {
 const PATH_SAMPLE_CAPACITY: usize = 1024;
 
 impl IncisionTracker {
-    /// A tracker for a surface with mean edge length `edge_m`.
+    /// A tracker for a surface with mean edge length `edge_m`, whose mid-stroke re-cuts
+    /// run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later (`recut_worker`).
     pub fn new(edge_m: f64, params: IncisionParams) -> Self {
+        let mut tracker = Self::on_this_thread(edge_m, params);
+        tracker.worker = RecutWorker::spawn();
+        tracker
+    }
+
+    /// The same with every re-cut computed and applied in the tick that asks for it.
+    pub fn on_this_thread(edge_m: f64, params: IncisionParams) -> Self {
         Self {
             params,
             sample_step_m: 0.25 * edge_m,
@@ -116,6 +136,9 @@ impl IncisionTracker {
             opened_pieces: 0,
             slit: None,
             slit_grew: false,
+            tick: 0,
+            worker: None,
+            in_flight: None,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -128,6 +151,24 @@ impl IncisionTracker {
     /// extends nor deepens the path; `slit` is what its flat slit at the surface, going in
     /// point first. Returns whether the surface was re-meshed.
     pub fn update(
+        &mut self,
+        edge: Option<[Vec3; 2]>,
+        direction: Vec3,
+        withdrawing: bool,
+        slit: Option<Vec3>,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
+        self.tick += 1;
+        let landed = match &self.in_flight {
+            Some(f) if self.tick >= f.due || edge.is_none() => self.land(surface, inputs),
+            _ => false,
+        };
+        self.follow_blade(edge, direction, withdrawing, slit, surface, inputs) || landed
+    }
+
+    /// [`Self::update`] after any re-cut due has landed.
+    fn follow_blade(
         &mut self,
         edge: Option<[Vec3; 2]>,
         direction: Vec3,
@@ -153,7 +194,8 @@ impl IncisionTracker {
             }
             let rerun = (self.samples.len() >= 2 || self.slit.is_some())
                 && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
-            let changed = rerun && self.run(surface, inputs);
+            // Computed here, not handed over: the next stroke starts from this surface.
+            let changed = rerun && self.run_now(surface, inputs);
             self.base = None;
             self.samples.clear();
             self.ran_this_stroke = false;
@@ -166,9 +208,11 @@ impl IncisionTracker {
         };
         if self.base.is_none() {
             self.base = Some(Base {
-                mesh: surface.rest_mesh(),
-                kinds: surface.kinds.clone(),
-                wounds: surface.wounds.clone(),
+                shape: Arc::new(BaseShape {
+                    mesh: surface.rest_mesh(),
+                    kinds: surface.kinds.clone(),
+                    wounds: surface.wounds.clone(),
+                }),
                 to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
             });
         }
@@ -348,28 +392,89 @@ impl IncisionTracker {
         path
     }
 
-    /// Recomputes the stroke's incision from the base surface.
+    /// Recomputes the stroke's incision from the base surface: hands it to the worker
+    /// (it lands later, and this returns `false`), or computes and applies it now without
+    /// one. With a re-cut still in flight it waits: the samples since keep counting, so the
+    /// next sample asks again.
     fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        let Some(base) = &self.base else {
+        if self.in_flight.is_some() {
+            return false;
+        }
+        let Some(job) = self.job() else {
             return false;
         };
-        let path = self.stroke_path(&base.mesh, &base.kinds);
+        let Some(worker) = &self.worker else {
+            let outcome = job.run();
+            return self.apply(outcome, surface, inputs);
+        };
+        match worker.send(job) {
+            Ok(()) => {
+                self.in_flight = Some(InFlight {
+                    due: self.tick + RECUT_HANDOVER_TICKS,
+                });
+                false
+            }
+            Err(job) => {
+                // The worker is gone: from now on, here.
+                self.worker = None;
+                let outcome = job.run();
+                self.apply(outcome, surface, inputs)
+            }
+        }
+    }
+
+    /// [`Self::run`] on this thread, after the one in flight (if any) has landed.
+    fn run_now(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        let landed = self.in_flight.is_some() && self.land(surface, inputs);
+        let Some(job) = self.job() else {
+            return landed;
+        };
+        let outcome = job.run();
+        self.apply(outcome, surface, inputs) || landed
+    }
+
+    /// The re-cut of the stroke's path so far; counts it as a run.
+    fn job(&mut self) -> Option<RecutJob> {
+        let base = self.base.as_ref()?;
+        let path = self.stroke_path(&base.shape.mesh, &base.shape.kinds);
+        let shape = base.shape.clone();
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
         self.slit_grew = false;
         self.stats.runs += 1;
+        Some(RecutJob {
+            shape,
+            path,
+            margin: 0.5 * self.rerun_step_m,
+            params: self.params,
+        })
+    }
+
+    /// Applies the re-cut in flight, waiting for it if need be.
+    fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        self.in_flight = None;
+        let Some(outcome) = self.worker.as_ref().and_then(RecutWorker::wait) else {
+            // The worker died on it: the surface stays as it was, the next runs are here.
+            self.worker = None;
+            self.stats.refused += 1;
+            self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
+            return false;
+        };
+        self.apply(outcome, surface, inputs)
+    }
+
+    /// Puts a re-cut's surface in place of the current one (unless it opens fewer pieces
+    /// than the last one applied this stroke).
+    fn apply(
+        &mut self,
+        outcome: StrokeOutcome,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
         let Some(base) = &mut self.base else {
             return false;
         };
-        let outcome = open_stroke(
-            &base.mesh,
-            &base.kinds,
-            &base.wounds,
-            &path,
-            0.5 * self.rerun_step_m,
-            &self.params,
-        );
         self.stats.refused += outcome.refusals.len();
         if let Some(e) = outcome.refusals.last() {
             self.stats.last_refusal = Some(e.to_string());

@@ -14,6 +14,7 @@
 pub mod blade_motion;
 pub mod cutting;
 pub mod incision;
+mod recut_worker;
 pub mod script;
 pub mod steady_motion;
 pub mod surface;
@@ -29,6 +30,7 @@ use crate::solver::{Solver, SolverConfig, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
+pub use recut_worker::RECUT_HANDOVER_TICKS;
 pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
