@@ -18,14 +18,16 @@ use serde::Serialize;
 use crate::cut::wound::first_hit;
 use std::sync::Arc;
 
-use crate::cut::{FaceKind, IncisionParams, PathSample, StrokeOutcome, SweptSurface};
+use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
-use crate::model::RestGrid;
+use crate::model::{CoupledModel, RestGrid};
 
-use super::recut_worker::{BaseShape, RECUT_HANDOVER_TICKS, RecutJob, RecutWorker};
+use super::recut_worker::{
+    BaseShape, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace, SigmaSnapshot,
+};
 use super::surface::CurrentSurface;
 
 /// Figures of the incisions so far.
@@ -89,6 +91,8 @@ pub struct IncisionTracker {
     /// running there.
     worker: Option<RecutWorker>,
     in_flight: Option<InFlight>,
+    /// The body's rest space, for the worker to embed new vertices.
+    space: Option<Arc<RestSpace>>,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -111,11 +115,16 @@ pub struct IncisionInputs<'a> {
 const PATH_SAMPLE_CAPACITY: usize = 1024;
 
 impl IncisionTracker {
-    /// A tracker for a surface with mean edge length `edge_m`, whose mid-stroke re-cuts
-    /// run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later (`recut_worker`).
-    pub fn new(edge_m: f64, params: IncisionParams) -> Self {
+    /// A tracker for `model`'s surface (mean edge length `edge_m`), whose mid-stroke
+    /// re-cuts run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later
+    /// (`recut_worker`).
+    pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
         let mut tracker = Self::on_this_thread(edge_m, params);
         tracker.worker = RecutWorker::spawn();
+        tracker.space = tracker
+            .worker
+            .is_some()
+            .then(|| Arc::new(RestSpace::of(model)));
         tracker
     }
 
@@ -139,6 +148,7 @@ impl IncisionTracker {
             tick: 0,
             worker: None,
             in_flight: None,
+            space: None,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -400,7 +410,7 @@ impl IncisionTracker {
         if self.in_flight.is_some() {
             return false;
         }
-        let Some(job) = self.job() else {
+        let Some(job) = self.job(Some(inputs.sigma)) else {
             return false;
         };
         let Some(worker) = &self.worker else {
@@ -426,15 +436,16 @@ impl IncisionTracker {
     /// [`Self::run`] on this thread, after the one in flight (if any) has landed.
     fn run_now(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
         let landed = self.in_flight.is_some() && self.land(surface, inputs);
-        let Some(job) = self.job() else {
+        let Some(job) = self.job(None) else {
             return landed;
         };
         let outcome = job.run();
         self.apply(outcome, surface, inputs) || landed
     }
 
-    /// The re-cut of the stroke's path so far; counts it as a run.
-    fn job(&mut self) -> Option<RecutJob> {
+    /// The re-cut of the stroke's path so far, with the embedding of its new vertices
+    /// against `sigma` when it goes to the worker; counts it as a run.
+    fn job(&mut self, sigma: Option<&SweptSurface>) -> Option<RecutJob> {
         let base = self.base.as_ref()?;
         let path = self.stroke_path(&base.shape.mesh, &base.shape.kinds);
         let shape = base.shape.clone();
@@ -448,30 +459,41 @@ impl IncisionTracker {
             path,
             margin: 0.5 * self.rerun_step_m,
             params: self.params,
+            embed: match (&self.space, sigma, &self.worker) {
+                (Some(space), Some(sigma), Some(_)) => Some((
+                    space.clone(),
+                    SigmaSnapshot {
+                        triangles: sigma.triangles.clone(),
+                        boxes: sigma.boxes.clone(),
+                    },
+                )),
+                _ => None,
+            },
         })
     }
 
     /// Applies the re-cut in flight, waiting for it if need be.
     fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
         self.in_flight = None;
-        let Some(outcome) = self.worker.as_ref().and_then(RecutWorker::wait) else {
+        let Some(recut) = self.worker.as_ref().and_then(RecutWorker::wait) else {
             // The worker died on it: the surface stays as it was, the next runs are here.
             self.worker = None;
             self.stats.refused += 1;
             self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
             return false;
         };
-        self.apply(outcome, surface, inputs)
+        self.apply(recut, surface, inputs)
     }
 
     /// Puts a re-cut's surface in place of the current one (unless it opens fewer pieces
     /// than the last one applied this stroke).
     fn apply(
         &mut self,
-        outcome: StrokeOutcome,
+        recut: Recut,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
+        let Recut { outcome, rows } = recut;
         let Some(base) = &mut self.base else {
             return false;
         };
@@ -501,6 +523,7 @@ impl IncisionTracker {
             inputs.sigma,
             inputs.op,
             inputs.positions,
+            rows,
         );
         if outcome.opened > 0 && self.opened_pieces == 0 {
             self.stats.incisions += 1;

@@ -145,7 +145,11 @@ impl Simulation {
             solver.set_active(&[]);
         }
         let incisions = spec.features.cutting.then(|| {
-            IncisionTracker::new(model.surface.mean_edge_length(), IncisionParams::default())
+            IncisionTracker::new(
+                model.surface.mean_edge_length(),
+                IncisionParams::default(),
+                model,
+            )
         });
         Self {
             incisions,

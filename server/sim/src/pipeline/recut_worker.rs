@@ -17,8 +17,12 @@
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
-use crate::cut::{FaceKind, IncisionParams, PathSample, StrokeOutcome, Wound, open_stroke};
+use crate::cut::{
+    FaceKind, IncisionParams, PathSample, StrokeOutcome, Wound, open_stroke, segment_meets_triangle,
+};
 use crate::geometry::TriMesh;
+use crate::math::{Aabb, Vec3};
+use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
 /// cerebroma's longest re-cut takes 17 ms on this project's 2-core machine (up to about
@@ -35,32 +39,122 @@ pub(crate) struct BaseShape {
     pub wounds: Vec<Wound>,
 }
 
-/// One re-cut: the stroke's path opened on its base surface.
+/// What embedding a new surface vertex reads of the body: its points' rest positions, their
+/// grid and the kernel (none of which a cut changes), shared with the worker.
+#[derive(Debug)]
+pub(crate) struct RestSpace {
+    pub points: Vec<Vec3>,
+    pub grid: RestGrid,
+    pub kernel: Kernel,
+}
+
+impl RestSpace {
+    pub fn of(model: &CoupledModel) -> Self {
+        Self {
+            points: model.points.rest.clone(),
+            grid: model.grid.clone(),
+            kernel: model.kernel,
+        }
+    }
+}
+
+/// The cut surface Σ as it was when a re-cut was asked for (Σ only grows: its first
+/// `triangles.len()` triangles are these at any later tick).
+pub(crate) struct SigmaSnapshot {
+    pub triangles: Vec<[Vec3; 3]>,
+    pub boxes: Vec<Aabb>,
+}
+
+/// One re-cut: the stroke's path opened on its base surface, and the embedding rows of its
+/// new vertices against Σ as it was asked for.
 pub(crate) struct RecutJob {
     pub shape: Arc<BaseShape>,
     pub path: Vec<PathSample>,
     pub margin: f64,
     pub params: IncisionParams,
+    pub embed: Option<(Arc<RestSpace>, SigmaSnapshot)>,
+}
+
+/// A re-cut's result.
+pub(crate) struct Recut {
+    pub outcome: StrokeOutcome,
+    /// Per vertex of the new surface, for the new ones (no `source`): its embedding row
+    /// over the body's points against the first `sigma_seen` triangles of Σ.
+    pub rows: Option<PrecomputedRows>,
+}
+
+/// New vertices' embedding rows computed before they land.
+pub struct PrecomputedRows {
+    pub rows: Vec<Option<Vec<(u32, f64)>>>,
+    pub sigma_seen: usize,
+}
+
+impl PrecomputedRows {
+    /// Vertex `v`'s row at `x`, if it was computed and no triangle Σ gained since (`sigma`
+    /// whole, with `boxes`) hides one of its points: then it is the row
+    /// [`SurfaceEmbedding::row_for`] gives against all of Σ, exactly (the points it finds
+    /// are those the snapshot's Σ let through less those the new triangles hide, and the
+    /// support it widened to is the same).
+    pub fn take(
+        &mut self,
+        v: usize,
+        x: &Vec3,
+        body: &[Vec3],
+        sigma: &[[Vec3; 3]],
+        boxes: &[Aabb],
+    ) -> Option<Vec<(u32, f64)>> {
+        let row = self.rows.get_mut(v)?.take()?;
+        let (new, new_boxes) = (&sigma[self.sigma_seen..], &boxes[self.sigma_seen..]);
+        let hidden = row.iter().any(|&(k, _)| {
+            let p = &body[k as usize];
+            let segment = Aabb::around([x, p]);
+            new.iter()
+                .zip(new_boxes)
+                .any(|(tri, b)| b.overlaps(&segment) && segment_meets_triangle(x, p, tri))
+        });
+        (!hidden).then_some(row)
+    }
 }
 
 impl RecutJob {
     /// Computes the re-cut (on whichever thread calls it).
-    pub fn run(&self) -> StrokeOutcome {
-        open_stroke(
+    pub fn run(&self) -> Recut {
+        let outcome = open_stroke(
             &self.shape.mesh,
             &self.shape.kinds,
             &self.shape.wounds,
             &self.path,
             self.margin,
             &self.params,
-        )
+        );
+        let rows = match (&self.embed, &outcome.surface) {
+            (Some((space, sigma)), Some(out)) => Some(PrecomputedRows {
+                rows: (0..out.mesh.positions.len())
+                    .map(|v| {
+                        out.source[v].is_none().then(|| {
+                            SurfaceEmbedding::row_for(
+                                &out.mesh.positions[v],
+                                &space.points,
+                                &space.grid,
+                                &space.kernel,
+                                &sigma.triangles,
+                                &sigma.boxes,
+                            )
+                        })
+                    })
+                    .collect(),
+                sigma_seen: sigma.triangles.len(),
+            }),
+            _ => None,
+        };
+        Recut { outcome, rows }
     }
 }
 
 /// The worker thread: one job at a time.
 pub(crate) struct RecutWorker {
     jobs: SyncSender<RecutJob>,
-    done: Receiver<StrokeOutcome>,
+    done: Receiver<Recut>,
 }
 
 impl RecutWorker {
@@ -68,7 +162,7 @@ impl RecutWorker {
     /// simulation thread, as they did before).
     pub fn spawn() -> Option<Self> {
         let (jobs, inbox) = sync_channel::<RecutJob>(1);
-        let (outbox, done) = sync_channel::<StrokeOutcome>(1);
+        let (outbox, done) = sync_channel::<Recut>(1);
         std::thread::Builder::new()
             .name("scalpel-recut".into())
             .spawn(move || {
@@ -90,7 +184,63 @@ impl RecutWorker {
 
     /// The result of the job handed over last, waiting for it if need be; `None` if the
     /// worker died on it (a panic in the re-cut: the surface stays as it was).
-    pub fn wait(&self) -> Option<StrokeOutcome> {
+    pub fn wait(&self) -> Option<Recut> {
         self.done.recv().ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three points and a vertex among them; Σ as the worker saw it (empty) and then grown
+    /// by one triangle, far off or between the vertex and a point.
+    #[test]
+    fn a_precomputed_row_stands_only_while_no_new_cut_hides_its_points() {
+        let points = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.01, 0.0, 0.0),
+            Vec3::new(0.0, 0.01, 0.0),
+        ];
+        let kernel = Kernel { support_m: 0.02 };
+        let grid = RestGrid::build(&points, kernel.support_m);
+        let x = Vec3::new(0.004, 0.004, 0.0);
+        let row = SurfaceEmbedding::row_for(&x, &points, &grid, &kernel, &[], &[]);
+        assert_eq!(row.len(), 3);
+        let far = [
+            Vec3::new(1.0, 1.0, -1.0),
+            Vec3::new(1.1, 1.0, 1.0),
+            Vec3::new(1.0, 1.1, 1.0),
+        ];
+        // A wall at x = 0.002 between the vertex and the first and third points.
+        let between = [
+            Vec3::new(0.002, -1.0, -1.0),
+            Vec3::new(0.002, 1.0, -1.0),
+            Vec3::new(0.002, 0.0, 1.0),
+        ];
+        for (grown, kept) in [(far, true), (between, false)] {
+            let sigma = vec![grown];
+            let boxes = vec![Aabb::around(&grown)];
+            let mut pre = PrecomputedRows {
+                rows: vec![None, Some(row.clone())],
+                sigma_seen: 0,
+            };
+            let taken = pre.take(1, &x, &points, &sigma, &boxes);
+            let now = SurfaceEmbedding::row_for(&x, &points, &grid, &kernel, &sigma, &boxes);
+            assert_eq!(taken.is_some(), kept);
+            if let Some(taken) = taken {
+                assert_eq!(taken, now, "a kept row is the row against all of Σ");
+            } else {
+                assert_ne!(now, row, "a dropped row was out of date");
+            }
+            assert!(
+                pre.take(1, &x, &points, &sigma, &boxes).is_none(),
+                "taken once"
+            );
+            assert!(
+                pre.take(0, &x, &points, &sigma, &boxes).is_none(),
+                "none computed"
+            );
+        }
     }
 }

@@ -6,6 +6,7 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
+use super::recut_worker::PrecomputedRows;
 use crate::cut::incision::corners_of_kind;
 use crate::cut::{Blade, FaceKind, Incised, SweptSurface, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
@@ -474,6 +475,7 @@ impl CurrentSurface {
         sigma: &SweptSurface,
         op: &MlsOperator,
         p: &[Vec3],
+        mut precomputed: Option<PrecomputedRows>,
     ) -> Vec<Option<u32>> {
         let nv = incised.mesh.positions.len();
         let mut rows = Vec::with_capacity(nv);
@@ -488,16 +490,25 @@ impl CurrentSurface {
                 base_to_new[b as usize] = Some(v as u32);
                 base_to_current[b as usize]
             });
+            // A new vertex's row the worker computed stands unless Σ has since grown across
+            // it (`PrecomputedRows::take`).
+            let mut ready = || {
+                precomputed
+                    .as_mut()
+                    .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes))
+            };
             rows.push(match carried {
                 Some(c) => self.embedding.row(c as usize),
-                None => SurfaceEmbedding::row_for(
-                    &x,
-                    body,
-                    grid,
-                    &self.kernel,
-                    &sigma.triangles,
-                    &sigma.boxes,
-                ),
+                None => ready().unwrap_or_else(|| {
+                    SurfaceEmbedding::row_for(
+                        &x,
+                        body,
+                        grid,
+                        &self.kernel,
+                        &sigma.triangles,
+                        &sigma.boxes,
+                    )
+                }),
             });
         }
         self.embedding = SurfaceEmbedding::from_rows(&rows, self.embedding.widened);
