@@ -128,6 +128,9 @@ pub fn run_cut(
         });
         tick(k + 1, ticks);
     }
+    // A script that ends within a re-cut's hand-over of the blade leaving: its output is
+    // the finished incision.
+    sim.settle_incision();
     CutRun { rows, sim }
 }
 

@@ -161,6 +161,10 @@ fn run_cut(scene_name: &str, cut: Cut) -> CutReference {
             snapshots.push(snapshot(k, &sim));
         }
     }
+    // As `scalpel cut` ends a run (a re-cut still on its worker lands now).
+    if sim.settle_incision() {
+        snapshots.push(snapshot(ticks, &sim));
+    }
     CutReference {
         scene: scene_name.to_owned(),
         ticks,

@@ -193,6 +193,8 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             );
         }
     }
+    // As `scalpel cut` ends a run: a re-cut still on its worker thread lands now.
+    sim.settle_incision();
     trace
 }
 
@@ -1177,4 +1179,46 @@ fn a_device_pose_that_jumps_is_followed_at_a_hands_speed() {
     );
     assert!(!sim.cutting().unwrap().sigma.triangles.is_empty());
     assert_sound_surface(&sim);
+}
+
+/// A quick stroke that ends while a re-cut is still on the worker thread: the stroke's last
+/// re-cut supersedes it (the superseded one never lands) and finishes the incision.
+#[test]
+fn a_quick_stroke_that_ends_while_a_re_cut_is_in_flight_supersedes_it() {
+    let scene = scene("liver");
+    let top = top_mm(&scene, -30.0, 0.0);
+    let z = top - 8.0;
+    // 40 mm at 200 mm/s, out in 30 ms: it ends 20-odd ticks after a re-cut was asked for
+    // (checked below: one of its runs never lands).
+    let s = script(&[
+        (0.0, [-40.0, 0.0, top + 5.0]),
+        (1.5, [-40.0, 0.0, z]),
+        (1.7, [0.0, 0.0, z]),
+        (1.73, [0.0, 0.0, top + 30.0]),
+        (2.2, [0.0, 0.0, top + 30.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let mut landings = 0;
+    for k in 0..s.tick_count(TICK_S) {
+        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
+        let r = sim.tick(TICK_S, &mut Unobserved);
+        assert!(!r.solver.diverged, "tick {k}");
+        landings += usize::from(r.remeshed);
+    }
+    assert!(!sim.settle_incision(), "landed within the script");
+    let stats = sim.incisions().unwrap().clone();
+    println!("{stats:?}, {landings} landings");
+    assert_eq!(stats.incisions, 1, "{stats:?}");
+    assert!(
+        landings < stats.runs,
+        "a re-cut was superseded: {landings} landings of {} runs",
+        stats.runs
+    );
+    assert!(stats.depth_m > 0.009, "{stats:?}");
+    assert_sound_surface(&sim);
+    let (_, kinds) = sim.current_surface().drawn();
+    assert!(
+        kinds.contains(&FaceKind::Wall),
+        "the incision has its walls"
+    );
 }

@@ -61,6 +61,9 @@ struct Base {
 /// A re-cut handed to the worker, applied at tick `due`.
 struct InFlight {
     due: u64,
+    /// The stroke it finishes, when it is the last re-cut of a stroke that has ended: its
+    /// base and the pieces its last applied re-cut opened.
+    ended: Option<(Base, usize)>,
 }
 
 /// Follows the blade along the surface and keeps the drawn incision up to date.
@@ -91,6 +94,9 @@ pub struct IncisionTracker {
     /// running there.
     worker: Option<RecutWorker>,
     in_flight: Option<InFlight>,
+    /// Results the worker will send before the one in flight, of re-cuts a stroke's last
+    /// one superseded: read and dropped.
+    superseded: u32,
     /// The body's rest space, for the worker to embed new vertices.
     space: Option<Arc<RestSpace>>,
     /// Figures so far.
@@ -148,6 +154,7 @@ impl IncisionTracker {
             tick: 0,
             worker: None,
             in_flight: None,
+            superseded: 0,
             space: None,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
@@ -170,8 +177,10 @@ impl IncisionTracker {
         inputs: &IncisionInputs<'_>,
     ) -> bool {
         self.tick += 1;
+        // Due, or a new stroke starting: it starts from the last one's finished surface.
+        let starting = edge.is_some() && self.base.is_none();
         let landed = match &self.in_flight {
-            Some(f) if self.tick >= f.due || edge.is_none() => self.land(surface, inputs),
+            Some(f) if self.tick >= f.due || starting => self.land(surface, inputs),
             _ => false,
         };
         self.follow_blade(edge, direction, withdrawing, slit, surface, inputs) || landed
@@ -204,8 +213,16 @@ impl IncisionTracker {
             }
             let rerun = (self.samples.len() >= 2 || self.slit.is_some())
                 && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
-            // Computed here, not handed over: the next stroke starts from this surface.
-            let changed = rerun && self.run_now(surface, inputs);
+            // The last re-cut covers the whole path: one still in flight is superseded (its
+            // result read and dropped when this one lands).
+            if rerun && self.worker.is_some() && self.in_flight.take().is_some() {
+                self.superseded += 1;
+            }
+            let changed = rerun && self.run(surface, inputs);
+            // Landing after the stroke, it applies to the stroke it finishes.
+            if let (Some(f), Some(base)) = (&mut self.in_flight, self.base.take()) {
+                f.ended = Some((base, self.opened_pieces));
+            }
             self.base = None;
             self.samples.clear();
             self.ran_this_stroke = false;
@@ -421,6 +438,7 @@ impl IncisionTracker {
             Ok(()) => {
                 self.in_flight = Some(InFlight {
                     due: self.tick + RECUT_HANDOVER_TICKS,
+                    ended: None,
                 });
                 false
             }
@@ -433,14 +451,11 @@ impl IncisionTracker {
         }
     }
 
-    /// [`Self::run`] on this thread, after the one in flight (if any) has landed.
-    fn run_now(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        let landed = self.in_flight.is_some() && self.land(surface, inputs);
-        let Some(job) = self.job(None) else {
-            return landed;
-        };
-        let outcome = job.run();
-        self.apply(outcome, surface, inputs) || landed
+    /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
+    /// before a new stroke, and at the end of an offline run. Returns whether the surface
+    /// changed.
+    pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        self.in_flight.is_some() && self.land(surface, inputs)
     }
 
     /// The re-cut of the stroke's path so far, with the embedding of its new vertices
@@ -474,15 +489,34 @@ impl IncisionTracker {
 
     /// Applies the re-cut in flight, waiting for it if need be.
     fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        self.in_flight = None;
-        let Some(recut) = self.worker.as_ref().and_then(RecutWorker::wait) else {
+        let Some(flight) = self.in_flight.take() else {
+            return false;
+        };
+        let superseded = std::mem::take(&mut self.superseded);
+        let worker = self.worker.as_ref();
+        let recut = worker.and_then(|w| {
+            for _ in 0..superseded {
+                w.wait()?;
+            }
+            w.wait()
+        });
+        let Some(recut) = recut else {
             // The worker died on it: the surface stays as it was, the next runs are here.
             self.worker = None;
             self.stats.refused += 1;
             self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
             return false;
         };
-        self.apply(recut, surface, inputs)
+        let Some((base, opened)) = flight.ended else {
+            return self.apply(recut, surface, inputs);
+        };
+        // The stroke it finishes has ended: applied with that stroke's base and pieces, which
+        // then go (no new stroke has begun: it would have settled this first).
+        let stroke = (self.base.replace(base), self.opened_pieces);
+        self.opened_pieces = opened;
+        let changed = self.apply(recut, surface, inputs);
+        (self.base, self.opened_pieces) = stroke;
+        changed
     }
 
     /// Puts a re-cut's surface in place of the current one (unless it opens fewer pieces

@@ -308,22 +308,8 @@ impl Simulation {
                     },
                 );
             }
-            if let (true, Some(vp)) = (remeshed, &mut self.virtual_points) {
-                let changed = &mut self.vp_changed;
-                changed.clear();
-                vp.place(
-                    &self.surface,
-                    &stage.sigma,
-                    tick.edge_rest.map(|e| (e, stage.affected_radius())),
-                    &mut self.solver,
-                    &mut self.neighbours,
-                    &self.grid,
-                    changed,
-                );
-                changed.sort_unstable();
-                changed.dedup();
-                self.solver.topology_changed(changed, &self.neighbours);
-                placed = true;
+            if remeshed {
+                placed = self.place_virtual_points(tick.edge_rest);
             }
         }
         if let (true, Some(stage)) = (placed, &mut self.cutting) {
@@ -371,6 +357,52 @@ impl Simulation {
             remeshed,
             solver,
         }
+    }
+
+    /// Places the virtual points on the walls of the surface as re-meshed (none within the
+    /// affected radius of the blade's `edge`); returns whether the scene has them.
+    fn place_virtual_points(&mut self, edge: Option<[Vec3; 2]>) -> bool {
+        let (Some(vp), Some(stage)) = (&mut self.virtual_points, &self.cutting) else {
+            return false;
+        };
+        let changed = &mut self.vp_changed;
+        changed.clear();
+        vp.place(
+            &self.surface,
+            &stage.sigma,
+            edge.map(|e| (e, stage.affected_radius())),
+            &mut self.solver,
+            &mut self.neighbours,
+            &self.grid,
+            changed,
+        );
+        changed.sort_unstable();
+        changed.dedup();
+        self.solver.topology_changed(changed, &self.neighbours);
+        true
+    }
+
+    /// Applies a re-cut of the incision still on its worker thread now, instead of at its
+    /// tick (`RECUT_HANDOVER_TICKS` after it was asked for): for the end of an offline run,
+    /// so that its surface is the finished one. Returns whether the surface changed.
+    pub fn settle_incision(&mut self) -> bool {
+        let (Some(tracker), Some(stage)) = (&mut self.incisions, &self.cutting) else {
+            return false;
+        };
+        let remeshed = tracker.settle(
+            &mut self.surface,
+            &IncisionInputs {
+                rest_points: self.solver.rest(),
+                grid: &self.grid,
+                sigma: &stage.sigma,
+                op: self.solver.operator(),
+                positions: self.solver.positions(),
+            },
+        );
+        if remeshed {
+            self.place_virtual_points(None);
+        }
+        remeshed
     }
 
     /// The scene.

@@ -161,8 +161,10 @@ impl RecutWorker {
     /// Starts the thread; `None` if it cannot be started (the re-cuts then run on the
     /// simulation thread, as they did before).
     pub fn spawn() -> Option<Self> {
-        let (jobs, inbox) = sync_channel::<RecutJob>(1);
-        let (outbox, done) = sync_channel::<Recut>(1);
+        // Room for two: a stroke's last re-cut may follow one it supersedes before the
+        // worker has taken that one, and neither side then waits on the other.
+        let (jobs, inbox) = sync_channel::<RecutJob>(2);
+        let (outbox, done) = sync_channel::<Recut>(2);
         std::thread::Builder::new()
             .name("scalpel-recut".into())
             .spawn(move || {
@@ -182,7 +184,7 @@ impl RecutWorker {
         self.jobs.send(job).map_err(|e| e.0)
     }
 
-    /// The result of the job handed over last, waiting for it if need be; `None` if the
+    /// The result of the oldest job not yet read, waiting for it if need be; `None` if the
     /// worker died on it (a panic in the re-cut: the surface stays as it was).
     pub fn wait(&self) -> Option<Recut> {
         self.done.recv().ok()
