@@ -90,7 +90,7 @@ pub struct IncisionTracker {
     slit_grew: bool,
     /// Ticks so far (`update` runs once a tick).
     tick: u64,
-    /// Where mid-stroke re-cuts run (`None`: on the simulation thread), and the one
+    /// Where re-cuts run (`None`: on the simulation thread), and the one
     /// running there.
     worker: Option<RecutWorker>,
     in_flight: Option<InFlight>,
@@ -121,7 +121,7 @@ pub struct IncisionInputs<'a> {
 const PATH_SAMPLE_CAPACITY: usize = 1024;
 
 impl IncisionTracker {
-    /// A tracker for `model`'s surface (mean edge length `edge_m`), whose mid-stroke
+    /// A tracker for `model`'s surface (mean edge length `edge_m`), whose
     /// re-cuts run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later
     /// (`recut_worker`).
     pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
