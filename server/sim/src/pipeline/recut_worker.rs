@@ -25,8 +25,8 @@ use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
-/// cerebroma's longest re-cut takes 17 ms on this project's 2-core machine (up to about
-/// 35 ms in a noisy hour); the lips open 0.2 mm behind where they would at the default
+/// cerebroma's longest re-cut took 17 ms on this project's 2-core machine, so a busy hour
+/// has more than twice that; the lips open 0.2 mm behind where they would at the default
 /// 5 mm/s stroke.
 pub const RECUT_HANDOVER_TICKS: u64 = 40;
 
