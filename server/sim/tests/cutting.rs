@@ -6,13 +6,19 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{build_scene, builtin};
+use scalpel_sim::scene::{BuiltScene, build_scene, builtin};
+
+/// The built-in liver and its default stroke (paper Fig. 9).
+fn default_liver_cut() -> (BuiltScene, CutScript) {
+    let scene = build_scene(&builtin("liver").unwrap(), None, &mut Silent).unwrap();
+    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    (scene, script)
+}
 
 #[test]
 fn default_liver_stroke_cuts_with_the_expected_forces() {
-    let spec = builtin("liver").unwrap();
-    let scene = build_scene(&spec, None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let (scene, script) = default_liver_cut();
+    let spec = &scene.spec;
     let mut sim = Simulation::new(&scene);
     let dt = 1e-3;
     let ticks = (script.duration_s() / dt).ceil() as usize;
@@ -235,9 +241,7 @@ fn a_scene_without_mass_scaling_keeps_its_masses() {
 #[test]
 fn re_cuts_land_a_fixed_number_of_ticks_after_they_are_asked_for() {
     use scalpel_sim::pipeline::RECUT_HANDOVER_TICKS;
-    let spec = builtin("liver").unwrap();
-    let scene = build_scene(&spec, None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let (scene, script) = default_liver_cut();
     let mut sim = Simulation::new(&scene);
     let dt = 1e-3;
     let (mut asked, mut landed) = (Vec::new(), Vec::new());

@@ -206,7 +206,7 @@ impl SurfaceEmbedding {
                 let segment = Aabb::around([x, p]);
                 let blocker = within
                     .iter()
-                    .position(|(tri, b)| b.overlaps(&segment) && segment_meets_triangle(x, p, tri));
+                    .position(|(tri, b)| hides(tri, b, x, p, &segment));
                 match blocker {
                     None => found.push((k, w)),
                     // The triangle that hid this point likely hides the next ones too (a
@@ -231,6 +231,16 @@ impl SurfaceEmbedding {
             })
             .map(|(k, _)| vec![(k as u32, 1.0)])
             .unwrap_or_default()
+    }
+
+    /// Whether one of `blockers` (with their boxes) hides rest point `p` from a vertex at
+    /// `x`: the test [`Self::row_for`] drops points by.
+    pub fn hidden(x: &Vec3, p: &Vec3, blockers: &[[Vec3; 3]], blocker_boxes: &[Aabb]) -> bool {
+        let segment = Aabb::around([x, p]);
+        blockers
+            .iter()
+            .zip(blocker_boxes)
+            .any(|(tri, b)| hides(tri, b, x, p, &segment))
     }
 
     /// Summary for reports.
@@ -284,6 +294,12 @@ fn visible(surface: &TriMesh, bvh: &TriangleBvh, own: &[u32], x: &Vec3, p: &Vec3
         }
     });
     clear
+}
+
+/// Whether the cut triangle `tri` (box `b`) crosses the segment from `x` to `p` (box
+/// `segment`).
+fn hides(tri: &[Vec3; 3], b: &Aabb, x: &Vec3, p: &Vec3, segment: &Aabb) -> bool {
+    b.overlaps(segment) && segment_meets_triangle(x, p, tri)
 }
 
 #[cfg(test)]

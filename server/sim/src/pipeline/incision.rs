@@ -13,17 +13,18 @@
 //! split into separate incisions on either side of the earlier one — but take the wound's
 //! walls down where they cut deeper than them (`cut::open_stroke`).
 
+use std::sync::Arc;
+
 use serde::Serialize;
 
 use crate::cut::wound::first_hit;
-use std::sync::Arc;
-
 use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
 use crate::model::{CoupledModel, RestGrid};
+use crate::solver::Solver;
 
 use super::recut_worker::{
     BaseShape, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace, SigmaSnapshot,
@@ -51,19 +52,20 @@ pub struct IncisionStats {
     pub depth_m: f64,
 }
 
-/// The surface at the start of the current stroke.
+/// The surface at the start of the current stroke, and what its re-cuts have made of it.
 struct Base {
     shape: Arc<BaseShape>,
     /// The current vertex each base vertex is now.
     to_current: Vec<Option<u32>>,
+    /// Pieces the last applied run of this stroke opened over intact skin.
+    opened_pieces: usize,
 }
 
 /// A re-cut handed to the worker, applied at tick `due`.
 struct InFlight {
     due: u64,
-    /// The stroke it finishes, when it is the last re-cut of a stroke that has ended: its
-    /// base and the pieces its last applied re-cut opened.
-    ended: Option<(Base, usize)>,
+    /// The stroke it finishes, when it is the last re-cut of a stroke that has ended.
+    ended: Option<Base>,
 }
 
 /// Follows the blade along the surface and keeps the drawn incision up to date.
@@ -81,8 +83,6 @@ pub struct IncisionTracker {
     /// The most advanced entry since the last sample, taken as the path's end when the
     /// stroke finishes between two samples.
     front: Option<PathSample>,
-    /// Pieces the last applied run of this stroke opened over intact skin.
-    opened_pieces: usize,
     /// The slit the blade's flat opened behind the path's first sample, pushed in point
     /// first there (rest, from the edge to the back), and whether it grew since the last
     /// run: a stroke that only stabbed is drawn when it ends.
@@ -117,6 +117,19 @@ pub struct IncisionInputs<'a> {
     pub positions: &'a [Vec3],
 }
 
+impl<'a> IncisionInputs<'a> {
+    /// What `solver`'s points, their `grid` and the cut surface `sigma` give the incision.
+    pub fn of(solver: &'a Solver, grid: &'a RestGrid, sigma: &'a SweptSurface) -> Self {
+        Self {
+            rest_points: solver.rest(),
+            grid,
+            sigma,
+            op: solver.operator(),
+            positions: solver.positions(),
+        }
+    }
+}
+
 /// Path samples preallocated per stroke.
 const PATH_SAMPLE_CAPACITY: usize = 1024;
 
@@ -125,7 +138,7 @@ impl IncisionTracker {
     /// re-cuts run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later
     /// (`recut_worker`).
     pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
-        let mut tracker = Self::on_this_thread(edge_m, params);
+        let mut tracker = Self::without_worker(edge_m, params);
         tracker.worker = RecutWorker::spawn();
         tracker.space = tracker
             .worker
@@ -134,8 +147,9 @@ impl IncisionTracker {
         tracker
     }
 
-    /// The same with every re-cut computed and applied in the tick that asks for it.
-    pub fn on_this_thread(edge_m: f64, params: IncisionParams) -> Self {
+    /// The tracker without its worker: every re-cut computed and applied in the tick that
+    /// asks for it (what it falls back to when the worker cannot start or dies).
+    fn without_worker(edge_m: f64, params: IncisionParams) -> Self {
         Self {
             params,
             sample_step_m: 0.25 * edge_m,
@@ -148,7 +162,6 @@ impl IncisionTracker {
             added_since_run: 0,
             deepened_since_run_m: 0.0,
             front: None,
-            opened_pieces: 0,
             slit: None,
             slit_grew: false,
             tick: 0,
@@ -215,20 +228,20 @@ impl IncisionTracker {
                 && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
             // The last re-cut covers the whole path: one still in flight is superseded (its
             // result read and dropped when this one lands).
-            if rerun && self.worker.is_some() && self.in_flight.take().is_some() {
+            if rerun && self.in_flight.take().is_some() {
                 self.superseded += 1;
             }
             let changed = rerun && self.run(surface, inputs);
-            // Landing after the stroke, it applies to the stroke it finishes.
+            // Landing after the stroke, it applies to the stroke it finishes (this branch
+            // runs every tick the blade is not cutting: only a stroke that just ended has a
+            // base to hand on).
             if let (Some(f), Some(base)) = (&mut self.in_flight, self.base.take()) {
-                f.ended = Some((base, self.opened_pieces));
+                f.ended = Some(base);
             }
-            self.base = None;
             self.samples.clear();
             self.ran_this_stroke = false;
             self.added_since_run = 0;
             self.deepened_since_run_m = 0.0;
-            self.opened_pieces = 0;
             self.slit = None;
             self.slit_grew = false;
             return changed;
@@ -241,6 +254,7 @@ impl IncisionTracker {
                     wounds: surface.wounds.clone(),
                 }),
                 to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
+                opened_pieces: 0,
             });
         }
         if withdrawing {
@@ -427,12 +441,11 @@ impl IncisionTracker {
         if self.in_flight.is_some() {
             return false;
         }
-        let Some(job) = self.job(Some(inputs.sigma)) else {
+        let Some(job) = self.job(inputs.sigma) else {
             return false;
         };
         let Some(worker) = &self.worker else {
-            let outcome = job.run();
-            return self.apply(outcome, surface, inputs);
+            return self.apply_here(job.run(), surface, inputs);
         };
         match worker.send(job) {
             Ok(()) => {
@@ -445,8 +458,7 @@ impl IncisionTracker {
             Err(job) => {
                 // The worker is gone: from now on, here.
                 self.worker = None;
-                let outcome = job.run();
-                self.apply(outcome, surface, inputs)
+                self.apply_here(job.run(), surface, inputs)
             }
         }
     }
@@ -460,7 +472,7 @@ impl IncisionTracker {
 
     /// The re-cut of the stroke's path so far, with the embedding of its new vertices
     /// against `sigma` when it goes to the worker; counts it as a run.
-    fn job(&mut self, sigma: Option<&SweptSurface>) -> Option<RecutJob> {
+    fn job(&mut self, sigma: &SweptSurface) -> Option<RecutJob> {
         let base = self.base.as_ref()?;
         let path = self.stroke_path(&base.shape.mesh, &base.shape.kinds);
         let shape = base.shape.clone();
@@ -474,8 +486,8 @@ impl IncisionTracker {
             path,
             margin: 0.5 * self.rerun_step_m,
             params: self.params,
-            embed: match (&self.space, sigma, &self.worker) {
-                (Some(space), Some(sigma), Some(_)) => Some((
+            embed: match (&self.space, &self.worker) {
+                (Some(space), Some(_)) => Some((
                     space.clone(),
                     SigmaSnapshot {
                         triangles: sigma.triangles.clone(),
@@ -507,33 +519,41 @@ impl IncisionTracker {
             self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
             return false;
         };
-        let Some((base, opened)) = flight.ended else {
-            return self.apply(recut, surface, inputs);
-        };
-        // The stroke it finishes has ended: applied with that stroke's base and pieces, which
-        // then go (no new stroke has begun: it would have settled this first).
-        let stroke = (self.base.replace(base), self.opened_pieces);
-        self.opened_pieces = opened;
-        let changed = self.apply(recut, surface, inputs);
-        (self.base, self.opened_pieces) = stroke;
-        changed
+        match flight.ended {
+            // The stroke it finishes has ended (no new stroke has begun: it would have
+            // landed this first); its base goes with it.
+            Some(mut ended) => ended.apply(&mut self.stats, recut, surface, inputs),
+            None => self.apply_here(recut, surface, inputs),
+        }
     }
 
-    /// Puts a re-cut's surface in place of the current one (unless it opens fewer pieces
-    /// than the last one applied this stroke).
-    fn apply(
+    /// Applies a re-cut to the current stroke.
+    fn apply_here(
         &mut self,
         recut: Recut,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
+        self.base
+            .as_mut()
+            .is_some_and(|base| base.apply(&mut self.stats, recut, surface, inputs))
+    }
+}
+
+impl Base {
+    /// Puts a re-cut of this stroke in place of the current surface (unless it opens fewer
+    /// pieces than the last one applied), counting it in `stats`.
+    fn apply(
+        &mut self,
+        stats: &mut IncisionStats,
+        recut: Recut,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
         let Recut { outcome, rows } = recut;
-        let Some(base) = &mut self.base else {
-            return false;
-        };
-        self.stats.refused += outcome.refusals.len();
+        stats.refused += outcome.refusals.len();
         if let Some(e) = outcome.refusals.last() {
-            self.stats.last_refusal = Some(e.to_string());
+            stats.last_refusal = Some(e.to_string());
         }
         // A piece refused now may have opened in an earlier run of this stroke: a run that
         // opens fewer pieces than the last one applied would lose that incision, so the
@@ -544,14 +564,13 @@ impl IncisionTracker {
         let Some(out) = outcome.surface else {
             return false;
         };
-        let stats = &mut self.stats;
         stats.lip_max_turn_deg = stats.lip_max_turn_deg.max(outcome.lip_max_turn_deg);
         stats.min_angle_deg = stats.min_angle_deg.min(outcome.min_angle_deg);
         stats.opening_m = stats.opening_m.max(outcome.opening_m);
         stats.depth_m = stats.depth_m.max(outcome.depth_m);
-        base.to_current = surface.replace(
+        self.to_current = surface.replace(
             &out,
-            &base.to_current,
+            &self.to_current,
             inputs.rest_points,
             inputs.grid,
             inputs.sigma,
@@ -560,7 +579,7 @@ impl IncisionTracker {
             rows,
         );
         if outcome.opened > 0 && self.opened_pieces == 0 {
-            self.stats.incisions += 1;
+            stats.incisions += 1;
         }
         self.opened_pieces = outcome.opened;
         true

@@ -299,13 +299,7 @@ impl Simulation {
                     tick.withdrawing,
                     tick.slit_rest,
                     &mut self.surface,
-                    &IncisionInputs {
-                        rest_points: self.solver.rest(),
-                        grid: &self.grid,
-                        sigma: &stage.sigma,
-                        op: self.solver.operator(),
-                        positions: self.solver.positions(),
-                    },
+                    &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
                 );
             }
             if remeshed {
@@ -391,13 +385,7 @@ impl Simulation {
         };
         let remeshed = tracker.settle(
             &mut self.surface,
-            &IncisionInputs {
-                rest_points: self.solver.rest(),
-                grid: &self.grid,
-                sigma: &stage.sigma,
-                op: self.solver.operator(),
-                positions: self.solver.positions(),
-            },
+            &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
         );
         if remeshed {
             self.place_virtual_points(None);

@@ -17,9 +17,7 @@
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
-use crate::cut::{
-    FaceKind, IncisionParams, PathSample, StrokeOutcome, Wound, open_stroke, segment_meets_triangle,
-};
+use crate::cut::{FaceKind, IncisionParams, PathSample, StrokeOutcome, Wound, open_stroke};
 use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
@@ -105,13 +103,9 @@ impl PrecomputedRows {
     ) -> Option<Vec<(u32, f64)>> {
         let row = self.rows.get_mut(v)?.take()?;
         let (new, new_boxes) = (&sigma[self.sigma_seen..], &boxes[self.sigma_seen..]);
-        let hidden = row.iter().any(|&(k, _)| {
-            let p = &body[k as usize];
-            let segment = Aabb::around([x, p]);
-            new.iter()
-                .zip(new_boxes)
-                .any(|(tri, b)| b.overlaps(&segment) && segment_meets_triangle(x, p, tri))
-        });
+        let hidden = row
+            .iter()
+            .any(|&(k, _)| SurfaceEmbedding::hidden(x, &body[k as usize], new, new_boxes));
         (!hidden).then_some(row)
     }
 }
