@@ -276,3 +276,95 @@ fn re_cuts_land_a_fixed_number_of_ticks_after_they_are_asked_for() {
         "asked at {asked:?}, the blade left at {left_at}"
     );
 }
+
+/// A re-mesh of the incision keeps the virtual points whose walls it did not move (their
+/// index, rest position and pairs untouched) and places new ones only where the wound
+/// grew, so a landing tick costs what the wound gained, not what it is. The cerebroma's
+/// default stroke, through its first landings with the blade in: a node placed before a
+/// landing is gone after it only if the blade came within R_aff of it or the new walls have
+/// no vertex left within 0.3 spacings of it; the others are still
+/// there at the same rest position, on a wall vertex of the new surface.
+#[test]
+fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
+    use scalpel_sim::geometry::predicates::distance_sq_to_segment;
+    let scene = build_scene(&builtin("cerebroma").unwrap(), None, &mut Silent).unwrap();
+    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let spacing = scene.model.lattice.spacing;
+    let mut sim = Simulation::new(&scene);
+    let dt = 1e-3;
+    // Each node's solver index and rest position (bits).
+    let nodes_of = |sim: &Simulation| -> Vec<(u32, [u64; 3])> {
+        let rest = sim.solver().rest();
+        let mut nodes: Vec<_> = (sim.virtual_points().unwrap().nodes())
+            .map(|n| (n, rest[n as usize].map(f64::to_bits).into()))
+            .collect();
+        nodes.sort_unstable();
+        nodes
+    };
+    let (mut landings, mut carried, mut new, mut near_blade, mut moved) = (0, 0, 0, 0, 0);
+    for k in 0..script.tick_count(dt) {
+        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
+        let before = nodes_of(&sim);
+        let r = sim.tick(dt, &mut Unobserved);
+        let cut = r.cut.as_ref().unwrap();
+        if !(r.remeshed && cut.force.phase == CutPhase::Cutting) {
+            continue;
+        }
+        landings += 1;
+        let after = nodes_of(&sim);
+        let edge = cut.edge_rest.expect("the blade is in");
+        let r_aff = sim.cutting().unwrap().affected_radius();
+        let surface = sim.current_surface();
+        let walls: Vec<Vec3> = (surface.mesh.triangles.iter().zip(&surface.kinds))
+            .filter(|(_, kind)| **kind == FaceKind::Wall)
+            .flat_map(|(t, _)| t.map(|v| surface.rest_positions()[v as usize]))
+            .collect();
+        for old in &before {
+            if after.contains(old) {
+                carried += 1;
+                continue;
+            }
+            let x = Vec3::from(old.1.map(f64::from_bits));
+            if distance_sq_to_segment(&x, &edge[0], &edge[1]) < r_aff * r_aff {
+                near_blade += 1;
+                continue;
+            }
+            let nearest = (walls.iter().map(|w| (w - x).norm())).fold(f64::INFINITY, f64::min);
+            assert!(
+                nearest > 0.299 * spacing,
+                "landing {landings}: node {} dropped, a wall vertex {:.3} spacings from its own",
+                old.0,
+                nearest / spacing
+            );
+            moved += 1;
+        }
+        let vp = sim.virtual_points().unwrap();
+        let kept = before.iter().filter(|o| after.contains(o)).count();
+        assert_eq!(kept, vp.stats.kept, "{:?}", vp.stats);
+        new += after.len() - kept;
+        let rest = sim.solver().rest();
+        for k in 0..vp.stats.placed {
+            let (node, vertex, inset) = vp.site(k);
+            assert!(
+                (surface.rest_positions()[vertex as usize] + inset - rest[node as usize]).norm()
+                    < 1e-12,
+                "node {node} is not at its wall vertex {vertex}"
+            );
+            assert!(inset.norm() <= 0.3 * spacing, "node {node} is off its wall");
+        }
+        if landings == 10 {
+            break;
+        }
+    }
+    println!(
+        "{landings} landings: {carried} nodes carried over, {new} new, {near_blade} released near \
+         the blade, {moved} where the walls moved"
+    );
+    assert_eq!(landings, 10);
+    // Early in the stroke the lips still widen with the path (the opening is at most 0.15 ×
+    // its length), so a few nodes are dropped there; later, none.
+    assert!(
+        carried > 5 * moved && new > 0,
+        "{carried} carried over, {moved} dropped"
+    );
+}

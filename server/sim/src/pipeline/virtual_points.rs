@@ -40,12 +40,18 @@ pub const VIRTUAL_NODE_CAPACITY: usize = 1024;
 const MIN_SEPARATION_SPACINGS: f64 = 0.75;
 /// ... and this many spacings inside the tissue from their wall (physics.md §5.3).
 const INSET_SPACINGS: f64 = 0.05;
+/// A placed node stays through a re-mesh while the new walls have a vertex within this many
+/// spacings of it (it is placed [`INSET_SPACINGS`] from one; a re-cut moves the lips by a
+/// few hundredths of a spacing, more while the path is short).
+const KEEP_SPACINGS: f64 = 0.3;
 
 /// Figures of the virtual points, for reports and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct VirtualPointStats {
     /// Nodes on the walls now.
     pub placed: usize,
+    /// Of those, nodes kept from the placement before (the rest are new).
+    pub kept: usize,
     /// Neighbour pairs between them and interior points.
     pub pairs: usize,
     /// Wall sites left without a node (capacity reached, or no interior point in reach).
@@ -129,9 +135,19 @@ impl VirtualPoints {
         self.nodes.len() != before
     }
 
-    /// Releases every node and places new ones on the walls of `surface`, but not within
-    /// `clear` = (edge, radius) of the blade; the points whose neighbour lists changed are
-    /// appended to `changed` (then [`Solver::topology_changed`]).
+    /// Places nodes on the walls of `surface` as re-meshed, but not within `clear` =
+    /// (edge, radius) of the blade. A node already placed stays, untouched, where the new
+    /// walls still have a vertex within [`KEEP_SPACINGS`] of the one it was placed on;
+    /// the others are released, and new ones fill the walls' sites left at least
+    /// [`MIN_SEPARATION_SPACINGS`] from every node. The points whose neighbour lists
+    /// changed are appended to `changed` (then [`Solver::topology_changed`]).
+    ///
+    /// Keeping nodes is what makes a re-mesh cost what the wound gained, not what it is: a
+    /// re-cut moves the lips along the whole path by a few hundredths of a spacing, and
+    /// placing every node again made the cerebroma's landing ticks grow with the wound
+    /// (docs/CUTTING.md, "Virtual points kept across re-meshes"). A kept node's pairs are
+    /// still valid: Σ grows only where the blade is, and nodes within R_aff of it are
+    /// released every tick ([`Self::release_near`]).
     #[allow(clippy::too_many_arguments)]
     pub fn place(
         &mut self,
@@ -143,29 +159,62 @@ impl VirtualPoints {
         grid: &RestGrid,
         changed: &mut Vec<u32>,
     ) {
-        for n in self.nodes.drain(..) {
-            release(n.node, solver, neighbours, changed);
+        let rest = surface.rest_positions();
+        let walls = WallVertices::of(surface);
+        let cleared = |x: &Vec3| {
+            clear.is_some_and(|(edge, radius)| {
+                distance_sq_to_segment(x, &edge[0], &edge[1]) < radius * radius
+            })
+        };
+        let separation = MIN_SEPARATION_SPACINGS * self.spacing_m;
+        let mut taken = SiteGrid::new(separation);
+        let mut k = 0;
+        while k < self.nodes.len() {
+            let n = self.nodes[k];
+            let x = solver.rest()[n.node as usize];
+            match walls.nearest(&x, KEEP_SPACINGS * self.spacing_m) {
+                Some(v) if !cleared(&rest[v as usize]) => {
+                    taken.insert(rest[v as usize]);
+                    self.nodes[k].vertex = v;
+                    self.nodes[k].inset = x - rest[v as usize];
+                    k += 1;
+                }
+                _ => {
+                    release(n.node, solver, neighbours, changed);
+                    self.nodes.swap_remove(k);
+                }
+            }
         }
-        let mut sites = wall_sites(surface, MIN_SEPARATION_SPACINGS * self.spacing_m);
-        if let Some((edge, radius)) = clear {
-            let rest = surface.rest_positions();
-            sites.retain(|(v, _)| {
-                distance_sq_to_segment(&rest[*v as usize], &edge[0], &edge[1]) >= radius * radius
-            });
+        let kept = self.nodes.len();
+        // The lowest free node indices, in order, for the new nodes.
+        let mut used = vec![false; self.capacity];
+        for n in &self.nodes {
+            used[n.node as usize - self.first] = true;
         }
+        let mut free = (0..self.capacity)
+            .filter(|&slot| !used[slot])
+            .map(|slot| (self.first + slot) as u32);
         let h = self.support_m;
-        let mut pairs = 0;
         let mut not_placed = 0;
         let mut candidates = Vec::new();
         let mut near_sigma: Vec<&[Vec3; 3]> = Vec::new();
-        for (vertex, outward) in sites {
-            if self.nodes.len() == self.capacity {
-                not_placed += 1;
+        for &(vertex, outward) in &walls.sites {
+            let at = rest[vertex as usize];
+            // Sites are picked greedily in vertex order, kept nodes first; a site the blade
+            // clears still holds its place (as when every node was placed anew).
+            if taken.any_within(&at, separation) {
                 continue;
             }
-            let node = (self.first + self.nodes.len()) as u32;
+            taken.insert(at);
+            if cleared(&at) {
+                continue;
+            }
+            let Some(node) = free.next() else {
+                not_placed += 1;
+                continue;
+            };
             let inset = -outward * (INSET_SPACINGS * self.spacing_m);
-            let x = surface.rest_positions()[vertex as usize] + inset;
+            let x = at + inset;
             // Only the cut triangles within h of the node can hide a point from it.
             near_sigma.clear();
             near_sigma.extend(
@@ -174,11 +223,11 @@ impl VirtualPoints {
                     .map(|(t, _)| t),
             );
             candidates.clear();
-            let rest = solver.rest();
-            grid.for_each_within(rest, &x, h, |i, _| {
+            let rest_points = solver.rest();
+            grid.for_each_within(rest_points, &x, h, |i, _| {
                 let seen = !near_sigma
                     .iter()
-                    .any(|t| segment_meets_triangle(&x, &rest[i as usize], t));
+                    .any(|t| segment_meets_triangle(&x, &rest_points[i as usize], t));
                 if seen {
                     candidates.push(i);
                 }
@@ -203,7 +252,6 @@ impl VirtualPoints {
                 not_placed += 1;
                 continue;
             }
-            pairs += connected;
             changed.push(node);
             self.nodes.push(Node {
                 node,
@@ -213,7 +261,10 @@ impl VirtualPoints {
         }
         self.stats = VirtualPointStats {
             placed: self.nodes.len(),
-            pairs,
+            kept,
+            pairs: (self.nodes.iter())
+                .map(|n| neighbours.of(n.node as usize).len())
+                .sum(),
             not_placed,
             placements: self.stats.placements + 1,
         };
@@ -237,34 +288,94 @@ fn release(
     changed.push(node);
 }
 
-/// Wall vertices at least `separation` apart (rest space, in vertex order), each with the
-/// outward unit normal of the wall around it.
-fn wall_sites(surface: &CurrentSurface, separation: f64) -> Vec<(u32, Vec3)> {
-    let rest = surface.rest_positions();
-    let mut normal = vec![Vec3::zeros(); rest.len()];
-    for (tri, kind) in surface.mesh.triangles.iter().zip(&surface.kinds) {
-        if *kind != FaceKind::Wall {
-            continue;
+/// The wall vertices of a surface (rest space), with the outward unit normal of the wall
+/// around each, binned for "which is nearest".
+struct WallVertices<'a> {
+    rest: &'a [Vec3],
+    /// (vertex, outward normal), in vertex order.
+    sites: Vec<(u32, Vec3)>,
+    grid: RestGrid,
+    /// `grid` bins `positions`; `sites[k]` is at `positions[k]`.
+    positions: Vec<Vec3>,
+}
+
+impl<'a> WallVertices<'a> {
+    fn of(surface: &'a CurrentSurface) -> Self {
+        let rest = surface.rest_positions();
+        let mut normal = vec![Vec3::zeros(); rest.len()];
+        for (tri, kind) in surface.mesh.triangles.iter().zip(&surface.kinds) {
+            if *kind != FaceKind::Wall {
+                continue;
+            }
+            let [a, b, c] = tri.map(|v| rest[v as usize]);
+            let n = (b - a).cross(&(c - a));
+            for &v in tri {
+                normal[v as usize] += n;
+            }
         }
-        let [a, b, c] = tri.map(|v| rest[v as usize]);
-        let n = (b - a).cross(&(c - a));
-        for &v in tri {
-            normal[v as usize] += n;
+        let sites: Vec<(u32, Vec3)> = (normal.iter().enumerate())
+            .filter_map(|(v, n)| Some((v as u32, n.try_normalize(1e-300)?)))
+            .collect();
+        let positions: Vec<Vec3> = sites.iter().map(|(v, _)| rest[*v as usize]).collect();
+        let cell = surface.support().max(1e-6);
+        Self {
+            rest,
+            grid: RestGrid::build(&positions, cell),
+            sites,
+            positions,
         }
     }
-    let mut sites: Vec<(u32, Vec3)> = Vec::new();
-    let min2 = separation * separation;
-    for (v, n) in normal.iter().enumerate() {
-        let Some(n) = n.try_normalize(1e-300) else {
-            continue;
-        };
-        let x = rest[v];
-        if sites
-            .iter()
-            .all(|(s, _)| (rest[*s as usize] - x).norm_squared() >= min2)
-        {
-            sites.push((v as u32, n));
+
+    /// The wall vertex nearest `x` within `radius`, if any (the lowest index of equals).
+    fn nearest(&self, x: &Vec3, radius: f64) -> Option<u32> {
+        let mut best: Option<(f64, u32)> = None;
+        self.grid
+            .for_each_within(&self.positions, x, radius, |k, d2| {
+                let v = self.sites[k as usize].0;
+                if best.is_none_or(|(b, bv)| d2 < b || (d2 == b && v < bv)) {
+                    best = Some((d2, v));
+                }
+            });
+        debug_assert!(best.is_none_or(|(_, v)| (self.rest[v as usize] - x).norm() <= radius));
+        best.map(|(_, v)| v)
+    }
+}
+
+/// Sites taken so far, hashed by cells of the separation, for "is one within it".
+struct SiteGrid {
+    cell_m: f64,
+    cells: std::collections::HashMap<[i64; 3], Vec<Vec3>>,
+}
+
+impl SiteGrid {
+    fn new(cell_m: f64) -> Self {
+        Self {
+            cell_m: cell_m.max(1e-9),
+            cells: std::collections::HashMap::new(),
         }
     }
-    sites
+
+    fn cell(&self, x: &Vec3) -> [i64; 3] {
+        [0, 1, 2].map(|a| (x[a] / self.cell_m).floor() as i64)
+    }
+
+    fn insert(&mut self, x: Vec3) {
+        let c = self.cell(&x);
+        self.cells.entry(c).or_default().push(x);
+    }
+
+    /// Whether a site lies closer than `radius` (at most the cell size) to `x`.
+    fn any_within(&self, x: &Vec3, radius: f64) -> bool {
+        let c = self.cell(x);
+        let r2 = radius * radius;
+        (-1..=1).any(|dz| {
+            (-1..=1).any(|dy| {
+                (-1..=1).any(|dx| {
+                    self.cells
+                        .get(&[c[0] + dx, c[1] + dy, c[2] + dz])
+                        .is_some_and(|sites| sites.iter().any(|s| (s - x).norm_squared() < r2))
+                })
+            })
+        })
+    }
 }
