@@ -20,9 +20,9 @@
 //! follows: they support the fit without driving the opening.
 //!
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
-//! the surface; the nodes are then released and placed again on the new walls (a topology
-//! change, off the per-tick path). Between re-meshes a tick releases the nodes the blade
-//! comes within R_aff of.
+//! the surface; the nodes that still stand on the new walls are kept, the others released,
+//! and new ones placed where the wound grew (a topology change, off the per-tick path).
+//! Between re-meshes a tick releases the nodes the blade comes within R_aff of.
 
 use serde::Serialize;
 
