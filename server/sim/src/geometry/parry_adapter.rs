@@ -27,6 +27,11 @@ fn conservative_box(min: &Vec3, max: &Vec3) -> ParryAabb {
     ParryAabb::new(lo, hi)
 }
 
+/// The conservative box of a triangle.
+fn box_around(a: &Vec3, b: &Vec3, c: &Vec3) -> ParryAabb {
+    conservative_box(&a.inf(b).inf(c), &a.sup(b).sup(c))
+}
+
 /// Bounding-volume hierarchy over a mesh's triangles, for box queries.
 pub struct TriangleBvh {
     bvh: Bvh,
@@ -38,9 +43,7 @@ impl TriangleBvh {
         let leaves: Vec<ParryAabb> = (0..mesh.triangles.len())
             .map(|t| {
                 let [a, b, c] = mesh.corners(t);
-                let lo = a.inf(&b).inf(&c);
-                let hi = a.sup(&b).sup(&c);
-                conservative_box(&lo, &hi)
+                box_around(&a, &b, &c)
             })
             .collect();
         Self {
@@ -52,9 +55,22 @@ impl TriangleBvh {
     /// is updated in place and its ancestors widened, no rebuild. Boxes only grow this way;
     /// queries stay conservative.
     pub fn update(&mut self, t: usize, corners: &[Vec3; 3]) {
-        let lo = corners[0].inf(&corners[1]).inf(&corners[2]);
-        let hi = corners[0].sup(&corners[1]).sup(&corners[2]);
-        self.bvh.insert(conservative_box(&lo, &hi), t as u32);
+        let [a, b, c] = corners;
+        self.bvh.insert(box_around(a, b, c), t as u32);
+    }
+
+    /// Moves every triangle's box to `mesh`'s positions (the triangles the hierarchy was
+    /// built over) and refits the inner boxes: the tree keeps the shape it was built with,
+    /// and its boxes are tight again. A few times cheaper than [`Self::build`].
+    pub fn refit_to(&mut self, mesh: &TriMesh) {
+        for t in 0..mesh.triangles.len() {
+            let [a, b, c] = mesh.corners(t);
+            let present = (self.bvh)
+                .update_partially_if_present(box_around(&a, &b, &c), t as u32, 0.0)
+                .is_some();
+            assert!(present, "triangle {t} is not in the hierarchy");
+        }
+        self.bvh.refit_without_opt();
     }
 
     /// Removes triangle `t`.

@@ -550,7 +550,11 @@ impl Base {
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
-        let Recut { outcome, rows } = recut;
+        let Recut {
+            outcome,
+            rows,
+            index,
+        } = recut;
         stats.refused += outcome.refusals.len();
         if let Some(e) = outcome.refusals.last() {
             stats.last_refusal = Some(e.to_string());
@@ -577,6 +581,7 @@ impl Base {
             inputs.op,
             inputs.positions,
             rows,
+            index,
         );
         if outcome.opened > 0 && self.opened_pieces == 0 {
             stats.incisions += 1;

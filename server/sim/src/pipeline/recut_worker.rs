@@ -22,6 +22,8 @@ use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
+use super::surface::SurfaceIndex;
+
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
 /// cerebroma's longest re-cut took 17 ms on this project's 2-core machine, so a busy hour
 /// has more than twice that; the lips open 0.2 mm behind where they would at the default
@@ -79,6 +81,8 @@ pub(crate) struct Recut {
     /// Per vertex of the new surface, for the new ones (no `source`): its embedding row
     /// over the body's points against the first `sigma_seen` triangles of Σ.
     pub rows: Option<PrecomputedRows>,
+    /// The new surface's index, made beside the rows.
+    pub index: Option<SurfaceIndex>,
 }
 
 /// New vertices' embedding rows computed before they land.
@@ -121,6 +125,12 @@ impl RecutJob {
             self.margin,
             &self.params,
         );
+        let index = match (&self.embed, &outcome.surface) {
+            (Some((space, _)), Some(out)) => {
+                Some(SurfaceIndex::of(&out.mesh, space.kernel.support_m))
+            }
+            _ => None,
+        };
         let rows = match (&self.embed, &outcome.surface) {
             (Some((space, sigma)), Some(out)) => Some(PrecomputedRows {
                 rows: (0..out.mesh.positions.len())
@@ -141,7 +151,11 @@ impl RecutJob {
             }),
             _ => None,
         };
-        Recut { outcome, rows }
+        Recut {
+            outcome,
+            rows,
+            index,
+        }
     }
 }
 

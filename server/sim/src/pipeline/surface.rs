@@ -83,6 +83,33 @@ impl Rows {
     }
 }
 
+/// What a surface's queries need that depends only on its triangles and rest positions:
+/// the triangles around each vertex, the vertices binned in rest space, and a triangle
+/// hierarchy shaped over the rest positions. A re-cut's surface gets its index on the
+/// re-cut worker (`recut_worker`), so that the tick it lands on only refits the hierarchy's
+/// boxes to where the vertices are ([`TriangleBvh::refit_to`]) instead of building one.
+pub struct SurfaceIndex {
+    vertex_triangles: Rows,
+    vertex_grid: RestGrid,
+    bvh: TriangleBvh,
+}
+
+impl SurfaceIndex {
+    /// The index of `mesh` (at rest), its vertices binned by `support_m`.
+    pub(crate) fn of(mesh: &TriMesh, support_m: f64) -> Self {
+        let vertex_triangles = Rows::build(
+            mesh.positions.len(),
+            (mesh.triangles.iter().enumerate())
+                .flat_map(|(t, tri)| tri.iter().map(move |&v| (v, t as u32))),
+        );
+        Self {
+            vertex_triangles,
+            vertex_grid: RestGrid::build(&mesh.positions, support_m),
+            bvh: TriangleBvh::build(mesh),
+        }
+    }
+}
+
 /// The current surface and what is needed to move it with the points.
 pub struct CurrentSurface {
     /// Current positions (m) and the triangles.
@@ -164,25 +191,23 @@ impl CurrentSurface {
     pub fn new(model: &CoupledModel) -> Self {
         let mesh = model.surface.clone();
         let nv = mesh.positions.len();
-        let vertex_triangles = Rows::build(
-            nv,
-            mesh.triangles
-                .iter()
-                .enumerate()
-                .flat_map(|(t, tri)| tri.iter().map(move |&v| (v, t as u32))),
-        );
+        let SurfaceIndex {
+            vertex_triangles,
+            vertex_grid,
+            bvh,
+        } = SurfaceIndex::of(&mesh, model.kernel.support_m);
         let emb = &model.embedding;
         let point_vertices = Rows::build(
             model.points.len(),
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
         );
         Self {
-            bvh: TriangleBvh::build(&mesh),
+            bvh,
             kinds: vec![FaceKind::Skin; mesh.triangles.len()],
             wounds: Vec::new(),
             kernel: model.kernel,
             rest: mesh.positions.clone(),
-            vertex_grid: RestGrid::build(&mesh.positions, model.kernel.support_m),
+            vertex_grid,
             support_m: model.kernel.support_m,
             vertex_flag: vec![false; nv],
             vertex_list: Vec::with_capacity(nv),
@@ -235,6 +260,13 @@ impl CurrentSurface {
         moved: &[u32],
     ) -> usize {
         self.vertex_list.clear();
+        self.list_followers(p, moved);
+        self.place_listed(op, rest_points, p)
+    }
+
+    /// Adds to `vertex_list` the vertices of the points in `moved` that have moved since
+    /// their vertices were last placed.
+    fn list_followers(&mut self, p: &[Vec3], moved: &[u32]) {
         for &k in moved {
             let k = k as usize;
             // Nodes after the body's points (virtual points) carry no surface.
@@ -253,6 +285,11 @@ impl CurrentSurface {
                 }
             }
         }
+    }
+
+    /// Places the vertices in `vertex_list` in the field; `triangle_list` lists the
+    /// triangles they moved. Returns how many.
+    fn place_listed(&mut self, op: &MlsOperator, rest_points: &[Vec3], p: &[Vec3]) -> usize {
         // The gradients those vertices read: a frozen point next to a moving one deforms too.
         self.point_list.clear();
         for &v in &self.vertex_list {
@@ -463,8 +500,9 @@ impl CurrentSurface {
     /// Replaces the surface by an incised one. `base_to_current[b]` is the current vertex
     /// that the incision's input vertex b is (vertices keep their embedding); new vertices
     /// are embedded in the points they see without crossing `sigma`. All vertices are then
-    /// placed in the current field. Returns the map from the incision's input vertices to
-    /// the new vertices.
+    /// placed in the current field. `index` is the incised surface's [`SurfaceIndex`] if
+    /// the worker made it. Returns the map from the incision's input vertices to the new
+    /// vertices.
     #[allow(clippy::too_many_arguments)]
     pub fn replace(
         &mut self,
@@ -476,9 +514,12 @@ impl CurrentSurface {
         op: &MlsOperator,
         p: &[Vec3],
         mut precomputed: Option<PrecomputedRows>,
+        index: Option<SurfaceIndex>,
     ) -> Vec<Option<u32>> {
         let nv = incised.mesh.positions.len();
         let mut rows = Vec::with_capacity(nv);
+        // Where each carried vertex is now (new vertices are placed below).
+        let mut now = Vec::with_capacity(nv);
         let mut base_to_new = vec![None; base_to_current.len()];
         // Vertices follow the body's points only: the virtual points after them are no
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
@@ -497,6 +538,7 @@ impl CurrentSurface {
                     .as_mut()
                     .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes))
             };
+            now.push(carried.map(|c| self.mesh.positions[c as usize]));
             rows.push(match carried {
                 Some(c) => self.embedding.row(c as usize),
                 None => ready().unwrap_or_else(|| {
@@ -516,32 +558,39 @@ impl CurrentSurface {
         self.mesh = incised.mesh.clone();
         self.kinds = incised.kinds.clone();
         self.wounds = incised.wounds.clone();
-        self.rebuild_indices(rest_points.len());
-        let all: Vec<u32> = (0..rest_points.len() as u32).collect();
-        self.followed.iter_mut().for_each(|f| *f = STALE);
-        // Every vertex moves: one BVH built over where they are, not refitted one by one.
-        self.place_followers(op, rest_points, p, &all);
-        self.bvh = TriangleBvh::build(&self.mesh);
+        let index = index.unwrap_or_else(|| SurfaceIndex::of(&incised.mesh, self.support_m));
+        self.rebuild_indices(rest_points.len(), index.vertex_triangles, index.vertex_grid);
+        // A carried vertex keeps its row, so it stays where it is (as its points last placed
+        // it: `followed` is theirs as it was); the new ones are placed in the field.
+        self.vertex_list.clear();
+        for (v, now) in now.into_iter().enumerate() {
+            match now {
+                Some(x) => self.mesh.positions[v] = x,
+                None => self.vertex_list.push(v as u32),
+            }
+        }
+        for &v in &self.vertex_list {
+            self.vertex_flag[v as usize] = true;
+        }
+        self.place_listed(op, rest_points, p);
+        // The hierarchy (shaped over the rest positions) is refitted once to where the
+        // vertices are, not leaf by leaf.
+        self.bvh = index.bvh;
+        self.bvh.refit_to(&self.mesh);
         base_to_new
     }
 
-    /// Adjacency, grid and scratch sized for the current mesh.
-    fn rebuild_indices(&mut self, points: usize) {
+    /// Adjacency (`vertex_triangles`, `vertex_grid` of the current mesh, and the points'
+    /// vertices from the embedding) and scratch sized for the current mesh.
+    fn rebuild_indices(&mut self, points: usize, vertex_triangles: Rows, vertex_grid: RestGrid) {
         let nv = self.mesh.positions.len();
-        self.vertex_triangles = Rows::build(
-            nv,
-            self.mesh
-                .triangles
-                .iter()
-                .enumerate()
-                .flat_map(|(t, tri)| tri.iter().map(move |&v| (v, t as u32))),
-        );
+        self.vertex_triangles = vertex_triangles;
         let emb = &self.embedding;
         self.point_vertices = Rows::build(
             points,
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
         );
-        self.vertex_grid = RestGrid::build(&self.rest, self.support_m);
+        self.vertex_grid = vertex_grid;
         self.vertex_flag = vec![false; nv];
         self.vertex_list = Vec::with_capacity(nv);
         self.triangle_flag = vec![false; self.mesh.triangles.len()];
