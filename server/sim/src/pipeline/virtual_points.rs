@@ -136,9 +136,9 @@ impl VirtualPoints {
     }
 
     /// Places nodes on the walls of `surface` as re-meshed, but not within `clear` =
-    /// (edge, radius) of the blade. A node already placed stays, untouched, where the new
-    /// walls still have a vertex within [`KEEP_SPACINGS`] of the one it was placed on;
-    /// the others are released, and new ones fill the walls' sites left at least
+    /// (edge, radius) of the blade. A node already placed stays, untouched, while the new
+    /// walls still have a vertex within [`KEEP_SPACINGS`] of it (and the blade does not
+    /// clear that vertex); the others are released, and new ones fill the walls' sites left at least
     /// [`MIN_SEPARATION_SPACINGS`] from every node. The points whose neighbour lists
     /// changed are appended to `changed` (then [`Solver::topology_changed`]).
     ///
