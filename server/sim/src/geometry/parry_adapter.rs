@@ -127,3 +127,80 @@ pub fn convex_hull_of(points: &[Vec3]) -> Option<Vec<[u32; 3]>> {
             .collect(),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use parry3d::bounding_volume::BoundingVolume;
+
+    /// A 12 × 12 grid of squares in the plane z = 0, two triangles each.
+    fn sheet() -> TriMesh {
+        let n = 12;
+        let positions = (0..=n)
+            .flat_map(|j| (0..=n).map(move |i| Vec3::new(i as f64 * 0.01, j as f64 * 0.01, 0.0)))
+            .collect();
+        let at = |i: u32, j: u32| j * (n + 1) + i;
+        let triangles = (0..n)
+            .flat_map(|j| {
+                (0..n).flat_map(move |i| {
+                    [
+                        [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
+                        [at(i, j), at(i + 1, j + 1), at(i, j + 1)],
+                    ]
+                })
+            })
+            .collect();
+        TriMesh::new(positions, triangles)
+    }
+
+    /// A hierarchy built over the rest shape and refitted to a deformed one answers every box
+    /// query exactly as a brute-force pass over the deformed triangles' boxes does (and so as
+    /// one built over the deformed shape): no triangle is missed where it moved to, none is
+    /// found where it left.
+    #[test]
+    fn a_hierarchy_refitted_to_moved_vertices_finds_what_a_new_one_finds() {
+        let rest = sheet();
+        let mut moved = rest.clone();
+        for p in &mut moved.positions {
+            *p += Vec3::new(
+                0.02 * (40.0 * p.y).sin(),
+                0.01 * (30.0 * p.x).cos(),
+                0.03 * (25.0 * (p.x + p.y)).sin(),
+            );
+        }
+        let mut refitted = TriangleBvh::build(&rest);
+        refitted.refit_to(&moved);
+        let fresh = TriangleBvh::build(&moved);
+        let mut found_any = 0;
+        for k in 0..200 {
+            let t = k as f64;
+            let centre = Vec3::new(
+                0.06 + 0.07 * (1.3 * t).sin(),
+                0.06 + 0.07 * (0.7 * t).cos(),
+                0.03 * (2.1 * t).sin(),
+            );
+            let side = 0.002 + 0.01 * (0.5 + 0.5 * (3.7 * t).sin());
+            // Tall boxes (the sheet rises and falls by 3 cm), some of them flat.
+            let half = Vec3::new(side, side, if k % 4 == 0 { side } else { 0.04 });
+            let (lo, hi) = (centre - half, centre + half);
+            let query = conservative_box(&lo, &hi);
+            let mut brute: Vec<usize> = (0..moved.triangles.len())
+                .filter(|&t| {
+                    let [a, b, c] = moved.corners(t);
+                    box_around(&a, &b, &c).intersects(&query)
+                })
+                .collect();
+            let mut from_refit = Vec::new();
+            refitted.for_each_overlapping(&lo, &hi, |t| from_refit.push(t));
+            let mut from_fresh = Vec::new();
+            fresh.for_each_overlapping(&lo, &hi, |t| from_fresh.push(t));
+            for list in [&mut brute, &mut from_refit, &mut from_fresh] {
+                list.sort_unstable();
+            }
+            assert_eq!(from_refit, brute, "query {k}");
+            assert_eq!(from_fresh, brute, "query {k}");
+            found_any += usize::from(!brute.is_empty());
+        }
+        assert!(found_any > 100, "the queries should mostly hit the sheet");
+    }
+}
