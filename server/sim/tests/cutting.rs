@@ -278,15 +278,16 @@ fn re_cuts_land_a_fixed_number_of_ticks_after_they_are_asked_for() {
 }
 
 /// A re-mesh of the incision keeps the virtual points whose walls it did not move (their
-/// index, rest position and pairs untouched) and places new ones only where the wound
-/// grew, so a landing tick costs what the wound gained, not what it is. The cerebroma's
-/// default stroke, through its first landings with the blade in: a node placed before a
-/// landing is gone after it only if the blade came within R_aff of it or the new walls have
-/// no vertex left within 0.3 spacings of it; the others are still
-/// there at the same rest position, on a wall vertex of the new surface.
+/// index, rest position and pairs untouched) and places new ones only where the wound grew,
+/// a few a tick, so a landing tick costs what the wound gained, not what it is. The
+/// cerebroma's default stroke, through its first landings with the blade in: a node placed
+/// before a landing is gone after it only if the blade came within R_aff of it or the new
+/// walls have no vertex left within 0.3 spacings of it; the others are still there at the
+/// same rest position, on a wall vertex of the new surface.
 #[test]
 fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
     use scalpel_sim::geometry::predicates::distance_sq_to_segment;
+    use scalpel_sim::pipeline::NODES_PER_TICK;
     let scene = build_scene(&builtin("cerebroma").unwrap(), None, &mut Silent).unwrap();
     let script = CutScript::default_for(&scene.model.surface).unwrap();
     let spacing = scene.model.lattice.spacing;
@@ -305,13 +306,21 @@ fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
     for k in 0..script.tick_count(dt) {
         sim.set_tool(Some(script.pose_at(k as f64 * dt)));
         let before = nodes_of(&sim);
+        let waiting = sim.virtual_points().unwrap().has_pending();
         let r = sim.tick(dt, &mut Unobserved);
         let cut = r.cut.as_ref().unwrap();
         if !(r.remeshed && cut.force.phase == CutPhase::Cutting) {
             continue;
         }
         landings += 1;
+        // The nodes a re-mesh adds are placed a few a tick, all of them long before the
+        // next re-mesh.
+        assert!(
+            !waiting,
+            "landing {landings}: nodes of the last still waiting"
+        );
         let after = nodes_of(&sim);
+        assert!(after.len() - sim.virtual_points().unwrap().stats.kept <= NODES_PER_TICK);
         let edge = cut.edge_rest.expect("the blade is in");
         let r_aff = sim.cutting().unwrap().affected_radius();
         let surface = sim.current_surface();

@@ -42,6 +42,11 @@ pub const SIMULATION_TICK_S: f64 = 1e-3;
 use incision::IncisionInputs;
 use virtual_points::VIRTUAL_NODE_CAPACITY;
 
+/// Virtual points placed at most per tick after a re-mesh: each changes the MLS rows of the
+/// dozen points it joins (about 0.1 ms with them on the cerebroma), so the 20 a mid-stroke
+/// re-mesh adds, or the 80 at a stroke's end, are spread over the ticks that follow.
+pub const NODES_PER_TICK: usize = 8;
+
 /// The two halves of a tick that Table 1 of the paper reports separately.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stage {
@@ -303,7 +308,13 @@ impl Simulation {
                 );
             }
             if remeshed {
-                placed = self.place_virtual_points(tick.edge_rest);
+                placed = self.place_virtual_points(tick.edge_rest, NODES_PER_TICK);
+            } else if self
+                .virtual_points
+                .as_ref()
+                .is_some_and(|vp| vp.has_pending())
+            {
+                placed = self.place_pending(tick.edge_rest, NODES_PER_TICK);
             }
         }
         if let (true, Some(stage)) = (placed, &mut self.cutting) {
@@ -353,15 +364,16 @@ impl Simulation {
         }
     }
 
-    /// Places the virtual points on the walls of the surface as re-meshed (none within the
-    /// affected radius of the blade's `edge`); returns whether the scene has them.
-    fn place_virtual_points(&mut self, edge: Option<[Vec3; 2]>) -> bool {
+    /// Re-places the virtual points on the walls of the surface as re-meshed (none within
+    /// the affected radius of the blade's `edge`), at most `limit` new ones now; returns
+    /// whether the scene has them.
+    fn place_virtual_points(&mut self, edge: Option<[Vec3; 2]>, limit: usize) -> bool {
         let (Some(vp), Some(stage)) = (&mut self.virtual_points, &self.cutting) else {
             return false;
         };
         let changed = &mut self.vp_changed;
         changed.clear();
-        vp.place(
+        vp.remeshed(
             &self.surface,
             &stage.sigma,
             edge.map(|e| (e, stage.affected_radius())),
@@ -369,6 +381,7 @@ impl Simulation {
             &mut self.neighbours,
             &self.grid,
             changed,
+            limit,
         );
         changed.sort_unstable();
         changed.dedup();
@@ -376,9 +389,38 @@ impl Simulation {
         true
     }
 
+    /// Places up to `limit` of the virtual points the last re-mesh chose sites for (none
+    /// within the affected radius of the blade's `edge`); returns whether any neighbour
+    /// list changed.
+    fn place_pending(&mut self, edge: Option<[Vec3; 2]>, limit: usize) -> bool {
+        let (Some(vp), Some(stage)) = (&mut self.virtual_points, &self.cutting) else {
+            return false;
+        };
+        let changed = &mut self.vp_changed;
+        changed.clear();
+        vp.place_pending(
+            &self.surface,
+            &stage.sigma,
+            edge.map(|e| (e, stage.affected_radius())),
+            &mut self.solver,
+            &mut self.neighbours,
+            &self.grid,
+            changed,
+            limit,
+        );
+        if changed.is_empty() {
+            return false;
+        }
+        changed.sort_unstable();
+        changed.dedup();
+        self.solver.topology_changed(changed, &self.neighbours);
+        true
+    }
+
     /// Applies a re-cut of the incision still on its worker thread now, instead of at its
-    /// tick (`RECUT_HANDOVER_TICKS` after it was asked for): for the end of an offline run,
-    /// so that its surface is the finished one. Returns whether the surface changed.
+    /// tick (`RECUT_HANDOVER_TICKS` after it was asked for), and places every virtual point
+    /// still waiting for its site: for the end of an offline run, so that its surface and
+    /// nodes are the finished ones. Returns whether the surface changed.
     pub fn settle_incision(&mut self) -> bool {
         let (Some(tracker), Some(stage)) = (&mut self.incisions, &self.cutting) else {
             return false;
@@ -388,7 +430,9 @@ impl Simulation {
             &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
         );
         if remeshed {
-            self.place_virtual_points(None);
+            self.place_virtual_points(None, usize::MAX);
+        } else {
+            self.place_pending(None, usize::MAX);
         }
         remeshed
     }

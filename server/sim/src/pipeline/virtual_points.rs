@@ -54,7 +54,8 @@ pub struct VirtualPointStats {
     pub kept: usize,
     /// Neighbour pairs between them and interior points.
     pub pairs: usize,
-    /// Wall sites left without a node (capacity reached, or no interior point in reach).
+    /// Wall sites of the last re-mesh left without a node (capacity reached, or no
+    /// interior point in reach).
     pub not_placed: usize,
     /// Times the nodes were placed (once per re-mesh).
     pub placements: usize,
@@ -75,6 +76,9 @@ pub struct VirtualPoints {
     first: usize,
     capacity: usize,
     nodes: Vec<Node>,
+    /// Wall sites (vertex, outward normal) of the current surface chosen at its re-mesh and
+    /// not placed yet, in placement order ([`Self::place_pending`]).
+    pending: Vec<(u32, Vec3)>,
     spacing_m: f64,
     support_m: f64,
     /// Figures so far.
@@ -89,6 +93,7 @@ impl VirtualPoints {
             first,
             capacity,
             nodes: Vec::with_capacity(capacity),
+            pending: Vec::new(),
             spacing_m,
             support_m,
             stats: VirtualPointStats::default(),
@@ -135,10 +140,12 @@ impl VirtualPoints {
         self.nodes.len() != before
     }
 
-    /// Places nodes on the walls of `surface` as re-meshed, but not within `clear` =
-    /// (edge, radius) of the blade. A node already placed stays, untouched, while the new
-    /// walls still have a vertex within [`KEEP_SPACINGS`] of it (and the blade does not
-    /// clear that vertex); the others are released, and new ones fill the walls' sites left at least
+    /// After a re-mesh: keeps the nodes that still stand on the walls of `surface`,
+    /// releases the others, and chooses where new ones go: wall sites not within `clear` =
+    /// (edge, radius) of the blade. At most `limit` of those are placed now, the rest by
+    /// [`Self::place_pending`] in the ticks that follow. A node stays, untouched, while the
+    /// new walls still have a vertex within [`KEEP_SPACINGS`] of it (and the blade does not
+    /// clear that vertex); new ones go to the walls' sites left at least
     /// [`MIN_SEPARATION_SPACINGS`] from every node. The points whose neighbour lists
     /// changed are appended to `changed` (then [`Solver::topology_changed`]).
     ///
@@ -149,7 +156,7 @@ impl VirtualPoints {
     /// still valid: Σ grows only where the blade is, and nodes within R_aff of it are
     /// released every tick ([`Self::release_near`]).
     #[allow(clippy::too_many_arguments)]
-    pub fn place(
+    pub fn remeshed(
         &mut self,
         surface: &CurrentSurface,
         sigma: &SweptSurface,
@@ -158,14 +165,10 @@ impl VirtualPoints {
         neighbours: &mut Neighbourhoods,
         grid: &RestGrid,
         changed: &mut Vec<u32>,
+        limit: usize,
     ) {
         let rest = surface.rest_positions();
         let walls = WallVertices::of(surface);
-        let cleared = |x: &Vec3| {
-            clear.is_some_and(|(edge, radius)| {
-                distance_sq_to_segment(x, &edge[0], &edge[1]) < radius * radius
-            })
-        };
         let separation = MIN_SEPARATION_SPACINGS * self.spacing_m;
         let mut taken = SiteGrid::new(separation);
         let mut k = 0;
@@ -173,7 +176,7 @@ impl VirtualPoints {
             let n = self.nodes[k];
             let x = solver.rest()[n.node as usize];
             match walls.nearest(&x, KEEP_SPACINGS * self.spacing_m) {
-                Some(v) if !cleared(&rest[v as usize]) => {
+                Some(v) if !cleared(clear, &rest[v as usize]) => {
                     taken.insert(rest[v as usize]);
                     self.nodes[k].vertex = v;
                     self.nodes[k].inset = x - rest[v as usize];
@@ -185,7 +188,51 @@ impl VirtualPoints {
                 }
             }
         }
-        let kept = self.nodes.len();
+        self.stats.kept = self.nodes.len();
+        self.stats.not_placed = 0;
+        self.stats.placements += 1;
+        self.pending.clear();
+        for &(vertex, outward) in &walls.sites {
+            let at = rest[vertex as usize];
+            // Sites are picked greedily in vertex order, kept nodes first; a site the blade
+            // clears still holds its place (as when every node was placed anew).
+            if taken.any_within(&at, separation) {
+                continue;
+            }
+            taken.insert(at);
+            if !cleared(clear, &at) {
+                self.pending.push((vertex, outward));
+            }
+        }
+        // Placed from the end of the list: keep the vertex order.
+        self.pending.reverse();
+        self.place_pending(
+            surface, sigma, clear, solver, neighbours, grid, changed, limit,
+        );
+    }
+
+    /// Whether sites chosen at the last re-mesh still wait for their nodes.
+    pub fn has_pending(&self) -> bool {
+        !self.pending.is_empty()
+    }
+
+    /// Places up to `limit` of the nodes the last re-mesh chose sites for, skipping sites
+    /// the blade (`clear`) has come near since; returns whether any was placed. Spread
+    /// over ticks because each node changes the MLS rows of the dozen points it joins: the
+    /// end of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in one tick.
+    #[allow(clippy::too_many_arguments)]
+    pub fn place_pending(
+        &mut self,
+        surface: &CurrentSurface,
+        sigma: &SweptSurface,
+        clear: Option<([Vec3; 2], f64)>,
+        solver: &mut Solver,
+        neighbours: &mut Neighbourhoods,
+        grid: &RestGrid,
+        changed: &mut Vec<u32>,
+        limit: usize,
+    ) -> bool {
+        let rest = surface.rest_positions();
         // The lowest free node indices, in order, for the new nodes.
         let mut used = vec![false; self.capacity];
         for n in &self.nodes {
@@ -195,22 +242,19 @@ impl VirtualPoints {
             .filter(|&slot| !used[slot])
             .map(|slot| (self.first + slot) as u32);
         let h = self.support_m;
-        let mut not_placed = 0;
         let mut candidates = Vec::new();
         let mut near_sigma: Vec<&[Vec3; 3]> = Vec::new();
-        for &(vertex, outward) in &walls.sites {
+        let mut placed_any = false;
+        for _ in 0..limit {
+            let Some((vertex, outward)) = self.pending.pop() else {
+                break;
+            };
             let at = rest[vertex as usize];
-            // Sites are picked greedily in vertex order, kept nodes first; a site the blade
-            // clears still holds its place (as when every node was placed anew).
-            if taken.any_within(&at, separation) {
-                continue;
-            }
-            taken.insert(at);
-            if cleared(&at) {
+            if cleared(clear, &at) {
                 continue;
             }
             let Some(node) = free.next() else {
-                not_placed += 1;
+                self.stats.not_placed += 1;
                 continue;
             };
             let inset = -outward * (INSET_SPACINGS * self.spacing_m);
@@ -249,7 +293,7 @@ impl VirtualPoints {
             if connected == 0 || !solver.slave_node(node as usize, x, neighbours.of(node as usize))
             {
                 release(node, solver, neighbours, changed);
-                not_placed += 1;
+                self.stats.not_placed += 1;
                 continue;
             }
             changed.push(node);
@@ -258,17 +302,21 @@ impl VirtualPoints {
                 vertex,
                 inset,
             });
+            placed_any = true;
         }
-        self.stats = VirtualPointStats {
-            placed: self.nodes.len(),
-            kept,
-            pairs: (self.nodes.iter())
-                .map(|n| neighbours.of(n.node as usize).len())
-                .sum(),
-            not_placed,
-            placements: self.stats.placements + 1,
-        };
+        self.stats.placed = self.nodes.len();
+        self.stats.pairs = (self.nodes.iter())
+            .map(|n| neighbours.of(n.node as usize).len())
+            .sum();
+        placed_any
     }
+}
+
+/// Whether `x` lies within the blade's clearance (edge, radius), if there is one.
+fn cleared(clear: Option<([Vec3; 2], f64)>, x: &Vec3) -> bool {
+    clear.is_some_and(|(edge, radius)| {
+        distance_sq_to_segment(x, &edge[0], &edge[1]) < radius * radius
+    })
 }
 
 /// Takes node `node` out of every neighbourhood and unties it.
