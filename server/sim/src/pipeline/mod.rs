@@ -40,7 +40,7 @@ pub use virtual_points::{VirtualPointStats, VirtualPoints};
 pub const SIMULATION_TICK_S: f64 = 1e-3;
 
 use incision::IncisionInputs;
-use virtual_points::VIRTUAL_NODE_CAPACITY;
+use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
 
 /// Virtual points placed at most per tick after a re-mesh: each changes the MLS rows of the
 /// dozen points it joins (about 0.1 ms with them on the cerebroma), so the 20 a mid-stroke
@@ -244,7 +244,6 @@ impl Simulation {
             .map(|pose| Blade::at(&pose, &self.spec.tool));
         let mut cut = None;
         let mut remeshed = false;
-        let mut placed = false;
         if let Some(stage) = &mut self.cutting {
             observer.enter(Stage::Surface);
             let contact = match &blade {
@@ -264,23 +263,19 @@ impl Simulation {
             );
             if let (Some(vp), Some(edge)) = (&mut self.virtual_points, tick.edge_rest) {
                 self.vp_changed.clear();
-                let released = vp.release_near(
+                vp.release_near(
                     &edge,
                     stage.affected_radius(),
                     &mut self.solver,
                     &mut self.neighbours,
                     &mut self.vp_changed,
                 );
-                if released {
-                    self.vp_changed.sort_unstable();
-                    self.vp_changed.dedup();
-                    self.solver
-                        .topology_changed(&self.vp_changed, &self.neighbours);
-                    // Their fits changed: let them relax.
-                    for &i in &self.vp_changed {
-                        stage.wake_point(i);
-                    }
-                }
+                refit_changed(
+                    &mut self.vp_changed,
+                    &mut self.solver,
+                    &self.neighbours,
+                    stage,
+                );
             }
             observer.leave(Stage::Internal);
             cut = Some(tick);
@@ -307,21 +302,7 @@ impl Simulation {
                     &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
                 );
             }
-            if remeshed {
-                placed = self.place_virtual_points(tick.edge_rest, NODES_PER_TICK);
-            } else if self
-                .virtual_points
-                .as_ref()
-                .is_some_and(|vp| vp.has_pending())
-            {
-                placed = self.place_pending(tick.edge_rest, NODES_PER_TICK);
-            }
-        }
-        if let (true, Some(stage)) = (placed, &mut self.cutting) {
-            // The points whose fits the new nodes changed relax to them.
-            for &i in &self.vp_changed {
-                stage.wake_point(i);
-            }
+            self.place_virtual_points(remeshed, tick.edge_rest, NODES_PER_TICK);
         }
         let moved = if self.cutting.is_some() {
             self.solver.active_points()
@@ -364,57 +345,40 @@ impl Simulation {
         }
     }
 
-    /// Re-places the virtual points on the walls of the surface as re-meshed (none within
-    /// the affected radius of the blade's `edge`), at most `limit` new ones now; returns
-    /// whether the scene has them.
-    fn place_virtual_points(&mut self, edge: Option<[Vec3; 2]>, limit: usize) -> bool {
-        let (Some(vp), Some(stage)) = (&mut self.virtual_points, &self.cutting) else {
-            return false;
+    /// Places virtual points on the walls of the surface, none within the affected radius
+    /// of the blade's `edge`: after a re-mesh (`remeshed`) it first keeps, releases and
+    /// chooses sites ([`VirtualPoints::remeshed`]), and either way places at most `limit`
+    /// of the nodes still waiting ([`VirtualPoints::place_pending`]).
+    fn place_virtual_points(&mut self, remeshed: bool, edge: Option<[Vec3; 2]>, limit: usize) {
+        let (Some(vp), Some(stage)) = (&mut self.virtual_points, &mut self.cutting) else {
+            return;
+        };
+        let inputs = PlacementInputs {
+            surface: &self.surface,
+            sigma: &stage.sigma,
+            clear: edge.map(|e| (e, stage.affected_radius())),
+            grid: &self.grid,
         };
         let changed = &mut self.vp_changed;
         changed.clear();
-        vp.remeshed(
-            &self.surface,
-            &stage.sigma,
-            edge.map(|e| (e, stage.affected_radius())),
-            &mut self.solver,
-            &mut self.neighbours,
-            &self.grid,
-            changed,
-            limit,
-        );
-        changed.sort_unstable();
-        changed.dedup();
-        self.solver.topology_changed(changed, &self.neighbours);
-        true
-    }
-
-    /// Places up to `limit` of the virtual points the last re-mesh chose sites for (none
-    /// within the affected radius of the blade's `edge`); returns whether any neighbour
-    /// list changed.
-    fn place_pending(&mut self, edge: Option<[Vec3; 2]>, limit: usize) -> bool {
-        let (Some(vp), Some(stage)) = (&mut self.virtual_points, &self.cutting) else {
-            return false;
-        };
-        let changed = &mut self.vp_changed;
-        changed.clear();
-        vp.place_pending(
-            &self.surface,
-            &stage.sigma,
-            edge.map(|e| (e, stage.affected_radius())),
-            &mut self.solver,
-            &mut self.neighbours,
-            &self.grid,
-            changed,
-            limit,
-        );
-        if changed.is_empty() {
-            return false;
+        if remeshed {
+            vp.remeshed(
+                &inputs,
+                &mut self.solver,
+                &mut self.neighbours,
+                changed,
+                limit,
+            );
+        } else {
+            vp.place_pending(
+                &inputs,
+                &mut self.solver,
+                &mut self.neighbours,
+                changed,
+                limit,
+            );
         }
-        changed.sort_unstable();
-        changed.dedup();
-        self.solver.topology_changed(changed, &self.neighbours);
-        true
+        refit_changed(changed, &mut self.solver, &self.neighbours, stage);
     }
 
     /// Applies a re-cut of the incision still on its worker thread now, instead of at its
@@ -429,11 +393,7 @@ impl Simulation {
             &mut self.surface,
             &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
         );
-        if remeshed {
-            self.place_virtual_points(None, usize::MAX);
-        } else {
-            self.place_pending(None, usize::MAX);
-        }
+        self.place_virtual_points(remeshed, None, usize::MAX);
         remeshed
     }
 
@@ -534,4 +494,23 @@ fn bounded(force: &CutForce, max_n: f64) -> CutForce {
         f.stored_energy_j *= s;
     }
     f
+}
+
+/// The points whose neighbour lists virtual points changed (`changed`, any order, repeats)
+/// get new MLS rows and are woken to relax to their new fits; nothing when none changed.
+fn refit_changed(
+    changed: &mut Vec<u32>,
+    solver: &mut Solver,
+    neighbours: &Neighbourhoods,
+    stage: &mut CuttingStage,
+) {
+    if changed.is_empty() {
+        return;
+    }
+    changed.sort_unstable();
+    changed.dedup();
+    solver.topology_changed(changed, neighbours);
+    for &i in changed.iter() {
+        stage.wake_point(i);
+    }
 }

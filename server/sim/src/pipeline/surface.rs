@@ -499,10 +499,10 @@ impl CurrentSurface {
 
     /// Replaces the surface by an incised one. `base_to_current[b]` is the current vertex
     /// that the incision's input vertex b is (vertices keep their embedding); new vertices
-    /// are embedded in the points they see without crossing `sigma`. All vertices are then
-    /// placed in the current field. `index` is the incised surface's [`SurfaceIndex`] if
-    /// the worker made it. Returns the map from the incision's input vertices to the new
-    /// vertices.
+    /// are embedded in the points they see without crossing `sigma`; carried vertices stay
+    /// where they are and the new ones are placed in the current field. `index` is the
+    /// incised surface's [`SurfaceIndex`] if the worker made it. Returns the map from the
+    /// incision's input vertices to the new vertices.
     #[allow(clippy::too_many_arguments)]
     pub fn replace(
         &mut self,
@@ -568,9 +568,6 @@ impl CurrentSurface {
                 Some(x) => self.mesh.positions[v] = x,
                 None => self.vertex_list.push(v as u32),
             }
-        }
-        for &v in &self.vertex_list {
-            self.vertex_flag[v as usize] = true;
         }
         self.place_listed(op, rest_points, p);
         // The hierarchy (shaped over the rest positions) is refitted once to where the

@@ -71,6 +71,27 @@ struct Node {
     inset: Vec3,
 }
 
+/// What placing nodes reads.
+pub struct PlacementInputs<'a> {
+    /// The re-meshed surface whose walls they go on.
+    pub surface: &'a CurrentSurface,
+    /// The cut surface Σ they must not see across.
+    pub sigma: &'a SweptSurface,
+    /// The blade's rest edge and the radius around it no node goes within.
+    pub clear: Option<([Vec3; 2], f64)>,
+    /// The grid of the body's points.
+    pub grid: &'a RestGrid,
+}
+
+impl PlacementInputs<'_> {
+    /// Whether `x` lies within the blade's clearance, if there is one.
+    fn cleared(&self, x: &Vec3) -> bool {
+        self.clear.is_some_and(|(edge, radius)| {
+            distance_sq_to_segment(x, &edge[0], &edge[1]) < radius * radius
+        })
+    }
+}
+
 /// The virtual points of a simulation.
 pub struct VirtualPoints {
     first: usize,
@@ -114,8 +135,8 @@ impl VirtualPoints {
     /// Releases the nodes within `radius` of the blade's rest `edge`: the blade cuts and
     /// dents the tissue there, and the new Σ would split a node's masters on a wall the
     /// blade is re-cutting (its pairs are cut, its interpolation is not). The next
-    /// placement puts nodes back once the blade has gone.
-    /// Returns whether any was released; changed lists are appended to `changed`.
+    /// placement puts nodes back once the blade has gone. Changed lists are appended to
+    /// `changed`.
     pub fn release_near(
         &mut self,
         edge: &[Vec3; 2],
@@ -123,26 +144,38 @@ impl VirtualPoints {
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
-    ) -> bool {
-        let before = self.nodes.len();
+    ) {
+        self.retain(solver, neighbours, changed, |_, at| {
+            distance_sq_to_segment(at, &edge[0], &edge[1]) >= radius * radius
+        });
+    }
+
+    /// Keeps the nodes `keep(node, rest position)` says to (it may move the node's record
+    /// to its new wall vertex) and releases the others; their changed lists are appended to
+    /// `changed`.
+    fn retain(
+        &mut self,
+        solver: &mut Solver,
+        neighbours: &mut Neighbourhoods,
+        changed: &mut Vec<u32>,
+        mut keep: impl FnMut(&mut Node, &Vec3) -> bool,
+    ) {
         let mut k = 0;
         while k < self.nodes.len() {
-            let node = self.nodes[k].node;
-            let at = solver.rest()[node as usize];
-            if distance_sq_to_segment(&at, &edge[0], &edge[1]) < radius * radius {
-                release(node, solver, neighbours, changed);
-                self.nodes.swap_remove(k);
-            } else {
+            let at = solver.rest()[self.nodes[k].node as usize];
+            if keep(&mut self.nodes[k], &at) {
                 k += 1;
+            } else {
+                release(self.nodes[k].node, solver, neighbours, changed);
+                self.nodes.swap_remove(k);
             }
         }
         self.stats.placed = self.nodes.len();
-        self.nodes.len() != before
     }
 
-    /// After a re-mesh: keeps the nodes that still stand on the walls of `surface`,
-    /// releases the others, and chooses where new ones go: wall sites not within `clear` =
-    /// (edge, radius) of the blade. At most `limit` of those are placed now, the rest by
+    /// After a re-mesh: keeps the nodes that still stand on the walls of the surface,
+    /// releases the others, and chooses where new ones go: wall sites outside the blade's
+    /// clearance. At most `limit` of those are placed now, the rest by
     /// [`Self::place_pending`] in the ticks that follow. A node stays, untouched, while the
     /// new walls still have a vertex within [`KEEP_SPACINGS`] of it (and the blade does not
     /// clear that vertex); new ones go to the walls' sites left at least
@@ -155,60 +188,48 @@ impl VirtualPoints {
     /// (docs/CUTTING.md, "Virtual points kept across re-meshes"). A kept node's pairs are
     /// still valid: Σ grows only where the blade is, and nodes within R_aff of it are
     /// released every tick ([`Self::release_near`]).
-    #[allow(clippy::too_many_arguments)]
     pub fn remeshed(
         &mut self,
-        surface: &CurrentSurface,
-        sigma: &SweptSurface,
-        clear: Option<([Vec3; 2], f64)>,
+        inputs: &PlacementInputs<'_>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
-        grid: &RestGrid,
         changed: &mut Vec<u32>,
         limit: usize,
     ) {
-        let rest = surface.rest_positions();
-        let walls = WallVertices::of(surface);
-        let separation = MIN_SEPARATION_SPACINGS * self.spacing_m;
-        let mut taken = SiteGrid::new(separation);
-        let mut k = 0;
-        while k < self.nodes.len() {
-            let n = self.nodes[k];
-            let x = solver.rest()[n.node as usize];
-            match walls.nearest(&x, KEEP_SPACINGS * self.spacing_m) {
-                Some(v) if !cleared(clear, &rest[v as usize]) => {
-                    taken.insert(rest[v as usize]);
-                    self.nodes[k].vertex = v;
-                    self.nodes[k].inset = x - rest[v as usize];
-                    k += 1;
-                }
-                _ => {
-                    release(n.node, solver, neighbours, changed);
-                    self.nodes.swap_remove(k);
-                }
+        let mut walls = WallVertices::of(inputs.surface);
+        let keep_within = KEEP_SPACINGS * self.spacing_m;
+        self.retain(solver, neighbours, changed, |node, at| {
+            let Some(k) = walls.nearest(at, keep_within) else {
+                return false;
+            };
+            let vertex_at = walls.positions[k];
+            if inputs.cleared(&vertex_at) {
+                return false;
             }
-        }
+            walls.taken[k] = true;
+            node.vertex = walls.sites[k].0;
+            node.inset = at - vertex_at;
+            true
+        });
         self.stats.kept = self.nodes.len();
         self.stats.not_placed = 0;
         self.stats.placements += 1;
         self.pending.clear();
-        for &(vertex, outward) in &walls.sites {
-            let at = rest[vertex as usize];
+        let separation = MIN_SEPARATION_SPACINGS * self.spacing_m;
+        for k in 0..walls.sites.len() {
             // Sites are picked greedily in vertex order, kept nodes first; a site the blade
             // clears still holds its place (as when every node was placed anew).
-            if taken.any_within(&at, separation) {
+            if walls.taken_within(k, separation) {
                 continue;
             }
-            taken.insert(at);
-            if !cleared(clear, &at) {
-                self.pending.push((vertex, outward));
+            walls.taken[k] = true;
+            if !inputs.cleared(&walls.positions[k]) {
+                self.pending.push(walls.sites[k]);
             }
         }
         // Placed from the end of the list: keep the vertex order.
         self.pending.reverse();
-        self.place_pending(
-            surface, sigma, clear, solver, neighbours, grid, changed, limit,
-        );
+        self.place_pending(inputs, solver, neighbours, changed, limit);
     }
 
     /// Whether sites chosen at the last re-mesh still wait for their nodes.
@@ -217,21 +238,27 @@ impl VirtualPoints {
     }
 
     /// Places up to `limit` of the nodes the last re-mesh chose sites for, skipping sites
-    /// the blade (`clear`) has come near since; returns whether any was placed. Spread
-    /// over ticks because each node changes the MLS rows of the dozen points it joins: the
-    /// end of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in one tick.
-    #[allow(clippy::too_many_arguments)]
+    /// the blade has come near since; changed lists are appended to `changed`. Spread over
+    /// ticks because each node changes the MLS rows of the dozen points it joins: the end
+    /// of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in one tick.
+    /// Nothing waiting, it returns at once (it is called every tick).
     pub fn place_pending(
         &mut self,
-        surface: &CurrentSurface,
-        sigma: &SweptSurface,
-        clear: Option<([Vec3; 2], f64)>,
+        inputs: &PlacementInputs<'_>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
-        grid: &RestGrid,
         changed: &mut Vec<u32>,
         limit: usize,
-    ) -> bool {
+    ) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let PlacementInputs {
+            surface,
+            sigma,
+            grid,
+            ..
+        } = inputs;
         let rest = surface.rest_positions();
         // The lowest free node indices, in order, for the new nodes.
         let mut used = vec![false; self.capacity];
@@ -244,13 +271,12 @@ impl VirtualPoints {
         let h = self.support_m;
         let mut candidates = Vec::new();
         let mut near_sigma: Vec<&[Vec3; 3]> = Vec::new();
-        let mut placed_any = false;
         for _ in 0..limit {
             let Some((vertex, outward)) = self.pending.pop() else {
                 break;
             };
             let at = rest[vertex as usize];
-            if cleared(clear, &at) {
+            if inputs.cleared(&at) {
                 continue;
             }
             let Some(node) = free.next() else {
@@ -302,21 +328,12 @@ impl VirtualPoints {
                 vertex,
                 inset,
             });
-            placed_any = true;
         }
         self.stats.placed = self.nodes.len();
         self.stats.pairs = (self.nodes.iter())
             .map(|n| neighbours.of(n.node as usize).len())
             .sum();
-        placed_any
     }
-}
-
-/// Whether `x` lies within the blade's clearance (edge, radius), if there is one.
-fn cleared(clear: Option<([Vec3; 2], f64)>, x: &Vec3) -> bool {
-    clear.is_some_and(|(edge, radius)| {
-        distance_sq_to_segment(x, &edge[0], &edge[1]) < radius * radius
-    })
 }
 
 /// Takes node `node` out of every neighbourhood and unties it.
@@ -337,18 +354,19 @@ fn release(
 }
 
 /// The wall vertices of a surface (rest space), with the outward unit normal of the wall
-/// around each, binned for "which is nearest".
-struct WallVertices<'a> {
-    rest: &'a [Vec3],
+/// around each, binned for "which is nearest", and which of them hold a node.
+struct WallVertices {
     /// (vertex, outward normal), in vertex order.
     sites: Vec<(u32, Vec3)>,
-    grid: RestGrid,
-    /// `grid` bins `positions`; `sites[k]` is at `positions[k]`.
+    /// `sites[k]`'s rest position; `grid` bins these.
     positions: Vec<Vec3>,
+    grid: RestGrid,
+    /// Whether `sites[k]` holds a node (kept or to be placed).
+    taken: Vec<bool>,
 }
 
-impl<'a> WallVertices<'a> {
-    fn of(surface: &'a CurrentSurface) -> Self {
+impl WallVertices {
+    fn of(surface: &CurrentSurface) -> Self {
         let rest = surface.rest_positions();
         let mut normal = vec![Vec3::zeros(); rest.len()];
         for (tri, kind) in surface.mesh.triangles.iter().zip(&surface.kinds) {
@@ -365,65 +383,34 @@ impl<'a> WallVertices<'a> {
             .filter_map(|(v, n)| Some((v as u32, n.try_normalize(1e-300)?)))
             .collect();
         let positions: Vec<Vec3> = sites.iter().map(|(v, _)| rest[*v as usize]).collect();
-        let cell = surface.support().max(1e-6);
         Self {
-            rest,
-            grid: RestGrid::build(&positions, cell),
+            grid: RestGrid::build(&positions, surface.support().max(1e-6)),
+            taken: vec![false; sites.len()],
             sites,
             positions,
         }
     }
 
-    /// The wall vertex nearest `x` within `radius`, if any (the lowest index of equals).
-    fn nearest(&self, x: &Vec3, radius: f64) -> Option<u32> {
-        let mut best: Option<(f64, u32)> = None;
+    /// The site nearest `x` within `radius`, if any (the lowest vertex of equals).
+    fn nearest(&self, x: &Vec3, radius: f64) -> Option<usize> {
+        let mut best: Option<(f64, usize)> = None;
         self.grid
             .for_each_within(&self.positions, x, radius, |k, d2| {
-                let v = self.sites[k as usize].0;
-                if best.is_none_or(|(b, bv)| d2 < b || (d2 == b && v < bv)) {
-                    best = Some((d2, v));
+                let k = k as usize;
+                if best.is_none_or(|(b, bk)| d2 < b || (d2 == b && k < bk)) {
+                    best = Some((d2, k));
                 }
             });
-        debug_assert!(best.is_none_or(|(_, v)| (self.rest[v as usize] - x).norm() <= radius));
-        best.map(|(_, v)| v)
-    }
-}
-
-/// Sites taken so far, hashed by cells of the separation, for "is one within it".
-struct SiteGrid {
-    cell_m: f64,
-    cells: std::collections::HashMap<[i64; 3], Vec<Vec3>>,
-}
-
-impl SiteGrid {
-    fn new(cell_m: f64) -> Self {
-        Self {
-            cell_m: cell_m.max(1e-9),
-            cells: std::collections::HashMap::new(),
-        }
+        best.map(|(_, k)| k)
     }
 
-    fn cell(&self, x: &Vec3) -> [i64; 3] {
-        [0, 1, 2].map(|a| (x[a] / self.cell_m).floor() as i64)
-    }
-
-    fn insert(&mut self, x: Vec3) {
-        let c = self.cell(&x);
-        self.cells.entry(c).or_default().push(x);
-    }
-
-    /// Whether a site lies closer than `radius` (at most the cell size) to `x`.
-    fn any_within(&self, x: &Vec3, radius: f64) -> bool {
-        let c = self.cell(x);
-        let r2 = radius * radius;
-        (-1..=1).any(|dz| {
-            (-1..=1).any(|dy| {
-                (-1..=1).any(|dx| {
-                    self.cells
-                        .get(&[c[0] + dx, c[1] + dy, c[2] + dz])
-                        .is_some_and(|sites| sites.iter().any(|s| (s - x).norm_squared() < r2))
-                })
-            })
-        })
+    /// Whether a site closer than `radius` to site `k` holds a node.
+    fn taken_within(&self, k: usize, radius: f64) -> bool {
+        let mut taken = false;
+        self.grid
+            .for_each_within(&self.positions, &self.positions[k], radius, |j, _| {
+                taken |= self.taken[j as usize];
+            });
+        taken
     }
 }
