@@ -16,5 +16,5 @@ pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
 pub use incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
 pub use stroke::{StrokeOutcome, open_stroke};
-pub use swept::{SweptSurface, cut_pairs, visit_crossing_pairs};
+pub use swept::{SIGMA_ROOM, SweptSurface, cut_pairs, visit_crossing_pairs};
 pub use wound::{WallColumn, Wound, deepen};

@@ -22,7 +22,20 @@ pub struct SweptSurface {
     pub boxes: Vec<Aabb>,
 }
 
+/// Triangles Σ has room for before it grows: two a cutting tick while the edge moves, so
+/// a few minutes of cutting (several long strokes) append without reallocating on the
+/// simulation thread. Past it, Σ doubles like any vector.
+pub const SIGMA_ROOM: usize = 4096;
+
 impl SweptSurface {
+    /// An empty Σ with room for [`SIGMA_ROOM`] triangles.
+    pub fn with_room() -> Self {
+        Self {
+            triangles: Vec::with_capacity(SIGMA_ROOM),
+            boxes: Vec::with_capacity(SIGMA_ROOM),
+        }
+    }
+
     /// Appends the quad swept by an edge moving from `(tip0, entry0)` to `(tip1, entry1)`;
     /// returns how many triangles were added (0 for a degenerate sweep).
     pub fn add_sweep(&mut self, tip0: Vec3, entry0: Vec3, tip1: Vec3, entry1: Vec3) -> usize {

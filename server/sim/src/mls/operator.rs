@@ -531,9 +531,19 @@ fn classify(a: Mat3, sum_wx: Vec3, sum_w: f64, count: usize) -> PointTerm {
     let eig = nalgebra::SymmetricEigen::new(a);
     let sigma_max = eig.eigenvalues.max();
     let threshold = sigma_max / MAX_CONDITION;
-    let sampled: Vec<usize> = (0..3).filter(|&k| eig.eigenvalues[k] > threshold).collect();
+    // The directions the neighbourhood samples, in ascending order (no allocation: rows
+    // are refitted on the simulation thread when a cut changes them).
+    let mut kept = [0usize; 3];
+    let mut n_kept = 0;
+    for k in 0..3 {
+        if eig.eigenvalues[k] > threshold {
+            kept[n_kept] = k;
+            n_kept += 1;
+        }
+    }
+    let sampled = &kept[..n_kept];
     let mut pinv = Mat3::zeros();
-    for &k in &sampled {
+    for &k in sampled {
         let v = eig.eigenvectors.column(k);
         pinv += v * v.transpose() / eig.eigenvalues[k];
     }

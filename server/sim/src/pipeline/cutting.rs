@@ -206,7 +206,7 @@ impl CuttingStage {
         Self {
             tool,
             force: CuttingForceModel::new(force, ripple),
-            sigma: SweptSurface::default(),
+            sigma: SweptSurface::with_room(),
             kernel,
             spacing_m,
             r_aff: AFFECTED_SUPPORTS * kernel.support_m,

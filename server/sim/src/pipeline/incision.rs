@@ -27,7 +27,7 @@ use crate::model::{CoupledModel, RestGrid};
 use crate::solver::Solver;
 
 use super::recut_worker::{
-    BaseShape, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace, SigmaSnapshot,
+    BaseShape, JobBuffers, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace,
 };
 use super::surface::CurrentSurface;
 
@@ -99,6 +99,8 @@ pub struct IncisionTracker {
     superseded: u32,
     /// The body's rest space, for the worker to embed new vertices.
     space: Option<Arc<RestSpace>>,
+    /// Buffers finished jobs handed back, for the next ones.
+    spare: Vec<JobBuffers>,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -132,6 +134,9 @@ impl<'a> IncisionInputs<'a> {
 
 /// Path samples preallocated per stroke.
 const PATH_SAMPLE_CAPACITY: usize = 1024;
+
+/// Sets of job buffers kept for the next re-cuts.
+const SPARE_JOBS: usize = 3;
 
 impl IncisionTracker {
     /// A tracker for `model`'s surface (mean edge length `edge_m`), whose
@@ -169,6 +174,13 @@ impl IncisionTracker {
             in_flight: None,
             superseded: 0,
             space: None,
+            // Room for the jobs a stroke's end may have in flight at once (one and the one
+            // it supersedes), one set of buffers made now.
+            spare: {
+                let mut spare = Vec::with_capacity(SPARE_JOBS);
+                spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
+                spare
+            },
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -385,13 +397,166 @@ impl IncisionTracker {
         &self.samples
     }
 
+    /// Recomputes the stroke's incision from the base surface: hands it to the worker
+    /// (it lands later, and this returns `false`), or computes and applies it now without
+    /// one. With a re-cut still in flight it waits: the samples since keep counting, so the
+    /// next sample asks again.
+    fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        if self.in_flight.is_some() {
+            return false;
+        }
+        let Some(job) = self.job(inputs.sigma) else {
+            return false;
+        };
+        let Some(worker) = &self.worker else {
+            return self.apply_now(job, surface, inputs);
+        };
+        match worker.send(job) {
+            Ok(()) => {
+                self.in_flight = Some(InFlight {
+                    due: self.tick + RECUT_HANDOVER_TICKS,
+                    ended: None,
+                });
+                false
+            }
+            Err(job) => {
+                // The worker is gone: from now on, here.
+                self.worker = None;
+                self.apply_now(*job, surface, inputs)
+            }
+        }
+    }
+
+    /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
+    /// before a new stroke, and at the end of an offline run. Returns whether the surface
+    /// changed.
+    pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        self.in_flight.is_some() && self.land(surface, inputs)
+    }
+
+    /// The re-cut of the stroke's path so far, with the embedding of its new vertices
+    /// against `sigma` when it goes to the worker; counts it as a run. Its copies of the
+    /// samples and of Σ go into buffers an earlier job handed back.
+    fn job(&mut self, sigma: &SweptSurface) -> Option<RecutJob> {
+        let base = self.base.as_ref()?;
+        let shape = base.shape.clone();
+        let JobBuffers {
+            mut samples,
+            sigma: mut snapshot,
+        } = self.spare.pop().unwrap_or_default();
+        samples.clear();
+        samples.extend_from_slice(&self.samples);
+        self.ran_this_stroke = true;
+        self.added_since_run = 0;
+        self.deepened_since_run_m = 0.0;
+        self.slit_grew = false;
+        self.stats.runs += 1;
+        Some(RecutJob {
+            shape,
+            stroke: StrokeSamples {
+                samples,
+                slit: self.slit,
+                sample_step_m: self.sample_step_m,
+            },
+            margin: 0.5 * self.rerun_step_m,
+            params: self.params,
+            embed: match (&self.space, &self.worker) {
+                (Some(space), Some(_)) => {
+                    snapshot.triangles.clear();
+                    snapshot.triangles.extend_from_slice(&sigma.triangles);
+                    snapshot.boxes.clear();
+                    snapshot.boxes.extend_from_slice(&sigma.boxes);
+                    Some((space.clone(), snapshot))
+                }
+                _ => None,
+            },
+        })
+    }
+
+    /// Keeps a finished job's buffers for the next one.
+    fn keep_buffers(&mut self, spent: Option<JobBuffers>) {
+        if let Some(spent) = spent
+            && self.spare.len() < self.spare.capacity()
+        {
+            self.spare.push(spent);
+        }
+    }
+
+    /// Applies the re-cut in flight, waiting for it if need be.
+    fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+        let Some(flight) = self.in_flight.take() else {
+            return false;
+        };
+        let superseded = std::mem::take(&mut self.superseded);
+        // Superseded results are read and dropped, their buffers kept.
+        let mut recut = None;
+        for left in (0..=superseded).rev() {
+            recut = self.worker.as_ref().and_then(RecutWorker::wait);
+            match &mut recut {
+                Some(r) if left > 0 => self.keep_buffers(r.spent.take()),
+                Some(_) => {}
+                None => break,
+            }
+        }
+        let Some(mut recut) = recut else {
+            // The worker died on it: the surface stays as it was, the next runs are here.
+            self.worker = None;
+            self.stats.refused += 1;
+            self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
+            return false;
+        };
+        self.keep_buffers(recut.spent.take());
+        match flight.ended {
+            // The stroke it finishes has ended (no new stroke has begun: it would have
+            // landed this first); its base goes with it.
+            Some(mut ended) => ended.apply(&mut self.stats, recut, surface, inputs),
+            None => self.apply_here(recut, surface, inputs),
+        }
+    }
+
+    /// Computes a re-cut here and applies it to the current stroke.
+    fn apply_now(
+        &mut self,
+        job: RecutJob,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
+        let mut recut = job.finish();
+        self.keep_buffers(recut.spent.take());
+        self.apply_here(recut, surface, inputs)
+    }
+
+    /// Applies a re-cut to the current stroke.
+    fn apply_here(
+        &mut self,
+        recut: Recut,
+        surface: &mut CurrentSurface,
+        inputs: &IncisionInputs<'_>,
+    ) -> bool {
+        self.base
+            .as_mut()
+            .is_some_and(|base| base.apply(&mut self.stats, recut, surface, inputs))
+    }
+}
+
+/// A stroke as the tracker sampled it, copied for a re-cut: the job resolves its path on
+/// the base surface (on the worker, where the slit's rays against the surface cost the
+/// simulation thread nothing).
+#[derive(Debug)]
+pub(crate) struct StrokeSamples {
+    pub samples: Vec<PathSample>,
+    pub slit: Option<Vec3>,
+    pub sample_step_m: f64,
+}
+
+impl StrokeSamples {
     /// The stroke's path on `mesh`: its samples, after the slit the blade's flat opened
     /// behind the first one (unless the path then ran back over it), sampled as the path
     /// is. Each slit sample is where the flat, a distance x behind the edge, meets the
     /// surface (up the edge from the blade's depth: in the flat's plane, so the slit runs
     /// straight on a faceted, sloping surface); its floor is the point's 45° taper, x up
     /// the edge from the tip.
-    fn stroke_path(&self, mesh: &TriMesh, kinds: &[FaceKind]) -> Vec<PathSample> {
+    pub fn path(&self, mesh: &TriMesh, kinds: &[FaceKind]) -> Vec<PathSample> {
         let mut path = Vec::with_capacity(self.samples.len() + 16);
         if let (Some(slit), Some(first)) = (self.slit, self.samples.first()) {
             let onward = self.samples.get(1).map(|s| s.surface - first.surface);
@@ -432,112 +597,6 @@ impl IncisionTracker {
         path.extend_from_slice(&self.samples);
         path
     }
-
-    /// Recomputes the stroke's incision from the base surface: hands it to the worker
-    /// (it lands later, and this returns `false`), or computes and applies it now without
-    /// one. With a re-cut still in flight it waits: the samples since keep counting, so the
-    /// next sample asks again.
-    fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        if self.in_flight.is_some() {
-            return false;
-        }
-        let Some(job) = self.job(inputs.sigma) else {
-            return false;
-        };
-        let Some(worker) = &self.worker else {
-            return self.apply_here(job.run(), surface, inputs);
-        };
-        match worker.send(job) {
-            Ok(()) => {
-                self.in_flight = Some(InFlight {
-                    due: self.tick + RECUT_HANDOVER_TICKS,
-                    ended: None,
-                });
-                false
-            }
-            Err(job) => {
-                // The worker is gone: from now on, here.
-                self.worker = None;
-                self.apply_here(job.run(), surface, inputs)
-            }
-        }
-    }
-
-    /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
-    /// before a new stroke, and at the end of an offline run. Returns whether the surface
-    /// changed.
-    pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        self.in_flight.is_some() && self.land(surface, inputs)
-    }
-
-    /// The re-cut of the stroke's path so far, with the embedding of its new vertices
-    /// against `sigma` when it goes to the worker; counts it as a run.
-    fn job(&mut self, sigma: &SweptSurface) -> Option<RecutJob> {
-        let base = self.base.as_ref()?;
-        let path = self.stroke_path(&base.shape.mesh, &base.shape.kinds);
-        let shape = base.shape.clone();
-        self.ran_this_stroke = true;
-        self.added_since_run = 0;
-        self.deepened_since_run_m = 0.0;
-        self.slit_grew = false;
-        self.stats.runs += 1;
-        Some(RecutJob {
-            shape,
-            path,
-            margin: 0.5 * self.rerun_step_m,
-            params: self.params,
-            embed: match (&self.space, &self.worker) {
-                (Some(space), Some(_)) => Some((
-                    space.clone(),
-                    SigmaSnapshot {
-                        triangles: sigma.triangles.clone(),
-                        boxes: sigma.boxes.clone(),
-                    },
-                )),
-                _ => None,
-            },
-        })
-    }
-
-    /// Applies the re-cut in flight, waiting for it if need be.
-    fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
-        let Some(flight) = self.in_flight.take() else {
-            return false;
-        };
-        let superseded = std::mem::take(&mut self.superseded);
-        let worker = self.worker.as_ref();
-        let recut = worker.and_then(|w| {
-            for _ in 0..superseded {
-                w.wait()?;
-            }
-            w.wait()
-        });
-        let Some(recut) = recut else {
-            // The worker died on it: the surface stays as it was, the next runs are here.
-            self.worker = None;
-            self.stats.refused += 1;
-            self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
-            return false;
-        };
-        match flight.ended {
-            // The stroke it finishes has ended (no new stroke has begun: it would have
-            // landed this first); its base goes with it.
-            Some(mut ended) => ended.apply(&mut self.stats, recut, surface, inputs),
-            None => self.apply_here(recut, surface, inputs),
-        }
-    }
-
-    /// Applies a re-cut to the current stroke.
-    fn apply_here(
-        &mut self,
-        recut: Recut,
-        surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
-    ) -> bool {
-        self.base
-            .as_mut()
-            .is_some_and(|base| base.apply(&mut self.stats, recut, surface, inputs))
-    }
 }
 
 impl Base {
@@ -554,6 +613,7 @@ impl Base {
             outcome,
             rows,
             index,
+            ..
         } = recut;
         stats.refused += outcome.refusals.len();
         if let Some(e) = outcome.refusals.last() {

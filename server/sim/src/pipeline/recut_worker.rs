@@ -17,11 +17,14 @@
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
-use crate::cut::{FaceKind, IncisionParams, PathSample, StrokeOutcome, Wound, open_stroke};
+use crate::cut::{
+    FaceKind, IncisionParams, PathSample, SIGMA_ROOM, StrokeOutcome, Wound, open_stroke,
+};
 use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
+use super::incision::StrokeSamples;
 use super::surface::SurfaceIndex;
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
@@ -60,6 +63,7 @@ impl RestSpace {
 
 /// The cut surface Σ as it was when a re-cut was asked for (Σ only grows: its first
 /// `triangles.len()` triangles are these at any later tick).
+#[derive(Debug, Default)]
 pub(crate) struct SigmaSnapshot {
     pub triangles: Vec<[Vec3; 3]>,
     pub boxes: Vec<Aabb>,
@@ -69,10 +73,33 @@ pub(crate) struct SigmaSnapshot {
 /// new vertices against Σ as it was asked for.
 pub(crate) struct RecutJob {
     pub shape: Arc<BaseShape>,
-    pub path: Vec<PathSample>,
+    /// The stroke as sampled; its path on the base surface is resolved by the job.
+    pub stroke: StrokeSamples,
     pub margin: f64,
     pub params: IncisionParams,
     pub embed: Option<(Arc<RestSpace>, SigmaSnapshot)>,
+}
+
+/// What a job copies from the simulation thread (its samples and Σ), handed back with
+/// its result so that the next job fills these again: handing a re-cut over then does
+/// not allocate on the simulation thread.
+#[derive(Debug, Default)]
+pub(crate) struct JobBuffers {
+    pub samples: Vec<PathSample>,
+    pub sigma: SigmaSnapshot,
+}
+
+impl JobBuffers {
+    /// Buffers with room for a long stroke's samples and for Σ as it starts out.
+    pub fn with_room(samples: usize) -> Self {
+        Self {
+            samples: Vec::with_capacity(samples),
+            sigma: SigmaSnapshot {
+                triangles: Vec::with_capacity(SIGMA_ROOM),
+                boxes: Vec::with_capacity(SIGMA_ROOM),
+            },
+        }
+    }
 }
 
 /// A re-cut's result.
@@ -83,6 +110,8 @@ pub(crate) struct Recut {
     pub rows: Option<PrecomputedRows>,
     /// The new surface's index, made beside the rows.
     pub index: Option<SurfaceIndex>,
+    /// The job's buffers, for the next job.
+    pub spent: Option<JobBuffers>,
 }
 
 /// New vertices' embedding rows computed before they land.
@@ -115,13 +144,24 @@ impl PrecomputedRows {
 }
 
 impl RecutJob {
-    /// Computes the re-cut (on whichever thread calls it).
-    pub fn run(&self) -> Recut {
+    /// Computes the re-cut (on whichever thread calls it) and hands the job's buffers back
+    /// with it.
+    pub fn finish(self) -> Recut {
+        let mut recut = self.run();
+        recut.spent = Some(JobBuffers {
+            samples: self.stroke.samples,
+            sigma: self.embed.map(|(_, sigma)| sigma).unwrap_or_default(),
+        });
+        recut
+    }
+
+    fn run(&self) -> Recut {
+        let path = self.stroke.path(&self.shape.mesh, &self.shape.kinds);
         let outcome = open_stroke(
             &self.shape.mesh,
             &self.shape.kinds,
             &self.shape.wounds,
-            &self.path,
+            &path,
             self.margin,
             &self.params,
         );
@@ -155,6 +195,7 @@ impl RecutJob {
             outcome,
             rows,
             index,
+            spent: None,
         }
     }
 }
@@ -178,7 +219,7 @@ impl RecutWorker {
             .spawn(move || {
                 // Ends when the tracker (and with it `jobs`) is dropped.
                 while let Ok(job) = inbox.recv() {
-                    if outbox.send(job.run()).is_err() {
+                    if outbox.send(job.finish()).is_err() {
                         break;
                     }
                 }
@@ -188,8 +229,9 @@ impl RecutWorker {
     }
 
     /// Hands a job over. Gives it back if the worker is gone.
-    pub fn send(&self, job: RecutJob) -> Result<(), RecutJob> {
-        self.jobs.send(job).map_err(|e| e.0)
+    pub fn send(&self, job: RecutJob) -> Result<(), Box<RecutJob>> {
+        // (Boxed on the way back only: the worker is gone, a one-off.)
+        self.jobs.send(job).map_err(|e| Box::new(e.0))
     }
 
     /// The result of the oldest job not yet read, waiting for it if need be; `None` if the

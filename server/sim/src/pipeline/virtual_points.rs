@@ -102,9 +102,24 @@ pub struct VirtualPoints {
     pending: Vec<(u32, Vec3)>,
     spacing_m: f64,
     support_m: f64,
+    /// Scratch of [`Self::place_pending`], sized once: placing runs on the simulation
+    /// thread, a few nodes a tick.
+    scratch: PlacementScratch,
     /// Figures so far.
     pub stats: VirtualPointStats,
 }
+
+/// What placing a node works in: which node slots are taken, the triangles of Σ near the
+/// node (indices) and the points it sees.
+#[derive(Debug, Default)]
+struct PlacementScratch {
+    used: Vec<bool>,
+    near_sigma: Vec<u32>,
+    candidates: Vec<u32>,
+}
+
+/// Room for the points one node sees and the cut triangles near it; more only grows these.
+const PLACEMENT_ROOM: usize = 512;
 
 impl VirtualPoints {
     /// Nodes `first..first + capacity` of the solver, for a lattice of `spacing_m` and
@@ -117,6 +132,11 @@ impl VirtualPoints {
             pending: Vec::new(),
             spacing_m,
             support_m,
+            scratch: PlacementScratch {
+                used: vec![false; capacity],
+                near_sigma: Vec::with_capacity(PLACEMENT_ROOM),
+                candidates: Vec::with_capacity(PLACEMENT_ROOM),
+            },
             stats: VirtualPointStats::default(),
         }
     }
@@ -261,16 +281,20 @@ impl VirtualPoints {
         } = inputs;
         let rest = surface.rest_positions();
         // The lowest free node indices, in order, for the new nodes.
-        let mut used = vec![false; self.capacity];
+        let PlacementScratch {
+            used,
+            near_sigma,
+            candidates,
+        } = &mut self.scratch;
+        used.fill(false);
         for n in &self.nodes {
             used[n.node as usize - self.first] = true;
         }
+        let first = self.first;
         let mut free = (0..self.capacity)
             .filter(|&slot| !used[slot])
-            .map(|slot| (self.first + slot) as u32);
+            .map(|slot| (first + slot) as u32);
         let h = self.support_m;
-        let mut candidates = Vec::new();
-        let mut near_sigma: Vec<&[Vec3; 3]> = Vec::new();
         for _ in 0..limit {
             let Some((vertex, outward)) = self.pending.pop() else {
                 break;
@@ -288,22 +312,26 @@ impl VirtualPoints {
             // Only the cut triangles within h of the node can hide a point from it.
             near_sigma.clear();
             near_sigma.extend(
-                (sigma.triangles.iter().zip(&sigma.boxes))
+                (sigma.boxes.iter().enumerate())
                     .filter(|(_, b)| b.expanded(h).contains(&x))
-                    .map(|(t, _)| t),
+                    .map(|(t, _)| t as u32),
             );
             candidates.clear();
             let rest_points = solver.rest();
             grid.for_each_within(rest_points, &x, h, |i, _| {
-                let seen = !near_sigma
-                    .iter()
-                    .any(|t| segment_meets_triangle(&x, &rest_points[i as usize], t));
+                let seen = !near_sigma.iter().any(|&t| {
+                    segment_meets_triangle(
+                        &x,
+                        &rest_points[i as usize],
+                        &sigma.triangles[t as usize],
+                    )
+                });
                 if seen {
                     candidates.push(i);
                 }
             });
             let mut connected = 0;
-            for &i in &candidates {
+            for &i in candidates.iter() {
                 if neighbours.add(i as usize, node).is_err() {
                     continue;
                 }

@@ -39,7 +39,7 @@ use crate::mls::operator::{LatticeOffsets, PointRank, RankCounts};
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
 use crate::model::{CoupledModel, Kernel, Neighbourhoods};
 use crate::scene::Material;
-use slaves::{Slaves, shape_functions};
+use slaves::Slaves;
 
 /// How ticks are integrated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -292,7 +292,7 @@ impl Solver {
             solver.fixed[i] = [true; 3];
         }
         solver.material_points = n;
-        solver.slaves = Slaves::new(n, spare);
+        solver.slaves = Slaves::new(n, spare, neighbours.capacity());
         solver
     }
 
@@ -311,13 +311,14 @@ impl Solver {
             masters.iter().all(|&k| (k as usize) < self.material_points),
             "node {i} slaved to a node"
         );
-        let Some(weights) = shape_functions(&self.rest, rest, masters, &self.kernel) else {
+        if !self
+            .slaves
+            .fit(i, rest, masters, &mut self.rest, &self.kernel)
+        {
             return false;
-        };
-        self.rest[i] = rest;
+        }
         self.v[i] = Vec3::zeros();
         self.fixed[i] = [true; 3];
-        self.slaves.slave(i, &weights, &self.rest);
         self.slaves.interpolate(&mut self.p);
         self.target[i] = self.p[i];
         if std::mem::replace(&mut self.is_active[i], false) {
@@ -420,7 +421,8 @@ impl Solver {
             calm_ticks: 0,
             substeps_for_dt: 0.0,
             omega_calibration: None,
-            touched_buf: Vec::new(),
+            // Each point at most once (flagged): never more than n.
+            touched_buf: Vec::with_capacity(n),
             touched_flag: vec![false; n],
             events: EventQueue::default(),
             tick: 0,
@@ -1114,7 +1116,7 @@ mod tests {
         solver.config.mass_scaling_budget = 0.0;
         solver.fixed[node] = [true; 3];
         solver.material_points = body;
-        solver.slaves = Slaves::new(body, 1);
+        solver.slaves = Slaves::new(body, 1, 0);
         let uncut = solver.step(1e-3).substeps;
         // The centre cut down to its four neighbours in its layer.
         let mut changed = cut_down_to(&mut neighbours, centre, &cube.layer_around_centre());

@@ -33,17 +33,45 @@ pub struct Slaves {
     offsets: Vec<Vec3>,
     /// The slaved nodes, in the order they were slaved.
     list: Vec<u32>,
+    /// Where node weights are computed.
+    shape: ShapeScratch,
 }
 
 impl Slaves {
-    /// Room for `count` nodes from index `first` on.
-    pub fn new(first: usize, count: usize) -> Self {
+    /// Room for `count` nodes from index `first` on, with up to `masters` masters each
+    /// (more only grow the buffers): slaving a node then does not allocate.
+    pub fn new(first: usize, count: usize, masters: usize) -> Self {
         Self {
             first,
-            masters: vec![Vec::new(); count],
+            // (Each its own buffer: a cloned empty vector would have no room.)
+            masters: (0..count).map(|_| Vec::with_capacity(masters)).collect(),
             offsets: vec![Vec3::zeros(); count],
             list: Vec::with_capacity(count),
+            shape: ShapeScratch::with_room(masters),
         }
+    }
+
+    /// Slaves node `i` at rest position `x` (`rest[i]` is set to it) to the `candidates`
+    /// with weight there ([`shape_functions`]); `false`, leaving it as it was, when none has.
+    pub fn fit(
+        &mut self,
+        i: usize,
+        x: Vec3,
+        candidates: &[u32],
+        rest: &mut [Vec3],
+        kernel: &Kernel,
+    ) -> bool {
+        let mut shape = std::mem::take(&mut self.shape);
+        let fitted = match shape_functions(rest, x, candidates, kernel, &mut shape) {
+            Some(weights) => {
+                rest[i] = x;
+                self.slave(i, weights, rest);
+                true
+            }
+            None => false,
+        };
+        self.shape = shape;
+        fitted
     }
 
     /// The slaved nodes.
@@ -132,21 +160,25 @@ pub const MAX_ABS_WEIGHT_SUM: f64 = 1.5;
 /// further than any of them and stiffen the fits it is in past the step the solver
 /// planned), the kernel-weighted mean (Shepard), a convex combination, instead. Candidates
 /// with zero weight are left out; `None` if none has weight.
-pub fn shape_functions(
+pub fn shape_functions<'s>(
     rest: &[Vec3],
     x: Vec3,
     candidates: &[u32],
     kernel: &Kernel,
-) -> Option<Masters> {
+    scratch: &'s mut ShapeScratch,
+) -> Option<&'s [(u32, f64)]> {
     let h = kernel.support_m;
-    let weighted: Vec<(u32, f64, Vec3)> = candidates
-        .iter()
-        .map(|&k| {
-            let d = rest[k as usize] - x;
-            (k, kernel.weight_sq(d.norm_squared()), d / h)
-        })
-        .filter(|&(_, w, _)| w > 0.0)
-        .collect();
+    let ShapeScratch { weighted, phi } = scratch;
+    weighted.clear();
+    weighted.extend(
+        candidates
+            .iter()
+            .map(|&k| {
+                let d = rest[k as usize] - x;
+                (k, kernel.weight_sq(d.norm_squared()), d / h)
+            })
+            .filter(|&(_, w, _)| w > 0.0),
+    );
     let total: f64 = weighted.iter().map(|&(_, w, _)| w).sum();
     if weighted.is_empty() || total <= 0.0 {
         return None;
@@ -167,20 +199,35 @@ pub fn shape_functions(
     let fit = (lo > 0.0 && hi / lo < MAX_CONDITION)
         .then(|| moment.try_inverse())
         .flatten();
-    let linear: Option<Masters> = fit.map(|inverse| {
+    phi.clear();
+    if let Some(inverse) = fit {
         let c = inverse.column(0).into_owned();
-        weighted
-            .iter()
-            .map(|(k, w, d)| (*k, w * basis(d).dot(&c)))
-            .collect()
-    });
-    Some(
-        match linear.filter(|phi| phi.iter().map(|p| p.1.abs()).sum::<f64>() <= MAX_ABS_WEIGHT_SUM)
-        {
-            Some(phi) => phi,
-            None => weighted.iter().map(|&(k, w, _)| (k, w / total)).collect(),
-        },
-    )
+        phi.extend(weighted.iter().map(|(k, w, d)| (*k, w * basis(d).dot(&c))));
+    }
+    let sound = fit.is_some() && phi.iter().map(|p| p.1.abs()).sum::<f64>() <= MAX_ABS_WEIGHT_SUM;
+    if !sound {
+        phi.clear();
+        phi.extend(weighted.iter().map(|&(k, w, _)| (k, w / total)));
+    }
+    Some(phi)
+}
+
+/// The buffers [`shape_functions`] works in, kept by the solver: a node is slaved on the
+/// simulation thread.
+#[derive(Debug, Clone, Default)]
+pub struct ShapeScratch {
+    weighted: Vec<(u32, f64, Vec3)>,
+    phi: Masters,
+}
+
+impl ShapeScratch {
+    /// Room for `masters` candidates (more only grow the buffers).
+    pub fn with_room(masters: usize) -> Self {
+        Self {
+            weighted: Vec::with_capacity(masters),
+            phi: Vec::with_capacity(masters),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -219,7 +266,8 @@ mod tests {
                 .copied()
                 .filter(|&k| (rest[k as usize] - x).norm() < 0.02)
                 .collect();
-            let phi = shape_functions(&rest, x, &near, &kernel).expect("weights");
+            let mut scratch = ShapeScratch::default();
+            let phi = shape_functions(&rest, x, &near, &kernel, &mut scratch).expect("weights");
             let sum: f64 = phi.iter().map(|p| p.1).sum();
             assert!((sum - 1.0).abs() < 1e-12, "{sum}");
             let moved = phi.iter().fold(Vec3::zeros(), |a, &(k, w)| {
@@ -239,8 +287,15 @@ mod tests {
         let rest: Vec<Vec3> = lattice().into_iter().filter(|p| p.z == 0.0).collect();
         let kernel = Kernel { support_m: 0.02 };
         let all: Vec<u32> = (0..rest.len() as u32).collect();
-        let phi =
-            shape_functions(&rest, Vec3::new(0.02, 0.02, 0.001), &all, &kernel).expect("weights");
+        let mut scratch = ShapeScratch::default();
+        let phi = shape_functions(
+            &rest,
+            Vec3::new(0.02, 0.02, 0.001),
+            &all,
+            &kernel,
+            &mut scratch,
+        )
+        .expect("weights");
         assert!(phi.iter().all(|p| p.1 > 0.0));
         let sum: f64 = phi.iter().map(|p| p.1).sum();
         assert!((sum - 1.0).abs() < 1e-12);
@@ -250,8 +305,8 @@ mod tests {
         let mut points = rest.clone();
         let node = Vec3::new(0.02, 0.02, 0.001);
         points.push(node);
-        let mut slaves = Slaves::new(rest.len(), 1);
-        slaves.slave(rest.len(), &phi, &points);
+        let mut slaves = Slaves::new(rest.len(), 1, 0);
+        slaves.slave(rest.len(), phi, &points);
         let mut x = points.clone();
         x[rest.len()] = Vec3::zeros();
         slaves.interpolate(&mut x);
@@ -266,7 +321,7 @@ mod tests {
     /// on an interpolated displacement is the work its masters' shares do.
     #[test]
     fn hand_back_is_the_transpose_of_interpolation() {
-        let mut slaves = Slaves::new(3, 2);
+        let mut slaves = Slaves::new(3, 2, 0);
         let rest = vec![Vec3::zeros(); 5];
         slaves.slave(3, &[(0, 0.5), (1, 0.7), (2, -0.2)], &rest);
         let mut x = vec![
