@@ -13,7 +13,7 @@ use crate::geometry::predicates::{segment_crosses_triangle, segment_meets_triang
 use crate::math::{Aabb, Vec3};
 
 /// Embedding weights of every surface vertex, in compressed rows.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct SurfaceEmbedding {
     /// `points[start[v]..start[v + 1]]` are the interior points vertex v follows.
     pub start: Vec<u32>,
@@ -144,30 +144,37 @@ impl SurfaceEmbedding {
 
     /// Embedding rows given per vertex (weights are normalised here).
     pub fn from_rows(rows: &[Vec<(u32, f64)>], widened: usize) -> Self {
-        let mut start = Vec::with_capacity(rows.len() + 1);
-        start.push(0u32);
-        let mut points = Vec::new();
-        let mut weights = Vec::new();
-        for row in rows {
-            let total: f64 = row.iter().map(|(_, w)| w).sum();
-            for &(k, w) in row {
-                points.push(k);
-                weights.push(if total > 0.0 { w / total } else { 0.0 });
-            }
-            start.push(points.len() as u32);
-        }
-        Self {
-            start,
-            points,
-            weights,
+        let mut out = Self {
+            start: Vec::with_capacity(rows.len() + 1),
+            points: Vec::new(),
+            weights: Vec::new(),
             widened,
+        };
+        out.restart(widened);
+        for row in rows {
+            out.push_row(row.iter().copied());
         }
+        out
     }
 
-    /// The row of vertex `v` as (point, weight) pairs.
-    pub fn row(&self, v: usize) -> Vec<(u32, f64)> {
-        let (p, w) = self.of(v);
-        p.iter().copied().zip(w.iter().copied()).collect()
+    /// Empties the embedding (keeping its buffers) for rows pushed with
+    /// [`Self::push_row`].
+    pub fn restart(&mut self, widened: usize) {
+        self.start.clear();
+        self.start.push(0);
+        self.points.clear();
+        self.weights.clear();
+        self.widened = widened;
+    }
+
+    /// Appends the next vertex's row, its weights normalised.
+    pub fn push_row(&mut self, row: impl Iterator<Item = (u32, f64)> + Clone) {
+        let total: f64 = row.clone().map(|(_, w)| w).sum();
+        for (k, w) in row {
+            self.points.push(k);
+            self.weights.push(if total > 0.0 { w / total } else { 0.0 });
+        }
+        self.start.push(self.points.len() as u32);
     }
 
     /// Kernel weights of a new vertex at `x` over the points within the support whose rest

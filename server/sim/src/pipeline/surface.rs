@@ -124,6 +124,8 @@ pub struct CurrentSurface {
     vertex_triangles: Rows,
     point_vertices: Rows,
     embedding: SurfaceEmbedding,
+    /// The embedding before the last re-mesh, whose buffers the next one fills.
+    next_embedding: SurfaceEmbedding,
     vertex_grid: RestGrid,
     support_m: f64,
     // Scratch, reused every tick.
@@ -222,6 +224,7 @@ impl CurrentSurface {
             vertex_triangles,
             point_vertices,
             embedding: emb.clone(),
+            next_embedding: emb.clone(),
         }
     }
 
@@ -517,43 +520,49 @@ impl CurrentSurface {
         index: Option<SurfaceIndex>,
     ) -> Vec<Option<u32>> {
         let nv = incised.mesh.positions.len();
-        let mut rows = Vec::with_capacity(nv);
+        // The new rows go into the embedding before last (its buffers kept): carried rows
+        // are copied from the current one, not gathered into a vector each.
+        let mut next = std::mem::take(&mut self.next_embedding);
+        next.restart(self.embedding.widened);
         // Where each carried vertex is now (new vertices are placed below).
         let mut now = Vec::with_capacity(nv);
         let mut base_to_new = vec![None; base_to_current.len()];
         // Vertices follow the body's points only: the virtual points after them are no
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
         let body = &rest_points[..self.followed.len()];
-        // The cut triangles with their boxes, made once for all new vertices.
         for v in 0..nv {
             let x = incised.mesh.positions[v];
             let carried = incised.source[v].and_then(|b| {
                 base_to_new[b as usize] = Some(v as u32);
                 base_to_current[b as usize]
             });
-            // A new vertex's row the worker computed stands unless Σ has since grown across
-            // it (`PrecomputedRows::take`).
-            let mut ready = || {
-                precomputed
-                    .as_mut()
-                    .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes))
-            };
             now.push(carried.map(|c| self.mesh.positions[c as usize]));
-            rows.push(match carried {
-                Some(c) => self.embedding.row(c as usize),
-                None => ready().unwrap_or_else(|| {
-                    SurfaceEmbedding::row_for(
-                        &x,
-                        body,
-                        grid,
-                        &self.kernel,
-                        &sigma.triangles,
-                        &sigma.boxes,
-                    )
-                }),
-            });
+            match carried {
+                Some(c) => {
+                    let (points, weights) = self.embedding.of(c as usize);
+                    next.push_row(points.iter().copied().zip(weights.iter().copied()));
+                }
+                None => {
+                    // A new vertex's row the worker computed stands unless Σ has since
+                    // grown across it (`PrecomputedRows::take`).
+                    let ready = precomputed
+                        .as_mut()
+                        .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes));
+                    let row = ready.unwrap_or_else(|| {
+                        SurfaceEmbedding::row_for(
+                            &x,
+                            body,
+                            grid,
+                            &self.kernel,
+                            &sigma.triangles,
+                            &sigma.boxes,
+                        )
+                    });
+                    next.push_row(row.iter().copied());
+                }
+            }
         }
-        self.embedding = SurfaceEmbedding::from_rows(&rows, self.embedding.widened);
+        self.next_embedding = std::mem::replace(&mut self.embedding, next);
         self.rest = incised.mesh.positions.clone();
         self.mesh = incised.mesh.clone();
         self.kinds = incised.kinds.clone();
