@@ -25,6 +25,15 @@ pub struct SurfaceEmbedding {
     pub widened: usize,
 }
 
+/// Cut triangles that hide points from a vertex, each with its box.
+#[derive(Debug, Clone, Copy)]
+pub struct Blockers<'a> {
+    /// The triangles (rest space).
+    pub triangles: &'a [[Vec3; 3]],
+    /// Their boxes, one each.
+    pub boxes: &'a [Aabb],
+}
+
 /// How well the surface is tied to the interior.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct EmbeddingStats {
@@ -189,20 +198,46 @@ impl SurfaceEmbedding {
         blockers: &[[Vec3; 3]],
         blocker_boxes: &[Aabb],
     ) -> Vec<(u32, f64)> {
+        let mut row = Vec::new();
+        let blockers = Blockers {
+            triangles: blockers,
+            boxes: blocker_boxes,
+        };
+        Self::row_into(
+            x,
+            positions,
+            grid,
+            kernel,
+            blockers,
+            &mut Vec::new(),
+            &mut row,
+        );
+        row
+    }
+
+    /// [`Self::row_for`] into `row`, with `within` as scratch: for the simulation thread,
+    /// which keeps both.
+    pub fn row_into(
+        x: &Vec3,
+        positions: &[Vec3],
+        grid: &RestGrid,
+        kernel: &Kernel,
+        blockers: Blockers<'_>,
+        within: &mut Vec<u32>,
+        row: &mut Vec<(u32, f64)>,
+    ) {
         let mut radius = kernel.support_m;
-        let mut found = Vec::new();
+        row.clear();
         // Only the blockers whose box comes within the search radius can hide a point
         // found, and only those are tested against each of them (every cut triangle
         // against each of tens of points was most of a re-mesh on a fine model).
-        let mut within = Vec::with_capacity(blockers.len());
         for _ in 0..4 {
             let wider = Kernel { support_m: radius };
             within.clear();
             within.extend(
-                blockers
-                    .iter()
-                    .zip(blocker_boxes)
-                    .filter(|(_, b)| b.distance_sq(x) <= radius * radius),
+                (blockers.boxes.iter().enumerate())
+                    .filter(|(_, b)| b.distance_sq(x) <= radius * radius)
+                    .map(|(t, _)| t as u32),
             );
             grid.for_each_within(positions, x, radius, |k, d2| {
                 let w = wider.weight_sq(d2);
@@ -211,33 +246,32 @@ impl SurfaceEmbedding {
                 }
                 let p = &positions[k as usize];
                 let segment = Aabb::around([x, p]);
-                let blocker = within
-                    .iter()
-                    .position(|(tri, b)| hides(tri, b, x, p, &segment));
+                let blocker = within.iter().position(|&t| {
+                    let t = t as usize;
+                    hides(&blockers.triangles[t], &blockers.boxes[t], x, p, &segment)
+                });
                 match blocker {
-                    None => found.push((k, w)),
+                    None => row.push((k, w)),
                     // The triangle that hid this point likely hides the next ones too (a
                     // vertex walled in by a shredded wound sees little): tried first from now
                     // on. Which points are found does not depend on the order.
                     Some(j) => within[..=j].rotate_right(1),
                 }
             });
-            if !found.is_empty() {
-                found.sort_unstable_by_key(|(k, _)| *k);
-                return found;
+            if !row.is_empty() {
+                row.sort_unstable_by_key(|(k, _)| *k);
+                return;
             }
             radius *= 1.5;
         }
-        positions
-            .iter()
-            .enumerate()
-            .min_by(|a, b| {
-                (a.1 - x)
-                    .norm_squared()
-                    .total_cmp(&(b.1 - x).norm_squared())
-            })
-            .map(|(k, _)| vec![(k as u32, 1.0)])
-            .unwrap_or_default()
+        let nearest = positions.iter().enumerate().min_by(|a, b| {
+            (a.1 - x)
+                .norm_squared()
+                .total_cmp(&(b.1 - x).norm_squared())
+        });
+        if let Some((k, _)) = nearest {
+            row.push((k as u32, 1.0));
+        }
     }
 
     /// Whether one of `blockers` (with their boxes) hides rest point `p` from a vertex at

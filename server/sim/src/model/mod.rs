@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use cell_volume::Lattice;
-pub use embedding::{EmbeddingStats, SurfaceEmbedding};
+pub use embedding::{Blockers, EmbeddingStats, SurfaceEmbedding};
 pub use neighbours::{Kernel, NeighbourCapacityError, Neighbourhoods, RestGrid};
 
 use crate::geometry::TriMesh;

@@ -34,6 +34,8 @@ use super::surface::CurrentSurface;
 /// Figures of the incisions so far.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct IncisionStats {
+    /// Strokes begun (the blade's edge in the tissue after being out of it).
+    pub strokes: usize,
     /// Strokes that opened the surface.
     pub incisions: usize,
     /// Times an incision was (re)computed.
@@ -259,6 +261,9 @@ impl IncisionTracker {
             return changed;
         };
         if self.base.is_none() {
+            // The stroke's base surface, copied for its re-cuts: the one cutting tick
+            // besides a landing that allocates.
+            self.stats.strokes += 1;
             self.base = Some(Base {
                 shape: Arc::new(BaseShape {
                     mesh: surface.rest_mesh(),

@@ -14,7 +14,7 @@ use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
 use crate::math::{Mat3, Vec3};
 use crate::mls::MlsOperator;
-use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
+use crate::model::{Blockers, CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 /// Where the blade meets the surface.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -126,6 +126,9 @@ pub struct CurrentSurface {
     embedding: SurfaceEmbedding,
     /// The embedding before the last re-mesh, whose buffers the next one fills.
     next_embedding: SurfaceEmbedding,
+    /// Where a new vertex's row is found when the worker's no longer stands: the cut
+    /// triangles near it, and the row.
+    row_scratch: (Vec<u32>, Vec<(u32, f64)>),
     vertex_grid: RestGrid,
     support_m: f64,
     // Scratch, reused every tick.
@@ -225,6 +228,7 @@ impl CurrentSurface {
             point_vertices,
             embedding: emb.clone(),
             next_embedding: emb.clone(),
+            row_scratch: (Vec::with_capacity(1024), Vec::with_capacity(256)),
         }
     }
 
@@ -548,17 +552,26 @@ impl CurrentSurface {
                     let ready = precomputed
                         .as_mut()
                         .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes));
-                    let row = ready.unwrap_or_else(|| {
-                        SurfaceEmbedding::row_for(
-                            &x,
-                            body,
-                            grid,
-                            &self.kernel,
-                            &sigma.triangles,
-                            &sigma.boxes,
-                        )
-                    });
-                    next.push_row(row.iter().copied());
+                    match ready {
+                        Some(row) => next.push_row(row.iter().copied()),
+                        None => {
+                            let blockers = Blockers {
+                                triangles: &sigma.triangles,
+                                boxes: &sigma.boxes,
+                            };
+                            let (within, row) = &mut self.row_scratch;
+                            SurfaceEmbedding::row_into(
+                                &x,
+                                body,
+                                grid,
+                                &self.kernel,
+                                blockers,
+                                within,
+                                row,
+                            );
+                            next.push_row(row.iter().copied());
+                        }
+                    }
                 }
             }
         }
