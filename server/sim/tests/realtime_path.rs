@@ -2,8 +2,8 @@
 //! it must be deterministic (two runs bitwise equal). So is a cutting tick (contact, force,
 //! affected region, step, surface following), including those that grow the cut surface,
 //! refit the rows it cuts, hand a re-cut to its worker or place virtual points; only a tick
-//! where a re-cut lands (the drawn surface replaced) or a stroke starts (its base surface
-//! copied) may allocate (docs/CUTTING.md).
+//! where a stroke starts (its base surface copied) or a re-cut lands before its worker is
+//! done (std's channel, blocking) may allocate (docs/CUTTING.md).
 
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
 #![allow(unsafe_code)]
@@ -242,7 +242,8 @@ struct CutAllocations {
     /// not allocate either.
     topology_ticks: u64,
     allocations: u64,
-    /// Ticks where a re-cut landed (the drawn surface replaced): these may allocate.
+    /// Ticks where a re-cut landed (the drawn surface replaced): these allocate only when
+    /// they wait for the worker.
     landing_ticks: u64,
     landing_allocations: u64,
     /// Ticks where a stroke started (its base surface copied): these may allocate.
@@ -310,8 +311,9 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
     seen
 }
 
-/// Every cutting tick after warm-up is allocation-free but those where a re-cut lands or a
-/// stroke starts, and those allocate tens of times, not once per vertex. Plain ticks and
+/// Every cutting tick after warm-up is allocation-free but a stroke's first (its base
+/// surface copied, a few vectors) and a landing that has to wait for the re-cut worker
+/// (std's channel, once). Plain ticks and
 /// topology ones alike: those that grow Σ and refit the rows it cuts, hand a re-cut to the
 /// worker or place virtual points. On the liver, on the cerebroma (whose cut places
 /// virtual points over dozens of ticks), and over a lab session of six strokes on the
@@ -328,13 +330,12 @@ fn cutting_ticks_do_not_allocate_but_where_a_re_cut_lands_or_a_stroke_starts() {
         );
         assert!(seen.landing_ticks > 2, "{what}");
         assert_eq!(seen.allocations, 0, "{what}");
-        // A landing allocates for what grew (the surface's indices, the virtual points'
-        // wall sites), not per vertex: 33 a landing on the cerebroma when this was written,
-        // against ~1400 with a vector per vertex's row.
-        assert!(
-            seen.landing_allocations <= 80 * seen.landing_ticks,
-            "{what}"
-        );
+        // A landing fills kept buffers (rows, indices, flags, the virtual points' wall
+        // sites); what allocates is std's channel the first time this thread blocks on it,
+        // when a re-cut is due before its worker is done (2 of 15 landings on the
+        // cerebroma when this was written, against ~1400 allocations a landing with a
+        // vector per vertex's row).
+        assert!(seen.landing_allocations <= 4 * seen.landing_ticks, "{what}");
         // A stroke's start copies the surface for its re-cuts: a few vectors.
         assert!(
             seen.stroke_start_allocations <= 40 * seen.stroke_starts.max(1),

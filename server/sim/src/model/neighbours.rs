@@ -35,8 +35,29 @@ pub struct RestGrid {
 impl RestGrid {
     /// Bins `positions` into cells of size `cell_m`.
     pub fn build(positions: &[Vec3], cell_m: f64) -> Self {
+        let mut grid = Self {
+            origin: Vec3::zeros(),
+            cell_m,
+            dims: [1; 3],
+            start: Vec::new(),
+            items: Vec::new(),
+        };
+        grid.rebin(positions, cell_m, &mut Vec::new());
+        grid
+    }
+
+    /// Room for `cells` cells and `items` points, for [`Self::rebin`] to fill without
+    /// allocating.
+    pub fn reserve(&mut self, cells: usize, items: usize) {
+        self.start.reserve(cells + 1);
+        self.items.reserve(items);
+    }
+
+    /// Bins `positions` anew into cells of size `cell_m`, in this grid's buffers (`cells`
+    /// is scratch): no allocation while they have room.
+    pub fn rebin(&mut self, positions: &[Vec3], cell_m: f64, cells: &mut Vec<usize>) {
         let bbox = Aabb::around(positions);
-        let origin = if bbox.is_empty() {
+        self.origin = if bbox.is_empty() {
             Vec3::zeros()
         } else {
             bbox.min_v()
@@ -46,31 +67,33 @@ impl RestGrid {
         } else {
             bbox.size()
         };
-        let dims = [0, 1, 2].map(|a| (size[a] / cell_m).floor() as usize + 1);
-        let mut grid = Self {
-            origin,
-            cell_m,
-            dims,
-            start: Vec::new(),
-            items: Vec::new(),
-        };
-        let cells: Vec<usize> = positions.iter().map(|p| grid.cell_of(p)).collect();
-        let mut count = vec![0u32; dims[0] * dims[1] * dims[2] + 1];
-        for &c in &cells {
+        self.cell_m = cell_m;
+        self.dims = [0, 1, 2].map(|a| (size[a] / cell_m).floor() as usize + 1);
+        cells.clear();
+        cells.extend(positions.iter().map(|p| self.cell_of(p)));
+        let count = &mut self.start;
+        count.clear();
+        count.resize(self.dims[0] * self.dims[1] * self.dims[2] + 1, 0);
+        for &c in cells.iter() {
             count[c + 1] += 1;
         }
         for c in 1..count.len() {
             count[c] += count[c - 1];
         }
-        let mut fill = count.clone();
-        let mut items = vec![0u32; positions.len()];
+        // Each cell's start serves as its next free slot while it fills, ending at the
+        // next cell's start.
+        self.items.clear();
+        self.items.resize(positions.len(), 0);
         for (i, &c) in cells.iter().enumerate() {
-            items[fill[c] as usize] = i as u32;
-            fill[c] += 1;
+            let at = &mut count[c];
+            self.items[*at as usize] = i as u32;
+            *at += 1;
         }
-        grid.start = count;
-        grid.items = items;
-        grid
+        // The starts moved one cell on: shift them back.
+        for c in (1..count.len()).rev() {
+            count[c] = count[c - 1];
+        }
+        count[0] = 0;
     }
 
     fn coords(&self, p: &Vec3) -> [i64; 3] {

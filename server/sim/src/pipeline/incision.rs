@@ -59,6 +59,8 @@ struct Base {
     shape: Arc<BaseShape>,
     /// The current vertex each base vertex is now.
     to_current: Vec<Option<u32>>,
+    /// The map before the last landing, whose buffer the next one fills.
+    spare_map: Vec<Option<u32>>,
     /// Pieces the last applied run of this stroke opened over intact skin.
     opened_pieces: usize,
 }
@@ -271,6 +273,7 @@ impl IncisionTracker {
                     wounds: surface.wounds.clone(),
                 }),
                 to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
+                spare_map: Vec::with_capacity(surface.mesh.positions.len()),
                 opened_pieces: 0,
             });
         }
@@ -637,9 +640,11 @@ impl Base {
         stats.min_angle_deg = stats.min_angle_deg.min(outcome.min_angle_deg);
         stats.opening_m = stats.opening_m.max(outcome.opening_m);
         stats.depth_m = stats.depth_m.max(outcome.depth_m);
-        self.to_current = surface.replace(
-            &out,
+        let mut next = std::mem::take(&mut self.spare_map);
+        surface.replace(
+            out,
             &self.to_current,
+            &mut next,
             inputs.rest_points,
             inputs.grid,
             inputs.sigma,
@@ -648,6 +653,7 @@ impl Base {
             rows,
             index,
         );
+        self.spare_map = std::mem::replace(&mut self.to_current, next);
         if outcome.opened > 0 && self.opened_pieces == 0 {
             stats.incisions += 1;
         }

@@ -59,22 +59,35 @@ struct Rows {
 
 impl Rows {
     fn build(n: usize, pairs: impl Iterator<Item = (u32, u32)> + Clone) -> Self {
-        let mut count = vec![0u32; n + 1];
+        let mut rows = Self::default();
+        rows.refill(n, pairs, &mut Vec::new());
+        rows
+    }
+
+    /// The rows of `n` items from `pairs` (item, entry), in this value's buffers (`fill`
+    /// is scratch): no allocation while they have room.
+    fn refill(
+        &mut self,
+        n: usize,
+        pairs: impl Iterator<Item = (u32, u32)> + Clone,
+        fill: &mut Vec<u32>,
+    ) {
+        let count = &mut self.start;
+        count.clear();
+        count.resize(n + 1, 0);
         for (a, _) in pairs.clone() {
             count[a as usize + 1] += 1;
         }
         for i in 1..=n {
             count[i] += count[i - 1];
         }
-        let mut fill = count.clone();
-        let mut items = vec![0u32; count[n] as usize];
+        fill.clear();
+        fill.extend_from_slice(count);
+        self.items.clear();
+        self.items.resize(count[n] as usize, 0);
         for (a, b) in pairs {
-            items[fill[a as usize] as usize] = b;
+            self.items[fill[a as usize] as usize] = b;
             fill[a as usize] += 1;
-        }
-        Self {
-            start: count,
-            items,
         }
     }
 
@@ -142,6 +155,26 @@ pub struct CurrentSurface {
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
     crossings: Vec<Crossing>,
+    /// Scratch of a re-cut's landing: where each carried vertex is, and the rows' fill.
+    landing_now: Vec<Option<Vec3>>,
+    landing_fill: Vec<u32>,
+}
+
+/// The surface's per-vertex and per-triangle buffers have room for this many times the
+/// uncut surface's vertices and triangles, so that a re-cut landing fills them without
+/// allocating (a 60 mm cut grows the cerebroma's surface by 1.4×).
+const SURFACE_ROOM: usize = 3;
+
+/// An empty vector with room for `n` items.
+fn room<T>(n: usize) -> Vec<T> {
+    Vec::with_capacity(SURFACE_ROOM * n)
+}
+
+/// `n` copies of `value`, with room for [`SURFACE_ROOM`] times as many.
+fn filled<T: Clone>(n: usize, value: T) -> Vec<T> {
+    let mut v = room(n);
+    v.resize(n, value);
+    v
 }
 
 /// Vertices follow a point again once it has moved this far (m) since they were last
@@ -202,22 +235,47 @@ impl CurrentSurface {
             bvh,
         } = SurfaceIndex::of(&mesh, model.kernel.support_m);
         let emb = &model.embedding;
-        let point_vertices = Rows::build(
+        // A landing lists the vertices of every solver point, the virtual nodes after the
+        // body's included: room for as many nodes as points.
+        let solver_points = 2 * model.points.len() + 1;
+        let mut point_vertices = Rows {
+            start: Vec::with_capacity(solver_points),
+            items: room(emb.points.len()),
+        };
+        point_vertices.refill(
             model.points.len(),
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
+            &mut Vec::new(),
         );
+        let nt = mesh.triangles.len();
+        // The embedding's buffers with room to grow, twice (the current and the one
+        // before, which the next landing fills).
+        let embedding = || {
+            let mut e = SurfaceEmbedding {
+                start: room(nv + 1),
+                points: room(emb.points.len()),
+                weights: room(emb.weights.len()),
+                widened: emb.widened,
+            };
+            e.start.extend_from_slice(&emb.start);
+            e.points.extend_from_slice(&emb.points);
+            e.weights.extend_from_slice(&emb.weights);
+            e
+        };
+        let mut rest = room(nv);
+        rest.extend_from_slice(&mesh.positions);
         Self {
             bvh,
-            kinds: vec![FaceKind::Skin; mesh.triangles.len()],
+            kinds: filled(nt, FaceKind::Skin),
             wounds: Vec::new(),
             kernel: model.kernel,
-            rest: mesh.positions.clone(),
+            rest,
             vertex_grid,
             support_m: model.kernel.support_m,
-            vertex_flag: vec![false; nv],
-            vertex_list: Vec::with_capacity(nv),
-            triangle_flag: vec![false; mesh.triangles.len()],
-            triangle_list: Vec::with_capacity(mesh.triangles.len()),
+            vertex_flag: filled(nv, false),
+            vertex_list: room(nv),
+            triangle_flag: filled(nt, false),
+            triangle_list: room(nt),
             point_flag: vec![false; model.points.len()],
             followed: vec![STALE; model.points.len()],
             point_list: Vec::with_capacity(model.points.len()),
@@ -226,9 +284,11 @@ impl CurrentSurface {
             mesh,
             vertex_triangles,
             point_vertices,
-            embedding: emb.clone(),
-            next_embedding: emb.clone(),
+            embedding: embedding(),
+            next_embedding: embedding(),
             row_scratch: (Vec::with_capacity(1024), Vec::with_capacity(256)),
+            landing_now: room(nv),
+            landing_fill: Vec::with_capacity(solver_points),
         }
     }
 
@@ -513,8 +573,9 @@ impl CurrentSurface {
     #[allow(clippy::too_many_arguments)]
     pub fn replace(
         &mut self,
-        incised: &Incised,
+        incised: Incised,
         base_to_current: &[Option<u32>],
+        base_to_new: &mut Vec<Option<u32>>,
         rest_points: &[Vec3],
         grid: &RestGrid,
         sigma: &SweptSurface,
@@ -522,15 +583,17 @@ impl CurrentSurface {
         p: &[Vec3],
         mut precomputed: Option<PrecomputedRows>,
         index: Option<SurfaceIndex>,
-    ) -> Vec<Option<u32>> {
+    ) {
         let nv = incised.mesh.positions.len();
         // The new rows go into the embedding before last (its buffers kept): carried rows
         // are copied from the current one, not gathered into a vector each.
         let mut next = std::mem::take(&mut self.next_embedding);
         next.restart(self.embedding.widened);
         // Where each carried vertex is now (new vertices are placed below).
-        let mut now = Vec::with_capacity(nv);
-        let mut base_to_new = vec![None; base_to_current.len()];
+        let mut now = std::mem::take(&mut self.landing_now);
+        now.clear();
+        base_to_new.clear();
+        base_to_new.resize(base_to_current.len(), None);
         // Vertices follow the body's points only: the virtual points after them are no
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
         let body = &rest_points[..self.followed.len()];
@@ -576,44 +639,52 @@ impl CurrentSurface {
             }
         }
         self.next_embedding = std::mem::replace(&mut self.embedding, next);
-        self.rest = incised.mesh.positions.clone();
-        self.mesh = incised.mesh.clone();
-        self.kinds = incised.kinds.clone();
-        self.wounds = incised.wounds.clone();
+        // The incised surface is this one's now: its rest positions copied into the kept
+        // buffer, the rest moved in (made on the worker).
         let index = index.unwrap_or_else(|| SurfaceIndex::of(&incised.mesh, self.support_m));
+        self.rest.clear();
+        self.rest.extend_from_slice(&incised.mesh.positions);
+        self.mesh = incised.mesh;
+        self.kinds = incised.kinds;
+        self.wounds = incised.wounds;
         self.rebuild_indices(rest_points.len(), index.vertex_triangles, index.vertex_grid);
         // A carried vertex keeps its row, so it stays where it is (as its points last placed
         // it: `followed` is theirs as it was); the new ones are placed in the field.
         self.vertex_list.clear();
-        for (v, now) in now.into_iter().enumerate() {
+        for (v, now) in now.iter().enumerate() {
             match now {
-                Some(x) => self.mesh.positions[v] = x,
+                Some(x) => self.mesh.positions[v] = *x,
                 None => self.vertex_list.push(v as u32),
             }
         }
+        self.landing_now = now;
         self.place_listed(op, rest_points, p);
         // The hierarchy (shaped over the rest positions) is refitted once to where the
         // vertices are, not leaf by leaf.
         self.bvh = index.bvh;
         self.bvh.refit_to(&self.mesh);
-        base_to_new
     }
 
     /// Adjacency (`vertex_triangles`, `vertex_grid` of the current mesh, and the points'
     /// vertices from the embedding) and scratch sized for the current mesh.
     fn rebuild_indices(&mut self, points: usize, vertex_triangles: Rows, vertex_grid: RestGrid) {
         let nv = self.mesh.positions.len();
+        let nt = self.mesh.triangles.len();
         self.vertex_triangles = vertex_triangles;
         let emb = &self.embedding;
-        self.point_vertices = Rows::build(
+        self.point_vertices.refill(
             points,
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
+            &mut self.landing_fill,
         );
         self.vertex_grid = vertex_grid;
-        self.vertex_flag = vec![false; nv];
-        self.vertex_list = Vec::with_capacity(nv);
-        self.triangle_flag = vec![false; self.mesh.triangles.len()];
-        self.triangle_list = Vec::with_capacity(self.mesh.triangles.len());
+        // (Cleared and refilled in the kept buffers: no allocation while they have room.)
+        self.vertex_flag.clear();
+        self.vertex_flag.resize(nv, false);
+        self.vertex_list.clear();
+        self.triangle_flag.clear();
+        self.triangle_flag.resize(nt, false);
+        self.triangle_list.clear();
     }
 
     /// Whether vertex `v`'s embedding crosses `cut` (for tests).

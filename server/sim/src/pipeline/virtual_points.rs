@@ -105,6 +105,8 @@ pub struct VirtualPoints {
     /// Scratch of [`Self::place_pending`], sized once: placing runs on the simulation
     /// thread, a few nodes a tick.
     scratch: PlacementScratch,
+    /// The walls' sites as of the last re-mesh, kept for their buffers.
+    walls: Option<WallVertices>,
     /// Figures so far.
     pub stats: VirtualPointStats,
 }
@@ -129,9 +131,10 @@ impl VirtualPoints {
             first,
             capacity,
             nodes: Vec::with_capacity(capacity),
-            pending: Vec::new(),
+            pending: Vec::with_capacity(WALL_ROOM),
             spacing_m,
             support_m,
+            walls: Some(WallVertices::with_room()),
             scratch: PlacementScratch {
                 used: vec![false; capacity],
                 near_sigma: Vec::with_capacity(PLACEMENT_ROOM),
@@ -216,7 +219,8 @@ impl VirtualPoints {
         changed: &mut Vec<u32>,
         limit: usize,
     ) {
-        let mut walls = WallVertices::of(inputs.surface);
+        let mut walls = self.walls.take().unwrap_or_else(WallVertices::with_room);
+        walls.refill(inputs.surface);
         let keep_within = KEEP_SPACINGS * self.spacing_m;
         self.retain(solver, neighbours, changed, |node, at| {
             let Some(k) = walls.nearest(at, keep_within) else {
@@ -247,6 +251,7 @@ impl VirtualPoints {
                 self.pending.push(walls.sites[k]);
             }
         }
+        self.walls = Some(walls);
         // Placed from the end of the list: keep the vertex order.
         self.pending.reverse();
         self.place_pending(inputs, solver, neighbours, changed, limit);
@@ -382,7 +387,8 @@ fn release(
 }
 
 /// The wall vertices of a surface (rest space), with the outward unit normal of the wall
-/// around each, binned for "which is nearest", and which of them hold a node.
+/// around each, binned for "which is nearest", and which of them hold a node. Kept by
+/// [`VirtualPoints`] and refilled at each re-mesh in the same buffers.
 struct WallVertices {
     /// (vertex, outward normal), in vertex order.
     sites: Vec<(u32, Vec3)>,
@@ -391,12 +397,37 @@ struct WallVertices {
     grid: RestGrid,
     /// Whether `sites[k]` holds a node (kept or to be placed).
     taken: Vec<bool>,
+    /// Scratch: the wall normal summed at every surface vertex, and the grid's cells.
+    normal: Vec<Vec3>,
+    cells: Vec<usize>,
 }
 
+/// Wall sites and surface vertices [`WallVertices`] has room for before it grows.
+const WALL_ROOM: usize = 4096;
+const SURFACE_VERTEX_ROOM: usize = 16384;
+/// Cells of the wall sites' grid (support-sized) it has room for: a 25 cm cube.
+const GRID_CELL_ROOM: usize = 16384;
+
 impl WallVertices {
-    fn of(surface: &CurrentSurface) -> Self {
+    fn with_room() -> Self {
+        let mut grid = RestGrid::build(&[], 1.0);
+        grid.reserve(GRID_CELL_ROOM, WALL_ROOM);
+        Self {
+            sites: Vec::with_capacity(WALL_ROOM),
+            positions: Vec::with_capacity(WALL_ROOM),
+            grid,
+            taken: Vec::with_capacity(WALL_ROOM),
+            normal: Vec::with_capacity(SURFACE_VERTEX_ROOM),
+            cells: Vec::with_capacity(WALL_ROOM),
+        }
+    }
+
+    /// The wall vertices of `surface`, in place of the last surface's.
+    fn refill(&mut self, surface: &CurrentSurface) {
         let rest = surface.rest_positions();
-        let mut normal = vec![Vec3::zeros(); rest.len()];
+        let normal = &mut self.normal;
+        normal.clear();
+        normal.resize(rest.len(), Vec3::zeros());
         for (tri, kind) in surface.mesh.triangles.iter().zip(&surface.kinds) {
             if *kind != FaceKind::Wall {
                 continue;
@@ -407,16 +438,20 @@ impl WallVertices {
                 normal[v as usize] += n;
             }
         }
-        let sites: Vec<(u32, Vec3)> = (normal.iter().enumerate())
-            .filter_map(|(v, n)| Some((v as u32, n.try_normalize(1e-300)?)))
-            .collect();
-        let positions: Vec<Vec3> = sites.iter().map(|(v, _)| rest[*v as usize]).collect();
-        Self {
-            grid: RestGrid::build(&positions, surface.support().max(1e-6)),
-            taken: vec![false; sites.len()],
-            sites,
-            positions,
-        }
+        self.sites.clear();
+        self.sites.extend(
+            (normal.iter().enumerate())
+                .filter_map(|(v, n)| Some((v as u32, n.try_normalize(1e-300)?))),
+        );
+        self.positions.clear();
+        (self.positions).extend(self.sites.iter().map(|(v, _)| rest[*v as usize]));
+        (self.grid).rebin(
+            &self.positions,
+            surface.support().max(1e-6),
+            &mut self.cells,
+        );
+        self.taken.clear();
+        self.taken.resize(self.sites.len(), false);
     }
 
     /// The site nearest `x` within `radius`, if any (the lowest vertex of equals).
