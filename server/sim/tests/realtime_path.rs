@@ -332,9 +332,9 @@ fn cutting_ticks_do_not_allocate_but_where_a_re_cut_lands_or_a_stroke_starts() {
         assert_eq!(seen.allocations, 0, "{what}");
         // A landing fills kept buffers (rows, indices, flags, the virtual points' wall
         // sites); what allocates is std's channel the first time this thread blocks on it,
-        // when a re-cut is due before its worker is done (2 of 15 landings on the
-        // cerebroma when this was written, against ~1560 allocations a landing with a
-        // vector per vertex's row).
+        // when a re-cut is due before its worker is done (2 allocations in the lab
+        // session's 10 landings when this was written, against ~1560 a landing on the
+        // cerebroma with a vector per vertex's row).
         assert!(seen.landing_allocations <= 4 * seen.landing_ticks, "{what}");
         // A stroke's start copies the surface for its re-cuts: a few vectors.
         assert!(
