@@ -29,7 +29,7 @@ use crate::solver::Solver;
 use super::recut_worker::{
     BaseShape, JobBuffers, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace,
 };
-use super::surface::CurrentSurface;
+use super::surface::{CurrentSurface, SURFACE_ROOM};
 
 /// Figures of the incisions so far.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -105,6 +105,8 @@ pub struct IncisionTracker {
     space: Option<Arc<RestSpace>>,
     /// Buffers finished jobs handed back, for the next ones.
     spare: Vec<JobBuffers>,
+    /// The last stroke's base, for the next stroke to copy its surface into.
+    spare_base: Option<Base>,
     /// Figures so far.
     pub stats: IncisionStats,
 }
@@ -153,6 +155,11 @@ impl IncisionTracker {
             .worker
             .is_some()
             .then(|| Arc::new(RestSpace::of(model)));
+        let surface = &model.surface;
+        tracker.spare_base = Some(Base::with_room(
+            surface.positions.len(),
+            surface.triangles.len(),
+        ));
         tracker
     }
 
@@ -178,13 +185,15 @@ impl IncisionTracker {
             in_flight: None,
             superseded: 0,
             space: None,
-            // Room for the jobs a stroke's end may have in flight at once (one and the one
-            // it supersedes), one set of buffers made now.
+            // Buffers for the jobs a stroke's end may have in flight at once (the one
+            // running and the last re-cut, which supersedes it), made now.
             spare: {
                 let mut spare = Vec::with_capacity(SPARE_JOBS);
                 spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
+                spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
                 spare
             },
+            spare_base: None,
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -251,8 +260,11 @@ impl IncisionTracker {
             // Landing after the stroke, it applies to the stroke it finishes (this branch
             // runs every tick the blade is not cutting: only a stroke that just ended has a
             // base to hand on).
-            if let (Some(f), Some(base)) = (&mut self.in_flight, self.base.take()) {
-                f.ended = Some(base);
+            if let Some(base) = self.base.take() {
+                match &mut self.in_flight {
+                    Some(f) => f.ended = Some(base),
+                    None => self.spare_base = Some(base),
+                }
             }
             self.samples.clear();
             self.ran_this_stroke = false;
@@ -263,19 +275,14 @@ impl IncisionTracker {
             return changed;
         };
         if self.base.is_none() {
-            // The stroke's base surface, copied for its re-cuts: the one cutting tick
-            // besides a landing that allocates.
+            // The stroke's base surface, copied for its re-cuts into the last stroke's
+            // buffers (docs/CUTTING.md, "The real-time path").
             self.stats.strokes += 1;
-            self.base = Some(Base {
-                shape: Arc::new(BaseShape {
-                    mesh: surface.rest_mesh(),
-                    kinds: surface.kinds.clone(),
-                    wounds: surface.wounds.clone(),
-                }),
-                to_current: (0..surface.mesh.positions.len() as u32).map(Some).collect(),
-                spare_map: Vec::with_capacity(surface.mesh.positions.len()),
-                opened_pieces: 0,
-            });
+            let n = surface.mesh.positions.len();
+            let mut base = (self.spare_base.take())
+                .unwrap_or_else(|| Base::with_room(n, surface.mesh.triangles.len()));
+            base.start_on(surface);
+            self.base = Some(base);
         }
         if withdrawing {
             return false;
@@ -517,7 +524,11 @@ impl IncisionTracker {
         match flight.ended {
             // The stroke it finishes has ended (no new stroke has begun: it would have
             // landed this first); its base goes with it.
-            Some(mut ended) => ended.apply(&mut self.stats, recut, surface, inputs),
+            Some(mut ended) => {
+                let changed = ended.apply(&mut self.stats, recut, surface, inputs);
+                self.spare_base = Some(ended);
+                changed
+            }
             None => self.apply_here(recut, surface, inputs),
         }
     }
@@ -608,6 +619,36 @@ impl StrokeSamples {
 }
 
 impl Base {
+    /// A base with room for a surface [`SURFACE_ROOM`] times `vertices` and `triangles`.
+    fn with_room(vertices: usize, triangles: usize) -> Self {
+        let (vertices, triangles) = (SURFACE_ROOM * vertices, SURFACE_ROOM * triangles);
+        Self {
+            shape: Arc::new(BaseShape::with_room(vertices, triangles)),
+            to_current: Vec::with_capacity(vertices),
+            spare_map: Vec::with_capacity(vertices),
+            opened_pieces: 0,
+        }
+    }
+
+    /// Makes this the base of a stroke starting on `surface`: its rest shape copied into
+    /// the buffers (a new shape only while the worker still holds the last one), every
+    /// vertex its own.
+    fn start_on(&mut self, surface: &CurrentSurface) {
+        let (rest, triangles) = (surface.rest_positions(), &surface.mesh.triangles);
+        match Arc::get_mut(&mut self.shape) {
+            Some(shape) => shape.copy_from(rest, triangles, &surface.kinds, &surface.wounds),
+            None => {
+                let mut shape = BaseShape::with_room(rest.len(), triangles.len());
+                shape.copy_from(rest, triangles, &surface.kinds, &surface.wounds);
+                self.shape = Arc::new(shape);
+            }
+        }
+        self.to_current.clear();
+        (self.to_current).extend((0..rest.len() as u32).map(Some));
+        self.spare_map.clear();
+        self.opened_pieces = 0;
+    }
+
     /// Puts a re-cut of this stroke in place of the current surface (unless it opens fewer
     /// pieces than the last one applied), counting it in `stats`.
     fn apply(
@@ -621,6 +662,7 @@ impl Base {
             outcome,
             rows,
             index,
+            wounds,
             ..
         } = recut;
         stats.refused += outcome.refusals.len();
@@ -641,8 +683,12 @@ impl Base {
         stats.opening_m = stats.opening_m.max(outcome.opening_m);
         stats.depth_m = stats.depth_m.max(outcome.depth_m);
         let mut next = std::mem::take(&mut self.spare_map);
+        // (Made with the outcome; taken out of it here only if a re-cut ran without one.)
+        let mut out = out;
+        let wounds = wounds.unwrap_or_else(|| Arc::new(std::mem::take(&mut out.wounds)));
         surface.replace(
             out,
+            wounds,
             &self.to_current,
             &mut next,
             inputs.rest_points,

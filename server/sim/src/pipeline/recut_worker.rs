@@ -39,7 +39,39 @@ pub const RECUT_HANDOVER_TICKS: u64 = 40;
 pub(crate) struct BaseShape {
     pub mesh: TriMesh,
     pub kinds: Vec<FaceKind>,
-    pub wounds: Vec<Wound>,
+    /// The wounds, shared with the surface they are the wounds of (a re-cut makes new ones).
+    pub wounds: Arc<Vec<Wound>>,
+}
+
+impl BaseShape {
+    /// An empty shape with room for a surface of `vertices` and `triangles`.
+    pub fn with_room(vertices: usize, triangles: usize) -> Self {
+        Self {
+            mesh: TriMesh {
+                positions: Vec::with_capacity(vertices),
+                triangles: Vec::with_capacity(triangles),
+            },
+            kinds: Vec::with_capacity(triangles),
+            wounds: Arc::default(),
+        }
+    }
+
+    /// Becomes `rest` (positions), `triangles`, `kinds` and `wounds`, in its own buffers.
+    pub fn copy_from(
+        &mut self,
+        rest: &[Vec3],
+        triangles: &[[u32; 3]],
+        kinds: &[FaceKind],
+        wounds: &Arc<Vec<Wound>>,
+    ) {
+        self.mesh.positions.clear();
+        self.mesh.positions.extend_from_slice(rest);
+        self.mesh.triangles.clear();
+        self.mesh.triangles.extend_from_slice(triangles);
+        self.kinds.clear();
+        self.kinds.extend_from_slice(kinds);
+        self.wounds = Arc::clone(wounds);
+    }
 }
 
 /// What embedding a new surface vertex reads of the body: its points' rest positions, their
@@ -112,6 +144,9 @@ pub(crate) struct Recut {
     pub index: Option<SurfaceIndex>,
     /// The job's buffers, for the next job.
     pub spent: Option<JobBuffers>,
+    /// The incised surface's wounds, taken out of it and shared (made here, off the
+    /// simulation thread).
+    pub wounds: Option<Arc<Vec<Wound>>>,
 }
 
 /// New vertices' embedding rows computed before they land.
@@ -157,7 +192,7 @@ impl RecutJob {
 
     fn run(&self) -> Recut {
         let path = self.stroke.path(&self.shape.mesh, &self.shape.kinds);
-        let outcome = open_stroke(
+        let mut outcome = open_stroke(
             &self.shape.mesh,
             &self.shape.kinds,
             &self.shape.wounds,
@@ -165,6 +200,7 @@ impl RecutJob {
             self.margin,
             &self.params,
         );
+        let wounds = (outcome.surface.as_mut()).map(|s| Arc::new(std::mem::take(&mut s.wounds)));
         let index = match (&self.embed, &outcome.surface) {
             (Some((space, _)), Some(out)) => {
                 Some(SurfaceIndex::of(&out.mesh, space.kernel.support_m))
@@ -196,6 +232,7 @@ impl RecutJob {
             rows,
             index,
             spent: None,
+            wounds,
         }
     }
 }

@@ -7,6 +7,8 @@
 //! cut surface Σ (its weights toward them drop to zero).
 
 use super::recut_worker::PrecomputedRows;
+use std::sync::Arc;
+
 use crate::cut::incision::corners_of_kind;
 use crate::cut::{Blade, FaceKind, Incised, SweptSurface, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
@@ -129,8 +131,9 @@ pub struct CurrentSurface {
     pub mesh: TriMesh,
     /// What each triangle is (skin, wound wall, lid).
     pub kinds: Vec<FaceKind>,
-    /// The incisions opened in it, for a deeper pass to take their walls down.
-    pub wounds: Vec<Wound>,
+    /// The incisions opened in it, for a deeper pass to take their walls down (shared with
+    /// the base of a stroke cut from it).
+    pub wounds: Arc<Vec<Wound>>,
     rest: Vec<Vec3>,
     kernel: Kernel,
     bvh: TriangleBvh,
@@ -160,10 +163,11 @@ pub struct CurrentSurface {
     landing_fill: Vec<u32>,
 }
 
-/// The surface's per-vertex and per-triangle buffers have room for this many times the
-/// uncut surface's vertices and triangles, so that a re-cut landing fills them without
-/// allocating (a 60 mm cut grows the cerebroma's surface by 1.4×).
-const SURFACE_ROOM: usize = 3;
+/// The surface's per-vertex and per-triangle buffers (and a stroke's base, `incision`)
+/// have room for this many times the uncut surface's vertices and triangles, so that a
+/// re-cut landing or a stroke's start fills them without allocating (a 60 mm cut grows
+/// the cerebroma's surface by 1.4×).
+pub(crate) const SURFACE_ROOM: usize = 3;
 
 /// An empty vector with room for `n` items.
 fn room<T>(n: usize) -> Vec<T> {
@@ -267,7 +271,7 @@ impl CurrentSurface {
         Self {
             bvh,
             kinds: filled(nt, FaceKind::Skin),
-            wounds: Vec::new(),
+            wounds: Arc::default(),
             kernel: model.kernel,
             rest,
             vertex_grid,
@@ -567,13 +571,15 @@ impl CurrentSurface {
     /// Replaces the surface by an incised one. `base_to_current[b]` is the current vertex
     /// that the incision's input vertex b is (vertices keep their embedding); new vertices
     /// are embedded in the points they see without crossing `sigma`; carried vertices stay
-    /// where they are and the new ones are placed in the current field. `index` is the
-    /// incised surface's [`SurfaceIndex`] if the worker made it. Returns the map from the
-    /// incision's input vertices to the new vertices.
+    /// where they are and the new ones are placed in the current field. `wounds` are the
+    /// incised surface's (taken out of it), `index` its [`SurfaceIndex`] if the worker made
+    /// it. `base_to_new` is set to the map from the incision's input vertices to the new
+    /// vertices.
     #[allow(clippy::too_many_arguments)]
     pub fn replace(
         &mut self,
         incised: Incised,
+        wounds: Arc<Vec<Wound>>,
         base_to_current: &[Option<u32>],
         base_to_new: &mut Vec<Option<u32>>,
         rest_points: &[Vec3],
@@ -646,7 +652,7 @@ impl CurrentSurface {
         self.rest.extend_from_slice(&incised.mesh.positions);
         self.mesh = incised.mesh;
         self.kinds = incised.kinds;
-        self.wounds = incised.wounds;
+        self.wounds = wounds;
         self.rebuild_indices(rest_points.len(), index.vertex_triangles, index.vertex_grid);
         // A carried vertex keeps its row, so it stays where it is (as its points last placed
         // it: `followed` is theirs as it was); the new ones are placed in the field.
