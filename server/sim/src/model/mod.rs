@@ -6,6 +6,7 @@ pub mod cell_volume;
 pub mod embedding;
 pub mod lattice;
 pub mod neighbours;
+pub(crate) mod rows;
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;

@@ -1,6 +1,7 @@
 //! Rest-space neighbourhoods of the interior points: the kernel, a uniform grid for radius
 //! queries, and fixed-capacity neighbour lists that a cut can edit in place.
 
+use super::rows::Rows;
 use crate::math::{Aabb, Vec3};
 
 /// The MLS weight kernel `ŵ(r) = (1 − r²/h²)³` for `r < h` (physics.md §1.2). The poly6
@@ -27,9 +28,8 @@ pub struct RestGrid {
     origin: Vec3,
     cell_m: f64,
     dims: [usize; 3],
-    /// `items[start[c]..start[c + 1]]` are the points in cell `c`.
-    start: Vec<u32>,
-    items: Vec<u32>,
+    /// The points in each cell.
+    cells: Rows,
 }
 
 impl RestGrid {
@@ -39,8 +39,7 @@ impl RestGrid {
             origin: Vec3::zeros(),
             cell_m,
             dims: [1; 3],
-            start: Vec::new(),
-            items: Vec::new(),
+            cells: Rows::default(),
         };
         grid.rebin(positions, cell_m, &mut Vec::new());
         grid
@@ -49,13 +48,12 @@ impl RestGrid {
     /// Room for `cells` cells and `items` points, for [`Self::rebin`] to fill without
     /// allocating.
     pub fn reserve(&mut self, cells: usize, items: usize) {
-        self.start.reserve(cells + 1);
-        self.items.reserve(items);
+        self.cells.reserve(cells, items);
     }
 
-    /// Bins `positions` anew into cells of size `cell_m`, in this grid's buffers (`cells`
+    /// Bins `positions` anew into cells of size `cell_m`, in this grid's buffers (`fill`
     /// is scratch): no allocation while they have room.
-    pub fn rebin(&mut self, positions: &[Vec3], cell_m: f64, cells: &mut Vec<usize>) {
+    pub fn rebin(&mut self, positions: &[Vec3], cell_m: f64, fill: &mut Vec<u32>) {
         let bbox = Aabb::around(positions);
         self.origin = if bbox.is_empty() {
             Vec3::zeros()
@@ -69,31 +67,12 @@ impl RestGrid {
         };
         self.cell_m = cell_m;
         self.dims = [0, 1, 2].map(|a| (size[a] / cell_m).floor() as usize + 1);
-        cells.clear();
-        cells.extend(positions.iter().map(|p| self.cell_of(p)));
-        let count = &mut self.start;
-        count.clear();
-        count.resize(self.dims[0] * self.dims[1] * self.dims[2] + 1, 0);
-        for &c in cells.iter() {
-            count[c + 1] += 1;
-        }
-        for c in 1..count.len() {
-            count[c] += count[c - 1];
-        }
-        // Each cell's start serves as its next free slot while it fills, ending at the
-        // next cell's start.
-        self.items.clear();
-        self.items.resize(positions.len(), 0);
-        for (i, &c) in cells.iter().enumerate() {
-            let at = &mut count[c];
-            self.items[*at as usize] = i as u32;
-            *at += 1;
-        }
-        // The starts moved one cell on: shift them back.
-        for c in (1..count.len()).rev() {
-            count[c] = count[c - 1];
-        }
-        count[0] = 0;
+        let n = self.dims[0] * self.dims[1] * self.dims[2];
+        let mut cells = std::mem::take(&mut self.cells);
+        let grid = &*self;
+        let pairs = (positions.iter().enumerate()).map(|(i, p)| (grid.cell_of(p) as u32, i as u32));
+        cells.refill(n, pairs, fill);
+        self.cells = cells;
     }
 
     fn coords(&self, p: &Vec3) -> [i64; 3] {
@@ -122,8 +101,7 @@ impl RestGrid {
             for y in (c[1] - reach).max(0)..=(c[1] + reach).min(self.dims[1] as i64 - 1) {
                 for x in (c[0] - reach).max(0)..=(c[0] + reach).min(self.dims[0] as i64 - 1) {
                     let cell = x as usize + self.dims[0] * (y as usize + self.dims[1] * z as usize);
-                    for &j in &self.items[self.start[cell] as usize..self.start[cell + 1] as usize]
-                    {
+                    for &j in self.cells.of(cell) {
                         let d2 = (positions[j as usize] - p).norm_squared();
                         if d2 < r2 {
                             f(j, d2);

@@ -149,23 +149,18 @@ impl IncisionTracker {
     /// re-cuts run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later
     /// (`recut_worker`).
     pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
-        let mut tracker = Self::without_worker(edge_m, params);
+        let mut tracker = Self::without_worker(edge_m, params, &model.surface);
         tracker.worker = RecutWorker::spawn();
         tracker.space = tracker
             .worker
             .is_some()
             .then(|| Arc::new(RestSpace::of(model)));
-        let surface = &model.surface;
-        tracker.spare_base = Some(Base::with_room(
-            surface.positions.len(),
-            surface.triangles.len(),
-        ));
         tracker
     }
 
     /// The tracker without its worker: every re-cut computed and applied in the tick that
     /// asks for it (what it falls back to when the worker cannot start or dies).
-    fn without_worker(edge_m: f64, params: IncisionParams) -> Self {
+    fn without_worker(edge_m: f64, params: IncisionParams, surface: &TriMesh) -> Self {
         Self {
             params,
             sample_step_m: 0.25 * edge_m,
@@ -193,7 +188,10 @@ impl IncisionTracker {
                 spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
                 spare
             },
-            spare_base: None,
+            spare_base: Some(Base::with_room(
+                surface.positions.len(),
+                surface.triangles.len(),
+            )),
             stats: IncisionStats {
                 min_angle_deg: 180.0,
                 ..IncisionStats::default()
@@ -276,7 +274,8 @@ impl IncisionTracker {
         };
         if self.base.is_none() {
             // The stroke's base surface, copied for its re-cuts into the last stroke's
-            // buffers (docs/CUTTING.md, "The real-time path").
+            // buffers (docs/CUTTING.md, "The real-time path"); new ones only if the last
+            // base was lost with a worker that died on its re-cut.
             self.stats.strokes += 1;
             let n = surface.mesh.positions.len();
             let mut base = (self.spare_base.take())
@@ -683,9 +682,6 @@ impl Base {
         stats.opening_m = stats.opening_m.max(outcome.opening_m);
         stats.depth_m = stats.depth_m.max(outcome.depth_m);
         let mut next = std::mem::take(&mut self.spare_map);
-        // (Made with the outcome; taken out of it here only if a re-cut ran without one.)
-        let mut out = out;
-        let wounds = wounds.unwrap_or_else(|| Arc::new(std::mem::take(&mut out.wounds)));
         surface.replace(
             out,
             wounds,

@@ -161,7 +161,7 @@ impl Simulation {
             incisions,
             virtual_points,
             vp_changed: Vec::with_capacity(4096),
-            surface: CurrentSurface::new(model),
+            surface: CurrentSurface::new(model, spare),
             neighbours,
             grid: model.grid.clone(),
             solver,

@@ -145,8 +145,8 @@ pub(crate) struct Recut {
     /// The job's buffers, for the next job.
     pub spent: Option<JobBuffers>,
     /// The incised surface's wounds, taken out of it and shared (made here, off the
-    /// simulation thread).
-    pub wounds: Option<Arc<Vec<Wound>>>,
+    /// simulation thread; none when nothing was incised).
+    pub wounds: Arc<Vec<Wound>>,
 }
 
 /// New vertices' embedding rows computed before they land.
@@ -200,7 +200,12 @@ impl RecutJob {
             self.margin,
             &self.params,
         );
-        let wounds = (outcome.surface.as_mut()).map(|s| Arc::new(std::mem::take(&mut s.wounds)));
+        let wounds = Arc::new(
+            outcome
+                .surface
+                .as_mut()
+                .map_or_else(Vec::new, |s| std::mem::take(&mut s.wounds)),
+        );
         let index = match (&self.embed, &outcome.surface) {
             (Some((space, _)), Some(out)) => {
                 Some(SurfaceIndex::of(&out.mesh, space.kernel.support_m))

@@ -16,6 +16,7 @@ use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
 use crate::math::{Mat3, Vec3};
 use crate::mls::MlsOperator;
+use crate::model::rows::Rows;
 use crate::model::{Blockers, CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 /// Where the blade meets the surface.
@@ -49,52 +50,6 @@ impl SurfaceContact {
             normal: Vec3::z(),
             exit: None,
         }
-    }
-}
-
-/// Compressed rows: `items[start[i]..start[i + 1]]`.
-#[derive(Debug, Clone, Default)]
-struct Rows {
-    start: Vec<u32>,
-    items: Vec<u32>,
-}
-
-impl Rows {
-    fn build(n: usize, pairs: impl Iterator<Item = (u32, u32)> + Clone) -> Self {
-        let mut rows = Self::default();
-        rows.refill(n, pairs, &mut Vec::new());
-        rows
-    }
-
-    /// The rows of `n` items from `pairs` (item, entry), in this value's buffers (`fill`
-    /// is scratch): no allocation while they have room.
-    fn refill(
-        &mut self,
-        n: usize,
-        pairs: impl Iterator<Item = (u32, u32)> + Clone,
-        fill: &mut Vec<u32>,
-    ) {
-        let count = &mut self.start;
-        count.clear();
-        count.resize(n + 1, 0);
-        for (a, _) in pairs.clone() {
-            count[a as usize + 1] += 1;
-        }
-        for i in 1..=n {
-            count[i] += count[i - 1];
-        }
-        fill.clear();
-        fill.extend_from_slice(count);
-        self.items.clear();
-        self.items.resize(count[n] as usize, 0);
-        for (a, b) in pairs {
-            self.items[fill[a as usize] as usize] = b;
-            fill[a as usize] += 1;
-        }
-    }
-
-    fn of(&self, i: usize) -> &[u32] {
-        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
     }
 }
 
@@ -158,8 +113,7 @@ pub struct CurrentSurface {
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
     crossings: Vec<Crossing>,
-    /// Scratch of a re-cut's landing: where each carried vertex is, and the rows' fill.
-    landing_now: Vec<Option<Vec3>>,
+    /// Scratch of a re-cut's landing: the fill of the points' vertex lists.
     landing_fill: Vec<u32>,
 }
 
@@ -229,8 +183,9 @@ fn merge_crossings(crossings: &mut Vec<Crossing>) {
 }
 
 impl CurrentSurface {
-    /// The surface of `model` at rest.
-    pub fn new(model: &CoupledModel) -> Self {
+    /// The surface of `model` at rest, for a solver with `spare_nodes` virtual nodes after
+    /// the body's points.
+    pub fn new(model: &CoupledModel, spare_nodes: usize) -> Self {
         let mesh = model.surface.clone();
         let nv = mesh.positions.len();
         let SurfaceIndex {
@@ -239,13 +194,10 @@ impl CurrentSurface {
             bvh,
         } = SurfaceIndex::of(&mesh, model.kernel.support_m);
         let emb = &model.embedding;
-        // A landing lists the vertices of every solver point, the virtual nodes after the
-        // body's included: room for as many nodes as points.
-        let solver_points = 2 * model.points.len() + 1;
-        let mut point_vertices = Rows {
-            start: Vec::with_capacity(solver_points),
-            items: room(emb.points.len()),
-        };
+        // A landing lists the vertices of every solver point, the virtual nodes included.
+        let solver_points = model.points.len() + spare_nodes + 1;
+        let mut point_vertices = Rows::default();
+        point_vertices.reserve(solver_points, SURFACE_ROOM * emb.points.len());
         point_vertices.refill(
             model.points.len(),
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
@@ -291,7 +243,6 @@ impl CurrentSurface {
             embedding: embedding(),
             next_embedding: embedding(),
             row_scratch: (Vec::with_capacity(1024), Vec::with_capacity(256)),
-            landing_now: room(nv),
             landing_fill: Vec::with_capacity(solver_points),
         }
     }
@@ -590,30 +541,41 @@ impl CurrentSurface {
         mut precomputed: Option<PrecomputedRows>,
         index: Option<SurfaceIndex>,
     ) {
-        let nv = incised.mesh.positions.len();
+        let Incised {
+            mut mesh,
+            kinds,
+            source,
+            ..
+        } = incised;
+        let nv = mesh.positions.len();
+        // The incised surface is this one's now: its rest positions copied into the kept
+        // buffer, its index (shaped at rest) made now if the worker did not, and the mesh
+        // moved in below with the current positions of its carried vertices.
+        let index = index.unwrap_or_else(|| SurfaceIndex::of(&mesh, self.support_m));
+        self.rest.clear();
+        self.rest.extend_from_slice(&mesh.positions);
         // The new rows go into the embedding before last (its buffers kept): carried rows
         // are copied from the current one, not gathered into a vector each.
         let mut next = std::mem::take(&mut self.next_embedding);
         next.restart(self.embedding.widened);
-        // Where each carried vertex is now (new vertices are placed below).
-        let mut now = std::mem::take(&mut self.landing_now);
-        now.clear();
         base_to_new.clear();
         base_to_new.resize(base_to_current.len(), None);
         // Vertices follow the body's points only: the virtual points after them are no
         // place for a vertex (the nearest-point fallback of `row_for` could pick one).
         let body = &rest_points[..self.followed.len()];
+        let carried = |v: usize| source[v].and_then(|b| base_to_current[b as usize]);
         for v in 0..nv {
-            let x = incised.mesh.positions[v];
-            let carried = incised.source[v].and_then(|b| {
+            let x = self.rest[v];
+            if let Some(b) = source[v] {
                 base_to_new[b as usize] = Some(v as u32);
-                base_to_current[b as usize]
-            });
-            now.push(carried.map(|c| self.mesh.positions[c as usize]));
-            match carried {
+            }
+            match carried(v) {
                 Some(c) => {
                     let (points, weights) = self.embedding.of(c as usize);
                     next.push_row(points.iter().copied().zip(weights.iter().copied()));
+                    // A carried vertex keeps its row, so it stays where it is (as its
+                    // points last placed it: `followed` is theirs as it was).
+                    mesh.positions[v] = self.mesh.positions[c as usize];
                 }
                 None => {
                     // A new vertex's row the worker computed stands unless Σ has since
@@ -645,25 +607,12 @@ impl CurrentSurface {
             }
         }
         self.next_embedding = std::mem::replace(&mut self.embedding, next);
-        // The incised surface is this one's now: its rest positions copied into the kept
-        // buffer, the rest moved in (made on the worker).
-        let index = index.unwrap_or_else(|| SurfaceIndex::of(&incised.mesh, self.support_m));
-        self.rest.clear();
-        self.rest.extend_from_slice(&incised.mesh.positions);
-        self.mesh = incised.mesh;
-        self.kinds = incised.kinds;
+        self.mesh = mesh;
+        self.kinds = kinds;
         self.wounds = wounds;
         self.rebuild_indices(rest_points.len(), index.vertex_triangles, index.vertex_grid);
-        // A carried vertex keeps its row, so it stays where it is (as its points last placed
-        // it: `followed` is theirs as it was); the new ones are placed in the field.
-        self.vertex_list.clear();
-        for (v, now) in now.iter().enumerate() {
-            match now {
-                Some(x) => self.mesh.positions[v] = *x,
-                None => self.vertex_list.push(v as u32),
-            }
-        }
-        self.landing_now = now;
+        // The new vertices are placed in the field.
+        (self.vertex_list).extend((0..nv).filter(|&v| carried(v).is_none()).map(|v| v as u32));
         self.place_listed(op, rest_points, p);
         // The hierarchy (shaped over the rest positions) is refitted once to where the
         // vertices are, not leaf by leaf.

@@ -397,15 +397,16 @@ struct WallVertices {
     grid: RestGrid,
     /// Whether `sites[k]` holds a node (kept or to be placed).
     taken: Vec<bool>,
-    /// Scratch: the wall normal summed at every surface vertex, and the grid's cells.
+    /// Scratch: the wall normal summed at every surface vertex, and the grid's fill.
     normal: Vec<Vec3>,
-    cells: Vec<usize>,
+    fill: Vec<u32>,
 }
 
 /// Wall sites and surface vertices [`WallVertices`] has room for before it grows.
 const WALL_ROOM: usize = 4096;
 const SURFACE_VERTEX_ROOM: usize = 16384;
-/// Cells of the wall sites' grid (support-sized) it has room for: a 25 cm cube.
+/// Cells of the wall sites' grid it has room for: a box around the walls of 25 supports
+/// a side (16384 = 25.4³).
 const GRID_CELL_ROOM: usize = 16384;
 
 impl WallVertices {
@@ -418,7 +419,7 @@ impl WallVertices {
             grid,
             taken: Vec::with_capacity(WALL_ROOM),
             normal: Vec::with_capacity(SURFACE_VERTEX_ROOM),
-            cells: Vec::with_capacity(WALL_ROOM),
+            fill: Vec::with_capacity(GRID_CELL_ROOM + 1),
         }
     }
 
@@ -445,11 +446,7 @@ impl WallVertices {
         );
         self.positions.clear();
         (self.positions).extend(self.sites.iter().map(|(v, _)| rest[*v as usize]));
-        (self.grid).rebin(
-            &self.positions,
-            surface.support().max(1e-6),
-            &mut self.cells,
-        );
+        (self.grid).rebin(&self.positions, surface.support().max(1e-6), &mut self.fill);
         self.taken.clear();
         self.taken.resize(self.sites.len(), false);
     }
