@@ -207,6 +207,9 @@ pub struct CutMetrics {
     pub incisions_refused: usize,
     /// Why the last refused run was refused.
     pub incision_refusal: Option<String>,
+    /// Re-cuts not ready when due: ticks that waited for the re-cut worker (late ticks in
+    /// a station; the run's results are the same either way).
+    pub late_recuts: usize,
     /// Neighbour pairs the cut removed.
     pub pairs_removed: usize,
     /// Triangles of the cut surface Σ.
@@ -354,6 +357,7 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         incisions: incisions.incisions,
         incisions_refused: incisions.refused,
         incision_refusal: incisions.last_refusal.clone(),
+        late_recuts: incisions.late_recuts,
         pairs_removed: sim.cutting().map_or(0, |c| c.pairs_removed_total),
         sigma_triangles: sim.cutting().map_or(0, |c| c.sigma.triangles.len()),
         max_active_points: run.rows.iter().map(|r| r.active_points).max().unwrap_or(0),

@@ -52,6 +52,8 @@ pub struct IncisionStats {
     pub opening_m: f64,
     /// Deepest wound wall (m).
     pub depth_m: f64,
+    /// Re-cut results not ready when due: the tick waited for the worker.
+    pub late_recuts: usize,
 }
 
 /// The surface at the start of the current stroke, and what its re-cuts have made of it.
@@ -505,7 +507,10 @@ impl IncisionTracker {
         // Superseded results are read and dropped, their buffers kept.
         let mut recut = None;
         for left in (0..=superseded).rev() {
-            recut = self.worker.as_ref().and_then(RecutWorker::wait);
+            recut = self
+                .worker
+                .as_ref()
+                .and_then(|w| w.wait(&mut self.stats.late_recuts));
             match &mut recut {
                 Some(r) if left > 0 => self.keep_buffers(r.spent.take()),
                 Some(_) => {}

@@ -14,8 +14,10 @@
 //! a SCHED_FIFO thread pinned beside the simulation would take that CPU from it for the
 //! whole re-cut. It ends when the simulation is dropped.
 
-use std::sync::Arc;
-use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
+use std::sync::{Arc, OnceLock};
+use std::thread::Thread;
+use std::time::Duration;
 
 use crate::cut::{
     FaceKind, IncisionParams, PathSample, SIGMA_ROOM, StrokeOutcome, Wound, open_stroke,
@@ -246,7 +248,14 @@ impl RecutJob {
 pub(crate) struct RecutWorker {
     jobs: SyncSender<RecutJob>,
     done: Receiver<Recut>,
+    /// The thread that waits for results, unparked by the worker after each one.
+    waiter: Arc<OnceLock<Thread>>,
 }
+
+/// The longest a waiting thread stays parked before it looks at the results again: a
+/// backstop for a wake-up that cannot come (the worker died mid-job, or a thread other
+/// than the first one to wait is waiting).
+const PARK_LIMIT: Duration = Duration::from_millis(1);
 
 impl RecutWorker {
     /// Starts the thread; `None` if it cannot be started (the re-cuts then run on the
@@ -256,18 +265,24 @@ impl RecutWorker {
         // worker has taken that one, and neither side then waits on the other.
         let (jobs, inbox) = sync_channel::<RecutJob>(2);
         let (outbox, done) = sync_channel::<Recut>(2);
+        let waiter = Arc::new(OnceLock::<Thread>::new());
+        let wake = Arc::clone(&waiter);
         std::thread::Builder::new()
             .name("scalpel-recut".into())
             .spawn(move || {
                 // Ends when the tracker (and with it `jobs`) is dropped.
                 while let Ok(job) = inbox.recv() {
+                    // Room for two results and at most two jobs in flight: never blocks.
                     if outbox.send(job.finish()).is_err() {
                         break;
+                    }
+                    if let Some(thread) = wake.get() {
+                        thread.unpark();
                     }
                 }
             })
             .ok()?;
-        Some(Self { jobs, done })
+        Some(Self { jobs, done, waiter })
     }
 
     /// Hands a job over. Gives it back if the worker is gone.
@@ -276,10 +291,32 @@ impl RecutWorker {
         self.jobs.send(job).map_err(|e| Box::new(e.0))
     }
 
-    /// The result of the oldest job not yet read, waiting for it if need be; `None` if the
-    /// worker died on it (a panic in the re-cut: the surface stays as it was).
-    pub fn wait(&self) -> Option<Recut> {
-        self.done.recv().ok()
+    /// The result of the oldest job not yet read, waiting for it if need be (counted in
+    /// `waits`); `None` if the worker died on it (a panic in the re-cut: the surface stays
+    /// as it was).
+    ///
+    /// It parks rather than block in the channel's `recv`: std's channel allocates the
+    /// first time a thread blocks on it (its wait context and a slot in the receivers'
+    /// list), which would be on the simulation thread, in a tick. Parking allocates
+    /// nothing; the first thread to wait is the one the worker wakes (the simulation's,
+    /// which owns the tracker from its first tick on).
+    pub fn wait(&self, waits: &mut usize) -> Option<Recut> {
+        self.waiter.get_or_init(std::thread::current);
+        let mut waited = false;
+        let recut = loop {
+            match self.done.try_recv() {
+                Ok(recut) => break Some(recut),
+                Err(TryRecvError::Disconnected) => break None,
+                // A wake-up between the look and the park is kept for the park (its
+                // token), so none is lost.
+                Err(TryRecvError::Empty) => {
+                    waited = true;
+                    std::thread::park_timeout(PARK_LIMIT);
+                }
+            }
+        };
+        *waits += usize::from(waited);
+        recut
     }
 }
 
