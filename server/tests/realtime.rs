@@ -1,6 +1,7 @@
 //! The haptic tick is on the real-time path: after warm-up it must not allocate. A counting
 //! global allocator watches the tick with its real hand-offs (SPSC ring, triple buffer) and
-//! the scripted device playing the demo cut, the force model changing every tick.
+//! the scripted device playing the demo cut, the force model changing every tick. And what
+//! a render frame costs the simulation thread: only iceoryx2's loan.
 
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test crate allows it.
 #![allow(unsafe_code)]
@@ -212,6 +213,61 @@ fn a_reconnecting_device_costs_one_receive_of_allocations_then_none() {
         assert!(
             counts[1..].iter().all(|&c| c == 0),
             "round {round}: {counts:?}"
+        );
+    }
+}
+
+/// What a render frame costs the simulation thread, which writes the surface straight into
+/// a loaned shared-memory sample (no copy of the vertex data: docs/PROTOCOL.md): one
+/// allocation, iceoryx2's own (0.10.0 makes a reference-counted state for each loaned
+/// sample). The frame's own work — the header, the normals into their kept buffer, the
+/// vertices, triangles and materials — allocates nothing, with a renderer attached or not,
+/// on a cut surface too. Frames go out at the frame rate (60 Hz), not every tick.
+#[test]
+fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
+    use scalpel_client::frames::FrameReader;
+    use scalpel_proto::shm;
+    use scalpel_server::frames::{FrameInfo, FramePublisher};
+    use scalpel_sim::pipeline::{Simulation, Unobserved};
+
+    shm::quiet_logging();
+    let station = format!("t-frame-cost-{}", std::process::id());
+    let liver = scalpel_server::scene_file::load_scene("liver").unwrap();
+    let script = CutScript::default_for(&liver.model.surface).unwrap();
+    let mut sim = Simulation::new(&liver);
+    let mut publisher = FramePublisher::open(&station, &sim).unwrap();
+    // Through the press and seconds of cutting: the surface the frames carry is incised.
+    let uncut = sim.current_surface().mesh.triangles.len();
+    for k in 0..8000 {
+        sim.set_tool(Some(script.pose_at(k as f64 * 1e-3)));
+        sim.tick(1e-3, &mut Unobserved);
+    }
+    assert!(sim.current_surface().mesh.triangles.len() > uncut);
+    let info = FrameInfo {
+        sim_tick: 8000,
+        tool: Some(script.pose_at(8.0)),
+        pose_seq: 1,
+        pose_received_ns: 1,
+        force_n: Vec3::new(0.0, 0.0, 1.0),
+        cutting: true,
+        cut_length_mm: 10.0,
+    };
+    for reader in [None, Some(FrameReader::open(&station).unwrap())] {
+        // Warm-up: the shared memory sized, the normals' buffer grown to the surface.
+        for _ in 0..5 {
+            publisher.publish(&sim, &info).unwrap();
+        }
+        let frames = 100;
+        let before = allocations();
+        for _ in 0..frames {
+            publisher.publish(&sim, &info).unwrap();
+        }
+        let during = allocations() - before;
+        assert_eq!(
+            during,
+            frames,
+            "{during} allocations in {frames} frames (reader attached: {})",
+            reader.is_some()
         );
     }
 }
