@@ -1,0 +1,749 @@
+//! One station: the haptic thread, the simulation thread, and the lock-free hand-offs
+//! between them (ARCHITECTURE.md):
+//!
+//! ```text
+//!  haptic thread, 1 kHz (SCHED_FIFO when permitted, absolute-deadline sleep)
+//!    device pose ─► virtual coupling on the latest local force model ─► output stage
+//!    ─► device force;  pose ─► SPSC ring ─► simulation thread
+//!  simulation thread, 1 kHz of simulated time, paced by the clock
+//!    latest pose ─► Simulation::tick ─► local force model ─► triple buffer ─► haptic thread
+//!                                     ─► status          ─► triple buffer ─► main thread
+//! ```
+//!
+//! The haptic thread neither allocates, locks, logs nor waits on anything but its own
+//! deadline: a slow or stalled simulation only leaves it with an older force model, and the
+//! output stage's watchdog fades the force out if the model stops coming.
+
+mod haptic;
+mod journal_writer;
+mod remote_feed;
+mod sim_thread;
+
+pub use haptic::{HapticCounters, HapticState, HapticWindow, drive_haptic_ticks};
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+
+use scalpel_sim::cut::ToolPose;
+use scalpel_sim::force::LocalForceModel;
+use scalpel_sim::math::{Mat3, Vec3};
+use scalpel_sim::pipeline::Simulation;
+use scalpel_sim::scene::BuiltScene;
+
+use crate::command_audit::{self, CommandAudit};
+use crate::device::DeviceFactory;
+use crate::device_monitor::{DeviceEvent, DeviceMonitor};
+use crate::faults::{FaultBook, FaultTable, Transition};
+use crate::journal::{self, TickRecord};
+use crate::output::OutputLimits;
+use crate::realtime;
+use crate::sim_wake::SimWake;
+use scalpel_proto::wire::EventKind;
+
+use haptic::{HapticContext, spawn_haptic};
+use journal_writer::{JOURNAL_RING, SimJournal, spawn_journal_writer};
+use remote_feed::RemoteFeed;
+use sim_thread::{
+    FIFO_PENDING, FIFO_STAY_NORMAL, FIFO_TAKE, SimFrames, SimThread, frame_interval_ticks,
+    spawn_sim,
+};
+
+/// Poses in flight from the haptic to the simulation thread.
+const POSE_RING: usize = 256;
+/// Simulated time per simulation tick (s).
+pub(crate) const SIM_TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
+
+/// A pose on its way from the haptic to the simulation thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct PoseIn {
+    /// The pose.
+    pub pose: ToolPose,
+    /// The device's sample counter.
+    pub seq: u64,
+    /// When the haptic thread took it (CLOCK_MONOTONIC, ns).
+    pub received_ns: u64,
+}
+
+/// The station clock's tick at `now_s` seconds since the start (1 ms ticks; faults are
+/// scheduled on it). The threads wake on the tick's grid point or just after it, and the
+/// nanosecond of slack keeps one that float rounding puts a hair early on its own tick.
+pub fn station_tick(now_s: f64) -> u64 {
+    ((now_s + 1e-9) * 1e3).max(0.0) as u64
+}
+
+/// The force model and when it was made, handed from the simulation to the haptic thread.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ModelUpdate {
+    model: LocalForceModel,
+    /// Simulation ticks so far.
+    tick: u64,
+}
+
+/// The simulation's figures, handed to the main thread.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SimStatus {
+    /// Simulation ticks so far.
+    pub ticks: u64,
+    /// Blade travel while cutting, summed (mm).
+    pub cut_length_mm: f64,
+    /// The tool force the simulation computed last (N).
+    pub sim_force_n: f64,
+    /// Points integrated in the last tick.
+    pub active_points: usize,
+    /// Explicit sub-steps the last tick took (1 for a projective step).
+    pub substeps: u32,
+    /// Most sub-steps one tick took so far (a rollback doubles them for that tick).
+    pub most_substeps: u32,
+    /// Longest tick so far (ms of wall time).
+    pub max_tick_ms: f64,
+    /// Ticks that took longer than the simulated time they advance.
+    pub late_ticks: u64,
+    /// Render frames sent over shared memory.
+    pub frames_sent: u64,
+    /// Render frames that could not be sent (no shared memory free: renderers hold
+    /// every sample).
+    pub frames_failed: u64,
+    /// Times the blade entered the tissue.
+    pub entries: u64,
+    /// Times the tissue ruptured under the blade (cutting began).
+    pub ruptures: u64,
+    /// Factor on the tissue's stiffness in effect (1: the scene's; an instructor's fault).
+    pub stiffness_factor: f64,
+}
+
+impl Default for SimStatus {
+    fn default() -> Self {
+        Self {
+            ticks: 0,
+            cut_length_mm: 0.0,
+            sim_force_n: 0.0,
+            active_points: 0,
+            substeps: 0,
+            most_substeps: 0,
+            max_tick_ms: 0.0,
+            late_ticks: 0,
+            frames_sent: 0,
+            frames_failed: 0,
+            entries: 0,
+            ruptures: 0,
+            stiffness_factor: 1.0,
+        }
+    }
+}
+
+/// A status line: the haptic window and the simulation's figures.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StatusLine {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// The haptic loop (`None` when the scene has no haptics).
+    pub haptic: Option<HapticWindow>,
+    /// The simulation.
+    pub sim: SimStatus,
+    /// A shared-memory device is connected (`None`: the device is in process).
+    pub device_connected: Option<bool>,
+    /// Dead iceoryx2 nodes (killed devices, viewers, servers) cleaned up so far.
+    pub dead_nodes_cleaned: u64,
+}
+
+/// Something that happened at the station, reported as it happens.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StationEvent {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// What happened.
+    pub event: String,
+}
+
+/// What the station reports while it runs.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum StationReport {
+    /// The periodic status line.
+    Status(StatusLine),
+    /// An event.
+    Event(StationEvent),
+}
+
+/// What the station did, at the end.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Haptic ticks.
+    pub haptic_ticks: u64,
+    /// Haptic ticks that woke a period or more late.
+    pub deadline_misses: u64,
+    /// Poses dropped because the simulation thread was behind (ring full).
+    pub poses_dropped: u64,
+    /// The simulation's figures.
+    pub sim: SimStatus,
+    /// The simulation's state hash at the end (see `Simulation::state_hash`).
+    pub state_hash: u64,
+    /// Journal records lost because the writer fell a minute behind (0: the journal is
+    /// complete and replays bit for bit).
+    pub journal_dropped: u64,
+    /// The real-time set-up in effect.
+    pub fifo_priority: i32,
+    /// Memory locked.
+    pub memory_locked: bool,
+    /// Why some real-time request was not granted.
+    pub warnings: Vec<String>,
+}
+
+/// How to run a station.
+pub struct StationParams {
+    /// Haptic rate (Hz).
+    pub haptic_hz: f64,
+    /// SCHED_FIFO priority for the haptic thread (0: normal).
+    pub fifo_priority: i32,
+    /// SCHED_FIFO priority for the simulation thread (0: normal).
+    pub sim_fifo_priority: i32,
+    /// Lock memory.
+    pub lock_memory: bool,
+    /// A CPU of its own for the haptic thread (config `realtime.haptic_cpu`).
+    pub haptic_cpu: Option<usize>,
+    /// Output stage.
+    pub limits: OutputLimits,
+    /// Status interval (s).
+    pub status_interval_s: f64,
+    /// Station name (names the shared-memory services).
+    pub station: String,
+    /// Render frames per second over shared memory (0: none).
+    pub frame_hz: f64,
+    /// Watch for a shared-memory device coming and going.
+    pub monitor_device: bool,
+    /// Run the haptic thread (the scene's `haptics` feature); without it the simulation
+    /// runs with no tool.
+    pub haptics: bool,
+    /// The QUIC endpoint for remote observers and instructors, if any.
+    pub network: Option<crate::net::NetworkParams>,
+}
+
+/// The live server among a station's nodes (one server per station).
+pub fn live_server(nodes: &[scalpel_proto::shm::NodeSeen]) -> Option<&str> {
+    nodes
+        .iter()
+        .find(|n| n.alive && n.name.starts_with("scalpel-server."))
+        .map(|n| n.name.as_str())
+}
+
+/// Why a second server on `station` is refused (its live `node`).
+pub fn station_taken(station: &str, node: &str) -> String {
+    format!(
+        "station {station} already has a running server (its node {node} is alive): stop it, or give this one another `station` name"
+    )
+}
+
+/// Runs a station until `stop` is set, calling `report` with a status line every interval
+/// and with events as they happen (on this thread). The device is made on the haptic
+/// thread. With `journal` (its header written), every tick's input is appended to it by a
+/// writer thread and the file is closed with the tick count and the final state hash.
+pub fn run(
+    scene: &BuiltScene,
+    device: DeviceFactory,
+    params: &StationParams,
+    journal: Option<std::io::BufWriter<std::fs::File>>,
+    stop: Arc<AtomicBool>,
+    mut report: impl FnMut(&StationReport),
+) -> anyhow::Result<RunSummary> {
+    let mut warnings = Vec::new();
+    let mut memory_locked = false;
+    let (pose_in, pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
+    let zero_model = ModelUpdate {
+        model: LocalForceModel {
+            f0_n: Vec3::zeros(),
+            x0_m: Vec3::zeros(),
+            stiffness_n_per_m: Mat3::zeros(),
+            stored_energy_j: 0.0,
+        },
+        tick: 0,
+    };
+    let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
+    let (status_in, mut status_out) = triple_buffer::triple_buffer(&SimStatus::default());
+    // The instructor's faults, one table per real-time thread.
+    let (mut faults_to_haptic, faults_haptic) =
+        triple_buffer::triple_buffer(&FaultTable::default());
+    let (mut faults_to_sim, faults_sim) = triple_buffer::triple_buffer(&FaultTable::default());
+    let counters = Arc::new(HapticCounters::new());
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let (frames_tx, frames_rx) = std::sync::mpsc::channel();
+    // One server per station: the services are the station's.
+    match scalpel_proto::shm::station_nodes(&params.station) {
+        Ok(nodes) => {
+            if let Some(n) = live_server(&nodes) {
+                anyhow::bail!("{}", station_taken(&params.station, n));
+            }
+        }
+        Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
+    }
+    // The haptic thread's own CPU, if one is given: the simulation and the network threads
+    // run on the others.
+    let cpus = realtime::allowed_cpus();
+    let (haptic_cpu, other_cpus) = match params.haptic_cpu {
+        Some(c) => match realtime::cpus_besides(c, &cpus) {
+            Ok(others) => (Some(c), others),
+            Err(e) => {
+                warnings.push(format!("{e}: the haptic thread shares its CPU"));
+                (None, Vec::new())
+            }
+        },
+        None => (None, Vec::new()),
+    };
+    // The network endpoint first: if it cannot listen, nothing else has started yet.
+    let network = match &params.network {
+        Some(n) => Some(crate::net::start(crate::net::NetworkParams {
+            cpus: other_cpus.clone(),
+            ..n.clone()
+        })?),
+        None => None,
+    };
+    // The monitor also cleans up after any dead node (a killed viewer, a killed server of
+    // this station before this one), so it runs whatever the device.
+    let mut monitor = match DeviceMonitor::open(&params.station) {
+        Ok(m) => Some(m),
+        Err(e) if !params.monitor_device => {
+            warnings.push(format!("{e}: no shared-memory clean-up"));
+            None
+        }
+        Err(e) => return Err(e.into()),
+    };
+
+    // Built before the threads start: everything the loops use is allocated up front.
+    let mut sim = Simulation::new(scene);
+    // The stable step and the mass scaling to whole sub-steps: power iterations, here and
+    // not in the first real-time tick.
+    sim.prepare(SIM_TICK_S);
+    let t0 = realtime::monotonic_s();
+    let journal_dropped = Arc::new(AtomicU64::new(0));
+    let sim_done = Arc::new(AtomicBool::new(false));
+    let (commands_journal, commands_out) = std::sync::mpsc::channel::<String>();
+    let (records_in, writer) = match journal {
+        Some(file) => {
+            let (records_in, records_out) = rtrb::RingBuffer::<TickRecord>::new(JOURNAL_RING);
+            let writer = spawn_journal_writer(file, records_out, commands_out, sim_done.clone())?;
+            (Some(records_in), Some(writer))
+        }
+        None => {
+            // No journal: the command lines go nowhere (sending then fails, harmlessly)
+            // instead of piling up unread.
+            drop(commands_out);
+            (None, None)
+        }
+    };
+    // The haptic thread wakes the simulation thread once its tick is done.
+    let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
+    let sim_fifo_gate = Arc::new(AtomicU8::new(FIFO_PENDING));
+    let (sim_pinned_tx, sim_pinned_rx) = std::sync::mpsc::sync_channel(1);
+    let sim_thread = spawn_sim(
+        sim,
+        pose_out,
+        model_in,
+        status_in,
+        faults_sim,
+        SimJournal {
+            records: records_in,
+            dropped: journal_dropped.clone(),
+        },
+        SimFrames {
+            station: params.station.clone(),
+            every_ticks: frame_interval_ticks(params.frame_hz),
+            opened: frames_tx,
+        },
+        stop.clone(),
+        t0,
+        SimThread {
+            fifo_priority: params.sim_fifo_priority,
+            fifo_gate: sim_fifo_gate.clone(),
+            cpus: other_cpus.clone(),
+            pinned: sim_pinned_tx,
+        },
+        sim_wake.clone(),
+    )?;
+    let haptic_thread = if let Some(sim_wake) = sim_wake {
+        Some(spawn_haptic(
+            device,
+            HapticContext {
+                period_s: 1.0 / params.haptic_hz,
+                fifo_priority: params.fifo_priority,
+                cpu: haptic_cpu,
+                limits: params.limits,
+                t0,
+            },
+            (sim_wake, sim_thread.thread().clone()),
+            pose_in,
+            model_out,
+            faults_haptic,
+            counters.clone(),
+            stop.clone(),
+            ready_tx,
+        )?)
+    } else {
+        drop((device, pose_in, model_out, faults_haptic, ready_tx));
+        None
+    };
+    let mut fifo_priority = 0;
+    let mut pinned_cpu = None;
+    let device_error = match (&haptic_thread, ready_rx.recv()) {
+        (None, _) => None,
+        (Some(_), Ok(ready)) => {
+            match ready.fifo {
+                Ok(p) => fifo_priority = p,
+                Err(e) => warnings.push(format!(
+                    "{e}: the haptic thread runs with normal scheduling"
+                )),
+            }
+            match ready.cpu {
+                Ok(c) => pinned_cpu = c,
+                Err(e) => warnings.push(format!("{e}: the haptic thread shares its CPU")),
+            }
+            ready.device.err()
+        }
+        (Some(_), Err(_)) => Some("the haptic thread ended before it started".to_string()),
+    };
+    // The simulation takes SCHED_FIFO only above a haptic thread that got it (or with none).
+    sim_fifo_gate.store(
+        if haptic_thread.is_none() || fifo_priority > 0 {
+            FIFO_TAKE
+        } else {
+            FIFO_STAY_NORMAL
+        },
+        Ordering::Release,
+    );
+    let sim_pinned = match sim_pinned_rx.recv() {
+        Ok(Ok(())) => !other_cpus.is_empty(),
+        Ok(Err(e)) => {
+            warnings.push(format!(
+                "{e}: the simulation thread may share the haptic thread's CPU"
+            ));
+            false
+        }
+        Err(_) => false,
+    };
+    let mut frames_running = false;
+    if params.frame_hz > 0.0 {
+        match frames_rx.recv() {
+            Ok(Ok(())) => frames_running = true,
+            Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
+            Err(_) => {}
+        }
+    }
+    // Locked once the threads, their stacks, the device's and the frames' shared memory
+    // and the hand-off buffers exist.
+    if params.lock_memory && device_error.is_none() {
+        match realtime::lock_memory() {
+            Ok(()) => memory_locked = true,
+            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
+        }
+    }
+    if let Some(e) = &device_error {
+        stop.store(true, Ordering::Relaxed);
+        if let Some(h) = haptic_thread {
+            let _ = h.join();
+        }
+        let _ = sim_thread.join();
+        sim_done.store(true, Ordering::Release);
+        if let Some(w) = writer {
+            let _ = w.join();
+        }
+        anyhow::bail!("cannot open the device: {e}");
+    }
+    let mut running = vec![if sim_pinned {
+        format!("simulation thread (CPUs {other_cpus:?})")
+    } else {
+        "simulation thread".to_string()
+    }];
+    let mut off = Vec::new();
+    if haptic_thread.is_some() {
+        running.push(format!(
+            "haptic thread {} Hz ({}, memory {}{})",
+            params.haptic_hz,
+            if fifo_priority > 0 {
+                format!("SCHED_FIFO {fifo_priority}")
+            } else {
+                "normal scheduling".into()
+            },
+            if memory_locked {
+                "locked"
+            } else {
+                "not locked"
+            },
+            pinned_cpu.map_or(String::new(), |c| format!(", CPU {c} to itself"))
+        ));
+        running.push(if params.monitor_device {
+            "shared-memory device with its force-out thread".into()
+        } else {
+            "in-process scripted device".into()
+        });
+    } else {
+        off.push("haptic thread (the scene has no haptics)".to_string());
+    }
+    if frames_running {
+        running.push(format!("render frames {} Hz", params.frame_hz));
+    } else {
+        off.push("render frames".into());
+    }
+    if monitor.is_some() {
+        running.push("shared-memory monitor".into());
+    }
+    match &network {
+        Some(n) => running.push(format!("network endpoint on {}", n.local_addr)),
+        None => off.push("network endpoint (no observers)".into()),
+    }
+    report(&StationReport::Event(StationEvent {
+        uptime_s: realtime::monotonic_s() - t0,
+        event: format!(
+            "runs: {}; off: {}",
+            running.join(", "),
+            if off.is_empty() {
+                "nothing".to_string()
+            } else {
+                off.join(", ")
+            }
+        ),
+    }));
+    // Instructors schedule on the station clock; a tool on this machine that logs
+    // CLOCK_MONOTONIC (a device trace, a renderer) lines up with it through this.
+    report(&StationReport::Event(StationEvent {
+        uptime_s: realtime::monotonic_s() - t0,
+        event: format!(
+            "clock: station tick 0 is CLOCK_MONOTONIC {} ns",
+            (t0 * 1e9).round() as u64
+        ),
+    }));
+    for w in &warnings {
+        report(&StationReport::Event(StationEvent {
+            uptime_s: realtime::monotonic_s() - t0,
+            event: format!("warning: {w}"),
+        }));
+    }
+
+    let mut next = t0 + params.status_interval_s;
+    let mut window_start = t0;
+    let mut remote = RemoteFeed::default();
+    let mut book = FaultBook::new();
+    let mut audit = CommandAudit::new();
+    let mut stream_lost = false;
+    // The table the threads have (rebuilt only when the book changes).
+    let mut table = FaultTable::default();
+    let stiff_mode = scene.spec.features.stiff_mode;
+    while !stop.load(Ordering::Relaxed) {
+        // Every 10 ms: instructors' commands are answered within that.
+        realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
+        let now = realtime::monotonic_s();
+        let sim_now = *status_out.read();
+        let tick = station_tick(now - t0);
+        let mut table_changed = false;
+        if let Some(n) = &network {
+            while let Ok(request) = n.commands.try_recv() {
+                use scalpel_proto::wire::{Action, Fault, Outcome, Role};
+                let refuse = |reason: &str| {
+                    (
+                        Outcome::Rejected {
+                            reason: reason.to_string(),
+                        },
+                        None,
+                    )
+                };
+                let (outcome, listed) = if request.reply.is_closed() {
+                    // The session gave up waiting (and told its client so): not carried
+                    // out late.
+                    refuse("expired: the station did not take it in time")
+                } else if request.role != Role::Instructor {
+                    refuse("an observer certificate may not instruct")
+                } else if stiff_mode
+                    && matches!(
+                        &request.command.action,
+                        Action::Schedule(spec) if matches!(spec.fault, Fault::TissueStiffness { .. })
+                    )
+                {
+                    // Each change would re-factorise the projective solver on the
+                    // simulation thread (milliseconds, allocating).
+                    refuse("tissue-stiffness is not available in a stiff-mode scene")
+                } else {
+                    book.command(&request.by, &request.command, tick)
+                };
+                table_changed |=
+                    matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
+                let refused = matches!(outcome, Outcome::Rejected { .. });
+                if audit.record(&request.by, refused, tick) == command_audit::Record::Full {
+                    let record = serde_json::json!({
+                        "station_tick": tick,
+                        "sim_tick": sim_now.ticks,
+                        "by": request.by,
+                        "role": request.role,
+                        "seq": request.command.seq,
+                        "action": request.command.action,
+                        "outcome": outcome,
+                    });
+                    // No journal: nobody reads the channel, and that is fine.
+                    let _ = commands_journal.send(journal::command_line(&record));
+                    report(&StationReport::Event(StationEvent {
+                        uptime_s: now - t0,
+                        event: format!(
+                            "instructor {}: command {} {:?} -> {:?}",
+                            request.by, request.command.seq, request.command.action, outcome
+                        ),
+                    }));
+                }
+                // The session may have gone: its answer has nowhere to go.
+                let _ = request.reply.send((outcome, listed));
+            }
+            for summary in audit.summaries(tick, false) {
+                record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
+            }
+        }
+        for transition in book.advance(tick) {
+            table_changed = true;
+            let (kind, text) = match transition {
+                Transition::Applied(t) => (EventKind::FaultApplied, format!("{t}: applied")),
+                Transition::Ended(t) => (EventKind::FaultCleared, t),
+            };
+            remote.event(&network, &sim_now, now - t0, kind, &text);
+            report(&StationReport::Event(StationEvent {
+                uptime_s: now - t0,
+                event: text,
+            }));
+        }
+        if table_changed {
+            table = book.table();
+            faults_to_haptic.write(table);
+            faults_to_sim.write(table);
+        }
+        if let Some(n) = &network {
+            let lost = table.stream_lost(tick);
+            if lost != stream_lost {
+                stream_lost = lost;
+                n.feeds.stream_lost.send_replace(lost);
+            }
+        }
+        if let Some(m) = &mut monitor
+            && let Some(change) = m.poll()
+            && params.monitor_device
+        {
+            let (kind, text) = match change {
+                DeviceEvent::Connected => (EventKind::DeviceConnected, "device connected".into()),
+                DeviceEvent::Lost => (
+                    EventKind::DeviceLost,
+                    format!(
+                        "device lost (dead nodes cleaned so far: {}); the force fades to zero",
+                        m.dead_nodes_cleaned()
+                    ),
+                ),
+            };
+            remote.event(&network, &sim_now, now - t0, kind, &text);
+            report(&StationReport::Event(StationEvent {
+                uptime_s: now - t0,
+                event: text,
+            }));
+        }
+        if let Some(n) = &network {
+            remote.publish(
+                n,
+                &sim_now,
+                now - t0,
+                &counters,
+                monitor
+                    .as_ref()
+                    .filter(|_| params.monitor_device)
+                    .is_none_or(|m| m.connected())
+                    && params.haptics,
+            );
+        }
+        if now >= next {
+            let line = StatusLine {
+                uptime_s: now - t0,
+                haptic: params
+                    .haptics
+                    .then(|| counters.take_window(now - window_start)),
+                sim: *status_out.read(),
+                device_connected: monitor
+                    .as_ref()
+                    .filter(|_| params.monitor_device)
+                    .map(|m| m.connected()),
+                dead_nodes_cleaned: monitor.as_ref().map_or(0, |m| m.dead_nodes_cleaned()),
+            };
+            if let Some(h) = &line.haptic {
+                remote.window = Some(*h);
+            }
+            report(&StationReport::Status(line));
+            window_start = now;
+            next += params.status_interval_s;
+        }
+        if haptic_thread.as_ref().is_some_and(|h| h.is_finished()) || sim_thread.is_finished() {
+            stop.store(true, Ordering::Relaxed);
+        }
+    }
+    let now = realtime::monotonic_s();
+    for summary in audit.summaries(station_tick(now - t0), true) {
+        let sim_now = *status_out.read();
+        record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
+    }
+    let haptic_result = match haptic_thread {
+        Some(h) => h.join(),
+        None => Ok(()),
+    };
+    if let Some(n) = network {
+        n.stop();
+    }
+    let sim_result = sim_thread.join();
+    sim_done.store(true, Ordering::Release);
+    let sim_status = *status_out.read();
+    // The journal is flushed whatever happened: a session that failed is the one to replay.
+    let mut file = match writer {
+        Some(w) => Some(
+            w.join()
+                .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??,
+        ),
+        None => None,
+    };
+    let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
+        if let Some(f) = &mut file {
+            std::io::Write::flush(f)?;
+        }
+        anyhow::bail!("a station thread panicked (the journal has the inputs up to it)");
+    };
+    if let Some(f) = &mut file {
+        std::io::Write::write_all(f, journal::footer(sim_status.ticks, state_hash).as_bytes())?;
+        std::io::Write::flush(f)?;
+    }
+    Ok(RunSummary {
+        haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
+        deadline_misses: counters.total_misses.load(Ordering::Relaxed),
+        poses_dropped: counters.ring_full.load(Ordering::Relaxed),
+        sim: sim_status,
+        state_hash,
+        journal_dropped: journal_dropped.load(Ordering::Relaxed),
+        fifo_priority,
+        memory_locked,
+        warnings,
+    })
+}
+
+/// Writes out refusals the audit counted: one journal line (`refused_unrecorded`, which
+/// `scalpel replay` lists) and one line of the station's log.
+fn record_refusals(
+    summary: &command_audit::Summary,
+    sim_now: &SimStatus,
+    uptime_s: f64,
+    journal: &std::sync::mpsc::Sender<String>,
+    report: &mut dyn FnMut(&StationReport),
+) {
+    // Station and simulation ticks of the summary, like every command line's; the refusals
+    // it counts came between the first and the last tick given.
+    let record = serde_json::json!({
+        "station_tick": station_tick(uptime_s),
+        "sim_tick": sim_now.ticks,
+        "by": summary.by,
+        "refused_unrecorded": summary.refused,
+        "first_station_tick": summary.ticks.0,
+        "last_station_tick": summary.ticks.1,
+    });
+    let _ = journal.send(journal::command_line(&record));
+    report(&StationReport::Event(StationEvent {
+        uptime_s,
+        event: format!(
+            "instructor {}: {} more commands refused from station tick {} to {} (a flood: \
+             counted, not written out one by one)",
+            summary.by, summary.refused, summary.ticks.0, summary.ticks.1
+        ),
+    }));
+}

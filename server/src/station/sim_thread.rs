@@ -1,0 +1,255 @@
+//! The simulation thread: [`spawn_sim`] ticks the simulation on the station's 1 ms grid,
+//! woken by the haptic thread, with the latest pose; it sends render frames, journals each
+//! tick's input, and hands the local force model to the haptic thread and its figures to the
+//! main thread. Also how it is scheduled ([`SimThread`]) and framed ([`SimFrames`]).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::thread::JoinHandle;
+
+use scalpel_sim::force::CutPhase;
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::{Simulation, Unobserved};
+
+use crate::faults::FaultTable;
+use crate::frames::{FrameInfo, FramePublisher};
+use crate::grid_clock::GridClock;
+use crate::journal::TickRecord;
+use crate::realtime;
+use crate::sim_wake::SimWake;
+
+use super::journal_writer::SimJournal;
+use super::{ModelUpdate, PoseIn, SIM_TICK_S, SimStatus, station_tick};
+
+/// The simulation thread ticks on the same 1 ms grid as the haptic thread, woken by it once
+/// its tick is done (`sim_wake`), so that it takes the pose the haptic thread has just read
+/// (and the frame it sends shows it) instead of one up to a millisecond old; at the latest
+/// it ticks this long after the grid point (a late haptic thread, or none).
+const SIM_PHASE_S: f64 = 1e-4;
+
+/// What the frame sent before a tick reports of the tick before it.
+#[derive(Debug, Clone, Copy, Default)]
+struct LastTick {
+    force_n: Vec3,
+    cutting: bool,
+    in_tissue: bool,
+}
+
+/// The simulation thread's render frames.
+pub(super) struct SimFrames {
+    pub(super) station: String,
+    /// Send a frame every this many ticks (0: never).
+    pub(super) every_ticks: u64,
+    /// Told whether the frame services opened.
+    pub(super) opened: std::sync::mpsc::Sender<Result<(), String>>,
+}
+
+/// Simulation ticks between frames at `frame_hz` (0: no frames).
+pub(super) fn frame_interval_ticks(frame_hz: f64) -> u64 {
+    if frame_hz > 0.0 {
+        ((1.0 / (frame_hz * SIM_TICK_S)).round() as u64).max(1)
+    } else {
+        0
+    }
+}
+
+/// How the simulation thread is scheduled.
+pub(super) struct SimThread {
+    /// SCHED_FIFO priority (0: normal scheduling).
+    pub(super) fifo_priority: i32,
+    /// Whether to take it: [`FIFO_PENDING`] until the haptic thread says what it got — a
+    /// real-time simulation must not run above a haptic thread left at normal scheduling.
+    pub(super) fifo_gate: Arc<AtomicU8>,
+    /// The CPUs it may run on (empty: any); the CPUs besides a pinned haptic thread's.
+    pub(super) cpus: Vec<usize>,
+    /// Where it says whether pinning to `cpus` worked (for the start report).
+    pub(super) pinned: std::sync::mpsc::SyncSender<Result<(), String>>,
+}
+
+/// [`SimThread::fifo_gate`]: waiting for the haptic thread's scheduling.
+pub(super) const FIFO_PENDING: u8 = 0;
+/// [`SimThread::fifo_gate`]: take SCHED_FIFO.
+pub(super) const FIFO_TAKE: u8 = 1;
+/// [`SimThread::fifo_gate`]: stay at normal scheduling.
+pub(super) const FIFO_STAY_NORMAL: u8 = 2;
+
+#[allow(clippy::too_many_arguments)]
+pub(super) fn spawn_sim(
+    mut sim: Simulation,
+    mut poses: rtrb::Consumer<PoseIn>,
+    mut models: triple_buffer::Input<ModelUpdate>,
+    mut status: triple_buffer::Input<SimStatus>,
+    mut faults: triple_buffer::Output<FaultTable>,
+    mut journal: SimJournal,
+    frames: SimFrames,
+    stop: Arc<AtomicBool>,
+    t0: f64,
+    thread: SimThread,
+    haptic: Option<Arc<SimWake>>,
+) -> std::io::Result<JoinHandle<u64>> {
+    std::thread::Builder::new()
+        .name("simulation".into())
+        .spawn(move || {
+            // Off the haptic thread's own CPU: woken by each haptic tick, the simulation
+            // would otherwise often be placed beside it. Refused is not fatal (the start
+            // report says so).
+            let _ = thread.pinned.send(if thread.cpus.is_empty() {
+                Ok(())
+            } else {
+                realtime::pin_thread(&thread.cpus)
+            });
+            let mut fifo_pending = thread.fifo_priority > 0;
+            // Shared-memory ports belong to the thread that opens them.
+            let mut publisher = None;
+            if frames.every_ticks > 0 {
+                let opened = FramePublisher::open(&frames.station, &sim);
+                let _ = frames
+                    .opened
+                    .send(opened.as_ref().map(|_| ()).map_err(|e| e.to_string()));
+                publisher = opened.ok();
+            }
+            // On the station's 1 ms grid, woken by the haptic thread's tick (or at the
+            // latest `SIM_PHASE_S` after the grid point).
+            let mut clock = GridClock::starting_at(t0, SIM_TICK_S, realtime::monotonic_s());
+            let mut figures = SimStatus::default();
+            let mut last_tip: Option<Vec3> = None;
+            let mut pose: Option<PoseIn> = None;
+            let mut last = LastTick::default();
+            // Simulated ticks owed to a slowed-down simulation (1 per wall tick at real
+            // time), and the stiffness factor in effect and last asked for.
+            let mut credit = 0.0;
+            let (mut stiffness, mut stiffness_asked) = (1.0, 1.0);
+            while !stop.load(Ordering::Relaxed) {
+                if fifo_pending {
+                    match thread.fifo_gate.load(Ordering::Acquire) {
+                        FIFO_TAKE => {
+                            // Refused is not fatal: the simulation then runs with normal
+                            // scheduling (reported by the status line's late ticks).
+                            let _ = realtime::make_thread_fifo(thread.fifo_priority);
+                            fifo_pending = false;
+                        }
+                        FIFO_STAY_NORMAL => fifo_pending = false,
+                        _ => {}
+                    }
+                }
+                let k = clock.advance();
+                let deadline = clock.deadline(k) + SIM_PHASE_S;
+                match &haptic {
+                    Some(h) => {
+                        h.wait_for_haptic(clock.since_start(k), deadline);
+                    }
+                    None => realtime::sleep_until(deadline),
+                }
+                let started = realtime::monotonic_s();
+                if started - deadline > 10.0 * SIM_TICK_S {
+                    // Far behind (a slow scene): go on from the grid rather than catching
+                    // up.
+                    clock.resync(started);
+                }
+                while let Ok(p) = poses.pop() {
+                    // An unsound pose (none of today's devices pass one on) is skipped: the
+                    // last sound one holds, as the journal — which has only sound poses —
+                    // will replay it.
+                    if p.pose.is_sound() {
+                        pose = Some(p);
+                    }
+                }
+                let effects = faults.read().sim(station_tick(started - t0));
+                if effects.stall {
+                    // No tick, no frame, no new force model: the haptic watchdog fades
+                    // the force out after its timeout.
+                    continue;
+                }
+                credit = (credit + 1.0 / effects.slowdown).min(1.0);
+                if credit < 1.0 - 1e-9 {
+                    continue;
+                }
+                credit = 0.0;
+                let stiffness_change = crate::faults::stiffness_to_apply(
+                    stiffness,
+                    effects.stiffness,
+                    stiffness_asked,
+                );
+                stiffness_asked = effects.stiffness;
+                if let Some(k) = stiffness_change {
+                    sim.set_stiffness_factor(k);
+                    stiffness = k;
+                    figures.stiffness_factor = k;
+                }
+                let tool = pose.map(|p| p.pose);
+                sim.set_tool(tool);
+                // The frame goes out first: it shows the pose just taken (where this tick
+                // puts the blade: the pose itself but for a jump faster than a hand), on the
+                // surface of the last tick (a tick of cutting takes a few hundred
+                // microseconds that the frame need not wait for).
+                if let Some(p) = &mut publisher
+                    && (figures.ticks + 1) % frames.every_ticks == 0
+                    && !effects.renderer_freeze
+                {
+                    let info = FrameInfo {
+                        sim_tick: figures.ticks,
+                        tool: sim.next_blade_pose(SIM_TICK_S),
+                        pose_seq: pose.map_or(0, |p| p.seq),
+                        pose_received_ns: pose.map_or(0, |p| p.received_ns),
+                        force_n: last.force_n,
+                        cutting: last.cutting,
+                        cut_length_mm: figures.cut_length_mm,
+                    };
+                    // A frame that cannot be sent (renderers holding every sample) is
+                    // skipped and counted; the next one is a whole new frame anyway.
+                    match p.publish(&sim, &info) {
+                        Ok(()) => figures.frames_sent = p.frames(),
+                        Err(_) => figures.frames_failed += 1,
+                    }
+                }
+                if let Some(records) = &mut journal.records {
+                    let record = TickRecord {
+                        tick: figures.ticks + 1,
+                        // What the simulation took (only sound poses are latched above).
+                        pose: tool,
+                        stiffness: stiffness_change,
+                    };
+                    if records.push(record).is_err() {
+                        journal.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                let report = sim.tick(SIM_TICK_S, &mut Unobserved);
+                // Where the blade went (a pose faster than a hand is followed at a hand's
+                // speed: the cut is as long as the blade's path, not the noise's).
+                let tip = sim.blade_pose().map(|p| p.tip_m);
+                let cutting = report
+                    .cut
+                    .as_ref()
+                    .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting);
+                if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, last_tip)
+                    && cutting
+                    && !cut.withdrawing
+                {
+                    figures.cut_length_mm += (tip - last).norm() * 1e3;
+                }
+                let in_tissue = report.cut.as_ref().is_some_and(|c| c.in_tissue);
+                figures.entries += u64::from(in_tissue && !last.in_tissue);
+                figures.ruptures += u64::from(cutting && !last.cutting);
+                last_tip = tip;
+                last = LastTick {
+                    force_n: report.tool_force_n,
+                    cutting,
+                    in_tissue,
+                };
+                let took_ms = (realtime::monotonic_s() - started) * 1e3;
+                figures.ticks += 1;
+                figures.sim_force_n = report.tool_force_n.norm();
+                figures.active_points = report.active_points;
+                figures.substeps = report.solver.substeps;
+                figures.most_substeps = figures.most_substeps.max(report.solver.substeps);
+                figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
+                figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
+                models.write(ModelUpdate {
+                    model: sim.local_force_model(),
+                    tick: figures.ticks,
+                });
+                status.write(figures);
+            }
+            sim.state_hash()
+        })
+}
