@@ -14,6 +14,7 @@
 pub mod blade_motion;
 pub mod cutting;
 pub mod incision;
+mod parking_channel;
 mod recut_worker;
 pub mod script;
 pub mod steady_motion;

@@ -14,9 +14,7 @@
 //! a SCHED_FIFO thread pinned beside the simulation would take that CPU from it for the
 //! whole re-cut. It ends when the simulation is dropped.
 
-use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
-use std::sync::{Arc, OnceLock};
-use std::thread::Thread;
+use std::sync::Arc;
 use std::time::Duration;
 
 use crate::cut::{
@@ -27,6 +25,7 @@ use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 use super::incision::StrokeSamples;
+use super::parking_channel::{ParkingReceiver, ParkingSender, parking_channel};
 use super::surface::SurfaceIndex;
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
@@ -244,34 +243,15 @@ impl RecutJob {
     }
 }
 
-/// The worker thread: one job at a time.
-///
-/// Neither thread blocks in a channel. Each looks with `try_recv` and parks when there is
-/// nothing, and each wakes the other after it sends: a thread blocked in std's channel
-/// makes the sender to it take the channel's waker lock, and the first time a thread
-/// blocks it allocates its wait context — both on the simulation thread, in a tick.
+/// The worker thread: one job at a time. Both hand-offs park instead of blocking in a
+/// channel (`parking_channel`): neither side locks or allocates when it sends or waits.
 pub(crate) struct RecutWorker {
-    // (Declared before `worker`, so dropped before it wakes the thread, which then finds
-    // the channel closed and ends.)
-    jobs: SyncSender<RecutJob>,
-    done: Receiver<Recut>,
-    /// The thread that waits for results, unparked by the worker after each one.
-    waiter: Arc<OnceLock<Thread>>,
-    worker: Unparks,
+    jobs: ParkingSender<RecutJob>,
+    done: ParkingReceiver<Recut>,
 }
 
-/// A thread to wake, woken once more when dropped.
-struct Unparks(Thread);
-
-impl Drop for Unparks {
-    fn drop(&mut self) {
-        self.0.unpark();
-    }
-}
-
-/// The longest a waiting thread stays parked before it looks at the results again: a
-/// backstop for a wake-up that cannot come (the worker died mid-job, or a thread other
-/// than the first one to wait is waiting).
+/// The longest a thread waiting for a result stays parked before it looks again: a
+/// backstop for a wake-up that cannot come (the worker died mid-job).
 const PARK_LIMIT: Duration = Duration::from_millis(1);
 
 impl RecutWorker {
@@ -280,77 +260,35 @@ impl RecutWorker {
     pub fn spawn() -> Option<Self> {
         // Room for two: a stroke's last re-cut may follow one it supersedes before the
         // worker has taken that one, and neither side then waits on the other.
-        let (jobs, inbox) = sync_channel::<RecutJob>(2);
-        let (outbox, done) = sync_channel::<Recut>(2);
-        let waiter = Arc::new(OnceLock::<Thread>::new());
-        let wake = Arc::clone(&waiter);
-        let thread = std::thread::Builder::new()
+        let (jobs, inbox) = parking_channel::<RecutJob>(2);
+        let (outbox, done) = parking_channel::<Recut>(2);
+        std::thread::Builder::new()
             .name("scalpel-recut".into())
             .spawn(move || {
-                loop {
-                    match inbox.try_recv() {
-                        Ok(job) => {
-                            // Room for two results and at most two jobs in flight: the
-                            // send does not wait.
-                            if outbox.send(job.finish()).is_err() {
-                                break;
-                            }
-                            if let Some(thread) = wake.get() {
-                                thread.unpark();
-                            }
-                        }
-                        // Woken by the next job, or by the tracker's drop.
-                        Err(TryRecvError::Empty) => std::thread::park(),
-                        Err(TryRecvError::Disconnected) => break,
+                // Ends when the tracker (and with it `jobs`) is dropped.
+                while let Some(job) = inbox.recv(None, &mut false) {
+                    if outbox.send(job.finish()).is_err() {
+                        break;
                     }
                 }
             })
             .ok()?;
-        let worker = Unparks(thread.thread().clone());
-        Some(Self {
-            jobs,
-            done,
-            waiter,
-            worker,
-        })
+        Some(Self { jobs, done })
     }
 
     /// Hands a job over. Gives it back if the worker is gone.
     pub fn send(&self, job: RecutJob) -> Result<(), Box<RecutJob>> {
         // (Boxed on the way back only: the worker is gone, a one-off.)
-        let sent = match self.jobs.try_send(job) {
-            Ok(()) => Ok(()),
-            // Not with at most two jobs in flight (`spawn`); were it full, this waits as
-            // the channel's `send` does.
-            Err(TrySendError::Full(job)) => self.jobs.send(job).map_err(|e| Box::new(e.0)),
-            Err(TrySendError::Disconnected(job)) => Err(Box::new(job)),
-        };
-        self.worker.0.unpark();
-        sent
+        self.jobs.send(job).map_err(Box::new)
     }
 
     /// The result of the oldest job not yet read, waiting for it if need be (counted in
     /// `waits`); `None` if the worker died on it (a panic in the re-cut: the surface stays
-    /// as it was).
-    ///
-    /// It parks rather than block in the channel's `recv` (see [`RecutWorker`]); the
-    /// first thread to wait is the one the worker wakes (the simulation's, which owns the
-    /// tracker from its first tick on).
+    /// as it was). The first thread to wait is the one the worker wakes (the
+    /// simulation's, which owns the tracker from its first tick on).
     pub fn wait(&self, waits: &mut usize) -> Option<Recut> {
-        self.waiter.get_or_init(std::thread::current);
         let mut waited = false;
-        let recut = loop {
-            match self.done.try_recv() {
-                Ok(recut) => break Some(recut),
-                Err(TryRecvError::Disconnected) => break None,
-                // A wake-up between the look and the park is kept for the park (its
-                // token), so none is lost.
-                Err(TryRecvError::Empty) => {
-                    waited = true;
-                    std::thread::park_timeout(PARK_LIMIT);
-                }
-            }
-        };
+        let recut = self.done.recv(Some(PARK_LIMIT), &mut waited);
         *waits += usize::from(waited);
         recut
     }
@@ -359,22 +297,6 @@ impl RecutWorker {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The worker parks between jobs; dropping the tracker's end wakes it to find the
-    /// channel closed, and the thread ends (with it, its hold on the shared waiter).
-    #[test]
-    fn the_worker_thread_ends_with_its_tracker() {
-        let worker = RecutWorker::spawn().unwrap();
-        let waiter = Arc::clone(&worker.waiter);
-        // Let it park first.
-        std::thread::sleep(Duration::from_millis(20));
-        drop(worker);
-        let gone = (0..1000).any(|_| {
-            std::thread::sleep(Duration::from_millis(1));
-            Arc::strong_count(&waiter) == 1
-        });
-        assert!(gone, "the worker thread still runs");
-    }
 
     /// Three points and a vertex among them; Σ as the worker saw it (empty) and then grown
     /// by one triangle, far off or between the vertex and a point.
