@@ -23,6 +23,7 @@ pub use haptic::{HapticCounters, HapticState, HapticWindow, drive_haptic_ticks};
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::thread::JoinHandle;
 
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::force::LocalForceModel;
@@ -40,7 +41,7 @@ use crate::realtime;
 use crate::sim_wake::SimWake;
 use scalpel_proto::wire::EventKind;
 
-use haptic::{HapticContext, spawn_haptic};
+use haptic::{HapticContext, HapticReady, spawn_haptic};
 use journal_writer::{JOURNAL_RING, SimJournal, spawn_journal_writer};
 use remote_feed::RemoteFeed;
 use sim_thread::{
@@ -246,26 +247,106 @@ pub fn run(
     mut report: impl FnMut(&StationReport),
 ) -> anyhow::Result<RunSummary> {
     let mut warnings = Vec::new();
-    let mut memory_locked = false;
-    let (pose_in, pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
-    let zero_model = ModelUpdate {
-        model: LocalForceModel {
-            f0_n: Vec3::zeros(),
-            x0_m: Vec3::zeros(),
-            stiffness_n_per_m: Mat3::zeros(),
-            stored_energy_j: 0.0,
-        },
-        tick: 0,
+    let hand_offs = HandOffs::new();
+    refuse_taken_station(params, &mut warnings)?;
+    let (haptic_cpu, other_cpus) = split_cpus(params, &mut warnings);
+    // The network endpoint first: if it cannot listen, nothing else has started yet.
+    let network = start_network(params, &other_cpus)?;
+    let monitor = open_monitor(params, &mut warnings)?;
+    let built = build_sim_and_journal(scene, journal)?;
+    let (threads, start_channels) = Threads::spawn(
+        device,
+        params,
+        hand_offs,
+        built,
+        haptic_cpu,
+        &other_cpus,
+        &stop,
+    )?;
+    let started =
+        start_channels.collect(params, &threads.haptic_thread, &other_cpus, &mut warnings);
+    let memory_locked = lock_memory_if_asked(params, &started.device_error, &mut warnings);
+    if let Some(e) = &started.device_error {
+        threads.abandon(&stop);
+        anyhow::bail!("cannot open the device: {e}");
+    }
+    let mut station = Station {
+        params,
+        stop,
+        threads,
+        monitor,
+        network,
+        warnings,
     };
-    let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
-    let (status_in, mut status_out) = triple_buffer::triple_buffer(&SimStatus::default());
-    // The instructor's faults, one table per real-time thread.
-    let (mut faults_to_haptic, faults_haptic) =
-        triple_buffer::triple_buffer(&FaultTable::default());
-    let (mut faults_to_sim, faults_sim) = triple_buffer::triple_buffer(&FaultTable::default());
-    let counters = Arc::new(HapticCounters::new());
-    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-    let (frames_tx, frames_rx) = std::sync::mpsc::channel();
+    station.report_start(&started, memory_locked, &other_cpus, &mut report);
+    station.status_loop(scene, &mut report);
+    station.shut_down(started.fifo_priority, memory_locked)
+}
+
+/// The hand-offs between the threads, and the channels on which the threads report their
+/// start, made before anything starts.
+struct HandOffs {
+    pose_in: rtrb::Producer<PoseIn>,
+    pose_out: rtrb::Consumer<PoseIn>,
+    model_in: triple_buffer::Input<ModelUpdate>,
+    model_out: triple_buffer::Output<ModelUpdate>,
+    status_in: triple_buffer::Input<SimStatus>,
+    status_out: triple_buffer::Output<SimStatus>,
+    faults_to_haptic: triple_buffer::Input<FaultTable>,
+    faults_haptic: triple_buffer::Output<FaultTable>,
+    faults_to_sim: triple_buffer::Input<FaultTable>,
+    faults_sim: triple_buffer::Output<FaultTable>,
+    counters: Arc<HapticCounters>,
+    ready_tx: std::sync::mpsc::Sender<HapticReady>,
+    ready_rx: std::sync::mpsc::Receiver<HapticReady>,
+    frames_tx: std::sync::mpsc::Sender<Result<(), String>>,
+    frames_rx: std::sync::mpsc::Receiver<Result<(), String>>,
+}
+
+impl HandOffs {
+    /// Makes the pose ring, the triple buffers, the haptic counters and the start channels.
+    fn new() -> Self {
+        let (pose_in, pose_out) = rtrb::RingBuffer::<PoseIn>::new(POSE_RING);
+        let zero_model = ModelUpdate {
+            model: LocalForceModel {
+                f0_n: Vec3::zeros(),
+                x0_m: Vec3::zeros(),
+                stiffness_n_per_m: Mat3::zeros(),
+                stored_energy_j: 0.0,
+            },
+            tick: 0,
+        };
+        let (model_in, model_out) = triple_buffer::triple_buffer(&zero_model);
+        let (status_in, status_out) = triple_buffer::triple_buffer(&SimStatus::default());
+        // The instructor's faults, one table per real-time thread.
+        let (faults_to_haptic, faults_haptic) =
+            triple_buffer::triple_buffer(&FaultTable::default());
+        let (faults_to_sim, faults_sim) = triple_buffer::triple_buffer(&FaultTable::default());
+        let counters = Arc::new(HapticCounters::new());
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (frames_tx, frames_rx) = std::sync::mpsc::channel();
+        Self {
+            pose_in,
+            pose_out,
+            model_in,
+            model_out,
+            status_in,
+            status_out,
+            faults_to_haptic,
+            faults_haptic,
+            faults_to_sim,
+            faults_sim,
+            counters,
+            ready_tx,
+            ready_rx,
+            frames_tx,
+            frames_rx,
+        }
+    }
+}
+
+/// Refuses a station that already has a live server; warns when that cannot be checked.
+fn refuse_taken_station(params: &StationParams, warnings: &mut Vec<String>) -> anyhow::Result<()> {
     // One server per station: the services are the station's.
     match scalpel_proto::shm::station_nodes(&params.station) {
         Ok(nodes) => {
@@ -275,10 +356,15 @@ pub fn run(
         }
         Err(e) => warnings.push(format!("{e}: cannot check that the station is free")),
     }
+    Ok(())
+}
+
+/// The haptic thread's CPU, if it can have one to itself, and the CPUs for the other threads.
+fn split_cpus(params: &StationParams, warnings: &mut Vec<String>) -> (Option<usize>, Vec<usize>) {
     // The haptic thread's own CPU, if one is given: the simulation and the network threads
     // run on the others.
     let cpus = realtime::allowed_cpus();
-    let (haptic_cpu, other_cpus) = match params.haptic_cpu {
+    match params.haptic_cpu {
         Some(c) => match realtime::cpus_besides(c, &cpus) {
             Ok(others) => (Some(c), others),
             Err(e) => {
@@ -287,18 +373,32 @@ pub fn run(
             }
         },
         None => (None, Vec::new()),
-    };
-    // The network endpoint first: if it cannot listen, nothing else has started yet.
+    }
+}
+
+/// Starts the network endpoint on `other_cpus`, if the station has one.
+fn start_network(
+    params: &StationParams,
+    other_cpus: &[usize],
+) -> anyhow::Result<Option<crate::net::Network>> {
     let network = match &params.network {
         Some(n) => Some(crate::net::start(crate::net::NetworkParams {
-            cpus: other_cpus.clone(),
+            cpus: other_cpus.to_vec(),
             ..n.clone()
         })?),
         None => None,
     };
+    Ok(network)
+}
+
+/// Opens the shared-memory monitor; only a station watching its device needs it to open.
+fn open_monitor(
+    params: &StationParams,
+    warnings: &mut Vec<String>,
+) -> anyhow::Result<Option<DeviceMonitor>> {
     // The monitor also cleans up after any dead node (a killed viewer, a killed server of
     // this station before this one), so it runs whatever the device.
-    let mut monitor = match DeviceMonitor::open(&params.station) {
+    let monitor = match DeviceMonitor::open(&params.station) {
         Ok(m) => Some(m),
         Err(e) if !params.monitor_device => {
             warnings.push(format!("{e}: no shared-memory clean-up"));
@@ -306,7 +406,26 @@ pub fn run(
         }
         Err(e) => return Err(e.into()),
     };
+    Ok(monitor)
+}
 
+/// The prepared simulation, the station clock's start and the journal's writer thread.
+struct SimAndJournal {
+    sim: Simulation,
+    /// Station tick 0 (CLOCK_MONOTONIC, s).
+    t0: f64,
+    journal_dropped: Arc<AtomicU64>,
+    sim_done: Arc<AtomicBool>,
+    commands_journal: std::sync::mpsc::Sender<String>,
+    records_in: Option<rtrb::Producer<TickRecord>>,
+    writer: Option<JoinHandle<std::io::Result<std::io::BufWriter<std::fs::File>>>>,
+}
+
+/// Builds and prepares the simulation, starts the station clock and the journal writer.
+fn build_sim_and_journal(
+    scene: &BuiltScene,
+    journal: Option<std::io::BufWriter<std::fs::File>>,
+) -> anyhow::Result<SimAndJournal> {
     // Built before the threads start: everything the loops use is allocated up front.
     let mut sim = Simulation::new(scene);
     // The stable step and the mass scaling to whole sub-steps: power iterations, here and
@@ -329,112 +448,156 @@ pub fn run(
             (None, None)
         }
     };
-    // The haptic thread wakes the simulation thread once its tick is done.
-    let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
-    let sim_fifo_gate = Arc::new(AtomicU8::new(FIFO_PENDING));
-    let (sim_pinned_tx, sim_pinned_rx) = std::sync::mpsc::sync_channel(1);
-    let sim_thread = spawn_sim(
+    Ok(SimAndJournal {
         sim,
-        pose_out,
-        model_in,
-        status_in,
-        faults_sim,
-        SimJournal {
-            records: records_in,
-            dropped: journal_dropped.clone(),
-        },
-        SimFrames {
-            station: params.station.clone(),
-            every_ticks: frame_interval_ticks(params.frame_hz),
-            opened: frames_tx,
-        },
-        stop.clone(),
         t0,
-        SimThread {
-            fifo_priority: params.sim_fifo_priority,
-            fifo_gate: sim_fifo_gate.clone(),
-            cpus: other_cpus.clone(),
-            pinned: sim_pinned_tx,
-        },
-        sim_wake.clone(),
-    )?;
-    let haptic_thread = if let Some(sim_wake) = sim_wake {
-        Some(spawn_haptic(
-            device,
-            HapticContext {
-                period_s: 1.0 / params.haptic_hz,
-                fifo_priority: params.fifo_priority,
-                cpu: haptic_cpu,
-                limits: params.limits,
-                t0,
+        journal_dropped,
+        sim_done,
+        commands_journal,
+        records_in,
+        writer,
+    })
+}
+
+/// The started threads, and the main thread's ends of their hand-offs.
+struct Threads {
+    haptic_thread: Option<JoinHandle<()>>,
+    sim_thread: JoinHandle<u64>,
+    writer: Option<JoinHandle<std::io::Result<std::io::BufWriter<std::fs::File>>>>,
+    /// Station tick 0 (CLOCK_MONOTONIC, s).
+    t0: f64,
+    sim_done: Arc<AtomicBool>,
+    journal_dropped: Arc<AtomicU64>,
+    commands_journal: std::sync::mpsc::Sender<String>,
+    status_out: triple_buffer::Output<SimStatus>,
+    faults_to_haptic: triple_buffer::Input<FaultTable>,
+    faults_to_sim: triple_buffer::Input<FaultTable>,
+    counters: Arc<HapticCounters>,
+}
+
+/// Where the threads report how their start went, and the simulation's SCHED_FIFO gate.
+struct StartChannels {
+    ready_rx: std::sync::mpsc::Receiver<HapticReady>,
+    sim_fifo_gate: Arc<AtomicU8>,
+    sim_pinned_rx: std::sync::mpsc::Receiver<Result<(), String>>,
+    frames_rx: std::sync::mpsc::Receiver<Result<(), String>>,
+}
+
+/// What the threads reported as they started.
+struct Started {
+    /// The haptic thread's SCHED_FIFO priority (0: normal scheduling).
+    fifo_priority: i32,
+    /// The CPU the haptic thread has to itself.
+    pinned_cpu: Option<usize>,
+    /// Why the device did not open (or the haptic thread did not start).
+    device_error: Option<String>,
+    /// The simulation thread runs on the other CPUs.
+    sim_pinned: bool,
+    /// Render frames are sent.
+    frames_running: bool,
+}
+
+impl Threads {
+    /// Spawns the simulation thread and, with haptics, the haptic thread on the hand-offs.
+    fn spawn(
+        device: DeviceFactory,
+        params: &StationParams,
+        hand_offs: HandOffs,
+        built: SimAndJournal,
+        haptic_cpu: Option<usize>,
+        other_cpus: &[usize],
+        stop: &Arc<AtomicBool>,
+    ) -> anyhow::Result<(Self, StartChannels)> {
+        let t0 = built.t0;
+        // The haptic thread wakes the simulation thread once its tick is done.
+        let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
+        let sim_fifo_gate = Arc::new(AtomicU8::new(FIFO_PENDING));
+        let (sim_pinned_tx, sim_pinned_rx) = std::sync::mpsc::sync_channel(1);
+        let sim_thread = spawn_sim(
+            built.sim,
+            hand_offs.pose_out,
+            hand_offs.model_in,
+            hand_offs.status_in,
+            hand_offs.faults_sim,
+            SimJournal {
+                records: built.records_in,
+                dropped: built.journal_dropped.clone(),
             },
-            (sim_wake, sim_thread.thread().clone()),
-            pose_in,
-            model_out,
-            faults_haptic,
-            counters.clone(),
+            SimFrames {
+                station: params.station.clone(),
+                every_ticks: frame_interval_ticks(params.frame_hz),
+                opened: hand_offs.frames_tx,
+            },
             stop.clone(),
-            ready_tx,
-        )?)
-    } else {
-        drop((device, pose_in, model_out, faults_haptic, ready_tx));
-        None
-    };
-    let mut fifo_priority = 0;
-    let mut pinned_cpu = None;
-    let device_error = match (&haptic_thread, ready_rx.recv()) {
-        (None, _) => None,
-        (Some(_), Ok(ready)) => {
-            match ready.fifo {
-                Ok(p) => fifo_priority = p,
-                Err(e) => warnings.push(format!(
-                    "{e}: the haptic thread runs with normal scheduling"
-                )),
-            }
-            match ready.cpu {
-                Ok(c) => pinned_cpu = c,
-                Err(e) => warnings.push(format!("{e}: the haptic thread shares its CPU")),
-            }
-            ready.device.err()
-        }
-        (Some(_), Err(_)) => Some("the haptic thread ended before it started".to_string()),
-    };
-    // The simulation takes SCHED_FIFO only above a haptic thread that got it (or with none).
-    sim_fifo_gate.store(
-        if haptic_thread.is_none() || fifo_priority > 0 {
-            FIFO_TAKE
+            t0,
+            SimThread {
+                fifo_priority: params.sim_fifo_priority,
+                fifo_gate: sim_fifo_gate.clone(),
+                cpus: other_cpus.to_vec(),
+                pinned: sim_pinned_tx,
+            },
+            sim_wake.clone(),
+        )?;
+        let haptic_thread = if let Some(sim_wake) = sim_wake {
+            Some(spawn_haptic(
+                device,
+                HapticContext {
+                    period_s: 1.0 / params.haptic_hz,
+                    fifo_priority: params.fifo_priority,
+                    cpu: haptic_cpu,
+                    limits: params.limits,
+                    t0,
+                },
+                (sim_wake, sim_thread.thread().clone()),
+                hand_offs.pose_in,
+                hand_offs.model_out,
+                hand_offs.faults_haptic,
+                hand_offs.counters.clone(),
+                stop.clone(),
+                hand_offs.ready_tx,
+            )?)
         } else {
-            FIFO_STAY_NORMAL
-        },
-        Ordering::Release,
-    );
-    let sim_pinned = match sim_pinned_rx.recv() {
-        Ok(Ok(())) => !other_cpus.is_empty(),
-        Ok(Err(e)) => {
-            warnings.push(format!(
-                "{e}: the simulation thread may share the haptic thread's CPU"
+            drop((
+                device,
+                hand_offs.pose_in,
+                hand_offs.model_out,
+                hand_offs.faults_haptic,
+                hand_offs.ready_tx,
             ));
-            false
-        }
-        Err(_) => false,
-    };
-    let mut frames_running = false;
-    if params.frame_hz > 0.0 {
-        match frames_rx.recv() {
-            Ok(Ok(())) => frames_running = true,
-            Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
-            Err(_) => {}
-        }
+            None
+        };
+        Ok((
+            Self {
+                haptic_thread,
+                sim_thread,
+                writer: built.writer,
+                t0,
+                sim_done: built.sim_done,
+                journal_dropped: built.journal_dropped,
+                commands_journal: built.commands_journal,
+                status_out: hand_offs.status_out,
+                faults_to_haptic: hand_offs.faults_to_haptic,
+                faults_to_sim: hand_offs.faults_to_sim,
+                counters: hand_offs.counters,
+            },
+            StartChannels {
+                ready_rx: hand_offs.ready_rx,
+                sim_fifo_gate,
+                sim_pinned_rx,
+                frames_rx: hand_offs.frames_rx,
+            },
+        ))
     }
-    // Locked once the threads, their stacks, the device's and the frames' shared memory
-    // and the hand-off buffers exist.
-    if params.lock_memory && device_error.is_none() {
-        match realtime::lock_memory() {
-            Ok(()) => memory_locked = true,
-            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
-        }
-    }
-    if let Some(e) = &device_error {
+
+    /// Stops the threads after a device error and waits for them and the journal writer.
+    fn abandon(self, stop: &AtomicBool) {
+        let Threads {
+            haptic_thread,
+            sim_thread,
+            writer,
+            sim_done,
+            ..
+        } = self;
         stop.store(true, Ordering::Relaxed);
         if let Some(h) = haptic_thread {
             let _ = h.join();
@@ -444,278 +607,455 @@ pub fn run(
         if let Some(w) = writer {
             let _ = w.join();
         }
-        anyhow::bail!("cannot open the device: {e}");
     }
-    let mut running = vec![if sim_pinned {
-        format!("simulation thread (CPUs {other_cpus:?})")
-    } else {
-        "simulation thread".to_string()
-    }];
-    let mut off = Vec::new();
-    if haptic_thread.is_some() {
-        running.push(format!(
-            "haptic thread {} Hz ({}, memory {}{})",
-            params.haptic_hz,
-            if fifo_priority > 0 {
-                format!("SCHED_FIFO {fifo_priority}")
-            } else {
-                "normal scheduling".into()
-            },
-            if memory_locked {
-                "locked"
-            } else {
-                "not locked"
-            },
-            pinned_cpu.map_or(String::new(), |c| format!(", CPU {c} to itself"))
-        ));
-        running.push(if params.monitor_device {
-            "shared-memory device with its force-out thread".into()
-        } else {
-            "in-process scripted device".into()
-        });
-    } else {
-        off.push("haptic thread (the scene has no haptics)".to_string());
-    }
-    if frames_running {
-        running.push(format!("render frames {} Hz", params.frame_hz));
-    } else {
-        off.push("render frames".into());
-    }
-    if monitor.is_some() {
-        running.push("shared-memory monitor".into());
-    }
-    match &network {
-        Some(n) => running.push(format!("network endpoint on {}", n.local_addr)),
-        None => off.push("network endpoint (no observers)".into()),
-    }
-    report(&StationReport::Event(StationEvent {
-        uptime_s: realtime::monotonic_s() - t0,
-        event: format!(
-            "runs: {}; off: {}",
-            running.join(", "),
-            if off.is_empty() {
-                "nothing".to_string()
-            } else {
-                off.join(", ")
+}
+
+impl StartChannels {
+    /// Waits for the start reports (device, SCHED_FIFO, pinning, frames) and opens the
+    /// simulation's SCHED_FIFO gate accordingly.
+    fn collect(
+        self,
+        params: &StationParams,
+        haptic_thread: &Option<JoinHandle<()>>,
+        other_cpus: &[usize],
+        warnings: &mut Vec<String>,
+    ) -> Started {
+        let StartChannels {
+            ready_rx,
+            sim_fifo_gate,
+            sim_pinned_rx,
+            frames_rx,
+        } = self;
+        let mut fifo_priority = 0;
+        let mut pinned_cpu = None;
+        let device_error = match (haptic_thread, ready_rx.recv()) {
+            (None, _) => None,
+            (Some(_), Ok(ready)) => {
+                match ready.fifo {
+                    Ok(p) => fifo_priority = p,
+                    Err(e) => warnings.push(format!(
+                        "{e}: the haptic thread runs with normal scheduling"
+                    )),
+                }
+                match ready.cpu {
+                    Ok(c) => pinned_cpu = c,
+                    Err(e) => warnings.push(format!("{e}: the haptic thread shares its CPU")),
+                }
+                ready.device.err()
             }
-        ),
-    }));
-    // Instructors schedule on the station clock; a tool on this machine that logs
-    // CLOCK_MONOTONIC (a device trace, a renderer) lines up with it through this.
-    report(&StationReport::Event(StationEvent {
-        uptime_s: realtime::monotonic_s() - t0,
-        event: format!(
-            "clock: station tick 0 is CLOCK_MONOTONIC {} ns",
-            (t0 * 1e9).round() as u64
-        ),
-    }));
-    for w in &warnings {
+            (Some(_), Err(_)) => Some("the haptic thread ended before it started".to_string()),
+        };
+        // The simulation takes SCHED_FIFO only above a haptic thread that got it (or with none).
+        sim_fifo_gate.store(
+            if haptic_thread.is_none() || fifo_priority > 0 {
+                FIFO_TAKE
+            } else {
+                FIFO_STAY_NORMAL
+            },
+            Ordering::Release,
+        );
+        let sim_pinned = match sim_pinned_rx.recv() {
+            Ok(Ok(())) => !other_cpus.is_empty(),
+            Ok(Err(e)) => {
+                warnings.push(format!(
+                    "{e}: the simulation thread may share the haptic thread's CPU"
+                ));
+                false
+            }
+            Err(_) => false,
+        };
+        let mut frames_running = false;
+        if params.frame_hz > 0.0 {
+            match frames_rx.recv() {
+                Ok(Ok(())) => frames_running = true,
+                Ok(Err(e)) => warnings.push(format!("{e}: no render frames")),
+                Err(_) => {}
+            }
+        }
+        Started {
+            fifo_priority,
+            pinned_cpu,
+            device_error,
+            sim_pinned,
+            frames_running,
+        }
+    }
+}
+
+/// Locks memory if asked to and the device opened; whether it is locked.
+fn lock_memory_if_asked(
+    params: &StationParams,
+    device_error: &Option<String>,
+    warnings: &mut Vec<String>,
+) -> bool {
+    let mut memory_locked = false;
+    // Locked once the threads, their stacks, the device's and the frames' shared memory
+    // and the hand-off buffers exist.
+    if params.lock_memory && device_error.is_none() {
+        match realtime::lock_memory() {
+            Ok(()) => memory_locked = true,
+            Err(e) => warnings.push(format!("{e}: the haptic loop may wait on page faults")),
+        }
+    }
+    memory_locked
+}
+
+/// A started station, as the main thread holds it while it runs.
+struct Station<'a> {
+    params: &'a StationParams,
+    stop: Arc<AtomicBool>,
+    // Field order is drop order: the threads' handles, then the monitor, then the network
+    // endpoint.
+    threads: Threads,
+    monitor: Option<DeviceMonitor>,
+    network: Option<crate::net::Network>,
+    /// Why some real-time request was not granted.
+    warnings: Vec<String>,
+}
+
+impl Station<'_> {
+    /// Reports what runs and what is off, the station clock, and the warnings.
+    fn report_start(
+        &self,
+        started: &Started,
+        memory_locked: bool,
+        other_cpus: &[usize],
+        mut report: impl FnMut(&StationReport),
+    ) {
+        let Station {
+            params,
+            network,
+            monitor,
+            threads,
+            warnings,
+            ..
+        } = self;
+        let Started {
+            fifo_priority,
+            pinned_cpu,
+            sim_pinned,
+            frames_running,
+            ..
+        } = *started;
+        let (haptic_thread, t0) = (&threads.haptic_thread, threads.t0);
+        let mut running = vec![if sim_pinned {
+            format!("simulation thread (CPUs {other_cpus:?})")
+        } else {
+            "simulation thread".to_string()
+        }];
+        let mut off = Vec::new();
+        if haptic_thread.is_some() {
+            running.push(format!(
+                "haptic thread {} Hz ({}, memory {}{})",
+                params.haptic_hz,
+                if fifo_priority > 0 {
+                    format!("SCHED_FIFO {fifo_priority}")
+                } else {
+                    "normal scheduling".into()
+                },
+                if memory_locked {
+                    "locked"
+                } else {
+                    "not locked"
+                },
+                pinned_cpu.map_or(String::new(), |c| format!(", CPU {c} to itself"))
+            ));
+            running.push(if params.monitor_device {
+                "shared-memory device with its force-out thread".into()
+            } else {
+                "in-process scripted device".into()
+            });
+        } else {
+            off.push("haptic thread (the scene has no haptics)".to_string());
+        }
+        if frames_running {
+            running.push(format!("render frames {} Hz", params.frame_hz));
+        } else {
+            off.push("render frames".into());
+        }
+        if monitor.is_some() {
+            running.push("shared-memory monitor".into());
+        }
+        match &network {
+            Some(n) => running.push(format!("network endpoint on {}", n.local_addr)),
+            None => off.push("network endpoint (no observers)".into()),
+        }
         report(&StationReport::Event(StationEvent {
             uptime_s: realtime::monotonic_s() - t0,
-            event: format!("warning: {w}"),
+            event: format!(
+                "runs: {}; off: {}",
+                running.join(", "),
+                if off.is_empty() {
+                    "nothing".to_string()
+                } else {
+                    off.join(", ")
+                }
+            ),
         }));
+        // Instructors schedule on the station clock; a tool on this machine that logs
+        // CLOCK_MONOTONIC (a device trace, a renderer) lines up with it through this.
+        report(&StationReport::Event(StationEvent {
+            uptime_s: realtime::monotonic_s() - t0,
+            event: format!(
+                "clock: station tick 0 is CLOCK_MONOTONIC {} ns",
+                (t0 * 1e9).round() as u64
+            ),
+        }));
+        for w in warnings {
+            report(&StationReport::Event(StationEvent {
+                uptime_s: realtime::monotonic_s() - t0,
+                event: format!("warning: {w}"),
+            }));
+        }
     }
 
-    let mut next = t0 + params.status_interval_s;
-    let mut window_start = t0;
-    let mut remote = RemoteFeed::default();
-    let mut book = FaultBook::new();
-    let mut audit = CommandAudit::new();
-    let mut stream_lost = false;
-    // The table the threads have (rebuilt only when the book changes).
-    let mut table = FaultTable::default();
-    let stiff_mode = scene.spec.features.stiff_mode;
-    while !stop.load(Ordering::Relaxed) {
-        // Every 10 ms: instructors' commands are answered within that.
-        realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
-        let now = realtime::monotonic_s();
-        let sim_now = *status_out.read();
-        let tick = station_tick(now - t0);
-        let mut table_changed = false;
-        if let Some(n) = &network {
-            while let Ok(request) = n.commands.try_recv() {
-                use scalpel_proto::wire::{Action, Fault, Outcome, Role};
-                let refuse = |reason: &str| {
-                    (
-                        Outcome::Rejected {
-                            reason: reason.to_string(),
-                        },
-                        None,
-                    )
-                };
-                let (outcome, listed) = if request.reply.is_closed() {
-                    // The session gave up waiting (and told its client so): not carried
-                    // out late.
-                    refuse("expired: the station did not take it in time")
-                } else if request.role != Role::Instructor {
-                    refuse("an observer certificate may not instruct")
-                } else if stiff_mode
-                    && matches!(
-                        &request.command.action,
-                        Action::Schedule(spec) if matches!(spec.fault, Fault::TissueStiffness { .. })
-                    )
-                {
-                    // Each change would re-factorise the projective solver on the
-                    // simulation thread (milliseconds, allocating).
-                    refuse("tissue-stiffness is not available in a stiff-mode scene")
-                } else {
-                    book.command(&request.by, &request.command, tick)
-                };
-                table_changed |=
-                    matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
-                let refused = matches!(outcome, Outcome::Rejected { .. });
-                if audit.record(&request.by, refused, tick) == command_audit::Record::Full {
-                    let record = serde_json::json!({
-                        "station_tick": tick,
-                        "sim_tick": sim_now.ticks,
-                        "by": request.by,
-                        "role": request.role,
-                        "seq": request.command.seq,
-                        "action": request.command.action,
-                        "outcome": outcome,
-                    });
-                    // No journal: nobody reads the channel, and that is fine.
-                    let _ = commands_journal.send(journal::command_line(&record));
-                    report(&StationReport::Event(StationEvent {
-                        uptime_s: now - t0,
-                        event: format!(
-                            "instructor {}: command {} {:?} -> {:?}",
-                            request.by, request.command.seq, request.command.action, outcome
-                        ),
-                    }));
+    /// Runs the main thread's loop until `stop` (instructors' commands, faults, device
+    /// events, the remote feed, status lines), then writes out the audit's last refusals.
+    fn status_loop(&mut self, scene: &BuiltScene, mut report: impl FnMut(&StationReport)) {
+        let Station {
+            params,
+            stop,
+            network,
+            monitor,
+            threads:
+                Threads {
+                    t0,
+                    haptic_thread,
+                    sim_thread,
+                    commands_journal,
+                    status_out,
+                    faults_to_haptic,
+                    faults_to_sim,
+                    counters,
+                    ..
+                },
+            ..
+        } = self;
+        let t0 = *t0;
+        let mut next = t0 + params.status_interval_s;
+        let mut window_start = t0;
+        let mut remote = RemoteFeed::default();
+        let mut book = FaultBook::new();
+        let mut audit = CommandAudit::new();
+        let mut stream_lost = false;
+        // The table the threads have (rebuilt only when the book changes).
+        let mut table = FaultTable::default();
+        let stiff_mode = scene.spec.features.stiff_mode;
+        while !stop.load(Ordering::Relaxed) {
+            // Every 10 ms: instructors' commands are answered within that.
+            realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
+            let now = realtime::monotonic_s();
+            let sim_now = *status_out.read();
+            let tick = station_tick(now - t0);
+            let mut table_changed = false;
+            if let Some(n) = &network {
+                while let Ok(request) = n.commands.try_recv() {
+                    use scalpel_proto::wire::{Action, Fault, Outcome, Role};
+                    let refuse = |reason: &str| {
+                        (
+                            Outcome::Rejected {
+                                reason: reason.to_string(),
+                            },
+                            None,
+                        )
+                    };
+                    let (outcome, listed) = if request.reply.is_closed() {
+                        // The session gave up waiting (and told its client so): not carried
+                        // out late.
+                        refuse("expired: the station did not take it in time")
+                    } else if request.role != Role::Instructor {
+                        refuse("an observer certificate may not instruct")
+                    } else if stiff_mode
+                        && matches!(
+                            &request.command.action,
+                            Action::Schedule(spec) if matches!(spec.fault, Fault::TissueStiffness { .. })
+                        )
+                    {
+                        // Each change would re-factorise the projective solver on the
+                        // simulation thread (milliseconds, allocating).
+                        refuse("tissue-stiffness is not available in a stiff-mode scene")
+                    } else {
+                        book.command(&request.by, &request.command, tick)
+                    };
+                    table_changed |=
+                        matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
+                    let refused = matches!(outcome, Outcome::Rejected { .. });
+                    if audit.record(&request.by, refused, tick) == command_audit::Record::Full {
+                        let record = serde_json::json!({
+                            "station_tick": tick,
+                            "sim_tick": sim_now.ticks,
+                            "by": request.by,
+                            "role": request.role,
+                            "seq": request.command.seq,
+                            "action": request.command.action,
+                            "outcome": outcome,
+                        });
+                        // No journal: nobody reads the channel, and that is fine.
+                        let _ = commands_journal.send(journal::command_line(&record));
+                        report(&StationReport::Event(StationEvent {
+                            uptime_s: now - t0,
+                            event: format!(
+                                "instructor {}: command {} {:?} -> {:?}",
+                                request.by, request.command.seq, request.command.action, outcome
+                            ),
+                        }));
+                    }
+                    // The session may have gone: its answer has nowhere to go.
+                    let _ = request.reply.send((outcome, listed));
                 }
-                // The session may have gone: its answer has nowhere to go.
-                let _ = request.reply.send((outcome, listed));
+                for summary in audit.summaries(tick, false) {
+                    record_refusals(&summary, &sim_now, now - t0, commands_journal, &mut report);
+                }
             }
-            for summary in audit.summaries(tick, false) {
-                record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
+            for transition in book.advance(tick) {
+                table_changed = true;
+                let (kind, text) = match transition {
+                    Transition::Applied(t) => (EventKind::FaultApplied, format!("{t}: applied")),
+                    Transition::Ended(t) => (EventKind::FaultCleared, t),
+                };
+                remote.event(network, &sim_now, now - t0, kind, &text);
+                report(&StationReport::Event(StationEvent {
+                    uptime_s: now - t0,
+                    event: text,
+                }));
             }
-        }
-        for transition in book.advance(tick) {
-            table_changed = true;
-            let (kind, text) = match transition {
-                Transition::Applied(t) => (EventKind::FaultApplied, format!("{t}: applied")),
-                Transition::Ended(t) => (EventKind::FaultCleared, t),
-            };
-            remote.event(&network, &sim_now, now - t0, kind, &text);
-            report(&StationReport::Event(StationEvent {
-                uptime_s: now - t0,
-                event: text,
-            }));
-        }
-        if table_changed {
-            table = book.table();
-            faults_to_haptic.write(table);
-            faults_to_sim.write(table);
-        }
-        if let Some(n) = &network {
-            let lost = table.stream_lost(tick);
-            if lost != stream_lost {
-                stream_lost = lost;
-                n.feeds.stream_lost.send_replace(lost);
+            if table_changed {
+                table = book.table();
+                faults_to_haptic.write(table);
+                faults_to_sim.write(table);
             }
-        }
-        if let Some(m) = &mut monitor
-            && let Some(change) = m.poll()
-            && params.monitor_device
-        {
-            let (kind, text) = match change {
-                DeviceEvent::Connected => (EventKind::DeviceConnected, "device connected".into()),
-                DeviceEvent::Lost => (
-                    EventKind::DeviceLost,
-                    format!(
-                        "device lost (dead nodes cleaned so far: {}); the force fades to zero",
-                        m.dead_nodes_cleaned()
+            if let Some(n) = &network {
+                let lost = table.stream_lost(tick);
+                if lost != stream_lost {
+                    stream_lost = lost;
+                    n.feeds.stream_lost.send_replace(lost);
+                }
+            }
+            if let Some(m) = &mut *monitor
+                && let Some(change) = m.poll()
+                && params.monitor_device
+            {
+                let (kind, text) = match change {
+                    DeviceEvent::Connected => {
+                        (EventKind::DeviceConnected, "device connected".into())
+                    }
+                    DeviceEvent::Lost => (
+                        EventKind::DeviceLost,
+                        format!(
+                            "device lost (dead nodes cleaned so far: {}); the force fades to zero",
+                            m.dead_nodes_cleaned()
+                        ),
                     ),
-                ),
-            };
-            remote.event(&network, &sim_now, now - t0, kind, &text);
-            report(&StationReport::Event(StationEvent {
-                uptime_s: now - t0,
-                event: text,
-            }));
-        }
-        if let Some(n) = &network {
-            remote.publish(
-                n,
-                &sim_now,
-                now - t0,
-                &counters,
-                monitor
-                    .as_ref()
-                    .filter(|_| params.monitor_device)
-                    .is_none_or(|m| m.connected())
-                    && params.haptics,
-            );
-        }
-        if now >= next {
-            let line = StatusLine {
-                uptime_s: now - t0,
-                haptic: params
-                    .haptics
-                    .then(|| counters.take_window(now - window_start)),
-                sim: *status_out.read(),
-                device_connected: monitor
-                    .as_ref()
-                    .filter(|_| params.monitor_device)
-                    .map(|m| m.connected()),
-                dead_nodes_cleaned: monitor.as_ref().map_or(0, |m| m.dead_nodes_cleaned()),
-            };
-            if let Some(h) = &line.haptic {
-                remote.window = Some(*h);
+                };
+                remote.event(network, &sim_now, now - t0, kind, &text);
+                report(&StationReport::Event(StationEvent {
+                    uptime_s: now - t0,
+                    event: text,
+                }));
             }
-            report(&StationReport::Status(line));
-            window_start = now;
-            next += params.status_interval_s;
+            if let Some(n) = &network {
+                remote.publish(
+                    n,
+                    &sim_now,
+                    now - t0,
+                    counters,
+                    monitor
+                        .as_ref()
+                        .filter(|_| params.monitor_device)
+                        .is_none_or(|m| m.connected())
+                        && params.haptics,
+                );
+            }
+            if now >= next {
+                let line = StatusLine {
+                    uptime_s: now - t0,
+                    haptic: params
+                        .haptics
+                        .then(|| counters.take_window(now - window_start)),
+                    sim: *status_out.read(),
+                    device_connected: monitor
+                        .as_ref()
+                        .filter(|_| params.monitor_device)
+                        .map(|m| m.connected()),
+                    dead_nodes_cleaned: monitor.as_ref().map_or(0, |m| m.dead_nodes_cleaned()),
+                };
+                if let Some(h) = &line.haptic {
+                    remote.window = Some(*h);
+                }
+                report(&StationReport::Status(line));
+                window_start = now;
+                next += params.status_interval_s;
+            }
+            if haptic_thread.as_ref().is_some_and(|h| h.is_finished()) || sim_thread.is_finished() {
+                stop.store(true, Ordering::Relaxed);
+            }
         }
-        if haptic_thread.as_ref().is_some_and(|h| h.is_finished()) || sim_thread.is_finished() {
-            stop.store(true, Ordering::Relaxed);
+        let now = realtime::monotonic_s();
+        for summary in audit.summaries(station_tick(now - t0), true) {
+            let sim_now = *status_out.read();
+            record_refusals(&summary, &sim_now, now - t0, commands_journal, &mut report);
         }
     }
-    let now = realtime::monotonic_s();
-    for summary in audit.summaries(station_tick(now - t0), true) {
-        let sim_now = *status_out.read();
-        record_refusals(&summary, &sim_now, now - t0, &commands_journal, &mut report);
-    }
-    let haptic_result = match haptic_thread {
-        Some(h) => h.join(),
-        None => Ok(()),
-    };
-    if let Some(n) = network {
-        n.stop();
-    }
-    let sim_result = sim_thread.join();
-    sim_done.store(true, Ordering::Release);
-    let sim_status = *status_out.read();
-    // The journal is flushed whatever happened: a session that failed is the one to replay.
-    let mut file = match writer {
-        Some(w) => Some(
-            w.join()
-                .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??,
-        ),
-        None => None,
-    };
-    let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
+
+    /// Joins the threads, stops the network endpoint, closes the journal with its footer
+    /// and sums up the run.
+    fn shut_down(self, fifo_priority: i32, memory_locked: bool) -> anyhow::Result<RunSummary> {
+        let Station {
+            network,
+            threads:
+                Threads {
+                    haptic_thread,
+                    sim_thread,
+                    writer,
+                    sim_done,
+                    journal_dropped,
+                    mut status_out,
+                    counters,
+                    ..
+                },
+            warnings,
+            ..
+        } = self;
+        let haptic_result = match haptic_thread {
+            Some(h) => h.join(),
+            None => Ok(()),
+        };
+        if let Some(n) = network {
+            n.stop();
+        }
+        let sim_result = sim_thread.join();
+        sim_done.store(true, Ordering::Release);
+        let sim_status = *status_out.read();
+        // The journal is flushed whatever happened: a session that failed is the one to replay.
+        let mut file = match writer {
+            Some(w) => Some(
+                w.join()
+                    .map_err(|_| anyhow::anyhow!("the journal writer panicked"))??,
+            ),
+            None => None,
+        };
+        let (Ok(()), Ok(state_hash)) = (haptic_result, sim_result) else {
+            if let Some(f) = &mut file {
+                std::io::Write::flush(f)?;
+            }
+            anyhow::bail!("a station thread panicked (the journal has the inputs up to it)");
+        };
         if let Some(f) = &mut file {
+            std::io::Write::write_all(f, journal::footer(sim_status.ticks, state_hash).as_bytes())?;
             std::io::Write::flush(f)?;
         }
-        anyhow::bail!("a station thread panicked (the journal has the inputs up to it)");
-    };
-    if let Some(f) = &mut file {
-        std::io::Write::write_all(f, journal::footer(sim_status.ticks, state_hash).as_bytes())?;
-        std::io::Write::flush(f)?;
+        Ok(RunSummary {
+            haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
+            deadline_misses: counters.total_misses.load(Ordering::Relaxed),
+            poses_dropped: counters.ring_full.load(Ordering::Relaxed),
+            sim: sim_status,
+            state_hash,
+            journal_dropped: journal_dropped.load(Ordering::Relaxed),
+            fifo_priority,
+            memory_locked,
+            warnings,
+        })
     }
-    Ok(RunSummary {
-        haptic_ticks: counters.total_ticks.load(Ordering::Relaxed),
-        deadline_misses: counters.total_misses.load(Ordering::Relaxed),
-        poses_dropped: counters.ring_full.load(Ordering::Relaxed),
-        sim: sim_status,
-        state_hash,
-        journal_dropped: journal_dropped.load(Ordering::Relaxed),
-        fifo_priority,
-        memory_locked,
-        warnings,
-    })
 }
 
 /// Writes out refusals the audit counted: one journal line (`refused_unrecorded`, which
