@@ -14,7 +14,7 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Keyframe, Simulation, Unobserved};
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{BuiltScene, ForceSpec, build_scene, builtin};
+use scalpel_sim::scene::{BuiltScene, ForceSpec, SceneSpec, build_scene, builtin};
 
 /// Largest change of the tool force in one tick outside a rupture (N). The loading curve
 /// rises by millinewtons per tick at 5 mm/s and the ripple is a fraction of a newton over
@@ -24,7 +24,11 @@ const MAX_FORCE_STEP_N: f64 = 0.25;
 const TICK_S: f64 = 1e-3;
 
 fn scene(name: &str) -> BuiltScene {
-    let mut spec = builtin(name).unwrap();
+    cutting_scene(builtin(name).unwrap())
+}
+
+/// `spec` built with cutting on.
+fn cutting_scene(mut spec: SceneSpec) -> BuiltScene {
     spec.features.cutting = true;
     build_scene(&spec, None, &mut Silent).unwrap()
 }
@@ -548,10 +552,9 @@ fn cut_through_a_thin_part() {
 fn stiff_and_near_incompressible_tissue_cuts_calmly() {
     for (youngs_modulus_pa, poisson_ratio) in [(1e6, 0.45), (5e3, 0.499)] {
         let mut spec = builtin("liver").unwrap();
-        spec.features.cutting = true;
         spec.material.youngs_modulus_pa = youngs_modulus_pa;
         spec.material.poisson_ratio = poisson_ratio;
-        let scene = build_scene(&spec, None, &mut Silent).unwrap();
+        let scene = cutting_scene(spec);
         let top = top_mm(&scene, -10.0, 0.0);
         let (up, down) = (top + 5.0, top - 8.0);
         let s = script(&[

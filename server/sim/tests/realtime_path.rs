@@ -317,8 +317,9 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
 }
 
 /// No cutting tick allocates after warm-up, a landing that waits for its re-cut worker
-/// included. Plain ticks and every kind of topology tick: those that grow Σ and refit the rows it cuts, hand a
-/// re-cut to the worker, place virtual points, land a re-cut or start a stroke. On the
+/// included. Plain ticks and every kind of topology tick: those that grow Σ and refit the
+/// rows it cuts, hand a re-cut to the worker, place virtual points, land a re-cut or
+/// start a stroke. On the
 /// liver, on the cerebroma (whose cut places virtual points over dozens of ticks), and
 /// over a lab session of six strokes on the liver (later strokes start after warm-up,
 /// some crossing earlier wounds).

@@ -41,7 +41,7 @@ impl RestGrid {
             dims: [1; 3],
             cells: Rows::default(),
         };
-        grid.rebin(positions, cell_m, &mut Vec::new());
+        grid.rebin(positions, cell_m);
         grid
     }
 
@@ -51,9 +51,9 @@ impl RestGrid {
         self.cells.reserve(cells, items);
     }
 
-    /// Bins `positions` anew into cells of size `cell_m`, in this grid's buffers (`fill`
-    /// is scratch): no allocation while they have room.
-    pub fn rebin(&mut self, positions: &[Vec3], cell_m: f64, fill: &mut Vec<u32>) {
+    /// Bins `positions` anew into cells of size `cell_m`, in this grid's buffers: no
+    /// allocation while they have room.
+    pub fn rebin(&mut self, positions: &[Vec3], cell_m: f64) {
         let bbox = Aabb::around(positions);
         self.origin = if bbox.is_empty() {
             Vec3::zeros()
@@ -71,7 +71,7 @@ impl RestGrid {
         let mut cells = std::mem::take(&mut self.cells);
         let grid = &*self;
         let pairs = (positions.iter().enumerate()).map(|(i, p)| (grid.cell_of(p) as u32, i as u32));
-        cells.refill(n, pairs, fill);
+        cells.refill(n, pairs);
         self.cells = cells;
     }
 

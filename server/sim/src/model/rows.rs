@@ -14,7 +14,7 @@ impl Rows {
     /// `n` rows from `pairs` (row, entry).
     pub fn build(n: usize, pairs: impl Iterator<Item = (u32, u32)> + Clone) -> Self {
         let mut rows = Self::default();
-        rows.refill(n, pairs, &mut Vec::new());
+        rows.refill(n, pairs);
         rows
     }
 
@@ -25,32 +25,29 @@ impl Rows {
         self.items.reserve(items);
     }
 
-    /// `n` rows from `pairs` (row, entry), in this value's buffers (`fill` is scratch):
-    /// no allocation while they have room. Within a row, entries keep the order of
-    /// `pairs`.
-    pub fn refill(
-        &mut self,
-        n: usize,
-        pairs: impl Iterator<Item = (u32, u32)> + Clone,
-        fill: &mut Vec<u32>,
-    ) {
-        let count = &mut self.start;
-        count.clear();
-        count.resize(n + 1, 0);
+    /// `n` rows from `pairs` (row, entry), in this value's buffers: no allocation while
+    /// they have room. Within a row, entries keep the order of `pairs`.
+    pub fn refill(&mut self, n: usize, pairs: impl Iterator<Item = (u32, u32)> + Clone) {
+        let start = &mut self.start;
+        start.clear();
+        start.resize(n + 1, 0);
         for (a, _) in pairs.clone() {
-            count[a as usize + 1] += 1;
+            start[a as usize + 1] += 1;
         }
         for i in 1..=n {
-            count[i] += count[i - 1];
+            start[i] += start[i - 1];
         }
-        fill.clear();
-        fill.extend_from_slice(count);
         self.items.clear();
-        self.items.resize(count[n] as usize, 0);
+        self.items.resize(start[n] as usize, 0);
+        // Each row's start is its cursor while it fills; it then holds the next row's
+        // start, and the starts are shifted back by one row.
         for (a, b) in pairs {
-            self.items[fill[a as usize] as usize] = b;
-            fill[a as usize] += 1;
+            let cursor = &mut start[a as usize];
+            self.items[*cursor as usize] = b;
+            *cursor += 1;
         }
+        start.copy_within(0..n, 1);
+        start[0] = 0;
     }
 
     /// Row `i`'s entries.
@@ -73,7 +70,7 @@ mod tests {
         assert_eq!(built.of(1), &[4]);
         assert_eq!(built.of(2), &[7, 3]);
         let mut refilled = Rows::build(5, [(4u32, 9u32)].into_iter());
-        refilled.refill(3, pairs.iter().copied(), &mut Vec::new());
+        refilled.refill(3, pairs.iter().copied());
         for i in 0..3 {
             assert_eq!(refilled.of(i), built.of(i));
         }

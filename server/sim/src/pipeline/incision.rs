@@ -186,8 +186,7 @@ impl IncisionTracker {
             // running and the last re-cut, which supersedes it), made now.
             spare: {
                 let mut spare = Vec::with_capacity(SPARE_JOBS);
-                spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
-                spare.push(JobBuffers::with_room(PATH_SAMPLE_CAPACITY));
+                spare.extend((0..2).map(|_| JobBuffers::with_room(PATH_SAMPLE_CAPACITY)));
                 spare
             },
             spare_base: Some(Base::with_room(
@@ -460,8 +459,7 @@ impl IncisionTracker {
             mut samples,
             sigma: mut snapshot,
         } = self.spare.pop().unwrap_or_default();
-        samples.clear();
-        samples.extend_from_slice(&self.samples);
+        samples.clone_from(&self.samples);
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
@@ -478,10 +476,8 @@ impl IncisionTracker {
             params: self.params,
             embed: match (&self.space, &self.worker) {
                 (Some(space), Some(_)) => {
-                    snapshot.triangles.clear();
-                    snapshot.triangles.extend_from_slice(&sigma.triangles);
-                    snapshot.boxes.clear();
-                    snapshot.boxes.extend_from_slice(&sigma.boxes);
+                    snapshot.triangles.clone_from(&sigma.triangles);
+                    snapshot.boxes.clone_from(&sigma.boxes);
                     Some((space.clone(), snapshot))
                 }
                 _ => None,
@@ -490,10 +486,8 @@ impl IncisionTracker {
     }
 
     /// Keeps a finished job's buffers for the next one.
-    fn keep_buffers(&mut self, spent: Option<JobBuffers>) {
-        if let Some(spent) = spent
-            && self.spare.len() < self.spare.capacity()
-        {
+    fn keep_buffers(&mut self, spent: JobBuffers) {
+        if self.spare.len() < SPARE_JOBS {
             self.spare.push(spent);
         }
     }
@@ -512,7 +506,7 @@ impl IncisionTracker {
                 .as_ref()
                 .and_then(|w| w.wait(&mut self.stats.late_recuts));
             match &mut recut {
-                Some(r) if left > 0 => self.keep_buffers(r.spent.take()),
+                Some(r) if left > 0 => self.keep_buffers(std::mem::take(&mut r.spent)),
                 Some(_) => {}
                 None => break,
             }
@@ -524,7 +518,7 @@ impl IncisionTracker {
             self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
             return false;
         };
-        self.keep_buffers(recut.spent.take());
+        self.keep_buffers(std::mem::take(&mut recut.spent));
         match flight.ended {
             // The stroke it finishes has ended (no new stroke has begun: it would have
             // landed this first); its base goes with it.
@@ -545,7 +539,7 @@ impl IncisionTracker {
         inputs: &IncisionInputs<'_>,
     ) -> bool {
         let mut recut = job.finish();
-        self.keep_buffers(recut.spent.take());
+        self.keep_buffers(std::mem::take(&mut recut.spent));
         self.apply_here(recut, surface, inputs)
     }
 
@@ -639,14 +633,11 @@ impl Base {
     /// vertex its own.
     fn start_on(&mut self, surface: &CurrentSurface) {
         let (rest, triangles) = (surface.rest_positions(), &surface.mesh.triangles);
-        match Arc::get_mut(&mut self.shape) {
-            Some(shape) => shape.copy_from(rest, triangles, &surface.kinds, &surface.wounds),
-            None => {
-                let mut shape = BaseShape::with_room(rest.len(), triangles.len());
-                shape.copy_from(rest, triangles, &surface.kinds, &surface.wounds);
-                self.shape = Arc::new(shape);
-            }
+        if Arc::get_mut(&mut self.shape).is_none() {
+            self.shape = Arc::new(BaseShape::with_room(rest.len(), triangles.len()));
         }
+        let shape = Arc::get_mut(&mut self.shape).expect("a shape of its own");
+        shape.copy_from(rest, triangles, &surface.kinds, &surface.wounds);
         self.to_current.clear();
         (self.to_current).extend((0..rest.len() as u32).map(Some));
         self.spare_map.clear();

@@ -144,7 +144,7 @@ pub(crate) struct Recut {
     /// The new surface's index, made beside the rows.
     pub index: Option<SurfaceIndex>,
     /// The job's buffers, for the next job.
-    pub spent: Option<JobBuffers>,
+    pub spent: JobBuffers,
     /// The incised surface's wounds, taken out of it and shared (made here, off the
     /// simulation thread; none when nothing was incised).
     pub wounds: Arc<Vec<Wound>>,
@@ -184,10 +184,10 @@ impl RecutJob {
     /// with it.
     pub fn finish(self) -> Recut {
         let mut recut = self.run();
-        recut.spent = Some(JobBuffers {
+        recut.spent = JobBuffers {
             samples: self.stroke.samples,
             sigma: self.embed.map(|(_, sigma)| sigma).unwrap_or_default(),
-        });
+        };
         recut
     }
 
@@ -237,7 +237,7 @@ impl RecutJob {
             outcome,
             rows,
             index,
-            spent: None,
+            spent: JobBuffers::default(),
             wounds,
         }
     }

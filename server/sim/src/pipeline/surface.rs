@@ -113,8 +113,6 @@ pub struct CurrentSurface {
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
     crossings: Vec<Crossing>,
-    /// Scratch of a re-cut's landing: the fill of the points' vertex lists.
-    landing_fill: Vec<u32>,
 }
 
 /// The surface's per-vertex and per-triangle buffers (and a stroke's base, `incision`)
@@ -195,13 +193,14 @@ impl CurrentSurface {
         } = SurfaceIndex::of(&mesh, model.kernel.support_m);
         let emb = &model.embedding;
         // A landing lists the vertices of every solver point, the virtual nodes included.
-        let solver_points = model.points.len() + spare_nodes + 1;
         let mut point_vertices = Rows::default();
-        point_vertices.reserve(solver_points, SURFACE_ROOM * emb.points.len());
+        point_vertices.reserve(
+            model.points.len() + spare_nodes,
+            SURFACE_ROOM * emb.points.len(),
+        );
         point_vertices.refill(
             model.points.len(),
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
-            &mut Vec::new(),
         );
         let nt = mesh.triangles.len();
         // The embedding's buffers with room to grow, twice (the current and the one
@@ -243,7 +242,6 @@ impl CurrentSurface {
             embedding: embedding(),
             next_embedding: embedding(),
             row_scratch: (Vec::with_capacity(1024), Vec::with_capacity(256)),
-            landing_fill: Vec::with_capacity(solver_points),
         }
     }
 
@@ -552,8 +550,7 @@ impl CurrentSurface {
         // buffer, its index (shaped at rest) made now if the worker did not, and the mesh
         // moved in below with the current positions of its carried vertices.
         let index = index.unwrap_or_else(|| SurfaceIndex::of(&mesh, self.support_m));
-        self.rest.clear();
-        self.rest.extend_from_slice(&mesh.positions);
+        self.rest.clone_from(&mesh.positions);
         // The new rows go into the embedding before last (its buffers kept): carried rows
         // are copied from the current one, not gathered into a vector each.
         let mut next = std::mem::take(&mut self.next_embedding);
@@ -565,46 +562,33 @@ impl CurrentSurface {
         let body = &rest_points[..self.followed.len()];
         let carried = |v: usize| source[v].and_then(|b| base_to_current[b as usize]);
         for v in 0..nv {
-            let x = self.rest[v];
             if let Some(b) = source[v] {
                 base_to_new[b as usize] = Some(v as u32);
             }
-            match carried(v) {
-                Some(c) => {
-                    let (points, weights) = self.embedding.of(c as usize);
-                    next.push_row(points.iter().copied().zip(weights.iter().copied()));
-                    // A carried vertex keeps its row, so it stays where it is (as its
-                    // points last placed it: `followed` is theirs as it was).
-                    mesh.positions[v] = self.mesh.positions[c as usize];
-                }
-                None => {
-                    // A new vertex's row the worker computed stands unless Σ has since
-                    // grown across it (`PrecomputedRows::take`).
-                    let ready = precomputed
-                        .as_mut()
-                        .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes));
-                    match ready {
-                        Some(row) => next.push_row(row.iter().copied()),
-                        None => {
-                            let blockers = Blockers {
-                                triangles: &sigma.triangles,
-                                boxes: &sigma.boxes,
-                            };
-                            let (within, row) = &mut self.row_scratch;
-                            SurfaceEmbedding::row_into(
-                                &x,
-                                body,
-                                grid,
-                                &self.kernel,
-                                blockers,
-                                within,
-                                row,
-                            );
-                            next.push_row(row.iter().copied());
-                        }
-                    }
-                }
+            if let Some(c) = carried(v) {
+                let (points, weights) = self.embedding.of(c as usize);
+                next.push_row(points.iter().copied().zip(weights.iter().copied()));
+                // A carried vertex keeps its row, so it stays where it is (as its points
+                // last placed it: `followed` is theirs as it was).
+                mesh.positions[v] = self.mesh.positions[c as usize];
+                continue;
             }
+            // A new vertex's row the worker computed stands unless Σ has since grown
+            // across it (`PrecomputedRows::take`); otherwise it is found here.
+            let x = self.rest[v];
+            let ready = (precomputed.as_mut())
+                .and_then(|pre| pre.take(v, &x, body, &sigma.triangles, &sigma.boxes));
+            if let Some(row) = ready {
+                next.push_row(row.iter().copied());
+                continue;
+            }
+            let blockers = Blockers {
+                triangles: &sigma.triangles,
+                boxes: &sigma.boxes,
+            };
+            let (within, row) = &mut self.row_scratch;
+            SurfaceEmbedding::row_into(&x, body, grid, &self.kernel, blockers, within, row);
+            next.push_row(row.iter().copied());
         }
         self.next_embedding = std::mem::replace(&mut self.embedding, next);
         self.mesh = mesh;
@@ -630,7 +614,6 @@ impl CurrentSurface {
         self.point_vertices.refill(
             points,
             (0..nv).flat_map(|v| emb.of(v).0.iter().map(move |&k| (k, v as u32))),
-            &mut self.landing_fill,
         );
         self.vertex_grid = vertex_grid;
         // (Cleared and refilled in the kept buffers: no allocation while they have room.)

@@ -219,7 +219,11 @@ impl VirtualPoints {
         changed: &mut Vec<u32>,
         limit: usize,
     ) {
-        let mut walls = self.walls.take().unwrap_or_else(WallVertices::with_room);
+        // (Out of `self` while `retain` borrows it; put back below.)
+        let mut walls = self
+            .walls
+            .take()
+            .expect("the walls are kept between re-meshes");
         walls.refill(inputs.surface);
         let keep_within = KEEP_SPACINGS * self.spacing_m;
         self.retain(solver, neighbours, changed, |node, at| {
@@ -397,9 +401,8 @@ struct WallVertices {
     grid: RestGrid,
     /// Whether `sites[k]` holds a node (kept or to be placed).
     taken: Vec<bool>,
-    /// Scratch: the wall normal summed at every surface vertex, and the grid's fill.
+    /// Scratch: the wall normal summed at every surface vertex.
     normal: Vec<Vec3>,
-    fill: Vec<u32>,
 }
 
 /// Wall sites and surface vertices [`WallVertices`] has room for before it grows.
@@ -419,7 +422,6 @@ impl WallVertices {
             grid,
             taken: Vec::with_capacity(WALL_ROOM),
             normal: Vec::with_capacity(SURFACE_VERTEX_ROOM),
-            fill: Vec::with_capacity(GRID_CELL_ROOM + 1),
         }
     }
 
@@ -446,7 +448,7 @@ impl WallVertices {
         );
         self.positions.clear();
         (self.positions).extend(self.sites.iter().map(|(v, _)| rest[*v as usize]));
-        (self.grid).rebin(&self.positions, surface.support().max(1e-6), &mut self.fill);
+        (self.grid).rebin(&self.positions, surface.support().max(1e-6));
         self.taken.clear();
         self.taken.resize(self.sites.len(), false);
     }
