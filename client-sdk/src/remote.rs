@@ -188,17 +188,19 @@ pub enum Update {
 }
 
 /// A failed handshake as the client error. QUIC's refusal of a connection has no room for
-/// a reason: a station refuses one when it is at its limits (or its endpoint's incoming
-/// buffers are full, or it is stopping), so that is said.
+/// a reason: a station refuses one before its TLS handshake when its handshakes in flight
+/// are at their limit (or it is stopping), so that is said. (Over the connection limits
+/// the station closes the connection after the handshake, with the reason.)
 fn refusal(e: quinn::ConnectionError) -> ClientError {
     match &e {
         quinn::ConnectionError::ConnectionClosed(c)
             if c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED =>
         {
             ClientError::Refused(
-                "the station is at its limit of connections (`network.max_connections` at \
-                 once, `network.max_per_address` from one address), or too busy or stopping; \
-                 try again when one closes"
+                "the station refused the connection before its handshake: at its limit of \
+                 handshakes in flight (`network.max_handshakes`, \
+                 `network.max_handshakes_per_address` from one address: someone may be \
+                 flooding it), or stopping; try again in a few seconds"
                     .into(),
             )
         }
@@ -324,12 +326,9 @@ impl Session {
             recv,
             updates,
             welcome,
-            // The server refuses a seq not above the last it took from this identity, over
-            // every connection: starting at the clock (µs since 1970) keeps a client that
-            // reconnects, or a second CLI run, above its earlier commands.
-            next_seq: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(1, |d| d.as_micros() as u64),
+            // Each connection numbers its commands afresh (the server keeps a window per
+            // connection, docs/PROTOCOL.md).
+            next_seq: 1,
         })
     }
 
@@ -350,8 +349,9 @@ impl Session {
         self.updates.recv().await
     }
 
-    /// The `seq` the next command gets. The server refuses one not above the last it took
-    /// from this identity: setting it lower replays (what a test of that refusal does).
+    /// The `seq` the next command gets. The server refuses one this connection used, or
+    /// one more than 64 below the highest it used: setting it lower replays (what a test
+    /// of that refusal does).
     pub fn set_next_seq(&mut self, seq: u64) {
         self.next_seq = seq;
     }
@@ -362,7 +362,7 @@ impl Session {
         action: Action,
     ) -> Result<(Outcome, Option<Vec<ScheduledFault>>), ClientError> {
         let seq = self.next_seq;
-        self.next_seq += 1;
+        self.next_seq = seq.saturating_add(1);
         let listing = matches!(action, Action::List);
         write_frame::<_, CLIENT_LIMIT>(
             &mut self.send,

@@ -77,6 +77,12 @@ pub struct NetworkConfig {
     pub max_connections: u32,
     /// Connections at once from one address.
     pub max_per_address: u32,
+    /// TLS handshakes in flight at once (a client whose address a QUIC Retry validated,
+    /// not yet through its handshake): a separate, small budget, so that handshakes never
+    /// finished cannot take the connections' places.
+    pub max_handshakes: u32,
+    /// TLS handshakes in flight from one address.
+    pub max_handshakes_per_address: u32,
 }
 
 impl Default for NetworkConfig {
@@ -87,6 +93,8 @@ impl Default for NetworkConfig {
             frame_hz: 30.0,
             max_connections: 48,
             max_per_address: 16,
+            max_handshakes: 16,
+            max_handshakes_per_address: 4,
         }
     }
 }
@@ -382,6 +390,18 @@ impl ServerConfig {
             f64::from(n.max_per_address),
             (1..=1024).contains(&n.max_per_address),
             "1 to 1024",
+        )?;
+        range(
+            "network.max_handshakes",
+            f64::from(n.max_handshakes),
+            (1..=256).contains(&n.max_handshakes),
+            "1 to 256",
+        )?;
+        range(
+            "network.max_handshakes_per_address",
+            f64::from(n.max_handshakes_per_address),
+            (1..=n.max_handshakes.max(1)).contains(&n.max_handshakes_per_address),
+            "1 to network.max_handshakes",
         )?;
         if !n.listen.is_empty() {
             if n.listen.parse::<std::net::SocketAddr>().is_err() {

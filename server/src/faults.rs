@@ -1,5 +1,5 @@
 //! Instructor faults (docs/PROTOCOL.md, "Faults"): the book the main thread keeps — who
-//! scheduled what, per-identity sequence numbers and rate limits — and the fixed-size table
+//! scheduled what, per-identity rate limits — and the fixed-size table
 //! it hands the real-time threads through triple buffers. Each thread evaluates the table on
 //! its own tick of the station clock (ms since the start), so a fault starts and ends on the
 //! tick it was scheduled for, with no lock and no allocation on the real-time path.
@@ -198,10 +198,9 @@ struct Booked {
     cancelled: bool,
 }
 
-/// One identity's command state.
+/// One identity's command state (its sequence numbers are its connections': `net::seq_window`).
 #[derive(Debug, Clone)]
 struct Client {
-    last_seq: u64,
     bucket: TokenBucket,
 }
 
@@ -284,9 +283,9 @@ impl FaultBook {
     }
 
     /// Carries out `command` from the instructor `by` at station tick `now`. Returns the
-    /// outcome, and the list for `List`. A command is refused (and its `seq` stays unused)
-    /// when it repeats or precedes a `seq` this identity already used, when the identity
-    /// is over its rate, or when its parameters are out of range.
+    /// outcome, and the list for `List`. A command is refused when the identity is over its
+    /// rate, or when its parameters are out of range. (Its `seq` was checked by its
+    /// connection, `net::seq_window`.)
     pub fn command(
         &mut self,
         by: &str,
@@ -295,7 +294,6 @@ impl FaultBook {
     ) -> (Outcome, Option<Vec<ScheduledFault>>) {
         let rejected = |reason: String| (Outcome::Rejected { reason }, None);
         let client = self.clients.entry(by.to_string()).or_insert(Client {
-            last_seq: 0,
             bucket: TokenBucket::full(COMMANDS_PER_S, COMMAND_BURST, now),
         });
         // Every command costs a token, refused ones too (a flood is a flood).
@@ -304,26 +302,12 @@ impl FaultBook {
                 "rate limit: at most {COMMANDS_PER_S} commands a second (bursts of {COMMAND_BURST}) per identity"
             ));
         }
-        if command.seq <= client.last_seq {
-            return rejected(format!(
-                "seq {} is not above {}, the last this identity used (a replayed or reordered command)",
-                command.seq, client.last_seq
-            ));
-        }
         let result = match &command.action {
             Action::Schedule(spec) => self.schedule(by, spec, now),
             Action::Clear { id } => self.clear(*id, now),
             Action::List => Ok((Outcome::Listed, Some(self.list(now)))),
         };
-        match result {
-            Ok(done) => {
-                if let Some(c) = self.clients.get_mut(by) {
-                    c.last_seq = command.seq;
-                }
-                done
-            }
-            Err(reason) => rejected(reason),
-        }
+        result.unwrap_or_else(rejected)
     }
 
     fn schedule(
@@ -532,7 +516,7 @@ mod tests {
     }
 
     #[test]
-    fn replayed_reordered_flooding_and_bad_commands_are_refused() {
+    fn flooding_and_bad_commands_are_refused() {
         let mut book = FaultBook::new();
         let spike = Fault::ForceSpike { newtons: 5.0 };
         assert!(matches!(
@@ -540,20 +524,7 @@ mod tests {
                 .0,
             Outcome::Scheduled { .. }
         ));
-        for seq in [5, 4] {
-            let (o, _) = book.command("ann", &schedule(seq, spike, Start::Now, 10), 1);
-            assert!(
-                matches!(o, Outcome::Rejected { ref reason } if reason.contains("not above 5")),
-                "{o:?}"
-            );
-        }
-        // Another identity has its own sequence.
-        assert!(matches!(
-            book.command("bob", &schedule(1, spike, Start::Now, 10), 1)
-                .0,
-            Outcome::Scheduled { .. }
-        ));
-        // Out of range, in the past: refused, and the seq stays usable.
+        // Out of range, in the past: refused.
         let (o, _) = book.command(
             "ann",
             &schedule(6, Fault::PoseNoise { sigma_mm: f32::NAN }, Start::Now, 0),

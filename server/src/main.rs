@@ -366,6 +366,8 @@ fn network_params(
         frame_hz: n.frame_hz,
         max_connections: n.max_connections as usize,
         max_per_address: n.max_per_address as usize,
+        max_handshakes: n.max_handshakes as usize,
+        max_handshakes_per_address: n.max_handshakes_per_address as usize,
         station: config.station.clone(),
         scene: scene.spec.name.clone(),
         // The station sets them (away from the haptic thread's CPU).

@@ -346,6 +346,32 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// A station's QUIC endpoint under a flood of handshakes that never finish, from
+    /// several loopback addresses, while an observer connects: how many of its attempts get
+    /// in (docs/BENCHMARKS.md, "Reliability").
+    Admission {
+        /// The observer's connection attempts.
+        #[arg(long, default_value_t = 20)]
+        attempts: usize,
+        /// Flooding addresses (127.0.0.2 onwards).
+        #[arg(long, default_value_t = 3)]
+        addresses: usize,
+        /// New connection attempts per second from each flooding address.
+        #[arg(long, default_value_t = 50.0)]
+        rate: f64,
+        /// Flood this running station instead of starting one (with --certs and --name).
+        #[arg(long, requires_all = ["certs", "name"])]
+        target: Option<std::net::SocketAddr>,
+        /// With --target: the lab's certificate folder.
+        #[arg(long)]
+        certs: Option<PathBuf>,
+        /// With --target: the observer certificate's name.
+        #[arg(long)]
+        name: Option<String>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Build every built-in scene several times and report build times.
     Scenes {
         /// Builds per scene.
@@ -580,6 +606,23 @@ fn main() -> ExitCode {
             haptic_cpu,
             json,
         }) => bench::loop_bench::run(seconds, viewers, haptic_cpu, json),
+        Command::Bench(BenchCommand::Admission {
+            attempts,
+            addresses,
+            rate,
+            target,
+            certs,
+            name,
+            json,
+        }) => {
+            let target = match (target, certs, name) {
+                (Some(addr), Some(certs), Some(name)) => {
+                    Some(bench::admission::Target { addr, certs, name })
+                }
+                _ => None,
+            };
+            bench::admission::run(attempts, addresses, rate, target, json)
+        }
         Command::Bench(BenchCommand::Net {
             seconds,
             observers,

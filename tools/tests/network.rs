@@ -185,7 +185,7 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
             matches!(&outcome, Outcome::Rejected { reason } if reason.contains("replayed")),
             "{outcome:?}"
         );
-        ann.0.set_next_seq(u64::MAX / 2);
+        ann.0.set_next_seq(2);
         let mut limited = 0;
         for _ in 0..30 {
             if let (Outcome::Rejected { reason }, _) = ann.list().await.unwrap() {
@@ -195,6 +195,38 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
         }
         // A burst of 20 (two used above), refilled at 10 a second while the flood lasts.
         assert!((1..=20).contains(&limited), "{limited} of 30 refused");
+
+        // Issue 45: one command with seq u64::MAX used to lock its identity out until the
+        // station restarted. Sequence numbers are the connection's now.
+        tokio::time::sleep(Duration::from_secs(3)).await; // the rate limit's bucket refills
+        let mut top = Instructor::connect(
+            addr,
+            "localhost",
+            &Credentials::from_dir(&dir, "ann"),
+            "ann-top",
+        )
+        .await
+        .unwrap();
+        top.0.set_next_seq(u64::MAX);
+        assert_eq!(top.list().await.unwrap().0, Outcome::Listed);
+        top.0.set_next_seq(5);
+        let (outcome, _) = top.list().await.unwrap();
+        assert!(
+            matches!(&outcome, Outcome::Rejected { reason } if reason.contains("outside the window")),
+            "{outcome:?}"
+        );
+        // The same identity's other connection, and a new one, go on.
+        assert_eq!(ann.list().await.unwrap().0, Outcome::Listed);
+        let mut again = Instructor::connect(
+            addr,
+            "localhost",
+            &Credentials::from_dir(&dir, "ann"),
+            "ann-again",
+        )
+        .await
+        .unwrap();
+        assert_eq!(again.list().await.unwrap().0, Outcome::Listed);
+        drop((top, again));
 
         // Eight observers at once all get metrics.
         let mut many = Vec::new();
@@ -300,12 +332,22 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     });
     // And the station never stopped ticking.
     server.assert_ticking();
+    // The client without a certificate left a line in the station's log (issue 45: a
+    // refused TLS handshake left none).
+    let tls_refused = |l: &str| {
+        json(l)["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("network: refused 127.0.0.1: TLS handshake failed"))
+    };
+    if !server.seen.iter().any(|l| tls_refused(l)) {
+        server.wait_for(Duration::from_secs(5), tls_refused);
+    }
     // obs2's 101 refused commands: the first ones written out one by one, the rest of the
     // flood counted and said in summaries (once a second; some may be out already).
     let obs2 = |line: &str| {
         json(line)["event"]
             .as_str()
-            .filter(|e| e.starts_with("instructor obs2: "))
+            .filter(|e| e.starts_with("observer obs2: ") || e.starts_with("client obs2: "))
             .map(str::to_string)
     };
     let tally = |seen: &[String]| {

@@ -3,17 +3,22 @@
 //! `scalpel_proto::wire` and docs/PROTOCOL.md.
 //!
 //! Security: mutual TLS against the lab's CA, the role from the client certificate, default
-//! deny (`tls`). Limits: at most `max_connections` connections and `max_per_address` from
-//! one address, 64 KiB per client message, one control stream per connection, no streams
-//! opened by clients besides it, an idle connection closed after 3 s. A malformed or
-//! oversized message closes only its connection.
+//! deny (`tls`). Admission (`admission`): an address is validated by a QUIC Retry first,
+//! then holds a place in a small budget of handshakes in flight (`max_handshakes`,
+//! `max_handshakes_per_address`) until its TLS handshake ends, and only a finished
+//! handshake takes one of `max_connections` (`max_per_address` from one address); refusals
+//! go to the station's log (`refusal_log`). Limits: 64 KiB per client message, one control
+//! stream per connection, no streams opened by clients besides it, an idle connection
+//! closed after 3 s. A malformed or oversized message closes only its connection.
 
+pub mod admission;
 pub mod frames;
+pub mod refusal_log;
+pub mod seq_window;
 pub mod session;
 pub mod tls;
 
-use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
+use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -22,10 +27,14 @@ use anyhow::Context;
 use scalpel_proto::wire::{Event, Metrics};
 use tokio::sync::{broadcast, watch};
 
+use admission::{Admission, Budgets, HANDSHAKE_TIMEOUT, Refusal};
 use frames::SourceFrame;
+use refusal_log::RefusalLog;
 
 /// Events in flight to each observer; a slower one skips (its stream says how many).
 const EVENT_QUEUE: usize = 256;
+/// Connection attempts the endpoint holds before the accept loop decides on them.
+const MAX_INCOMING: usize = 1024;
 
 /// How the endpoint runs.
 #[derive(Debug, Clone)]
@@ -40,6 +49,10 @@ pub struct NetworkParams {
     pub max_connections: usize,
     /// Connections at once from one address.
     pub max_per_address: usize,
+    /// TLS handshakes in flight at once.
+    pub max_handshakes: usize,
+    /// TLS handshakes in flight from one address.
+    pub max_handshakes_per_address: usize,
     /// The station.
     pub station: String,
     /// The scene.
@@ -66,6 +79,9 @@ pub struct CommandRequest {
     pub by: String,
     /// Their role (from the certificate): the station refuses and journals an observer's.
     pub role: scalpel_proto::wire::Role,
+    /// Refused by the connection already (its `seq`, `seq_window`): the station journals
+    /// and counts it with this reason, and carries nothing out.
+    pub refused: Option<String>,
     /// The command.
     pub command: scalpel_proto::wire::Command,
     /// The outcome, and the fault list for `List`.
@@ -83,6 +99,8 @@ pub struct Network {
     pub feeds: NetworkFeeds,
     /// Instructors' commands, for the station to answer.
     pub commands: std::sync::mpsc::Receiver<CommandRequest>,
+    /// Lines for the station's log (refused connections, said in full or summed up).
+    pub log: std::sync::mpsc::Receiver<String>,
     stop: watch::Sender<bool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -93,34 +111,6 @@ impl Network {
         let _ = self.stop.send(true);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
-        }
-    }
-}
-
-/// Connections per remote address, shared by the accept loop and the sessions.
-#[derive(Default, Clone)]
-pub struct AddressCounts(Arc<Mutex<HashMap<IpAddr, usize>>>);
-
-impl AddressCounts {
-    /// Counts one more from `ip` unless that makes more than `max`.
-    fn admit(&self, ip: IpAddr, max: usize) -> bool {
-        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        let n = m.entry(ip).or_default();
-        if *n >= max {
-            return false;
-        }
-        *n += 1;
-        true
-    }
-
-    fn release(&self, ip: IpAddr) {
-        // (Called by `Admitted::drop`.)
-        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = m.get_mut(&ip) {
-            *n = n.saturating_sub(1);
-            if *n == 0 {
-                m.remove(&ip);
-            }
         }
     }
 }
@@ -144,6 +134,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
     let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
     let (lost_tx, lost_rx) = watch::channel(false);
     let (commands_tx, commands_rx) = std::sync::mpsc::channel();
+    let (log_tx, log_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = watch::channel(false);
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let events = events_tx.clone();
@@ -186,7 +177,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
                     stream_lost: lost_rx,
                     commands: commands_tx,
                 };
-                accept_loop(&endpoint, &params, feeds, stop_rx).await;
+                accept_loop(&endpoint, &params, feeds, log_tx, stop_rx).await;
                 endpoint.close(0u32.into(), b"server stopping");
                 endpoint.wait_idle().await;
                 let _ = reader.join();
@@ -204,6 +195,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
             stream_lost: lost_tx,
         },
         commands: commands_rx,
+        log: log_rx,
         stop: stop_tx,
         thread: Some(thread),
     })
@@ -228,8 +220,11 @@ fn endpoint(params: &NetworkParams, tls: rustls::ServerConfig) -> anyhow::Result
         .receive_window((scalpel_proto::codec::CLIENT_LIMIT as u32 * 8).into())
         .datagram_receive_buffer_size(None);
     config.transport_config(Arc::new(transport));
+    // Incoming connections not yet decided: each is retried, refused or accepted as soon
+    // as the accept loop sees it, so this only needs to cover a burst between two of its
+    // turns (quinn drops Initials beyond it silently).
     config
-        .max_incoming(params.max_connections.max(1))
+        .max_incoming(MAX_INCOMING)
         .incoming_buffer_size(64 * 1024)
         .incoming_buffer_size_total(4 * 1024 * 1024);
     quinn::Endpoint::server(config, params.listen)
@@ -249,23 +244,56 @@ async fn accept_loop(
     endpoint: &quinn::Endpoint,
     params: &NetworkParams,
     feeds: SessionFeeds,
+    log: std::sync::mpsc::Sender<String>,
     mut stop: watch::Receiver<bool>,
 ) {
-    let counts = AddressCounts::default();
-    let open = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let admission = Admission::new(Budgets {
+        handshakes: params.max_handshakes,
+        handshakes_per_address: params.max_handshakes_per_address,
+        connections: params.max_connections,
+        connections_per_address: params.max_per_address,
+    });
+    let started = tokio::time::Instant::now();
+    let refusals = Refusals {
+        log: Arc::new(Mutex::new(RefusalLog::new(*admission.budgets(), 0))),
+        out: log,
+        started,
+    };
+    let mut summaries = tokio::time::interval(Duration::from_millis(refusal_log::SUMMARY_EVERY_MS));
+    summaries.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
         let incoming = tokio::select! {
-            i = endpoint.accept() => match i { Some(i) => i, None => return },
-            _ = stop.changed() => return,
+            i = endpoint.accept() => match i { Some(i) => i, None => break },
+            _ = summaries.tick() => {
+                refusals.summarise(false);
+                continue;
+            }
+            _ = stop.changed() => break,
         };
         let ip = incoming.remote_address().ip();
-        if open.load(std::sync::atomic::Ordering::Relaxed) >= params.max_connections
-            || !counts.admit(ip, params.max_per_address)
-        {
-            incoming.refuse();
+        // An address not yet validated gets a Retry and costs nothing more: a spoofed
+        // one never sees the token.
+        if !incoming.remote_address_validated() && incoming.may_retry() {
+            if incoming.retry().is_ok() {
+                refusals.with(|l| l.retried());
+            }
             continue;
         }
-        open.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let place = match admission.handshake(ip) {
+            Ok(place) => place,
+            Err(why) => {
+                incoming.refuse();
+                refusals.refused(ip, why, None);
+                continue;
+            }
+        };
+        let connecting = match incoming.accept() {
+            Ok(c) => c,
+            Err(e) => {
+                refusals.refused(ip, Refusal::Tls, Some(&e.to_string()));
+                continue;
+            }
+        };
         let context = session::SessionContext {
             station: params.station.clone(),
             scene: params.scene.clone(),
@@ -277,30 +305,61 @@ async fn accept_loop(
             commands: feeds.commands.clone(),
             stop: stop.clone(),
         };
-        let admitted = Admitted {
-            counts: counts.clone(),
-            open: open.clone(),
-            ip,
-        };
+        let (admission, refusals) = (admission.clone(), refusals.clone());
         tokio::spawn(async move {
-            // Released however the session ends, a panic included.
-            let _admitted = admitted;
-            session::run(incoming, context).await;
+            let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, connecting).await {
+                Ok(Ok(c)) => c,
+                Ok(Err(e)) => return refusals.refused(ip, Refusal::Tls, Some(&e.to_string())),
+                // Dropping the handshake closes it.
+                Err(_) => return refusals.refused(ip, Refusal::Timeout, None),
+            };
+            // Held until the session ends, however it ends (a panic included).
+            let _place = match admission.connect(place) {
+                Ok(place) => place,
+                Err(why) => {
+                    let reason = why.describe(admission.budgets());
+                    conn.close(session::close::BUSY.into(), reason.as_bytes());
+                    return refusals.refused(ip, why, None);
+                }
+            };
+            if let Err(reason) = session::run(&conn, context).await {
+                refusals.refused(ip, Refusal::Forbidden, Some(&reason));
+            }
         });
     }
+    refusals.summarise(true);
 }
 
-/// A connection's places in the limits, given back when its session ends.
-struct Admitted {
-    counts: AddressCounts,
-    open: Arc<std::sync::atomic::AtomicUsize>,
-    ip: IpAddr,
+/// The refusal log, shared by the accept loop and the handshakes' tasks, and where its
+/// lines go (the station's main thread).
+#[derive(Clone)]
+struct Refusals {
+    log: Arc<Mutex<RefusalLog>>,
+    out: std::sync::mpsc::Sender<String>,
+    started: tokio::time::Instant,
 }
 
-impl Drop for Admitted {
-    fn drop(&mut self) {
-        self.counts.release(self.ip);
-        self.open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
+impl Refusals {
+    fn with<T>(&self, f: impl FnOnce(&mut RefusalLog) -> T) -> T {
+        f(&mut self.log.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+
+    fn now_ms(&self) -> u64 {
+        self.started.elapsed().as_millis() as u64
+    }
+
+    fn refused(&self, ip: std::net::IpAddr, why: Refusal, detail: Option<&str>) {
+        let now = self.now_ms();
+        if let Some(line) = self.with(|l| l.refused(now, ip, why, detail)) {
+            let _ = self.out.send(line);
+        }
+    }
+
+    fn summarise(&self, last: bool) {
+        let now = self.now_ms();
+        if let Some(line) = self.with(|l| l.summary(now, last)) {
+            let _ = self.out.send(line);
+        }
     }
 }
 

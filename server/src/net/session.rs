@@ -15,6 +15,7 @@ use scalpel_proto::wire::{
 use tokio::sync::{broadcast, watch};
 
 use super::frames::{FrameEncoder, SourceFrame};
+use super::seq_window::SeqWindow;
 use super::tls;
 
 /// The lowest frame rate an observer may ask for (Hz): a frame every ten seconds.
@@ -32,9 +33,11 @@ pub mod close {
     pub const VERSION: u32 = 3;
     /// The server is stopping.
     pub const STOPPING: u32 = 4;
+    /// The station is at its limit of connections (the reason says which).
+    pub const BUSY: u32 = 5;
 }
 
-/// Time allowed for the TLS handshake, and then for the `Hello`.
+/// Time allowed for the control stream, and then for the `Hello`, once TLS is through.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 /// Metrics interval.
 const METRICS_PERIOD: Duration = Duration::from_millis(100);
@@ -65,19 +68,19 @@ pub struct SessionContext {
 #[derive(Debug)]
 struct Closed(u32, String);
 
-/// Runs one connection to its end.
-pub async fn run(incoming: quinn::Incoming, mut ctx: SessionContext) {
-    let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
-        Ok(Ok(c)) => c,
-        // Refused by TLS (no or a foreign certificate), or too slow: nothing to say.
-        _ => return,
-    };
-    let result = serve(&conn, &mut ctx).await;
+/// Runs one connection, its TLS handshake done, to its end. A certificate refused (no
+/// role, a name that cannot be shown) is `Err` with the reason, for the station's log.
+pub async fn run(conn: &quinn::Connection, mut ctx: SessionContext) -> Result<(), String> {
+    let result = serve(conn, &mut ctx).await;
     let (code, reason) = match result {
         Ok(()) => (close::DONE, String::from("bye")),
         Err(Closed(code, reason)) => (code, reason),
     };
     conn.close(code.into(), reason.as_bytes());
+    if code == close::FORBIDDEN {
+        return Err(reason);
+    }
+    Ok(())
 }
 
 fn identity(conn: &quinn::Connection) -> Result<(Role, String), String> {
@@ -120,6 +123,15 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
                 return Err(Closed(close::VERSION, reason));
             }
         }
+        Some(ClientMessage::Hello { client, .. }) => {
+            return Err(Closed(
+                close::PROTOCOL,
+                format!(
+                    "Hello: the client name is {} bytes, at most {MAX_TEXT}",
+                    client.len()
+                ),
+            ));
+        }
         _ => {
             return Err(Closed(
                 close::PROTOCOL,
@@ -153,12 +165,19 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
         frame_hz_rx,
         ctx.stream_lost.clone(),
     );
-    let who = Instructing {
+    let mut who = Instructing {
         role,
         name: name.clone(),
         commands: ctx.commands.clone(),
+        window: SeqWindow::default(),
     };
-    let control = control(&mut send, &mut recv, &who, ctx.frame_hz_max, frame_hz_tx);
+    let control = control(
+        &mut send,
+        &mut recv,
+        &mut who,
+        ctx.frame_hz_max,
+        frame_hz_tx,
+    );
     let mut stop = ctx.stop.clone();
     tokio::select! {
         r = control => r,
@@ -169,11 +188,12 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
     }
 }
 
-/// Who sends commands on this connection, and where they go.
+/// Who sends commands on this connection, where they go, and the `seq`s it used.
 struct Instructing {
     role: Role,
     name: String,
     commands: std::sync::mpsc::Sender<super::CommandRequest>,
+    window: SeqWindow,
 }
 
 /// Time the station has to answer a command (its main thread takes them every 10 ms).
@@ -181,7 +201,7 @@ const COMMAND_TIMEOUT: Duration = Duration::from_secs(2);
 
 impl Instructing {
     /// The station's answer to `command`: the Ack, and the fault list for `List`.
-    async fn carry_out(&self, command: Command) -> Vec<ServerMessage> {
+    async fn carry_out(&mut self, command: Command) -> Vec<ServerMessage> {
         let seq = command.seq;
         let rejected = |reason: &str| {
             vec![ServerMessage::Ack {
@@ -192,11 +212,13 @@ impl Instructing {
             }]
         };
         // The station answers every command, an observer's too (refused, and journaled
-        // with who tried).
+        // with who tried); one whose `seq` this connection refuses goes there to be
+        // journaled and counted, not carried out.
         let (reply, answer) = tokio::sync::oneshot::channel();
         let request = super::CommandRequest {
             role: self.role,
             by: self.name.clone(),
+            refused: self.window.check(seq).err(),
             command,
             reply,
         };
@@ -205,6 +227,9 @@ impl Instructing {
         }
         match tokio::time::timeout(COMMAND_TIMEOUT, answer).await {
             Ok(Ok((outcome, listed))) => {
+                if !matches!(outcome, Outcome::Rejected { .. }) {
+                    self.window.take(seq);
+                }
                 let mut out = vec![ServerMessage::Ack { seq, outcome }];
                 if let Some(faults) = listed {
                     out.push(ServerMessage::Faults { faults });
@@ -220,7 +245,7 @@ impl Instructing {
 async fn control(
     send: &mut quinn::SendStream,
     recv: &mut quinn::RecvStream,
-    who: &Instructing,
+    who: &mut Instructing,
     frame_hz_max: f64,
     frame_hz: watch::Sender<f64>,
 ) -> Result<(), Closed> {

@@ -14,6 +14,7 @@
 //! deadline: a slow or stalled simulation only leaves it with an older force model, and the
 //! output stage's watchdog fades the force out if the model stops coming.
 
+mod commands;
 mod haptic;
 mod journal_writer;
 mod remote_feed;
@@ -31,16 +32,16 @@ use scalpel_sim::math::{Mat3, Vec3};
 use scalpel_sim::pipeline::Simulation;
 use scalpel_sim::scene::BuiltScene;
 
-use crate::command_audit::{self, CommandAudit};
 use crate::device::DeviceFactory;
 use crate::device_monitor::{DeviceEvent, DeviceMonitor};
-use crate::faults::{FaultBook, FaultTable, Transition};
+use crate::faults::{FaultTable, Transition};
 use crate::journal::{self, TickRecord};
 use crate::output::OutputLimits;
 use crate::realtime;
 use crate::sim_wake::SimWake;
 use scalpel_proto::wire::EventKind;
 
+use commands::{CommandDesk, Moment};
 use haptic::{HapticContext, HapticReady, spawn_haptic};
 use journal_writer::{JOURNAL_RING, SimJournal, spawn_journal_writer};
 use remote_feed::RemoteFeed;
@@ -108,6 +109,8 @@ pub struct SimStatus {
     pub entries: u64,
     /// Times the tissue ruptured under the blade (cutting began).
     pub ruptures: u64,
+    /// The force on the tool as the tissue last ruptured: the peak before the drop (N).
+    pub rupture_force_n: f64,
     /// Factor on the tissue's stiffness in effect (1: the scene's; an instructor's fault).
     pub stiffness_factor: f64,
 }
@@ -127,6 +130,7 @@ impl Default for SimStatus {
             frames_failed: 0,
             entries: 0,
             ruptures: 0,
+            rupture_force_n: 0.0,
             stiffness_factor: 1.0,
         }
     }
@@ -835,12 +839,10 @@ impl Station<'_> {
         let mut next = t0 + params.status_interval_s;
         let mut window_start = t0;
         let mut remote = RemoteFeed::default();
-        let mut book = FaultBook::new();
-        let mut audit = CommandAudit::new();
+        let mut desk = CommandDesk::new(scene.spec.features.stiff_mode);
         let mut stream_lost = false;
         // The table the threads have (rebuilt only when the book changes).
         let mut table = FaultTable::default();
-        let stiff_mode = scene.spec.features.stiff_mode;
         while !stop.load(Ordering::Relaxed) {
             // Every 10 ms: instructors' commands are answered within that.
             realtime::sleep_until(next.min(realtime::monotonic_s() + 0.01));
@@ -849,65 +851,25 @@ impl Station<'_> {
             let tick = station_tick(now - t0);
             let mut table_changed = false;
             if let Some(n) = &network {
-                while let Ok(request) = n.commands.try_recv() {
-                    use scalpel_proto::wire::{Action, Fault, Outcome, Role};
-                    let refuse = |reason: &str| {
-                        (
-                            Outcome::Rejected {
-                                reason: reason.to_string(),
-                            },
-                            None,
-                        )
-                    };
-                    let (outcome, listed) = if request.reply.is_closed() {
-                        // The session gave up waiting (and told its client so): not carried
-                        // out late.
-                        refuse("expired: the station did not take it in time")
-                    } else if request.role != Role::Instructor {
-                        refuse("an observer certificate may not instruct")
-                    } else if stiff_mode
-                        && matches!(
-                            &request.command.action,
-                            Action::Schedule(spec) if matches!(spec.fault, Fault::TissueStiffness { .. })
-                        )
-                    {
-                        // Each change would re-factorise the projective solver on the
-                        // simulation thread (milliseconds, allocating).
-                        refuse("tissue-stiffness is not available in a stiff-mode scene")
-                    } else {
-                        book.command(&request.by, &request.command, tick)
-                    };
-                    table_changed |=
-                        matches!(outcome, Outcome::Scheduled { .. } | Outcome::Cleared { .. });
-                    let refused = matches!(outcome, Outcome::Rejected { .. });
-                    if audit.record(&request.by, refused, tick) == command_audit::Record::Full {
-                        let record = serde_json::json!({
-                            "station_tick": tick,
-                            "sim_tick": sim_now.ticks,
-                            "by": request.by,
-                            "role": request.role,
-                            "seq": request.command.seq,
-                            "action": request.command.action,
-                            "outcome": outcome,
-                        });
-                        // No journal: nobody reads the channel, and that is fine.
-                        let _ = commands_journal.send(journal::command_line(&record));
-                        report(&StationReport::Event(StationEvent {
-                            uptime_s: now - t0,
-                            event: format!(
-                                "instructor {}: command {} {:?} -> {:?}",
-                                request.by, request.command.seq, request.command.action, outcome
-                            ),
-                        }));
-                    }
-                    // The session may have gone: its answer has nowhere to go.
-                    let _ = request.reply.send((outcome, listed));
+                // Refused connections, said or summed up by the endpoint.
+                while let Ok(line) = n.log.try_recv() {
+                    report(&StationReport::Event(StationEvent {
+                        uptime_s: now - t0,
+                        event: line,
+                    }));
                 }
-                for summary in audit.summaries(tick, false) {
-                    record_refusals(&summary, &sim_now, now - t0, commands_journal, &mut report);
-                }
+                table_changed |= desk.answer(
+                    n,
+                    &Moment {
+                        sim: &sim_now,
+                        uptime_s: now - t0,
+                        tick,
+                    },
+                    commands_journal,
+                    &mut report,
+                );
             }
-            for transition in book.advance(tick) {
+            for transition in desk.book.advance(tick) {
                 table_changed = true;
                 let (kind, text) = match transition {
                     Transition::Applied(t) => (EventKind::FaultApplied, format!("{t}: applied")),
@@ -920,7 +882,7 @@ impl Station<'_> {
                 }));
             }
             if table_changed {
-                table = book.table();
+                table = desk.book.table();
                 faults_to_haptic.write(table);
                 faults_to_sim.write(table);
             }
@@ -991,10 +953,13 @@ impl Station<'_> {
             }
         }
         let now = realtime::monotonic_s();
-        for summary in audit.summaries(station_tick(now - t0), true) {
-            let sim_now = *status_out.read();
-            record_refusals(&summary, &sim_now, now - t0, commands_journal, &mut report);
-        }
+        let sim_now = *status_out.read();
+        let at = Moment {
+            sim: &sim_now,
+            uptime_s: now - t0,
+            tick: station_tick(now - t0),
+        };
+        desk.close(&at, commands_journal, &mut report);
     }
 
     /// Joins the threads, stops the network endpoint, closes the journal with its footer
@@ -1056,34 +1021,4 @@ impl Station<'_> {
             warnings,
         })
     }
-}
-
-/// Writes out refusals the audit counted: one journal line (`refused_unrecorded`, which
-/// `scalpel replay` lists) and one line of the station's log.
-fn record_refusals(
-    summary: &command_audit::Summary,
-    sim_now: &SimStatus,
-    uptime_s: f64,
-    journal: &std::sync::mpsc::Sender<String>,
-    report: &mut dyn FnMut(&StationReport),
-) {
-    // Station and simulation ticks of the summary, like every command line's; the refusals
-    // it counts came between the first and the last tick given.
-    let record = serde_json::json!({
-        "station_tick": station_tick(uptime_s),
-        "sim_tick": sim_now.ticks,
-        "by": summary.by,
-        "refused_unrecorded": summary.refused,
-        "first_station_tick": summary.ticks.0,
-        "last_station_tick": summary.ticks.1,
-    });
-    let _ = journal.send(journal::command_line(&record));
-    report(&StationReport::Event(StationEvent {
-        uptime_s,
-        event: format!(
-            "instructor {}: {} more commands refused from station tick {} to {} (a flood: \
-             counted, not written out one by one)",
-            summary.by, summary.refused, summary.ticks.0, summary.ticks.1
-        ),
-    }));
 }

@@ -65,7 +65,10 @@ impl RemoteFeed {
             self.ruptures = sim.ruptures;
             send(
                 EventKind::Rupture,
-                format!("rupture: cutting, {:.1} N on the tool", sim.sim_force_n),
+                format!(
+                    "rupture: cutting, at {:.2} N on the tool",
+                    sim.rupture_force_n
+                ),
             );
         }
         if uptime_s - self.last_publish < 0.1 {

@@ -229,7 +229,11 @@ pub(super) fn spawn_sim(
                 }
                 let in_tissue = report.cut.as_ref().is_some_and(|c| c.in_tissue);
                 figures.entries += u64::from(in_tissue && !last.in_tissue);
-                figures.ruptures += u64::from(cutting && !last.cutting);
+                if cutting && !last.cutting {
+                    figures.ruptures += 1;
+                    // The peak is the tick before: the rupture tick's force has dropped.
+                    figures.rupture_force_n = last.force_n.norm().max(report.tool_force_n.norm());
+                }
                 last_tip = tip;
                 last = LastTick {
                     force_n: report.tool_force_n,

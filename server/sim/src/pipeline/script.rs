@@ -37,6 +37,7 @@ use thiserror::Error;
 use crate::cut::ToolPose;
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
+use crate::scene::file::readable_number;
 
 /// Default blade speed (m/s), the paper's Fig. 9.
 pub const DEFAULT_SPEED_M_PER_S: f64 = 0.005;
@@ -240,7 +241,10 @@ impl CutScript {
             if !k.t_s.is_finite() || k.t_s < 0.0 || k.t_s > 86_400.0 {
                 return Err(invalid(
                     index,
-                    format!("t_s = {} must be within 0..=86400 s", k.t_s),
+                    format!(
+                        "t_s = {} must be within 0..=86400 s",
+                        readable_number(k.t_s)
+                    ),
                 ));
             }
             if let Some(prev) = keyframes.last().map(|k: &Keyframe| k.t_s)
@@ -249,8 +253,9 @@ impl CutScript {
                 return Err(invalid(
                     index,
                     format!(
-                        "t_s = {} must be after the previous keyframe's {prev}",
-                        k.t_s
+                        "t_s = {} must be after the previous keyframe's {}",
+                        readable_number(k.t_s),
+                        readable_number(prev)
                     ),
                 ));
             }
@@ -305,7 +310,7 @@ impl CutScript {
                         format!(
                             "the tip moves {:.1} mm in {} s from the previous keyframe ({speed:.3e} m/s): at most {MAX_TIP_SPEED_M_PER_S} m/s, a hand's quickest",
                             (tip - prev.pose.tip_m).norm() * 1e3,
-                            k.t_s - prev.t_s
+                            readable_number(k.t_s - prev.t_s)
                         ),
                     ));
                 }
@@ -756,6 +761,15 @@ mod tests {
         assert!((top - mid.tip_m.z - DEFAULT_DEPTH_M).abs() < 1e-3);
         assert_eq!(s.pose_at(-1.0), s.keyframes[0].pose);
         assert_eq!(s.pose_at(1e9), s.keyframes.last().unwrap().pose);
+    }
+
+    /// Issue 45: `-1e308` was said as a 309-character number.
+    #[test]
+    fn a_huge_time_is_said_in_a_few_characters() {
+        let csv = "t_s,tip_x_mm,tip_y_mm,tip_z_mm,edge_x,edge_y,edge_z\n0,0,0,10,0,0,1\n-1e308,0,0,0,,,\n";
+        let e = CutScript::from_csv(csv, "s.csv").unwrap_err().to_string();
+        assert!(e.contains("t_s = -1e308 must be within"), "{e}");
+        assert!(e.len() < 200, "{e}");
     }
 
     #[test]
