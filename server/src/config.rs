@@ -59,6 +59,30 @@ pub struct ServerConfig {
     pub output: OutputConfig,
     /// The QUIC endpoint for remote observers and instructors.
     pub network: NetworkConfig,
+    /// What the station admits: the scene's memory and tick.
+    pub limits: LimitsConfig,
+}
+
+/// What the station admits (docs/SERVER.md, "Admitting a scene").
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsConfig {
+    /// Most memory the scene may take, as estimated before it is built (MB); 0: half of the
+    /// host's memory.
+    pub memory_mb: f64,
+    /// Most a whole-body tick may take, as estimated before the scene is built, in units of
+    /// the 1 ms it simulates: a scene over it would leave the tissue that many times behind
+    /// the hand.
+    pub max_slowdown: f64,
+}
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        Self {
+            memory_mb: 0.0,
+            max_slowdown: 10.0,
+        }
+    }
 }
 
 /// The QUIC endpoint.
@@ -187,6 +211,7 @@ impl Default for ServerConfig {
             realtime: RealtimeConfig::default(),
             output: OutputConfig::default(),
             network: NetworkConfig::default(),
+            limits: LimitsConfig::default(),
         }
     }
 }
@@ -371,6 +396,19 @@ impl ServerConfig {
             o.passivity_memory_ms,
             o.passivity_memory_ms == 0.0 || (10.0..=3_600_000.0).contains(&o.passivity_memory_ms),
             "0 (never forget) or 10 ms to one hour",
+        )?;
+        let l = &self.limits;
+        range(
+            "limits.memory_mb",
+            l.memory_mb,
+            l.memory_mb == 0.0 || (64.0..=16.0 * 1024.0 * 1024.0).contains(&l.memory_mb),
+            "0 (half of the host's memory) or 64 MB to 16 TB",
+        )?;
+        range(
+            "limits.max_slowdown",
+            l.max_slowdown,
+            (1.0..=1000.0).contains(&l.max_slowdown),
+            "between 1 (real time) and 1000",
         )?;
         let n = &self.network;
         range(

@@ -101,6 +101,19 @@ pub struct Journal {
     pub end: Option<(u64, u64)>,
 }
 
+impl Journal {
+    /// The station's `[limits]` as journaled (the defaults for a journal from before they
+    /// existed, or with none): `scalpel replay` admits the scene within the same memory.
+    pub fn limits(&self) -> crate::config::LimitsConfig {
+        self.config
+            .parse::<toml::Table>()
+            .ok()
+            .and_then(|t| t.get("limits").cloned())
+            .and_then(|l| l.try_into().ok())
+            .unwrap_or_default()
+    }
+}
+
 /// The longest line a journal may have (bytes).
 const MAX_LINE_BYTES: u64 = 1 << 20;
 

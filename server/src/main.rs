@@ -11,6 +11,7 @@ use clap::Parser;
 use scalpel_server::config::{DeviceKind, ServerConfig};
 use scalpel_server::device::{DeviceFactory, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
+use scalpel_server::scene_budget::SceneBudget;
 use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
 use scalpel_server::station::{self, StationParams, StationReport, StatusLine};
 use scalpel_server::{host_check, journal, say, scene_file};
@@ -72,7 +73,23 @@ fn run() -> anyhow::Result<()> {
     if args.check {
         return check_host(&config, !args.no_timing, args.json);
     }
-    let (scene, cutting_note) = scene_file::load_station_scene(&config.scene)?;
+    // Stopping works from here on, while the scene builds too (SIGINT, SIGTERM, SIGHUP, the
+    // end of --duration).
+    let stop = Arc::new(AtomicBool::new(false));
+    let on_signal = stop.clone();
+    ctrlc::set_handler(move || on_signal.store(true, Ordering::Relaxed))
+        .context("cannot install the signal handler")?;
+    if let Some(d) = args.duration {
+        let d = std::time::Duration::try_from_secs_f64(d)
+            .map_err(|e| anyhow::anyhow!("--duration {d}: {e}"))?;
+        let timer = stop.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(d);
+            timer.store(true, Ordering::Relaxed);
+        });
+    }
+    let (scene, sim, cutting_note) =
+        build_scene_unless_stopped(&config.scene, SceneBudget::station(&config.limits), &stop)?;
     let shm_counters = Arc::new(ShmDeviceCounters::default());
     let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, script) => {
@@ -164,19 +181,6 @@ fn run() -> anyhow::Result<()> {
             say!("  sampling: {plan}");
         }
     }
-    let stop = Arc::new(AtomicBool::new(false));
-    let on_signal = stop.clone();
-    ctrlc::set_handler(move || on_signal.store(true, Ordering::Relaxed))
-        .context("cannot install the Ctrl-C handler")?;
-    if let Some(d) = args.duration {
-        let d = std::time::Duration::try_from_secs_f64(d)
-            .map_err(|e| anyhow::anyhow!("--duration {d}: {e}"))?;
-        let timer = stop.clone();
-        std::thread::spawn(move || {
-            std::thread::sleep(d);
-            timer.store(true, Ordering::Relaxed);
-        });
-    }
     let json = args.json;
     let journal = match &args.journal {
         Some(path) => {
@@ -201,7 +205,7 @@ fn run() -> anyhow::Result<()> {
     // Malformed poses a shared-memory device sent since the last status line: said with
     // it (the force meanwhile fades as if the device were silent).
     let mut rejected_said = 0;
-    let summary = station::run(&scene, device, &params, journal, stop, |report| {
+    let summary = station::run(&scene, sim, device, &params, journal, stop, |report| {
         print_report(report, json);
         if let StationReport::Status(line) = report {
             let rejected = shm_counters.rejected.load(Ordering::Relaxed);
@@ -256,7 +260,59 @@ fn run() -> anyhow::Result<()> {
             );
         }
     }
+    if summary.sim.ticks == 0 {
+        anyhow::bail!(
+            "the station stopped before its first simulation tick: it did no work (a stop or the end of --duration during its start)"
+        );
+    }
     Ok(())
+}
+
+/// The station's scene and its prepared simulation.
+type Built = (
+    scalpel_sim::scene::BuiltScene,
+    scalpel_sim::pipeline::Simulation,
+    Option<String>,
+);
+
+/// Builds the station's scene within `budget`, and its simulation, on a thread of its own,
+/// so that a stop (a signal, the end of `--duration`) ends a long build: the process then
+/// exits without having ticked, and says so.
+fn build_scene_unless_stopped(
+    name: &str,
+    budget: SceneBudget,
+    stop: &AtomicBool,
+) -> anyhow::Result<Built> {
+    let (built_tx, built) = std::sync::mpsc::channel();
+    let name = name.to_string();
+    std::thread::Builder::new()
+        .name("scene-build".into())
+        .spawn(move || {
+            let result =
+                scene_file::load_station_scene_within(&name, &budget).map(|(scene, note)| {
+                    let sim = station::prepare_simulation(&scene);
+                    (scene, sim, note)
+                });
+            let _ = built_tx.send(result);
+        })
+        .context("cannot start the scene's build")?;
+    let started = std::time::Instant::now();
+    loop {
+        match built.recv_timeout(std::time::Duration::from_millis(20)) {
+            Ok(result) => return result,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                if stop.load(Ordering::Relaxed) {
+                    anyhow::bail!(
+                        "stopped while the scene was still building ({:.1} s in): no tick ran",
+                        started.elapsed().as_secs_f64()
+                    );
+                }
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                anyhow::bail!("the scene's build panicked")
+            }
+        }
+    }
 }
 
 fn print_report(report: &StationReport, json: bool) {
@@ -308,8 +364,11 @@ fn print_status(line: &StatusLine) {
 
 /// `--check`: the host check's report; exits 1 when something would stop the station.
 fn check_host(config: &ServerConfig, timing: bool, json: bool) -> anyhow::Result<()> {
-    let scene = scene_file::load_scene(&config.scene).map_err(|e| format!("{e:#}"));
-    let checks = host_check::run(config, scene.as_ref().map_err(String::as_str), timing);
+    let budget = SceneBudget::station(&config.limits);
+    let (estimate, scene) = host_check::estimate_and_build(&config.scene, &budget);
+    let mut checks = host_check::run(config, scene.as_ref().map_err(String::as_str), timing);
+    // After the scene's line.
+    checks.insert(1, estimate);
     let passed = host_check::passed(&checks);
     if json {
         say!(

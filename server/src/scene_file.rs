@@ -7,11 +7,12 @@ use anyhow::{Context, bail};
 use scalpel_sim::geometry::MeshFormat;
 use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::progress::Silent;
-use scalpel_sim::scene::{self, BuiltScene, MeshSource, SceneSpec};
+use scalpel_sim::scene::{self, BuiltScene, MeshSource, PreparedSurface, SceneSpec};
 
 use crate::input_file::{
     SCRIPT_MAX_BYTES, TOML_MAX_BYTES, check_regular, read_capped, read_text_capped,
 };
+use crate::scene_budget::SceneBudget;
 
 /// Reads the mesh file a scene names (if any), refusing files over the scene's size cap
 /// before reading them.
@@ -62,6 +63,26 @@ pub fn load_scene(name: &str) -> anyhow::Result<BuiltScene> {
 /// [`load_scene`], and a note for the station's start when the scene file had cutting off
 /// (a station turns it on: what it renders is the blade's force).
 pub fn load_station_scene(name: &str) -> anyhow::Result<(BuiltScene, Option<String>)> {
+    let (surface, note) = prepare_station_scene(name)?;
+    Ok((scene::build_model(surface, &mut Silent)?, note))
+}
+
+/// [`load_station_scene`] if the scene's estimated footprint is within `budget`; refused
+/// before its interior is sampled otherwise.
+pub fn load_station_scene_within(
+    name: &str,
+    budget: &SceneBudget,
+) -> anyhow::Result<(BuiltScene, Option<String>)> {
+    let (surface, note) = prepare_station_scene(name)?;
+    budget
+        .check(&surface.spec.name, &surface.footprint())
+        .map_err(anyhow::Error::msg)?;
+    Ok((scene::build_model(surface, &mut Silent)?, note))
+}
+
+/// The first part of [`load_station_scene`]: the scene read, its surface loaded and
+/// validated, cutting on — what its footprint is estimated from.
+pub fn prepare_station_scene(name: &str) -> anyhow::Result<(PreparedSurface, Option<String>)> {
     let mut spec = match scene::builtin(name) {
         Some(spec) => spec,
         None => {
@@ -90,7 +111,7 @@ pub fn load_station_scene(name: &str) -> anyhow::Result<(BuiltScene, Option<Stri
     });
     spec.features.cutting = true;
     Ok((
-        scene::build_scene(&spec, bytes.as_deref(), &mut Silent)?,
+        scene::prepare_surface(&spec, bytes.as_deref(), &mut Silent)?,
         note,
     ))
 }

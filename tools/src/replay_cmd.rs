@@ -5,13 +5,19 @@
 
 use std::path::Path;
 
-use anyhow::bail;
+use anyhow::{Context, bail};
+use scalpel_server::scene_budget::SceneBudget;
 use scalpel_server::{journal, scene_file};
 
 /// Replays `file`.
 pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
     let recorded = journal::read(file)?;
-    let scene = scene_file::load_scene(&recorded.scene)?;
+    // The memory budget the station had (a replay runs at its own pace: no tick budget).
+    let (scene, _) = scene_file::load_station_scene_within(
+        &recorded.scene,
+        &SceneBudget::memory_only(&recorded.limits()),
+    )
+    .with_context(|| format!("{}: the scene it names", file.display()))?;
     let hash = journal::replay(&scene, &recorded);
     if let Some((ticks, _)) = recorded.end
         && ticks != recorded.ticks.len() as u64

@@ -16,7 +16,7 @@ use scalpel_server::device::{
     DeviceFactory, DeviceSample, ForceStatus, HapticDevice, ScriptedDevice,
 };
 use scalpel_server::output::OutputLimits;
-use scalpel_server::station::{StationParams, run};
+use scalpel_server::station::{StationParams, prepare_simulation, run};
 use scalpel_sim::math::Vec3;
 
 /// The liver's force limit (scene default) and the output stage's rate limit per tick.
@@ -110,7 +110,8 @@ fn conformance_of_the_in_process_scripted_device() {
         std::thread::sleep(Duration::from_secs_f64(duration + 60.0));
         backstop.store(true, std::sync::atomic::Ordering::Relaxed);
     });
-    let summary = run(&scene, factory, &params, None, stop, |_| {}).unwrap();
+    let sim = prepare_simulation(&scene);
+    let summary = run(&scene, sim, factory, &params, None, stop, |_| {}).unwrap();
     assert!(summary.haptic_ticks > 0);
     let trace = trace.lock().unwrap();
     conformance::check(&trace, &cut, MAX_FORCE_N, RATE_LIMIT_N);

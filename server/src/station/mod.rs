@@ -244,6 +244,7 @@ pub fn station_taken(station: &str, node: &str) -> String {
 /// writer thread and the file is closed with the tick count and the final state hash.
 pub fn run(
     scene: &BuiltScene,
+    sim: Simulation,
     device: DeviceFactory,
     params: &StationParams,
     journal: Option<std::io::BufWriter<std::fs::File>>,
@@ -257,7 +258,7 @@ pub fn run(
     // The network endpoint first: if it cannot listen, nothing else has started yet.
     let network = start_network(params, &other_cpus)?;
     let monitor = open_monitor(params, &mut warnings)?;
-    let built = build_sim_and_journal(scene, journal)?;
+    let built = start_clock_and_journal(sim, journal)?;
     let (threads, start_channels) = Threads::spawn(
         device,
         params,
@@ -425,16 +426,21 @@ struct SimAndJournal {
     writer: Option<JoinHandle<std::io::Result<std::io::BufWriter<std::fs::File>>>>,
 }
 
-/// Builds and prepares the simulation, starts the station clock and the journal writer.
-fn build_sim_and_journal(
-    scene: &BuiltScene,
+/// The station's simulation of `scene`, built and prepared: everything the loops use is
+/// allocated up front, and the stable step and the mass scaling to whole sub-steps (power
+/// iterations) are found here, not in the first real-time tick. Seconds for a large scene:
+/// the server does it while it can still be stopped (before [`run`]).
+pub fn prepare_simulation(scene: &BuiltScene) -> Simulation {
+    let mut sim = Simulation::new(scene);
+    sim.prepare(SIM_TICK_S);
+    sim
+}
+
+/// Starts the station clock and the journal writer for the prepared `sim`.
+fn start_clock_and_journal(
+    sim: Simulation,
     journal: Option<std::io::BufWriter<std::fs::File>>,
 ) -> anyhow::Result<SimAndJournal> {
-    // Built before the threads start: everything the loops use is allocated up front.
-    let mut sim = Simulation::new(scene);
-    // The stable step and the mass scaling to whole sub-steps: power iterations, here and
-    // not in the first real-time tick.
-    sim.prepare(SIM_TICK_S);
     let t0 = realtime::monotonic_s();
     let journal_dropped = Arc::new(AtomicU64::new(0));
     let sim_done = Arc::new(AtomicBool::new(false));

@@ -111,13 +111,40 @@ fn remeshed(
     }
 }
 
+/// A scene's surface, loaded, placed, validated and (if poor) remeshed: what is known before
+/// the interior is sampled, and all that [`super::footprint::estimate`] needs.
+#[derive(Debug, Clone)]
+pub struct PreparedSurface {
+    /// What was asked for.
+    pub spec: SceneSpec,
+    /// The surface.
+    pub validated: ValidatedMesh,
+}
+
+impl PreparedSurface {
+    /// What the scene will cost a station once built (points, memory, tick).
+    pub fn footprint(&self) -> super::footprint::Footprint {
+        super::footprint::estimate(&self.spec, &self.validated.mesh)
+    }
+}
+
 /// Builds `spec`. For a file mesh, `mesh_bytes` holds the file's content (the sim does no
-/// I/O); for a built-in shape it is ignored.
+/// I/O); for a built-in shape it is ignored. [`prepare_surface`] then [`build_model`].
 pub fn build_scene(
     spec: &SceneSpec,
     mesh_bytes: Option<&[u8]>,
     observer: &mut dyn BuildObserver,
 ) -> Result<BuiltScene, SceneBuildError> {
+    build_model(prepare_surface(spec, mesh_bytes, observer)?, observer)
+}
+
+/// The first part of a build: the surface, before the interior is sampled (a caller may
+/// check the scene's [`PreparedSurface::footprint`] against its budget before going on).
+pub fn prepare_surface(
+    spec: &SceneSpec,
+    mesh_bytes: Option<&[u8]>,
+    observer: &mut dyn BuildObserver,
+) -> Result<PreparedSurface, SceneBuildError> {
     observer.stage(BuildStage::LoadMesh);
     let (mut mesh, source) = match &spec.mesh.source {
         MeshSource::Builtin(shape) => (shape.generate(), format!("builtin:{}", shape.name())),
@@ -151,10 +178,21 @@ pub fn build_scene(
         observer.stage(BuildStage::Remesh);
         validated = remeshed(validated, target, &source, &options);
     }
+    Ok(PreparedSurface {
+        spec: spec.clone(),
+        validated,
+    })
+}
 
+/// The second part of a build: the interior sampled, the model made.
+pub fn build_model(
+    surface: PreparedSurface,
+    observer: &mut dyn BuildObserver,
+) -> Result<BuiltScene, SceneBuildError> {
+    let PreparedSurface { spec, validated } = surface;
     let built = match spec.sampling.spacing {
         SpacingRule::RealTime { most_points } => {
-            build_for_real_time(&validated.mesh, spec, most_points, observer)
+            build_for_real_time(&validated.mesh, &spec, most_points, observer)
         }
         _ => CoupledModel::build(
             validated.mesh,
@@ -169,7 +207,7 @@ pub fn build_scene(
         error,
     })?;
     Ok(BuiltScene {
-        spec: spec.clone(),
+        spec,
         mesh_warnings: validated.warnings,
         mesh_stats: validated.stats,
         model,

@@ -5,13 +5,16 @@
 
 mod build;
 pub mod file;
+pub mod footprint;
 pub mod real_time;
 
 use std::path::PathBuf;
 
 use serde::Serialize;
 
-pub use build::{BuiltScene, SceneBuildError, build_scene};
+pub use build::{
+    BuiltScene, PreparedSurface, SceneBuildError, build_model, build_scene, prepare_surface,
+};
 pub use file::SceneError;
 pub use real_time::{PlannedSampling, SamplingPlan};
 
