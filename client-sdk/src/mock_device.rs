@@ -171,6 +171,9 @@ fn quantile(counts: &[u64; LAG_BINS], q: f64) -> u64 {
     0
 }
 
+/// Longest wait for the station's welcome (it answers within its main loop's 10 ms).
+const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
+
 /// A mock device attached to a station's device services.
 pub struct MockDevice {
     poses: Publisher<ipc::Service, DevicePose, ()>,
@@ -179,10 +182,11 @@ pub struct MockDevice {
 }
 
 impl MockDevice {
-    /// Attaches to `station` (the server need not run yet: the services are created if
-    /// they do not exist, and the server opens them when it starts).
+    /// Connects to the running `station` as its device (the handshake of
+    /// docs/PROTOCOL.md, then the pose publisher and the force subscriber).
     pub fn open(station: &str) -> Result<Self, ShmError> {
         let node = shm::node("scalpel-mock-device", station)?;
+        shm::connect::hello(&node, station, "scalpel-mock-device", HELLO_TIMEOUT)?;
         let poses = shm::pose_service(&node, station)?
             .publisher_builder()
             .create()

@@ -12,7 +12,7 @@ use scalpel_server::config::{DeviceKind, ServerConfig};
 use scalpel_server::device::{DeviceFactory, HapticDevice, ScriptedDevice};
 use scalpel_server::output::OutputLimits;
 use scalpel_server::scene_budget::SceneBudget;
-use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
+use scalpel_server::shm_device::{DeviceGate, ShmDevice, ShmDeviceCounters};
 use scalpel_server::station::{self, StationParams, StationReport, StatusLine};
 use scalpel_server::{host_check, journal, say, scene_file};
 use scalpel_sim::pipeline::CutScript;
@@ -91,6 +91,7 @@ fn run() -> anyhow::Result<()> {
     let (scene, sim, cutting_note) =
         build_scene_unless_stopped(&config.scene, SceneBudget::station(&config.limits), &stop)?;
     let shm_counters = Arc::new(ShmDeviceCounters::default());
+    let device_gate = Arc::new(DeviceGate::default());
     let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, script) => {
             let script = if script.is_empty() {
@@ -107,8 +108,9 @@ fn run() -> anyhow::Result<()> {
         (DeviceKind::SharedMemory, _) => {
             let station = config.station.clone();
             let counters = shm_counters.clone();
+            let gate = device_gate.clone();
             Box::new(move || {
-                Ok(Box::new(ShmDevice::open(&station, counters)?) as Box<dyn HapticDevice>)
+                Ok(Box::new(ShmDevice::open(&station, counters, gate)?) as Box<dyn HapticDevice>)
             })
         }
     };
@@ -149,6 +151,7 @@ fn run() -> anyhow::Result<()> {
             0.0
         },
         monitor_device: shared_memory_device,
+        device_gate,
         haptics: scene.spec.features.haptics,
         network: network_params(&config, &scene)?,
     };
@@ -202,9 +205,11 @@ fn run() -> anyhow::Result<()> {
         }
         None => None,
     };
-    // Malformed poses a shared-memory device sent since the last status line: said with
-    // it (the force meanwhile fades as if the device were silent).
+    // Malformed poses a shared-memory device sent since the last status line, and poses
+    // from processes that had not connected as the device: said with it (the force
+    // meanwhile fades as if the device were silent).
     let mut rejected_said = 0;
+    let mut unconnected_said = 0;
     let summary = station::run(&scene, sim, device, &params, journal, stop, |report| {
         print_report(report, json);
         if let StationReport::Status(line) = report {
@@ -223,6 +228,20 @@ fn run() -> anyhow::Result<()> {
                 );
                 rejected_said = rejected;
             }
+            let unconnected = shm_counters.unconnected.load(Ordering::Relaxed);
+            if unconnected > unconnected_said {
+                print_report(
+                    &StationReport::Event(station::StationEvent {
+                        uptime_s: line.uptime_s,
+                        event: format!(
+                            "device: {} poses dropped from a process that had not connected as the station's device (docs/PROTOCOL.md, \"Connecting a device\")",
+                            unconnected - unconnected_said
+                        ),
+                    }),
+                    json,
+                );
+                unconnected_said = unconnected;
+            }
         }
     })?;
     if json {
@@ -231,6 +250,7 @@ fn run() -> anyhow::Result<()> {
             summary["device"] = serde_json::json!({
                 "poses_used": shm_counters.poses.load(Ordering::Relaxed),
                 "poses_rejected": shm_counters.rejected.load(Ordering::Relaxed),
+                "poses_unconnected": shm_counters.unconnected.load(Ordering::Relaxed),
                 "forces_not_sent": shm_counters.send_failures.load(Ordering::Relaxed),
             });
         }

@@ -40,6 +40,38 @@ pub struct ShmDeviceCounters {
     pub send_failures: AtomicU64,
     /// Receiving poses failed (the connection to the device broke).
     pub receive_errors: AtomicU64,
+    /// Poses dropped because their process had not connected as the station's device.
+    pub unconnected: AtomicU64,
+}
+
+/// The device the station accepted (its node id), set by the main thread's device monitor
+/// when a device connects (`scalpel_proto::shm::connect`) and read by the haptic thread on
+/// every sample: poses from any other process are dropped and counted. Atomics, no lock: a
+/// read torn across an update matches no node and drops one tick's samples, which is safe.
+#[derive(Debug, Default)]
+pub struct DeviceGate {
+    accepted: AtomicBool,
+    node_low: AtomicU64,
+    node_high: AtomicU64,
+}
+
+impl DeviceGate {
+    /// Takes poses from `node` (a node id's value) only; `None`: from nobody.
+    pub fn accept(&self, node: Option<u128>) {
+        self.accepted.store(false, Ordering::Release);
+        if let Some(id) = node {
+            self.node_low.store(id as u64, Ordering::Release);
+            self.node_high.store((id >> 64) as u64, Ordering::Release);
+            self.accepted.store(true, Ordering::Release);
+        }
+    }
+
+    /// Whether a sample from `node` is the accepted device's.
+    pub fn admits(&self, node: u128) -> bool {
+        self.accepted.load(Ordering::Acquire)
+            && self.node_low.load(Ordering::Acquire) == node as u64
+            && self.node_high.load(Ordering::Acquire) == (node >> 64) as u64
+    }
 }
 
 /// Forces in flight from the haptic thread to the force-out thread.
@@ -54,12 +86,18 @@ pub struct ShmDevice {
     sender_handle: Option<JoinHandle<()>>,
     stop: Arc<AtomicBool>,
     counters: Arc<ShmDeviceCounters>,
+    gate: Arc<DeviceGate>,
     _node: Node<ipc::Service>,
 }
 
 impl ShmDevice {
-    /// Opens (or creates) the station's device services and starts the force-out thread.
-    pub fn open(station: &str, counters: Arc<ShmDeviceCounters>) -> Result<Self, shm::ShmError> {
+    /// Opens the station's device services (made by the station's device monitor) and
+    /// starts the force-out thread; poses are taken from the device `gate` admits.
+    pub fn open(
+        station: &str,
+        counters: Arc<ShmDeviceCounters>,
+        gate: Arc<DeviceGate>,
+    ) -> Result<Self, shm::ShmError> {
         let node = shm::node("scalpel-server.haptic", station)?;
         let poses = shm::pose_service(&node, station)?
             .subscriber_builder()
@@ -95,6 +133,7 @@ impl ShmDevice {
             sender_handle: Some(sender_handle),
             stop,
             counters,
+            gate,
             _node: node,
         })
     }
@@ -185,6 +224,10 @@ impl HapticDevice for ShmDevice {
         loop {
             match self.poses.receive() {
                 Ok(Some(sample)) => {
+                    if !self.gate.admits(sample.header().node_id().value()) {
+                        self.counters.unconnected.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
                     let payload = *sample.payload();
                     match pose_of(&payload) {
                         Some(pose) => {

@@ -19,6 +19,9 @@ fn frames_arrive_whole_and_grow_past_their_first_room() {
     let sim = Simulation::new(&liver);
     let surface = &sim.current_surface().mesh;
     // Room for 10 vertices: the liver's 256 need the shared memory to grow.
+    // The station's services, made as its server makes them.
+    let _services =
+        scalpel_server::device_monitor::DeviceMonitor::open(&station, Default::default()).unwrap();
     let mut publisher = FramePublisher::open_with_room(&station, &sim, 10, 16).unwrap();
     let mut reader = FrameReader::open(&station).unwrap();
     let tool = ToolPose::pointing(Vec3::new(0.0, 0.0, 0.03), Vec3::z());

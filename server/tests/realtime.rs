@@ -86,14 +86,20 @@ fn haptic_ticks_do_not_allocate() {
 #[test]
 fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
     use scalpel_proto::shm::{self, DevicePose, LAYOUT_VERSION};
-    use scalpel_server::shm_device::{ShmDevice, ShmDeviceCounters};
+    use scalpel_server::device_monitor::DeviceMonitor;
+    use scalpel_server::shm_device::{DeviceGate, ShmDevice, ShmDeviceCounters};
     use std::sync::Arc;
 
     shm::quiet_logging();
     let station = format!("t-alloc-{}", std::process::id());
     let counters = Arc::new(ShmDeviceCounters::default());
-    let mut device = ShmDevice::open(&station, counters.clone()).unwrap();
+    let gate = Arc::new(DeviceGate::default());
+    // The station's services, made as its server makes them.
+    let _monitor = DeviceMonitor::open(&station, gate.clone()).unwrap();
+    let mut device = ShmDevice::open(&station, counters.clone(), gate.clone()).unwrap();
     let node = shm::node("test-device", &station).unwrap();
+    // (Accepted as if it had said hello: the handshake is the monitor's, tested elsewhere.)
+    gate.accept(Some(node.id().value()));
     let poses = shm::pose_service(&node, &station)
         .unwrap()
         .publisher_builder()
@@ -180,13 +186,17 @@ fn haptic_ticks_with_the_shared_memory_device_do_not_allocate() {
 fn a_reconnecting_device_costs_one_receive_of_allocations_then_none() {
     use scalpel_proto::shm::{self, DevicePose, LAYOUT_VERSION};
     use scalpel_server::device::HapticDevice;
-    use scalpel_server::shm_device::ShmDevice;
+    use scalpel_server::device_monitor::DeviceMonitor;
+    use scalpel_server::shm_device::{DeviceGate, ShmDevice};
 
     shm::quiet_logging();
     let station = format!("t-reconnect-{}", std::process::id());
-    let mut device = ShmDevice::open(&station, Default::default()).unwrap();
+    let gate = std::sync::Arc::new(DeviceGate::default());
+    let _monitor = DeviceMonitor::open(&station, gate.clone()).unwrap();
+    let mut device = ShmDevice::open(&station, Default::default(), gate.clone()).unwrap();
     for round in 0..3 {
         let node = shm::node(&format!("test-device-{round}"), &station).unwrap();
+        gate.accept(Some(node.id().value()));
         let poses = shm::pose_service(&node, &station)
             .unwrap()
             .publisher_builder()
@@ -235,6 +245,9 @@ fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
     let liver = scalpel_server::scene_file::load_scene("liver").unwrap();
     let script = CutScript::default_for(&liver.model.surface).unwrap();
     let mut sim = Simulation::new(&liver);
+    // The station's services, made as its server makes them.
+    let _services =
+        scalpel_server::device_monitor::DeviceMonitor::open(&station, Default::default()).unwrap();
     let mut publisher = FramePublisher::open(&station, &sim).unwrap();
     // Through the press and seconds of cutting: the surface the frames carry is incised.
     let uncut = sim.current_surface().mesh.triangles.len();

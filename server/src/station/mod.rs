@@ -216,6 +216,9 @@ pub struct StationParams {
     pub frame_hz: f64,
     /// Watch for a shared-memory device coming and going.
     pub monitor_device: bool,
+    /// Whose poses the shared-memory device takes (set by the monitor when a device
+    /// connects).
+    pub device_gate: Arc<crate::shm_device::DeviceGate>,
     /// Run the haptic thread (the scene's `haptics` feature); without it the simulation
     /// runs with no tool.
     pub haptics: bool,
@@ -255,9 +258,10 @@ pub fn run(
     let hand_offs = HandOffs::new();
     refuse_taken_station(params, &mut warnings)?;
     let (haptic_cpu, other_cpus) = split_cpus(params, &mut warnings);
-    // The network endpoint first: if it cannot listen, nothing else has started yet.
-    let network = start_network(params, &other_cpus)?;
+    // The station's shared memory first (nothing may take its services), then the network
+    // endpoint: if either fails, no thread has started yet.
     let monitor = open_monitor(params, &mut warnings)?;
+    let network = start_network(params, &other_cpus)?;
     let built = start_clock_and_journal(sim, journal)?;
     let (threads, start_channels) = Threads::spawn(
         device,
@@ -396,15 +400,28 @@ fn start_network(
     Ok(network)
 }
 
-/// Opens the shared-memory monitor; only a station watching its device needs it to open.
+/// Makes the station's shared-memory services and opens their monitor. A service another
+/// live process made refuses the start; any other failure of shared memory only matters to
+/// a station whose device is on it (the others run without frames and clean-up).
 fn open_monitor(
     params: &StationParams,
     warnings: &mut Vec<String>,
 ) -> anyhow::Result<Option<DeviceMonitor>> {
-    // The monitor also cleans up after any dead node (a killed viewer, a killed server of
-    // this station before this one), so it runs whatever the device.
-    let monitor = match DeviceMonitor::open(&params.station) {
-        Ok(m) => Some(m),
+    let monitor = match DeviceMonitor::open(&params.station, params.device_gate.clone()) {
+        Ok(m) => {
+            for service in m.reused() {
+                warnings.push(format!(
+                    "{service}: took over what a previous server of this station left"
+                ));
+            }
+            Some(m)
+        }
+        Err(e @ scalpel_proto::shm::ShmError::Taken { .. }) => {
+            return Err(anyhow::anyhow!(
+                "station {}'s shared memory is taken: {e}",
+                params.station
+            ));
+        }
         Err(e) if !params.monitor_device => {
             warnings.push(format!("{e}: no shared-memory clean-up"));
             None
@@ -900,12 +917,16 @@ impl Station<'_> {
                 }
             }
             if let Some(m) = &mut *monitor
-                && let Some(change) = m.poll()
+                && let Some(change) = m.poll(now - t0)
                 && params.monitor_device
             {
                 let (kind, text) = match change {
-                    DeviceEvent::Connected => {
-                        (EventKind::DeviceConnected, "device connected".into())
+                    DeviceEvent::Connected(name) => (
+                        EventKind::DeviceConnected,
+                        format!("device connected ({name})"),
+                    ),
+                    DeviceEvent::Refused(name, why) => {
+                        (EventKind::Notice, format!("device {name} refused: {why}"))
                     }
                     DeviceEvent::Lost => (
                         EventKind::DeviceLost,

@@ -53,19 +53,29 @@ def main() -> int:
         .name(iox2.NodeName.new(f"python-reader.{station}"))
         .create(iox2.ServiceType.Ipc)
     )
-    service = (
-        node.service_builder(iox2.ServiceName.new(f"scalpel/{station}/render/frames"))
-        .publish_subscribe(iox2.Slice[ctypes.c_uint8])
-        .user_header(FrameHeader)
-        .max_publishers(1)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(2)
-        .history_size(1)
-        .open_or_create()
-    )
+    # The station's server makes its services; a renderer only opens them (retrying while
+    # the server starts).
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            service = (
+                node.service_builder(iox2.ServiceName.new(f"scalpel/{station}/render/frames"))
+                .publish_subscribe(iox2.Slice[ctypes.c_uint8])
+                .user_header(FrameHeader)
+                .max_publishers(1)
+                .max_subscribers(8)
+                .subscriber_max_buffer_size(2)
+                .history_size(1)
+                .open()
+            )
+            break
+        except Exception as e:  # noqa: BLE001 (iceoryx2's open errors have no common base)
+            if time.monotonic() > deadline:
+                print(json.dumps({"error": f"station {station} not running: {e}"}))
+                return 1
+            time.sleep(0.1)
     subscriber = service.subscriber_builder().create()
 
-    deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         sample = subscriber.receive()
         if sample is None:

@@ -5,18 +5,32 @@
 //!  scalpel/<station>/device/force    DeviceForce  server ─► device   1 kHz
 //!  scalpel/<station>/render/frames   [u8] + FrameHeader  server ─► renderers (frames.rate_hz)
 //!  scalpel/<station>/render/events   event id 1 = a new frame was sent
+//!  scalpel/<station>/device/connect  DeviceHello → DeviceWelcome   device ─► server, once
 //! ```
 //!
 //! The builder settings here are the service contract: every process (Rust or not) opens
-//! the services with exactly these (docs/PROTOCOL.md). All layouts start with
+//! the services with exactly these (docs/PROTOCOL.md). The station's server makes them
+//! (`ownership`); every other process only opens them. All layouts start with
 //! `layout_version`; a reader drops a sample whose version it does not know.
 
 use iceoryx2::node::NodeView;
 use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::{
+    Builder as EventBuilder, EventCreateError, EventOpenError,
+};
+use iceoryx2::service::builder::publish_subscribe::{
+    Builder as PubSubBuilder, PublishSubscribeCreateError, PublishSubscribeOpenError,
+};
+use iceoryx2::service::builder::request_response::{
+    RequestResponseCreateError, RequestResponseOpenError,
+};
 use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use thiserror::Error;
+
+pub mod connect;
+pub mod ownership;
 
 /// The layout version of every type here. Bumped on any change of a field's meaning,
 /// order or size.
@@ -25,6 +39,10 @@ pub const LAYOUT_VERSION: u32 = 2;
 /// Longest station name (it becomes part of service and node names).
 pub const MAX_STATION_NAME: usize = 48;
 
+/// Pose service: publishers. The server takes poses only from the device that connected
+/// (`connect`); room for more than one, so that a process publishing without having
+/// connected does not lock the device out by holding the only place.
+pub const POSE_MAX_PUBLISHERS: usize = 4;
 /// Pose service: subscribers (the server's haptic thread and a spare for a monitor).
 pub const POSE_MAX_SUBSCRIBERS: usize = 2;
 /// Force service: subscribers (the device and a spare for a recorder).
@@ -255,6 +273,32 @@ pub enum ShmError {
         /// iceoryx2's error.
         detail: String,
     },
+    /// The station's service does not exist: its server is not running.
+    #[error(
+        "station {station} is not running on this machine (no service {service}: its server makes them when it starts)"
+    )]
+    NoStation {
+        /// The station.
+        station: String,
+        /// The service looked for.
+        service: String,
+    },
+    /// The station refused a device that said hello.
+    #[error("station {station} refused the device: {reason}")]
+    Refused {
+        /// The station.
+        station: String,
+        /// Why.
+        reason: String,
+    },
+    /// Another process holds a service the station's server must make.
+    #[error("{service}: {detail}")]
+    Taken {
+        /// The service.
+        service: String,
+        /// Who holds it and what to do.
+        detail: String,
+    },
     /// A sample of a layout version this build does not know.
     #[error("layout version {found}, this build reads version {LAYOUT_VERSION}")]
     Version {
@@ -356,66 +400,150 @@ pub fn station_nodes(station: &str) -> Result<Vec<NodeSeen>, ShmError> {
     Ok(seen)
 }
 
-/// The pose service of a station (device ─► server).
-pub fn pose_service(
-    node: &Node<ipc::Service>,
+/// Opens `name` of `station` (made by the station's server: `ownership::claim`); a
+/// service that does not exist means the station is not running.
+pub(crate) fn opened<F, E: ServiceError>(
     station: &str,
-) -> Result<PubSubFactory<ipc::Service, DevicePose, ()>, ShmError> {
-    let name = service_name(station, "device/pose")?;
-    node.service_builder(&name)
+    name: &ServiceName,
+    result: Result<F, E>,
+) -> Result<F, ShmError> {
+    result.map_err(|e| {
+        if e.missing() {
+            ShmError::NoStation {
+                station: station.to_string(),
+                service: name.as_str().to_string(),
+            }
+        } else {
+            iceoryx("opening", name.as_str(), e)
+        }
+    })
+}
+
+/// iceoryx2's open and create errors, as far as opening and claiming need to tell them apart.
+pub(crate) trait ServiceError: std::fmt::Debug {
+    /// The service does not exist.
+    fn missing(&self) -> bool {
+        false
+    }
+    /// The service exists already.
+    fn exists(&self) -> bool {
+        false
+    }
+}
+
+impl ServiceError for PublishSubscribeOpenError {
+    fn missing(&self) -> bool {
+        matches!(self, Self::DoesNotExist)
+    }
+}
+impl ServiceError for EventOpenError {
+    fn missing(&self) -> bool {
+        matches!(self, Self::DoesNotExist)
+    }
+}
+impl ServiceError for RequestResponseOpenError {
+    fn missing(&self) -> bool {
+        matches!(self, Self::DoesNotExist)
+    }
+}
+impl ServiceError for PublishSubscribeCreateError {
+    fn exists(&self) -> bool {
+        matches!(self, Self::AlreadyExists)
+    }
+}
+impl ServiceError for EventCreateError {
+    fn exists(&self) -> bool {
+        matches!(self, Self::AlreadyExists)
+    }
+}
+impl ServiceError for RequestResponseCreateError {
+    fn exists(&self) -> bool {
+        matches!(self, Self::AlreadyExists)
+    }
+}
+
+/// The pose service's builder with the contract's settings (`open` it; only the station's
+/// server creates it).
+pub fn pose_builder(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+) -> PubSubBuilder<DevicePose, (), ipc::Service> {
+    node.service_builder(name)
         .publish_subscribe::<DevicePose>()
-        .max_publishers(1)
+        .max_publishers(POSE_MAX_PUBLISHERS)
         .max_subscribers(POSE_MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(DEVICE_BUFFER)
         .history_size(0)
-        .open_or_create()
-        .map_err(|e| iceoryx("opening", name.as_str(), e))
 }
 
-/// The force service of a station (server ─► device).
-pub fn force_service(
+/// The force service's builder with the contract's settings.
+pub fn force_builder(
     node: &Node<ipc::Service>,
-    station: &str,
-) -> Result<PubSubFactory<ipc::Service, DeviceForce, ()>, ShmError> {
-    let name = service_name(station, "device/force")?;
-    node.service_builder(&name)
+    name: &ServiceName,
+) -> PubSubBuilder<DeviceForce, (), ipc::Service> {
+    node.service_builder(name)
         .publish_subscribe::<DeviceForce>()
         .max_publishers(1)
         .max_subscribers(FORCE_MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(DEVICE_BUFFER)
         .history_size(0)
-        .open_or_create()
-        .map_err(|e| iceoryx("opening", name.as_str(), e))
 }
 
-/// The render frame service of a station.
-pub fn frame_service(
+/// The frame service's builder with the contract's settings.
+pub fn frame_builder(
     node: &Node<ipc::Service>,
-    station: &str,
-) -> Result<PubSubFactory<ipc::Service, [u8], FrameHeader>, ShmError> {
-    let name = service_name(station, "render/frames")?;
-    node.service_builder(&name)
+    name: &ServiceName,
+) -> PubSubBuilder<[u8], FrameHeader, ipc::Service> {
+    node.service_builder(name)
         .publish_subscribe::<[u8]>()
         .user_header::<FrameHeader>()
         .max_publishers(1)
         .max_subscribers(FRAME_MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(FRAME_BUFFER)
         .history_size(FRAME_HISTORY)
-        .open_or_create()
-        .map_err(|e| iceoryx("opening", name.as_str(), e))
 }
 
-/// The render event service of a station ([`EVENT_NEW_FRAME`]).
+/// The frame event service's builder with the contract's settings.
+pub fn event_builder(node: &Node<ipc::Service>, name: &ServiceName) -> EventBuilder<ipc::Service> {
+    node.service_builder(name)
+        .event()
+        .max_listeners(FRAME_MAX_LISTENERS)
+}
+
+/// The pose service of a running station (device ─► server).
+pub fn pose_service(
+    node: &Node<ipc::Service>,
+    station: &str,
+) -> Result<PubSubFactory<ipc::Service, DevicePose, ()>, ShmError> {
+    let name = service_name(station, "device/pose")?;
+    opened(station, &name, pose_builder(node, &name).open())
+}
+
+/// The force service of a running station (server ─► device).
+pub fn force_service(
+    node: &Node<ipc::Service>,
+    station: &str,
+) -> Result<PubSubFactory<ipc::Service, DeviceForce, ()>, ShmError> {
+    let name = service_name(station, "device/force")?;
+    opened(station, &name, force_builder(node, &name).open())
+}
+
+/// The render frame service of a running station.
+pub fn frame_service(
+    node: &Node<ipc::Service>,
+    station: &str,
+) -> Result<PubSubFactory<ipc::Service, [u8], FrameHeader>, ShmError> {
+    let name = service_name(station, "render/frames")?;
+    opened(station, &name, frame_builder(node, &name).open())
+}
+
+/// The render event service of a running station ([`EVENT_NEW_FRAME`]).
 pub fn frame_events(
     node: &Node<ipc::Service>,
     station: &str,
 ) -> Result<EventFactory<ipc::Service>, ShmError> {
     let name = service_name(station, "render/events")?;
-    node.service_builder(&name)
-        .event()
-        .max_listeners(FRAME_MAX_LISTENERS)
-        .open_or_create()
-        .map_err(|e| iceoryx("opening", name.as_str(), e))
+    opened(station, &name, event_builder(node, &name).open())
 }
 
 /// The new-frame event id.
