@@ -13,7 +13,8 @@ use common::station::{self, Running, json, scalpel, unique_station};
 use scalpel_client::remote::{
     ClientError, Credentials, Instructor, Observer, Session, Update, client_config,
 };
-use scalpel_proto::wire::{Action, Outcome};
+use scalpel_proto::codec::{CLIENT_LIMIT, write_frame};
+use scalpel_proto::wire::{Action, ClientMessage, Outcome, PROTOCOL_VERSION};
 
 /// A lab: CA, server certificate, two observers and an instructor.
 fn make_certs(dir: &Path) {
@@ -119,7 +120,7 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     let out = scalpel()
         .args(["observe", &addr.to_string(), "--certs"])
         .arg(&dir)
-        .args(["--name", "obs1", "--frames", "--seconds", "3", "--json"])
+        .args(["--name", "obs1", "--frames", "--seconds", "5", "--json"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -132,7 +133,22 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
     assert_eq!(lines[0]["welcome"]["role"], "Observer", "{stdout}");
     assert_eq!(lines[0]["welcome"]["identity"], "obs1");
     let metrics = lines.iter().filter(|l| l.get("metrics").is_some()).count();
-    assert!(metrics >= 20, "{metrics} metrics in 3 s (10 Hz)");
+    assert!(metrics >= 20, "{metrics} metrics in 5 s (10 Hz)");
+    // The demo cut ruptures the liver about 2 s in: the event gives the force the tissue
+    // gave way at (issue 45: it always said 0.0 N, the force after the drop).
+    let rupture = lines
+        .iter()
+        .find_map(|l| {
+            let e = l.get("event").filter(|e| e["kind"] == "Rupture")?;
+            e["detail"].as_str().map(str::to_string)
+        })
+        .unwrap_or_else(|| panic!("no rupture in 5 s: {stdout}"));
+    let newtons: f64 = rupture
+        .strip_prefix("rupture: cutting, at ")
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{rupture}"));
+    assert!(newtons > 0.5, "{rupture}");
     let frames: Vec<&serde_json::Value> = lines.iter().filter_map(|l| l.get("frame")).collect();
     assert!(frames.len() >= 30, "{} frames in 3 s", frames.len());
     assert!(frames.iter().all(|f| f["vertices"].as_u64().unwrap() > 200));
@@ -147,6 +163,25 @@ fn observers_get_metrics_events_and_frames_and_nothing_else_gets_in() {
         let config = client_config(None, &ca).unwrap();
         let refused = Session::connect(addr, "localhost", config, "anonymous").await;
         assert!(refused.is_err(), "a client without a certificate got in");
+
+        // A Hello whose client name is over 256 bytes is refused as such (issue 45: it was
+        // "the first message must be a Hello"). The SDK shortens names: a raw client.
+        let mut raw = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+        raw.set_default_client_config(
+            client_config(Some(&Credentials::from_dir(&dir, "obs1")), &ca).unwrap(),
+        );
+        let conn = raw.connect(addr, "localhost").unwrap().await.unwrap();
+        let (mut send, _recv) = conn.open_bi().await.unwrap();
+        let hello = ClientMessage::Hello {
+            protocol_version: PROTOCOL_VERSION,
+            client: "n".repeat(300),
+        };
+        write_frame::<_, CLIENT_LIMIT>(&mut send, &hello).await.unwrap();
+        let closed = conn.closed().await.to_string();
+        assert!(
+            closed.contains("the client name is 300 bytes, at most 256"),
+            "{closed}"
+        );
 
         // An observer cannot instruct.
         let mut observer = Observer::connect(
