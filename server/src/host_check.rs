@@ -251,7 +251,7 @@ fn simulation_check(
     scene: Option<&scalpel_sim::scene::BuiltScene>,
     script: Option<CutScript>,
 ) -> Check {
-    use scalpel_sim::pipeline::{SIMULATION_TICK_S, Simulation, Unobserved};
+    use scalpel_sim::pipeline::{SIMULATION_TICK_S, Unobserved};
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::{Duration, Instant};
     let Some(scene) = scene else {
@@ -276,8 +276,7 @@ fn simulation_check(
     {
         let (scene, stop) = (scene.clone(), stop.clone());
         std::thread::spawn(move || {
-            let mut sim = Simulation::new(&scene);
-            sim.prepare(SIMULATION_TICK_S);
+            let mut sim = crate::station::prepare_simulation(&scene);
             for k in 0..ticks {
                 if stop.load(Ordering::Relaxed) {
                     return;

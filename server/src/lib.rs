@@ -17,6 +17,7 @@ pub mod journal;
 pub mod net;
 pub mod output;
 pub mod realtime;
+pub mod recut_worker;
 pub mod scene_budget;
 pub mod scene_file;
 pub mod shm_device;

@@ -88,6 +88,8 @@ pub fn run_cut(
     mut tick: impl FnMut(usize, usize),
 ) -> CutRun {
     let mut sim = Simulation::new(scene);
+    // Re-cuts on a worker, as at a station (their time is the worker's, not the tick's).
+    scalpel_server::recut_worker::attach(&mut sim);
     sim.prepare(TICK_S);
     let ticks = script.tick_count(TICK_S);
     let mut rows = Vec::with_capacity(ticks);

@@ -449,6 +449,8 @@ struct SimAndJournal {
 /// the server does it while it can still be stopped (before [`run`]).
 pub fn prepare_simulation(scene: &BuiltScene) -> Simulation {
     let mut sim = Simulation::new(scene);
+    // The re-cut worker, spawned here (normal scheduling, any CPU: recut_worker.rs).
+    crate::recut_worker::attach(&mut sim);
     sim.prepare(SIM_TICK_S);
     sim
 }

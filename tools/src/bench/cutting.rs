@@ -262,6 +262,7 @@ pub fn idle(target: &TargetArgs, ticks: usize, json: bool) -> anyhow::Result<()>
         spec.name = format!("{}, cutting {state}", base.name);
         let scene = build(&spec)?;
         let mut sim = Simulation::new(&scene);
+        scalpel_server::recut_worker::attach(&mut sim);
         sim.prepare(TICK_S);
         let mut times = Vec::with_capacity(ticks);
         let (mut integrated, mut substeps) = (0, 0);

@@ -26,8 +26,9 @@ use crate::mls::MlsOperator;
 use crate::model::{CoupledModel, RestGrid};
 use crate::solver::Solver;
 
-use super::recut_worker::{
-    BaseShape, JobBuffers, RECUT_HANDOVER_TICKS, Recut, RecutJob, RecutWorker, RestSpace,
+use super::recut::{
+    BaseShape, InlineRecuts, JobBuffers, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner,
+    RestSpace,
 };
 use super::surface::{CurrentSurface, SURFACE_ROOM};
 
@@ -52,7 +53,7 @@ pub struct IncisionStats {
     pub opening_m: f64,
     /// Deepest wound wall (m).
     pub depth_m: f64,
-    /// Re-cut results not ready when due: the tick waited for the worker.
+    /// Re-cut results not ready when due: the tick waited for the runner.
     pub late_recuts: usize,
 }
 
@@ -67,7 +68,7 @@ struct Base {
     opened_pieces: usize,
 }
 
-/// A re-cut handed to the worker, applied at tick `due`.
+/// A re-cut handed to the runner, applied at tick `due`.
 struct InFlight {
     due: u64,
     /// The stroke it finishes, when it is the last re-cut of a stroke that has ended.
@@ -96,15 +97,14 @@ pub struct IncisionTracker {
     slit_grew: bool,
     /// Ticks so far (`update` runs once a tick).
     tick: u64,
-    /// Where re-cuts run (`None`: on the simulation thread), and the one
-    /// running there.
-    worker: Option<RecutWorker>,
+    /// Where re-cuts run (the caller's: `recut`), and the one out there.
+    runner: Box<dyn RecutRunner>,
     in_flight: Option<InFlight>,
-    /// Results the worker will send before the one in flight, of re-cuts a stroke's last
-    /// one superseded: read and dropped.
+    /// Results the runner gives before the one in flight, of re-cuts a stroke's last one
+    /// superseded: read and dropped.
     superseded: u32,
-    /// The body's rest space, for the worker to embed new vertices.
-    space: Option<Arc<RestSpace>>,
+    /// The body's rest space, for the re-cut to embed new vertices.
+    space: Arc<RestSpace>,
     /// Buffers finished jobs handed back, for the next ones.
     spare: Vec<JobBuffers>,
     /// The last stroke's base, for the next stroke to copy its surface into.
@@ -147,22 +147,11 @@ const PATH_SAMPLE_CAPACITY: usize = 1024;
 const SPARE_JOBS: usize = 3;
 
 impl IncisionTracker {
-    /// A tracker for `model`'s surface (mean edge length `edge_m`), whose
-    /// re-cuts run on a worker thread and land [`RECUT_HANDOVER_TICKS`] later
-    /// (`recut_worker`).
+    /// A tracker for `model`'s surface (mean edge length `edge_m`), whose re-cuts run on
+    /// the simulation's thread ([`InlineRecuts`]) until [`IncisionTracker::set_runner`] gives
+    /// them another, and land [`RECUT_HANDOVER_TICKS`] after they are asked for (`recut`).
     pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
-        let mut tracker = Self::without_worker(edge_m, params, &model.surface);
-        tracker.worker = RecutWorker::spawn();
-        tracker.space = tracker
-            .worker
-            .is_some()
-            .then(|| Arc::new(RestSpace::of(model)));
-        tracker
-    }
-
-    /// The tracker without its worker: every re-cut computed and applied in the tick that
-    /// asks for it (what it falls back to when the worker cannot start or dies).
-    fn without_worker(edge_m: f64, params: IncisionParams, surface: &TriMesh) -> Self {
+        let surface = &model.surface;
         Self {
             params,
             sample_step_m: 0.25 * edge_m,
@@ -178,10 +167,10 @@ impl IncisionTracker {
             slit: None,
             slit_grew: false,
             tick: 0,
-            worker: None,
+            runner: Box::new(InlineRecuts::new()),
             in_flight: None,
             superseded: 0,
-            space: None,
+            space: Arc::new(RestSpace::of(model)),
             // Buffers for the jobs a stroke's end may have in flight at once (the one
             // running and the last re-cut, which supersedes it), made now.
             spare: {
@@ -198,6 +187,12 @@ impl IncisionTracker {
                 ..IncisionStats::default()
             },
         }
+    }
+
+    /// Re-cuts run on `runner` from now on (set before the first tick: a job out on the
+    /// last one would be lost).
+    pub fn set_runner(&mut self, runner: Box<dyn RecutRunner>) {
+        self.runner = runner;
     }
 
     /// One tick: `edge` is the blade's rest-space (tip, entry) while it cuts, `None`
@@ -255,7 +250,7 @@ impl IncisionTracker {
             if rerun && self.in_flight.take().is_some() {
                 self.superseded += 1;
             }
-            let changed = rerun && self.run(surface, inputs);
+            let changed = rerun && self.run(inputs);
             // Landing after the stroke, it applies to the stroke it finishes (this branch
             // runs every tick the blade is not cutting: only a stroke that just ended has a
             // base to hand on).
@@ -276,7 +271,7 @@ impl IncisionTracker {
         if self.base.is_none() {
             // The stroke's base surface, copied for its re-cuts into the last stroke's
             // buffers (docs/CUTTING.md, "The real-time path"); new ones only if the last
-            // base was lost with a worker that died on its re-cut.
+            // base was lost with a runner that died on its re-cut.
             self.stats.strokes += 1;
             let n = surface.mesh.positions.len();
             let mut base = (self.spare_base.take())
@@ -362,7 +357,7 @@ impl IncisionTracker {
                     }
                 }
             }
-            return self.deepened() && self.run(surface, inputs);
+            return self.deepened() && self.run(inputs);
         }
         // (Past the start means on from the start the way the path leaves it: an entry
         // that hops onto another sheet of a thin part is not an extension.)
@@ -398,7 +393,7 @@ impl IncisionTracker {
             );
             (b - a).norm() >= self.rerun_step_m
         };
-        due && self.run(surface, inputs)
+        due && self.run(inputs)
     }
 
     /// Whether the samples have gone deep enough below the last run's to run again: a
@@ -412,34 +407,22 @@ impl IncisionTracker {
         &self.samples
     }
 
-    /// Recomputes the stroke's incision from the base surface: hands it to the worker
-    /// (it lands later, and this returns `false`), or computes and applies it now without
-    /// one. With a re-cut still in flight it waits: the samples since keep counting, so the
-    /// next sample asks again.
-    fn run(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+    /// Recomputes the stroke's incision from the base surface: hands it to the runner (it
+    /// lands later, and this returns `false`). With a re-cut still in flight it waits: the
+    /// samples since keep counting, so the next sample asks again.
+    fn run(&mut self, inputs: &IncisionInputs<'_>) -> bool {
         if self.in_flight.is_some() {
             return false;
         }
         let Some(job) = self.job(inputs.sigma) else {
             return false;
         };
-        let Some(worker) = &self.worker else {
-            return self.apply_now(job, surface, inputs);
-        };
-        match worker.send(job) {
-            Ok(()) => {
-                self.in_flight = Some(InFlight {
-                    due: self.tick + RECUT_HANDOVER_TICKS,
-                    ended: None,
-                });
-                false
-            }
-            Err(job) => {
-                // The worker is gone: from now on, here.
-                self.worker = None;
-                self.apply_now(*job, surface, inputs)
-            }
-        }
+        self.runner.start(job);
+        self.in_flight = Some(InFlight {
+            due: self.tick + RECUT_HANDOVER_TICKS,
+            ended: None,
+        });
+        false
     }
 
     /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
@@ -450,7 +433,7 @@ impl IncisionTracker {
     }
 
     /// The re-cut of the stroke's path so far, with the embedding of its new vertices
-    /// against `sigma` when it goes to the worker; counts it as a run. Its copies of the
+    /// against `sigma`; counts it as a run. Its copies of the
     /// samples and of Σ go into buffers an earlier job handed back.
     fn job(&mut self, sigma: &SweptSurface) -> Option<RecutJob> {
         let base = self.base.as_ref()?;
@@ -474,13 +457,10 @@ impl IncisionTracker {
             },
             margin: 0.5 * self.rerun_step_m,
             params: self.params,
-            embed: match (&self.space, &self.worker) {
-                (Some(space), Some(_)) => {
-                    snapshot.triangles.clone_from(&sigma.triangles);
-                    snapshot.boxes.clone_from(&sigma.boxes);
-                    Some((space.clone(), snapshot))
-                }
-                _ => None,
+            embed: {
+                snapshot.triangles.clone_from(&sigma.triangles);
+                snapshot.boxes.clone_from(&sigma.boxes);
+                Some((self.space.clone(), snapshot))
             },
         })
     }
@@ -501,10 +481,9 @@ impl IncisionTracker {
         // Superseded results are read and dropped, their buffers kept.
         let mut recut = None;
         for left in (0..=superseded).rev() {
-            recut = self
-                .worker
-                .as_ref()
-                .and_then(|w| w.wait(&mut self.stats.late_recuts));
+            let mut waited = false;
+            recut = self.runner.finish(&mut waited);
+            self.stats.late_recuts += usize::from(waited);
             match &mut recut {
                 Some(r) if left > 0 => self.keep_buffers(std::mem::take(&mut r.spent)),
                 Some(_) => {}
@@ -512,10 +491,9 @@ impl IncisionTracker {
             }
         }
         let Some(mut recut) = recut else {
-            // The worker died on it: the surface stays as it was, the next runs are here.
-            self.worker = None;
+            // The runner lost it (its thread died on it): the surface stays as it was.
             self.stats.refused += 1;
-            self.stats.last_refusal = Some("the re-cut failed on its worker thread".into());
+            self.stats.last_refusal = Some("the re-cut failed on its runner's thread".into());
             return false;
         };
         self.keep_buffers(std::mem::take(&mut recut.spent));
@@ -531,22 +509,10 @@ impl IncisionTracker {
         }
     }
 
-    /// Computes a re-cut here and applies it to the current stroke.
-    fn apply_now(
-        &mut self,
-        job: RecutJob,
-        surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
-    ) -> bool {
-        let mut recut = job.finish();
-        self.keep_buffers(std::mem::take(&mut recut.spent));
-        self.apply_here(recut, surface, inputs)
-    }
-
     /// Applies a re-cut to the current stroke.
     fn apply_here(
         &mut self,
-        recut: Recut,
+        recut: RecutResult,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
@@ -649,11 +615,11 @@ impl Base {
     fn apply(
         &mut self,
         stats: &mut IncisionStats,
-        recut: Recut,
+        recut: RecutResult,
         surface: &mut CurrentSurface,
         inputs: &IncisionInputs<'_>,
     ) -> bool {
-        let Recut {
+        let RecutResult {
             outcome,
             rows,
             index,

@@ -14,8 +14,7 @@
 pub mod blade_motion;
 pub mod cutting;
 pub mod incision;
-mod parking_channel;
-mod recut_worker;
+pub mod recut;
 pub mod script;
 pub mod steady_motion;
 pub mod surface;
@@ -31,7 +30,7 @@ use crate::solver::{Solver, SolverConfig, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
-pub use recut_worker::RECUT_HANDOVER_TICKS;
+pub use recut::{InlineRecuts, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner};
 pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
@@ -471,6 +470,15 @@ impl Simulation {
     /// The incision tracker, for scenes that cut.
     pub fn incision_tracker(&self) -> Option<&IncisionTracker> {
         self.incisions.as_ref()
+    }
+
+    /// The stroke's re-cuts run on `runner` from now on (set before the first tick; without
+    /// one they run on the simulation's own thread: [`InlineRecuts`]). A scene that does not
+    /// cut has none to run.
+    pub fn set_recut_runner(&mut self, runner: Box<dyn RecutRunner>) {
+        if let Some(tracker) = &mut self.incisions {
+            tracker.set_runner(runner);
+        }
     }
 
     /// The latest local force model for the haptic loop.

@@ -6,7 +6,7 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
-use super::recut_worker::PrecomputedRows;
+use super::recut::PrecomputedRows;
 use std::sync::Arc;
 
 use crate::cut::incision::corners_of_kind;

@@ -1,21 +1,23 @@
-//! The incision's re-cut off the simulation thread.
+//! The incision's re-cut, handed out of the simulation.
 //!
 //! A stroke's incision is recomputed from the surface as it was when the stroke started
 //! (`incision`). That re-cut grows with the wound: 7–17 ms on the cerebroma's 60 mm cut, a
 //! tick's whole budget many times over, every 2 mm of travel. Its inputs are the tracker's
-//! own (the base surface and the path), so it runs on a worker thread while the simulation
-//! goes on, and its result is applied a fixed number of ticks later
-//! ([`RECUT_HANDOVER_TICKS`]). Fixed, not "when it is ready": a run is then the same bits
-//! whatever the machine's timing (the journal's replay and the cut regression rely on it).
-//! A result not ready when due is waited for: a late tick, never a different run.
+//! own (the base surface and the path), so it can run elsewhere while the simulation goes
+//! on: the simulation hands each [`RecutJob`] to its [`RecutRunner`] when the stroke asks for
+//! it, and takes the [`RecutResult`] a fixed number of ticks later
+//! ([`RECUT_HANDOVER_TICKS`]), or at the next stroke's start. Fixed, not "when it is
+//! ready": a run is then the same bits whatever the machine's timing (the journal's replay
+//! and the cut regression rely on it). Where the runner's result is not ready when due, the
+//! runner waits for it: a late tick, never a different run.
 //!
-//! The thread is spawned with the simulation (`Simulation::new`), before the station sets
-//! real-time scheduling on its threads, so it runs under the normal scheduler, on any CPU:
-//! a SCHED_FIFO thread pinned beside the simulation would take that CPU from it for the
-//! whole re-cut. It ends when the simulation is dropped.
+//! The core owns no thread (it is sans-IO): the runner is the caller's. [`InlineRecuts`],
+//! the default, runs each job on the simulation's own thread when its result is due; the
+//! station's simulation thread and the offline tools hand the core a worker thread of
+//! their own (`scalpel_server::recut_worker`).
 
+use std::collections::VecDeque;
 use std::sync::Arc;
-use std::time::Duration;
 
 use crate::cut::{
     FaceKind, IncisionParams, PathSample, SIGMA_ROOM, StrokeOutcome, Wound, open_stroke,
@@ -25,7 +27,6 @@ use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
 use super::incision::StrokeSamples;
-use super::parking_channel::{ParkingReceiver, ParkingSender, parking_channel};
 use super::surface::SurfaceIndex;
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
@@ -103,14 +104,15 @@ pub(crate) struct SigmaSnapshot {
 }
 
 /// One re-cut: the stroke's path opened on its base surface, and the embedding rows of its
-/// new vertices against Σ as it was asked for.
-pub(crate) struct RecutJob {
-    pub shape: Arc<BaseShape>,
+/// new vertices against Σ as it was asked for. Run it on any thread ([`RecutJob::run`])
+/// and hand the result to the [`RecutRunner`]'s caller in the order the jobs came.
+pub struct RecutJob {
+    pub(crate) shape: Arc<BaseShape>,
     /// The stroke as sampled; its path on the base surface is resolved by the job.
-    pub stroke: StrokeSamples,
-    pub margin: f64,
-    pub params: IncisionParams,
-    pub embed: Option<(Arc<RestSpace>, SigmaSnapshot)>,
+    pub(crate) stroke: StrokeSamples,
+    pub(crate) margin: f64,
+    pub(crate) params: IncisionParams,
+    pub(crate) embed: Option<(Arc<RestSpace>, SigmaSnapshot)>,
 }
 
 /// What a job copies from the simulation thread (its samples and Σ), handed back with
@@ -136,24 +138,24 @@ impl JobBuffers {
 }
 
 /// A re-cut's result.
-pub(crate) struct Recut {
-    pub outcome: StrokeOutcome,
+pub struct RecutResult {
+    pub(crate) outcome: StrokeOutcome,
     /// Per vertex of the new surface, for the new ones (no `source`): its embedding row
     /// over the body's points against the first `sigma_seen` triangles of Σ.
-    pub rows: Option<PrecomputedRows>,
+    pub(crate) rows: Option<PrecomputedRows>,
     /// The new surface's index, made beside the rows.
-    pub index: Option<SurfaceIndex>,
+    pub(crate) index: Option<SurfaceIndex>,
     /// The job's buffers, for the next job.
-    pub spent: JobBuffers,
+    pub(crate) spent: JobBuffers,
     /// The incised surface's wounds, taken out of it and shared (made here, off the
     /// simulation thread; none when nothing was incised).
-    pub wounds: Arc<Vec<Wound>>,
+    pub(crate) wounds: Arc<Vec<Wound>>,
 }
 
 /// New vertices' embedding rows computed before they land.
 pub struct PrecomputedRows {
-    pub rows: Vec<Option<Vec<(u32, f64)>>>,
-    pub sigma_seen: usize,
+    pub(crate) rows: Vec<Option<Vec<(u32, f64)>>>,
+    pub(crate) sigma_seen: usize,
 }
 
 impl PrecomputedRows {
@@ -182,8 +184,8 @@ impl PrecomputedRows {
 impl RecutJob {
     /// Computes the re-cut (on whichever thread calls it) and hands the job's buffers back
     /// with it.
-    pub fn finish(self) -> Recut {
-        let mut recut = self.run();
+    pub fn run(self) -> RecutResult {
+        let mut recut = self.compute();
         recut.spent = JobBuffers {
             samples: self.stroke.samples,
             sigma: self.embed.map(|(_, sigma)| sigma).unwrap_or_default(),
@@ -191,7 +193,7 @@ impl RecutJob {
         recut
     }
 
-    fn run(&self) -> Recut {
+    fn compute(&self) -> RecutResult {
         let path = self.stroke.path(&self.shape.mesh, &self.shape.kinds);
         let mut outcome = open_stroke(
             &self.shape.mesh,
@@ -233,7 +235,7 @@ impl RecutJob {
             }),
             _ => None,
         };
-        Recut {
+        RecutResult {
             outcome,
             rows,
             index,
@@ -243,54 +245,46 @@ impl RecutJob {
     }
 }
 
-/// The worker thread: one job at a time. Both hand-offs park instead of blocking in a
-/// channel (`parking_channel`): neither side locks or allocates when it sends or waits.
-pub(crate) struct RecutWorker {
-    jobs: ParkingSender<RecutJob>,
-    done: ParkingReceiver<Recut>,
+/// Where a simulation's re-cuts run. The simulation [`start`](RecutRunner::start)s a job when
+/// a stroke asks for one and [`finish`](RecutRunner::finish)es the oldest when its tick comes
+/// (results in the order the jobs came). Neither may allocate or lock on the calling thread
+/// after warm-up: it is the simulation's, on the real-time path.
+pub trait RecutRunner: Send {
+    /// Takes `job` (to run it on whichever thread the runner has).
+    fn start(&mut self, job: RecutJob);
+    /// The result of the oldest job taken and not yet finished, waiting for it if need be
+    /// (then `waited` is set); `None` if the runner lost it (its thread died on it: the
+    /// surface then stays as it was).
+    fn finish(&mut self, waited: &mut bool) -> Option<RecutResult>;
 }
 
-/// The longest a thread waiting for a result stays parked before it looks again: a
-/// backstop for a wake-up that cannot come (the worker died mid-job).
-const PARK_LIMIT: Duration = Duration::from_millis(1);
+/// Jobs the simulation may have out at once: a stroke's end may follow a re-cut still out
+/// with the last one, which supersedes it.
+pub const RECUTS_OUT: usize = 2;
 
-impl RecutWorker {
-    /// Starts the thread; `None` if it cannot be started (the re-cuts then run on the
-    /// simulation thread, as they did before).
-    pub fn spawn() -> Option<Self> {
-        // Room for two: a stroke's last re-cut may follow one it supersedes before the
-        // worker has taken that one, and neither side then waits on the other.
-        let (jobs, inbox) = parking_channel::<RecutJob>(2);
-        let (outbox, done) = parking_channel::<Recut>(2);
-        std::thread::Builder::new()
-            .name("scalpel-recut".into())
-            .spawn(move || {
-                // Ends when the tracker (and with it `jobs`) is dropped.
-                while let Some(job) = inbox.recv(None, &mut false) {
-                    if outbox.send(job.finish()).is_err() {
-                        break;
-                    }
-                }
-            })
-            .ok()?;
-        Some(Self { jobs, done })
+/// The default runner: each job runs on the simulation's own thread when its result is
+/// due (the tick that lands it does the re-cut's work too).
+#[derive(Default)]
+pub struct InlineRecuts {
+    jobs: VecDeque<RecutJob>,
+}
+
+impl InlineRecuts {
+    /// A runner with room for the jobs a simulation has out at once.
+    pub fn new() -> Self {
+        Self {
+            jobs: VecDeque::with_capacity(RECUTS_OUT),
+        }
+    }
+}
+
+impl RecutRunner for InlineRecuts {
+    fn start(&mut self, job: RecutJob) {
+        self.jobs.push_back(job);
     }
 
-    /// Hands a job over. Gives it back if the worker is gone.
-    pub fn send(&self, job: RecutJob) -> Result<(), Box<RecutJob>> {
-        // (Boxed on the way back only: the worker is gone, a one-off.)
-        self.jobs.send(job).map_err(Box::new)
-    }
-
-    /// The result of the oldest job not yet read, waiting for it if need be (counted in
-    /// `waits`); `None` if the worker died on it (a panic in the re-cut: the surface stays
-    /// as it was). The first thread to wait is the one the worker wakes (the
-    /// simulation's, which owns the tracker from its first tick on).
-    pub fn wait(&self, waits: &mut usize) -> Option<Recut> {
-        let mut waited = false;
-        let recut = self.done.recv(Some(PARK_LIMIT), &mut waited);
-        *waits += usize::from(waited);
-        recut
+    fn finish(&mut self, _waited: &mut bool) -> Option<RecutResult> {
+        self.jobs.pop_front().map(RecutJob::run)
     }
 }
 

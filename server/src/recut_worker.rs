@@ -1,0 +1,127 @@
+//! The re-cut worker: a thread of the station's own that runs the simulation's re-cuts
+//! (`scalpel_sim::pipeline::recut`) while the simulation goes on.
+//!
+//! Both hand-offs are SPSC rings (rtrb) with park/unpark: the simulation thread pushes a job
+//! and unparks the worker; the worker pushes the result and unparks the thread waiting for
+//! it. Neither side locks or allocates when it hands over or waits (std's channel allocated
+//! its wait context the first time the simulation thread blocked in it). The worker is
+//! spawned with the simulation, before the station sets real-time scheduling on its threads,
+//! so it runs under the normal scheduler, on any CPU: a SCHED_FIFO thread pinned beside the
+//! simulation would take that CPU from it for the whole re-cut. It ends when the simulation
+//! (which owns this runner) is dropped.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::thread::{JoinHandle, Thread};
+use std::time::Duration;
+
+use scalpel_sim::pipeline::recut::RECUTS_OUT;
+use scalpel_sim::pipeline::{RecutJob, RecutResult, RecutRunner};
+
+/// The longest a thread waiting for a result stays parked before it looks again: a
+/// backstop for a wake-up that cannot come (the worker died mid-job).
+const PARK_LIMIT: Duration = Duration::from_millis(1);
+
+/// Jobs and results in flight at most (the simulation has [`RECUTS_OUT`] out at once;
+/// room for more, so a push never fails).
+const RING: usize = 2 * RECUTS_OUT;
+
+/// The runner the simulation holds.
+pub struct WorkerRecuts {
+    jobs: rtrb::Producer<RecutJob>,
+    results: rtrb::Consumer<RecutResult>,
+    /// The thread that waits for results (the simulation's, set when it first waits).
+    waiter: Arc<OnceLock<Thread>>,
+    stop: Arc<AtomicBool>,
+    worker: Option<JoinHandle<()>>,
+}
+
+impl WorkerRecuts {
+    /// Starts the worker thread; `None` if it cannot be started (the simulation then keeps
+    /// its inline runner).
+    pub fn spawn() -> Option<Self> {
+        let (jobs, mut inbox) = rtrb::RingBuffer::<RecutJob>::new(RING);
+        let (mut outbox, results) = rtrb::RingBuffer::<RecutResult>::new(RING);
+        let waiter: Arc<OnceLock<Thread>> = Arc::default();
+        let stop = Arc::new(AtomicBool::new(false));
+        let worker = {
+            let (waiter, stop) = (waiter.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("scalpel-recut".into())
+                .spawn(move || {
+                    loop {
+                        while let Ok(job) = inbox.pop() {
+                            let result = job.run();
+                            // Room for every job's result: the simulation reads them as
+                            // they are due, and never has more than RECUTS_OUT out.
+                            if outbox.push(result).is_err() {
+                                return;
+                            }
+                            if let Some(t) = waiter.get() {
+                                t.unpark();
+                            }
+                        }
+                        if stop.load(Ordering::Acquire) {
+                            return;
+                        }
+                        std::thread::park();
+                    }
+                })
+                .ok()?
+        };
+        Some(Self {
+            jobs,
+            results,
+            waiter,
+            stop,
+            worker: Some(worker),
+        })
+    }
+
+    fn wake_worker(&self) {
+        if let Some(w) = &self.worker {
+            w.thread().unpark();
+        }
+    }
+}
+
+impl RecutRunner for WorkerRecuts {
+    fn start(&mut self, job: RecutJob) {
+        // The ring has room for twice what the simulation has out: a push cannot fail.
+        let pushed = self.jobs.push(job);
+        debug_assert!(pushed.is_ok(), "more re-cuts out than the ring holds");
+        self.wake_worker();
+    }
+
+    fn finish(&mut self, waited: &mut bool) -> Option<RecutResult> {
+        self.waiter.get_or_init(std::thread::current);
+        loop {
+            if let Ok(result) = self.results.pop() {
+                return Some(result);
+            }
+            // A worker that ended (a panic in a re-cut) sends nothing more.
+            if self.worker.as_ref().is_none_or(JoinHandle::is_finished) {
+                return self.results.pop().ok();
+            }
+            *waited = true;
+            std::thread::park_timeout(PARK_LIMIT);
+        }
+    }
+}
+
+impl Drop for WorkerRecuts {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        self.wake_worker();
+        if let Some(w) = self.worker.take() {
+            let _ = w.join();
+        }
+    }
+}
+
+/// `sim`'s re-cuts on a worker of their own (kept inline if the thread cannot start).
+pub fn attach(sim: &mut scalpel_sim::pipeline::Simulation) {
+    if let Some(worker) = WorkerRecuts::spawn() {
+        sim.set_recut_runner(Box::new(worker));
+    }
+}
