@@ -24,10 +24,16 @@ fn model(name: &str) -> CoupledModel {
 fn solver(model: &CoupledModel, mode: SolverMode, threads: usize) -> Solver {
     let config = SolverConfig {
         mode,
-        threads,
         ..SolverConfig::default()
     };
     let mut solver = Solver::for_model(model, &Material::LIVER, config);
+    if threads > 1 {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a pool");
+        solver.use_pool(std::sync::Arc::new(pool));
+    }
     let s = model.lattice.spacing;
     let p: Vec<Vec3> = model
         .points
@@ -67,7 +73,7 @@ fn force_evaluation_pair_kernels(c: &mut Criterion) {
 }
 
 /// The force evaluation split over two threads (rayon), measured from inside a pool of two
-/// as the solver runs it (`SolverConfig::threads = 2`). Meaningful on a machine with two
+/// as the solver runs it (`Solver::use_pool` with a pool of two). Meaningful on a machine with two
 /// free cores.
 fn force_evaluation_two_threads(c: &mut Criterion) {
     force_evaluation_with(

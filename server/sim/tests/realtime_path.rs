@@ -272,17 +272,23 @@ fn changing_youngs_modulus_matches_a_solver_built_with_it_and_does_not_allocate(
     }
 }
 
-/// The optional two-thread force evaluation (rayon, `SolverConfig::threads`) gives the serial
-/// run's bits, on the whole body and on an active region.
+/// The optional two-thread force evaluation (a caller's rayon pool, `Solver::use_pool`) gives
+/// the serial run's bits, on the whole body and on an active region.
 #[test]
 fn two_threads_give_the_serial_bits() {
     let model = model("liver");
+    let pooled = |solver: &mut Solver, threads: usize| {
+        if threads > 1 {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            solver.use_pool(std::sync::Arc::new(pool));
+        }
+    };
     let run = |threads: usize, region: bool| {
-        let config = SolverConfig {
-            threads,
-            ..SolverConfig::default()
-        };
-        let mut solver = prepared_from(&model, &Material::LIVER, config);
+        let mut solver = prepared_from(&model, &Material::LIVER, SolverConfig::default());
+        pooled(&mut solver, threads);
         if region {
             let some: Vec<u32> = (0..model.points.len() as u32).step_by(3).collect();
             solver.set_active(&some);
@@ -300,11 +306,8 @@ fn two_threads_give_the_serial_bits() {
     // Outside a tick (here `elastic_forces`) the evaluation goes into the solver's pool too,
     // with the same bits.
     let forces = |threads: usize| {
-        let config = SolverConfig {
-            threads,
-            ..SolverConfig::default()
-        };
-        let mut solver = prepared_from(&model, &Material::LIVER, config);
+        let mut solver = prepared_from(&model, &Material::LIVER, SolverConfig::default());
+        pooled(&mut solver, threads);
         let (f, _) = solver.elastic_forces();
         f.iter()
             .flat_map(|g| g.iter().map(|x| x.to_bits()))

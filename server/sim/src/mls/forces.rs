@@ -250,6 +250,11 @@ impl ForceScratch {
         self
     }
 
+    /// Where the evaluation's parts run from now on.
+    pub fn set_threads(&mut self, threads: Threads) {
+        self.threads = threads;
+    }
+
     fn resize(&mut self, n: usize) {
         if self.pos4.len() == n {
             return;
@@ -587,6 +592,7 @@ pub fn add_elastic_forces(
             shared.part(runs_a, points_a, part_a),
             shared.part(runs_b, points_b, part_b),
         ),
+        #[cfg(feature = "parallel")]
         Threads::Rayon => rayon::join(
             || shared.part(runs_a, points_a, part_a),
             || shared.part(runs_b, points_b, part_b),
@@ -648,6 +654,7 @@ pub enum Threads {
     One,
     /// As a `rayon::join`: in parallel when called inside a rayon pool with a free thread.
     /// The caller waits on rayon's latch, so this is for machines with a core to spare.
+    #[cfg(feature = "parallel")]
     Rayon,
 }
 

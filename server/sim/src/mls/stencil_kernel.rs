@@ -533,6 +533,7 @@ fn both<A: Send, B: Send>(
 ) -> (A, B) {
     match threads {
         Threads::One => (a(), b()),
+        #[cfg(feature = "parallel")]
         Threads::Rayon => rayon::join(a, b),
     }
 }

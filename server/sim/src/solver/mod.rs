@@ -92,13 +92,6 @@ pub struct SolverConfig {
     pub projective_iterations: u32,
     /// Relative residual at which a static solve stops.
     pub static_tolerance: f64,
-    /// Threads for the explicit force evaluation: 1 (default) keeps the simulation thread
-    /// free of waiting; 2 runs the two halves in a rayon pool of the solver's own, with the
-    /// same results bit for bit (the halves are summed the same way either way). For
-    /// offline runs and benches: the tick then runs on the pool's threads, which get neither
-    /// the station's SCHED_FIFO priority nor its locked memory, and the caller waits on
-    /// rayon's latch — so the station does not offer it.
-    pub threads: usize,
 }
 
 impl Default for SolverConfig {
@@ -120,7 +113,6 @@ impl Default for SolverConfig {
             mass_scaling_budget: 0.01,
             projective_iterations: 10,
             static_tolerance: 1e-9,
-            threads: 1,
         }
     }
 }
@@ -164,7 +156,8 @@ pub const OMEGA_SQ_CAP_OVER_UNCUT: f64 = 2.0;
 
 /// The simulated body and everything needed to advance it.
 pub struct Solver {
-    /// The force evaluation's threads when `config.threads > 1`.
+    /// The caller's pool for the force evaluation's halves (`use_pool`).
+    #[cfg(feature = "parallel")]
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
     config: SolverConfig,
     params: ElasticParams,
@@ -368,13 +361,6 @@ impl Solver {
         };
         let op = MlsOperator::build(rest, neighbours, &kernel, lattice);
         let zeros = vec![Vec3::zeros(); n];
-        // The split follows the pool actually built (none if the system refused threads).
-        let pool = thread_pool(config.threads);
-        let threads = if pool.is_some() {
-            Threads::Rayon
-        } else {
-            Threads::One
-        };
         let mut solver = Self {
             config,
             params,
@@ -398,8 +384,9 @@ impl Solver {
             target: rest.to_vec(),
             external: zeros.clone(),
             force: zeros.clone(),
-            force_scratch: ForceScratch::new(n).with_threads(threads),
-            pool,
+            force_scratch: ForceScratch::new(n).with_threads(Threads::One),
+            #[cfg(feature = "parallel")]
+            pool: None,
             active_list: (0..n as u32).collect(),
             retired: Vec::with_capacity(n),
             fixed_active: Vec::with_capacity(n),
@@ -452,12 +439,24 @@ impl Solver {
     /// Advances one tick of `dt` seconds. Never fails: trouble is reported in the returned
     /// report and as events, and the state stays finite.
     pub fn step(&mut self, dt: f64) -> StepReport {
-        match self.pool.clone() {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pool.clone() {
             // The whole tick runs on a pool thread, so the force evaluation's join finds its
             // pool (no per-evaluation hand-over from outside).
-            Some(pool) => pool.install(|| self.step_here(dt)),
-            None => self.step_here(dt),
+            return pool.install(|| self.step_here(dt));
         }
+        self.step_here(dt)
+    }
+
+    /// The explicit force evaluation's two halves run in parallel on `pool` from now on,
+    /// with the same results bit for bit (the halves are summed the same way either way).
+    /// The pool is the caller's: the core makes none. For offline runs and benches: the
+    /// tick then runs on the pool's threads, which get neither the station's SCHED_FIFO
+    /// priority nor its locked memory, and the caller waits on rayon's latch.
+    #[cfg(feature = "parallel")]
+    pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
+        self.pool = Some(pool);
+        self.force_scratch.set_threads(Threads::Rayon);
     }
 
     fn step_here(&mut self, dt: f64) -> StepReport {
@@ -1006,29 +1005,18 @@ impl Solver {
                 &mut self.force_scratch,
             )
         };
+        #[cfg(feature = "parallel")]
         let stats = match &self.pool {
             // Called from outside a tick (a static solve, `elastic_forces`): into the
-            // solver's own pool, not rayon's global one.
+            // caller's pool, not rayon's global one.
             Some(pool) if pool.current_thread_index().is_none() => pool.install(evaluate),
             _ => evaluate(),
         };
+        #[cfg(not(feature = "parallel"))]
+        let stats = evaluate();
         self.slaves.hand_back(out);
         stats
     }
-}
-
-/// A pool of `threads` workers, or none for one thread (or if the system refuses threads:
-/// the evaluation then runs on the caller, with the same results).
-fn thread_pool(threads: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
-    if threads <= 1 {
-        return None;
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .thread_name(|k| format!("scalpel-sim-{k}"))
-        .build()
-        .ok()
-        .map(std::sync::Arc::new)
 }
 
 fn kinetic_energy(mass: &[f64], v: &[Vec3], fixed: &[[bool; 3]]) -> f64 {
