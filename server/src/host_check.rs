@@ -251,7 +251,7 @@ fn simulation_check(
     scene: Option<&scalpel_sim::scene::BuiltScene>,
     script: Option<CutScript>,
 ) -> Check {
-    use scalpel_sim::pipeline::{SIMULATION_TICK_S, Unobserved};
+    use scalpel_sim::pipeline::{NoClock, SIMULATION_TICK_S};
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::{Duration, Instant};
     let Some(scene) = scene else {
@@ -281,13 +281,13 @@ fn simulation_check(
                 if stop.load(Ordering::Relaxed) {
                     return;
                 }
-                sim.set_tool(
+                sim.handle_tool_pose(
                     script
                         .as_ref()
                         .map(|s| s.pose_at(k as f64 * SIMULATION_TICK_S)),
                 );
                 let tick = Instant::now();
-                let report = sim.tick(SIMULATION_TICK_S, &mut Unobserved);
+                let report = sim.tick(SIMULATION_TICK_S, &mut NoClock);
                 let timed = TimedTick {
                     wall_ms: tick.elapsed().as_secs_f64() * 1e3,
                     substeps: report.solver.substeps,

@@ -30,7 +30,7 @@ use anyhow::{Context, bail};
 use nalgebra::{Quaternion, UnitQuaternion};
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{Simulation, Unobserved};
+use scalpel_sim::pipeline::{NoClock, Simulation};
 use scalpel_sim::scene::BuiltScene;
 
 /// Format version written on the first line.
@@ -45,6 +45,18 @@ pub struct TickRecord {
     pub pose: Option<ToolPose>,
     /// A new tissue stiffness factor (an instructor's fault), set before the tick.
     pub stiffness: Option<f64>,
+}
+
+impl TickRecord {
+    /// Gives `sim` this tick's inputs (the stiffness change, then the pose), as the station's
+    /// simulation thread does before it ticks and as a replay does: the one path both take,
+    /// so that a replay is the live run by construction.
+    pub fn apply_to(&self, sim: &mut Simulation) {
+        if let Some(k) = self.stiffness {
+            sim.handle_stiffness_factor(k);
+        }
+        sim.handle_tool_pose(self.pose);
+    }
 }
 
 /// The header lines for a session on `scene` with the server configuration `config` (TOML).
@@ -334,11 +346,8 @@ pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
     // material then, before any stiffness fault).
     sim.prepare(crate::station::SIM_TICK_S);
     for r in &journal.ticks {
-        if let Some(k) = r.stiffness {
-            sim.set_stiffness_factor(k);
-        }
-        sim.set_tool(r.pose);
-        sim.tick(crate::station::SIM_TICK_S, &mut Unobserved);
+        r.apply_to(&mut sim);
+        sim.tick(crate::station::SIM_TICK_S, &mut NoClock);
     }
     sim.state_hash()
 }

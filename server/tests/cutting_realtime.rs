@@ -38,7 +38,7 @@ struct CutAllocations {
 /// A cut on `scene` (the default stroke, or a lab session of `strokes` strokes), counting
 /// each tick's allocations after warm-up by what the tick did.
 fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
-    use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
+    use scalpel_sim::pipeline::{CutScript, NoClock, Simulation};
     let mut spec = builtin(scene).unwrap();
     spec.features.cutting = true;
     let scene = build_scene(&spec, None, &mut Silent).unwrap();
@@ -60,13 +60,13 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
             .map_or((0, 0, 0), |s| (s.runs, s.strokes, s.late_recuts))
     };
     for k in 0..ticks {
-        sim.set_tool(Some(script.pose_at(k as f64 * 1e-3)));
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * 1e-3)));
         let triangles = sim.surface().triangles.len();
         let (runs, begun, late) = stats(&sim);
         // Virtual points still to be placed after a re-mesh (a few a tick).
         let placing = sim.virtual_points().is_some_and(|v| v.has_pending());
         let before = allocations();
-        let report = sim.tick(1e-3, &mut Unobserved);
+        let report = sim.tick(1e-3, &mut NoClock);
         let during = allocations() - before;
         if k < warm_up {
             continue;

@@ -238,7 +238,7 @@ fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
     use scalpel_client::frames::FrameReader;
     use scalpel_proto::shm;
     use scalpel_server::frames::{FrameInfo, FramePublisher};
-    use scalpel_sim::pipeline::{Simulation, Unobserved};
+    use scalpel_sim::pipeline::{NoClock, Simulation};
 
     shm::quiet_logging();
     let station = format!("t-frame-cost-{}", std::process::id());
@@ -252,8 +252,8 @@ fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
     // Through the press and seconds of cutting: the surface the frames carry is incised.
     let uncut = sim.current_surface().mesh.triangles.len();
     for k in 0..8000 {
-        sim.set_tool(Some(script.pose_at(k as f64 * 1e-3)));
-        sim.tick(1e-3, &mut Unobserved);
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * 1e-3)));
+        sim.tick(1e-3, &mut NoClock);
     }
     assert!(sim.current_surface().mesh.triangles.len() > uncut);
     let info = FrameInfo {

@@ -6,7 +6,7 @@ use std::time::Instant;
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{CutScript, Simulation, Stage, StageObserver};
+use scalpel_sim::pipeline::{CutScript, Half, Simulation, Stage, StageClock};
 use scalpel_sim::scene::BuiltScene;
 use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
@@ -39,6 +39,8 @@ pub struct TickRow {
     pub surface_ms: f64,
     /// Internal stage time (ms).
     pub internal_ms: f64,
+    /// Each stage's time (ms), in [`Stage::ALL`]'s order.
+    pub stage_ms: [f64; Stage::ALL.len()],
     /// Points integrated.
     pub active_points: usize,
     /// The solver could not stabilise the tick (state restored, velocities zeroed).
@@ -49,27 +51,18 @@ pub struct TickRow {
     pub substeps: u32,
 }
 
-/// Measures the two stages of each tick.
-#[derive(Default)]
-struct StageClock {
-    started: Option<Instant>,
-    surface_s: f64,
-    internal_s: f64,
+/// The wall clock the simulation times its stages with.
+pub struct WallClock(Instant);
+
+impl Default for WallClock {
+    fn default() -> Self {
+        Self(Instant::now())
+    }
 }
 
-impl StageObserver for StageClock {
-    fn enter(&mut self, _stage: Stage) {
-        self.started = Some(Instant::now());
-    }
-
-    fn leave(&mut self, stage: Stage) {
-        if let Some(t0) = self.started.take() {
-            let dt = t0.elapsed().as_secs_f64();
-            match stage {
-                Stage::Surface => self.surface_s += dt,
-                Stage::Internal => self.internal_s += dt,
-            }
-        }
+impl StageClock for WallClock {
+    fn now_s(&mut self) -> f64 {
+        self.0.elapsed().as_secs_f64()
     }
 }
 
@@ -95,9 +88,9 @@ pub fn run_cut(
     let mut rows = Vec::with_capacity(ticks);
     let mut travel = 0.0;
     let mut last_tip: Option<Vec3> = None;
+    let mut clock = WallClock::default();
     for k in 0..ticks {
-        sim.set_tool(Some(script.pose_at(k as f64 * TICK_S)));
-        let mut clock = StageClock::default();
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * TICK_S)));
         let report = sim.tick(TICK_S, &mut clock);
         // Where the blade went: a script's tip is checked against the blade's speed, but it
         // may turn faster than the blade follows.
@@ -121,8 +114,9 @@ pub fn run_cut(
             stroking: direction.norm() > 0.0
                 && direction.dot(&edge).abs() < 0.5
                 && !cut.is_some_and(|c| c.withdrawing),
-            surface_ms: clock.surface_s * 1e3,
-            internal_ms: clock.internal_s * 1e3,
+            surface_ms: report.stages.half(Half::Surface) * 1e3,
+            internal_ms: report.stages.half(Half::Internal) * 1e3,
+            stage_ms: Stage::ALL.map(|st| report.stages.of(st) * 1e3),
             active_points: report.active_points,
             diverged: report.solver.diverged,
             rollbacks: report.solver.rollbacks,
@@ -181,6 +175,8 @@ pub struct CutMetrics {
     pub internal_ms: Quantiles,
     /// Both stages per cut step (ms).
     pub total_ms: Quantiles,
+    /// Each stage of the tick (`Stage::name`), over the same ticks (ms).
+    pub stages_ms: std::collections::BTreeMap<&'static str, Quantiles>,
     /// Largest turn between consecutive lip segments (degrees).
     pub lip_max_turn_deg: Option<f64>,
     /// Smallest angle of the remeshed triangles (degrees).
@@ -339,6 +335,14 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         surface_ms: Quantiles::of(&surface),
         internal_ms: Quantiles::of(&internal),
         total_ms: Quantiles::of(&total),
+        stages_ms: Stage::ALL
+            .iter()
+            .enumerate()
+            .map(|(k, st)| {
+                let v: Vec<f64> = cut_rows.iter().map(|r| r.stage_ms[k]).collect();
+                (st.name(), Quantiles::of(&v))
+            })
+            .collect(),
         lip_max_turn_deg: opened.then_some(incisions.lip_max_turn_deg),
         min_angle_deg: opened.then_some(incisions.min_angle_deg),
         wall_depth_mm: opened.then(|| {

@@ -18,7 +18,7 @@ use std::path::PathBuf;
 
 use scalpel_sim::cut::FaceKind;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{CutScript, SIMULATION_TICK_S, Simulation, Unobserved};
+use scalpel_sim::pipeline::{CutScript, NoClock, SIMULATION_TICK_S, Simulation};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{build_scene, builtin};
 use serde::{Deserialize, Serialize};
@@ -150,8 +150,8 @@ fn run_cut(scene_name: &str, cut: Cut) -> CutReference {
     let mut snapshots = Vec::new();
     let mut ruptures = 0;
     for k in 0..ticks {
-        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
-        let report = sim.tick(dt, &mut Unobserved);
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * dt)));
+        let report = sim.tick(dt, &mut NoClock);
         let ruptured = report.cut.as_ref().is_some_and(|c| c.force.ruptured);
         ruptures += usize::from(ruptured);
         if k % FORCE_EVERY_TICKS == 0 {

@@ -4,7 +4,7 @@ use scalpel_sim::cut::{FaceKind, segment_meets_triangle};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
+use scalpel_sim::pipeline::{CutScript, NoClock, Simulation};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{BuiltScene, build_scene, builtin};
 
@@ -28,8 +28,8 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     let mut max_active = 0;
     let mut most_substeps = 0;
     for k in 0..ticks {
-        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
-        let r = sim.tick(dt, &mut Unobserved);
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * dt)));
+        let r = sim.tick(dt, &mut NoClock);
         let cut = r.cut.as_ref().unwrap();
         assert!(r.tool_force_n.iter().all(|c| c.is_finite()));
         assert!(r.tool_force_n.norm() <= spec.force.max_force_n + 1e-12);
@@ -248,9 +248,9 @@ fn re_cuts_land_a_fixed_number_of_ticks_after_they_are_asked_for() {
     let mut was_cutting = false;
     let mut left_at = None;
     for k in 0..script.tick_count(dt) as u64 {
-        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * dt)));
         let runs = sim.incisions().unwrap().runs;
-        let r = sim.tick(dt, &mut Unobserved);
+        let r = sim.tick(dt, &mut NoClock);
         let cutting = r.cut.as_ref().unwrap().force.phase == CutPhase::Cutting;
         if sim.incisions().unwrap().runs > runs {
             asked.push(k);
@@ -304,10 +304,10 @@ fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
     };
     let (mut landings, mut carried, mut new, mut near_blade, mut moved) = (0, 0, 0, 0, 0);
     for k in 0..script.tick_count(dt) {
-        sim.set_tool(Some(script.pose_at(k as f64 * dt)));
+        sim.handle_tool_pose(Some(script.pose_at(k as f64 * dt)));
         let before = nodes_of(&sim);
         let waiting = sim.virtual_points().unwrap().has_pending();
-        let r = sim.tick(dt, &mut Unobserved);
+        let r = sim.tick(dt, &mut NoClock);
         let cut = r.cut.as_ref().unwrap();
         if !(r.remeshed && cut.force.phase == CutPhase::Cutting) {
             continue;

@@ -12,7 +12,7 @@ use scalpel_sim::cut::{FaceKind, ToolPose};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{CutScript, Keyframe, Simulation, Unobserved};
+use scalpel_sim::pipeline::{CutScript, Keyframe, NoClock, Simulation};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{BuiltScene, ForceSpec, SceneSpec, build_scene, builtin};
 
@@ -117,8 +117,8 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             trace.work_in_j += (-work).max(0.0);
         }
         last_tip = tip;
-        sim.set_tool(pose);
-        let r = sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(pose);
+        let r = sim.tick(TICK_S, &mut NoClock);
         let f = r.tool_force_n;
         assert!(f.iter().all(|c| c.is_finite()), "tick {k}: force {f:?}");
         assert!(
@@ -264,7 +264,7 @@ fn blade_that_starts_and_stops_inside() {
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert!(trace.cutting_ticks > 2000, "{trace:?}");
     // With the blade gone the force is gone and the dent released.
-    let r = sim.tick(TICK_S, &mut Unobserved);
+    let r = sim.tick(TICK_S, &mut NoClock);
     assert_eq!(r.tool_force_n, Vec3::zeros());
     assert_dent_released(&sim);
     assert_sound_surface(&sim);
@@ -322,8 +322,8 @@ fn a_held_dent_keeps_its_surroundings_integrated() {
     let ticks = (s.duration_s() / TICK_S) as usize;
     let (mut held_ticks, mut most_held) = (0, 0);
     for k in 0..=ticks {
-        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
-        sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        sim.tick(TICK_S, &mut NoClock);
         let solver = sim.solver();
         let body = solver.material_points();
         let held: Vec<usize> = (0..body)
@@ -1095,8 +1095,8 @@ fn a_pose_that_is_not_finite_takes_the_tool_away_mid_cut() {
     let mut sim = Simulation::new(&scene);
     sim.prepare(TICK_S);
     for k in 0..1000 {
-        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
-        sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        sim.tick(TICK_S, &mut NoClock);
     }
     let sound = s.pose_at(1.0);
     let nan = nalgebra::Quaternion::new(f64::NAN, 0.0, 0.0, 1.0);
@@ -1117,8 +1117,8 @@ fn a_pose_that_is_not_finite_takes_the_tool_away_mid_cut() {
         },
     ] {
         assert!(!bad.is_sound());
-        sim.set_tool(Some(bad));
-        let r = sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(Some(bad));
+        let r = sim.tick(TICK_S, &mut NoClock);
         assert_eq!(r.tool_force_n, Vec3::zeros());
         assert!(
             sim.solver()
@@ -1134,17 +1134,17 @@ fn a_pose_that_is_not_finite_takes_the_tool_away_mid_cut() {
         tip_m: sound.tip_m + Vec3::new(0.0, 0.03, 0.0),
         ..sound
     };
-    sim.set_tool(Some(jumped));
-    sim.tick(TICK_S, &mut Unobserved);
+    sim.handle_tool_pose(Some(jumped));
+    sim.tick(TICK_S, &mut NoClock);
     // (From the last sound tick, 10 µm short of `sound`.)
     let moved = (sim.blade_pose().unwrap().tip_m - sound.tip_m).norm();
     assert!(moved > 1.9e-3 && moved < 2.1e-3, "{moved} m in a tick");
     // A tool taken away (`None`) and put back appears where it is put.
-    sim.set_tool(None);
-    sim.tick(TICK_S, &mut Unobserved);
+    sim.handle_tool_pose(None);
+    sim.tick(TICK_S, &mut NoClock);
     assert_eq!(sim.blade_pose(), None);
-    sim.set_tool(Some(jumped));
-    sim.tick(TICK_S, &mut Unobserved);
+    sim.handle_tool_pose(Some(jumped));
+    sim.tick(TICK_S, &mut NoClock);
     assert_eq!(sim.blade_pose(), Some(jumped));
     assert_sound_surface(&sim);
 }
@@ -1183,8 +1183,8 @@ fn a_device_pose_that_jumps_is_followed_at_a_hands_speed() {
         if noisy.contains(&k) {
             pose.tip_m += Vec3::new(gauss(), gauss(), gauss()) * 0.020;
         }
-        sim.set_tool(Some(pose));
-        let r = sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(Some(pose));
+        let r = sim.tick(TICK_S, &mut NoClock);
         let blade = sim.blade_pose().expect("a tool");
         if let Some(last) = last_blade {
             let moved = (blade.tip_m - last.tip_m).norm();
@@ -1239,8 +1239,8 @@ fn a_quick_stroke_that_ends_while_a_re_cut_is_in_flight_supersedes_it() {
     let mut sim = Simulation::new(&scene);
     let mut landings = 0;
     for k in 0..s.tick_count(TICK_S) {
-        sim.set_tool(Some(s.pose_at(k as f64 * TICK_S)));
-        let r = sim.tick(TICK_S, &mut Unobserved);
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        let r = sim.tick(TICK_S, &mut NoClock);
         assert!(!r.solver.diverged, "tick {k}");
         landings += usize::from(r.remeshed);
     }

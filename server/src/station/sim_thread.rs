@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{Simulation, Unobserved};
+use scalpel_sim::pipeline::{NoClock, Simulation};
 
 use crate::faults::FaultTable;
 use crate::frames::{FrameInfo, FramePublisher};
@@ -172,12 +172,17 @@ pub(super) fn spawn_sim(
                 );
                 stiffness_asked = effects.stiffness;
                 if let Some(k) = stiffness_change {
-                    sim.set_stiffness_factor(k);
                     stiffness = k;
                     figures.stiffness_factor = k;
                 }
-                let tool = pose.map(|p| p.pose);
-                sim.set_tool(tool);
+                // This tick's inputs, as the journal records them and a replay applies them.
+                let record = TickRecord {
+                    tick: figures.ticks + 1,
+                    // What the simulation takes (only sound poses are latched above).
+                    pose: pose.map(|p| p.pose),
+                    stiffness: stiffness_change,
+                };
+                record.apply_to(&mut sim);
                 // The frame goes out first: it shows the pose just taken (where this tick
                 // puts the blade: the pose itself but for a jump faster than a hand), on the
                 // surface of the last tick (a tick of cutting takes a few hundred
@@ -202,18 +207,12 @@ pub(super) fn spawn_sim(
                         Err(_) => figures.frames_failed += 1,
                     }
                 }
-                if let Some(records) = &mut journal.records {
-                    let record = TickRecord {
-                        tick: figures.ticks + 1,
-                        // What the simulation took (only sound poses are latched above).
-                        pose: tool,
-                        stiffness: stiffness_change,
-                    };
-                    if records.push(record).is_err() {
-                        journal.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
+                if let Some(records) = &mut journal.records
+                    && records.push(record).is_err()
+                {
+                    journal.dropped.fetch_add(1, Ordering::Relaxed);
                 }
-                let report = sim.tick(SIM_TICK_S, &mut Unobserved);
+                let report = sim.tick(SIM_TICK_S, &mut NoClock);
                 // Where the blade went (a pose faster than a hand is followed at a hand's
                 // speed: the cut is as long as the blade's path, not the noise's).
                 let tip = sim.blade_pose().map(|p| p.tip_m);

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use scalpel_sim::model::SpacingRule;
-use scalpel_sim::pipeline::{CutScript, Simulation, Unobserved};
+use scalpel_sim::pipeline::{CutScript, NoClock, Simulation};
 use scalpel_sim::scene::{self, BuiltScene, SceneSpec};
 use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
@@ -268,7 +268,7 @@ pub fn idle(target: &TargetArgs, ticks: usize, json: bool) -> anyhow::Result<()>
         let (mut integrated, mut substeps) = (0, 0);
         for _ in 0..ticks {
             let t0 = Instant::now();
-            let r = sim.tick(TICK_S, &mut Unobserved);
+            let r = sim.tick(TICK_S, &mut NoClock);
             times.push(t0.elapsed().as_secs_f64() * 1e3);
             integrated = r.active_points;
             substeps = r.solver.substeps;

@@ -519,7 +519,7 @@ impl CuttingStage {
             pairs_removed += faded;
             body_pairs_removed += faded;
         }
-        // Unique changed points, all of them awake.
+        // Unique changed points, in the order first seen, refitted and all of them awake.
         let mut write = 0;
         for r in 0..self.changed.len() {
             let i = self.changed[r];
@@ -529,14 +529,12 @@ impl CuttingStage {
             }
         }
         self.changed.truncate(write);
-        for r in 0..self.changed.len() {
-            let i = self.changed[r];
+        for &i in &self.changed {
             self.changed_flag[i as usize] = false;
-            self.wake(i);
         }
-        if !self.changed.is_empty() {
-            solver.topology_changed(&self.changed, neighbours);
-        }
+        let changed = std::mem::take(&mut self.changed);
+        super::apply_topology(&changed, solver, neighbours, |i| self.wake(i));
+        self.changed = changed;
         self.pairs_removed_total += body_pairs_removed;
 
         if let Some(edge) = edge_rest {

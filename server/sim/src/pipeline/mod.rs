@@ -1,15 +1,29 @@
 //! One simulation tick, from the tool pose to the surface the renderers draw.
 //!
+//! [`Simulation`] is the core's whole interface, quinn-proto style: inputs come in as
+//! `handle_*` calls (the tool's pose, a stiffness change), [`Simulation::tick`] advances by
+//! one fixed tick through private stages in one order, and outputs are read or polled (the
+//! [`TickReport`], the local force model, [`Simulation::poll_event`], the surface a frame
+//! writer copies). It reads no clock, spawns no thread and does no I/O: a stage's wall time
+//! is measured with the caller's [`StageClock`], and a stroke's re-cut runs on the caller's
+//! [`RecutRunner`]. The stages, in order ([`Stage`]):
+//!
 //! ```text
-//!   tool pose ─► surface contact (BVH on the current surface)          [surface]
-//!             ─► cutting stage: force, Σ, visibility, affected region  [internal]
-//!             ─► solver step on the awake points                       [internal]
-//!             ─► surface follows the points that moved                 [surface]
+//!   the blade follows the tool at a hand's speed (blade_motion)
+//!   contact           the blade against the current surface (BVH)            [surface]
+//!   interior cut      force model, Σ, visibility, pairs cut, affected region  [internal]
+//!   release vpoints   virtual points near the blade released, rows refitted   [internal]
+//!   integrate         solver step on the awake points                         [internal]
+//!   surface incision  Σ cuts the embedding; the stroke's re-cuts handed out
+//!                     and landed (the drawn surface re-meshed)                [surface]
+//!   place vpoints     virtual points placed on the walls, a few a tick        [surface]
+//!   surface follow    the surface follows the points that moved               [surface]
+//!   force model       the force bounded, the local model for the haptic loop
 //! ```
 //!
-//! Only what the scene uses is built: a scene without cutting has no cutting stage, no tool
-//! contact and no force model, and integrates every point. Timing is the caller's business:
-//! the pipeline reports stage boundaries to a [`StageObserver`] and never reads a clock.
+//! Every topology change (pairs cut by Σ, virtual points released or placed) goes through
+//! one step, [`apply_topology`]. Only what the scene uses is built: a scene without cutting
+//! has no contact, interior cut, incision or force model, and integrates every point.
 
 pub mod blade_motion;
 pub mod cutting;
@@ -26,7 +40,7 @@ use crate::geometry::TriMesh;
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
 use crate::scene::{BuiltScene, SceneSpec};
-use crate::solver::{Solver, SolverConfig, StepReport};
+use crate::solver::{Solver, SolverConfig, SolverEvent, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
 pub use incision::{IncisionStats, IncisionTracker};
@@ -48,28 +62,139 @@ use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
 /// that follow.
 pub const NODES_PER_TICK: usize = 8;
 
-/// The two halves of a tick that Table 1 of the paper reports separately.
+/// The stages of a tick, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stage {
+    /// The blade against the current surface.
+    Contact,
+    /// The cutting stage: force model, Σ, visibility, pairs cut, affected region.
+    InteriorCut,
+    /// Virtual points near the blade released.
+    ReleaseVirtualPoints,
+    /// The solver's step.
+    Integrate,
+    /// Σ cuts the surface's embedding; the stroke's re-cuts handed out and landed.
+    SurfaceIncision,
+    /// Virtual points placed on the walls.
+    PlaceVirtualPoints,
+    /// The surface follows the points.
+    SurfaceFollow,
+    /// The force bounded and the local model made.
+    ForceModel,
+}
+
+impl Stage {
+    /// Every stage, in tick order.
+    pub const ALL: [Stage; 8] = [
+        Stage::Contact,
+        Stage::InteriorCut,
+        Stage::ReleaseVirtualPoints,
+        Stage::Integrate,
+        Stage::SurfaceIncision,
+        Stage::PlaceVirtualPoints,
+        Stage::SurfaceFollow,
+        Stage::ForceModel,
+    ];
+
+    /// Short name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Contact => "contact",
+            Self::InteriorCut => "interior_cut",
+            Self::ReleaseVirtualPoints => "release_virtual_points",
+            Self::Integrate => "integrate",
+            Self::SurfaceIncision => "surface_incision",
+            Self::PlaceVirtualPoints => "place_virtual_points",
+            Self::SurfaceFollow => "surface_follow",
+            Self::ForceModel => "force_model",
+        }
+    }
+
+    /// The half of Table 1 of the paper it counts in (`None`: neither).
+    pub fn half(self) -> Option<Half> {
+        match self {
+            Self::Contact
+            | Self::SurfaceIncision
+            | Self::PlaceVirtualPoints
+            | Self::SurfaceFollow => Some(Half::Surface),
+            Self::InteriorCut | Self::ReleaseVirtualPoints | Self::Integrate => {
+                Some(Half::Internal)
+            }
+            Self::ForceModel => None,
+        }
+    }
+}
+
+/// The two halves of a tick that Table 1 of the paper reports separately.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Half {
     /// Surface work: blade contact, incision, vertices following the points.
     Surface,
     /// Interior work: force model, cut surface, visibility, MLS rows, integration.
     Internal,
 }
 
-/// Told when a stage starts and ends; the caller measures time with it.
-pub trait StageObserver {
-    /// `stage` starts.
-    fn enter(&mut self, _stage: Stage) {}
-    /// `stage` ends.
-    fn leave(&mut self, _stage: Stage) {}
+/// The caller's clock, read at each stage's boundaries (the core reads none itself).
+pub trait StageClock {
+    /// Seconds on any monotonic clock.
+    fn now_s(&mut self) -> f64;
 }
 
-/// An observer that ignores everything.
+/// No clock: every stage's time is zero (the counters cost nothing).
 #[derive(Debug, Default, Clone, Copy)]
-pub struct Unobserved;
+pub struct NoClock;
 
-impl StageObserver for Unobserved {}
+impl StageClock for NoClock {
+    fn now_s(&mut self) -> f64 {
+        0.0
+    }
+}
+
+/// Each stage's wall time in one tick, on the caller's clock (s).
+#[derive(Debug, Default, Clone, Copy, PartialEq)]
+pub struct StageTimes {
+    seconds: [f64; Stage::ALL.len()],
+}
+
+impl StageTimes {
+    /// Stage `stage`'s time (s).
+    pub fn of(&self, stage: Stage) -> f64 {
+        self.seconds[stage as usize]
+    }
+
+    /// The time of the stages in `half` (s).
+    pub fn half(&self, half: Half) -> f64 {
+        Stage::ALL
+            .iter()
+            .filter(|s| s.half() == Some(half))
+            .map(|&s| self.of(s))
+            .sum()
+    }
+}
+
+/// Reads the clock at each stage's end and books the time since the last reading to it.
+struct Laps<'a> {
+    clock: &'a mut dyn StageClock,
+    last_s: f64,
+    times: StageTimes,
+}
+
+impl<'a> Laps<'a> {
+    fn start(clock: &'a mut dyn StageClock) -> Self {
+        let last_s = clock.now_s();
+        Self {
+            clock,
+            last_s,
+            times: StageTimes::default(),
+        }
+    }
+
+    fn lap(&mut self, stage: Stage) {
+        let now = self.clock.now_s();
+        self.times.seconds[stage as usize] += now - self.last_s;
+        self.last_s = now;
+    }
+}
 
 /// What happened in one tick.
 #[derive(Debug, Clone, PartialEq)]
@@ -88,6 +213,8 @@ pub struct TickReport {
     pub remeshed: bool,
     /// The solver's report.
     pub solver: StepReport,
+    /// Each stage's wall time, on the caller's clock.
+    pub stages: StageTimes,
 }
 
 /// A running scene.
@@ -191,7 +318,7 @@ impl Simulation {
     /// Scales the tissue's stiffness to `factor` times the scene's (an instructor's fault):
     /// the solver's Young's modulus (its stable step is re-derived) and the force model's
     /// loading curve and friction. Re-derives constants: call it on a change, not per tick.
-    pub fn set_stiffness_factor(&mut self, factor: f64) {
+    pub fn handle_stiffness_factor(&mut self, factor: f64) {
         self.solver
             .set_youngs_modulus(self.spec.material.youngs_modulus_pa * factor);
         if let Some(stage) = &mut self.cutting {
@@ -205,7 +332,7 @@ impl Simulation {
     /// follows it from where it was at most at [`blade_motion::MAX_BLADE_SPEED_M_PER_S`]; a
     /// tool taken away appears where it is next put (one dropped as unsound goes on from where
     /// it was).
-    pub fn set_tool(&mut self, pose: Option<ToolPose>) {
+    pub fn handle_tool_pose(&mut self, pose: Option<ToolPose>) {
         self.tool = pose.filter(ToolPose::is_sound);
         self.resume_blade = match (pose, self.tool) {
             (Some(_), None) => self.blade_pose.or(self.resume_blade),
@@ -234,99 +361,30 @@ impl Simulation {
         }
     }
 
-    /// Advances by `dt` seconds.
-    pub fn tick(&mut self, dt: f64, observer: &mut dyn StageObserver) -> TickReport {
-        self.blade_pose = self.next_blade_pose(dt);
-        if self.blade_pose.is_some() {
-            self.resume_blade = None;
-        }
-        let blade = self
-            .blade_pose
-            .map(|pose| Blade::at(&pose, &self.spec.tool));
-        let mut cut = None;
-        let mut remeshed = false;
-        if let Some(stage) = &mut self.cutting {
-            observer.enter(Stage::Surface);
-            let contact = match &blade {
-                Some(b) => self.surface.contact(b),
-                None => SurfaceContact::none(),
-            };
-            observer.leave(Stage::Surface);
-            observer.enter(Stage::Internal);
-            let tick = stage.advance(
-                self.time_s + dt,
-                blade.as_ref(),
-                &contact,
-                &self.surface,
-                &mut self.solver,
-                &mut self.neighbours,
-                &self.grid,
-            );
-            if let (Some(vp), Some(edge)) = (&mut self.virtual_points, tick.edge_rest) {
-                self.vp_changed.clear();
-                vp.release_near(
-                    &edge,
-                    stage.affected_radius(),
-                    &mut self.solver,
-                    &mut self.neighbours,
-                    &mut self.vp_changed,
-                );
-                refit_changed(
-                    &mut self.vp_changed,
-                    &mut self.solver,
-                    &self.neighbours,
-                    stage,
-                );
-            }
-            observer.leave(Stage::Internal);
-            cut = Some(tick);
-        }
-        observer.enter(Stage::Internal);
+    /// Advances by `dt` seconds (every caller's tick is [`SIMULATION_TICK_S`]), through the
+    /// stages of the module docs in their order, timing each on `clock`.
+    pub fn tick(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
+        let mut laps = Laps::start(clock);
+        let blade = self.move_blade(dt);
+        let contact = self.contact(&blade);
+        laps.lap(Stage::Contact);
+        let cut = self.interior_cut(dt, blade.as_ref(), &contact);
+        laps.lap(Stage::InteriorCut);
+        self.release_virtual_points(&cut);
+        laps.lap(Stage::ReleaseVirtualPoints);
         let solver = self.solver.step(dt);
-        observer.leave(Stage::Internal);
-        observer.enter(Stage::Surface);
-        if let (Some(stage), Some(tick)) = (&self.cutting, &cut) {
-            for t in tick.new_sigma.clone() {
-                self.surface
-                    .cut_embedding(&stage.sigma.triangles[t], self.solver.rest());
-            }
-            if let Some(tracker) = &mut self.incisions {
-                let edge = tick
-                    .edge_rest
-                    .filter(|_| tick.force.phase == CutPhase::Cutting);
-                remeshed = tracker.update(
-                    edge,
-                    stage.direction(),
-                    tick.withdrawing,
-                    tick.slit_rest,
-                    &mut self.surface,
-                    &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
-                );
-            }
+        laps.lap(Stage::Integrate);
+        let remeshed = self.surface_incision(&cut);
+        laps.lap(Stage::SurfaceIncision);
+        if let Some(tick) = &cut {
             self.place_virtual_points(remeshed, tick.edge_rest, NODES_PER_TICK);
         }
-        let moved = if self.cutting.is_some() {
-            self.solver.active_points()
-        } else {
-            &self.all_points
-        };
-        let vertices_moved = self.surface.follow(
-            self.solver.operator(),
-            self.solver.rest(),
-            self.solver.positions(),
-            moved,
-        );
-        observer.leave(Stage::Surface);
+        laps.lap(Stage::PlaceVirtualPoints);
+        let vertices_moved = self.surface_follow();
+        laps.lap(Stage::SurfaceFollow);
         self.time_s += dt;
-        let tool_force_n = match (&cut, &blade) {
-            (Some(t), Some(b)) => {
-                // Free, the force's direction is zero and so is the model's stiffness.
-                let force = bounded(&t.force, self.spec.force.max_force_n);
-                self.local_model = force.local_model(b.tip);
-                force.force_n
-            }
-            _ => Vec3::zeros(),
-        };
+        let tool_force_n = self.force_model(&cut, &blade);
+        laps.lap(Stage::ForceModel);
         TickReport {
             time_s: self.time_s,
             cut,
@@ -343,7 +401,135 @@ impl Simulation {
             vertices_moved,
             remeshed,
             solver,
+            stages: laps.times,
         }
+    }
+
+    /// The blade follows the tool at a hand's speed.
+    fn move_blade(&mut self, dt: f64) -> Option<Blade> {
+        self.blade_pose = self.next_blade_pose(dt);
+        if self.blade_pose.is_some() {
+            self.resume_blade = None;
+        }
+        self.blade_pose
+            .map(|pose| Blade::at(&pose, &self.spec.tool))
+    }
+
+    /// Stage contact: the blade against the current surface (a scene that cuts).
+    fn contact(&mut self, blade: &Option<Blade>) -> SurfaceContact {
+        match (&self.cutting, blade) {
+            (Some(_), Some(b)) => self.surface.contact(b),
+            _ => SurfaceContact::none(),
+        }
+    }
+
+    /// Stage interior cut: the cutting stage's tick (a scene that cuts).
+    fn interior_cut(
+        &mut self,
+        dt: f64,
+        blade: Option<&Blade>,
+        contact: &SurfaceContact,
+    ) -> Option<CutTick> {
+        let stage = self.cutting.as_mut()?;
+        Some(stage.advance(
+            self.time_s + dt,
+            blade,
+            contact,
+            &self.surface,
+            &mut self.solver,
+            &mut self.neighbours,
+            &self.grid,
+        ))
+    }
+
+    /// Stage release virtual points: those within the affected radius of the blade's edge.
+    fn release_virtual_points(&mut self, cut: &Option<CutTick>) {
+        let (Some(vp), Some(stage), Some(edge)) = (
+            &mut self.virtual_points,
+            &mut self.cutting,
+            cut.as_ref().and_then(|t| t.edge_rest),
+        ) else {
+            return;
+        };
+        self.vp_changed.clear();
+        vp.release_near(
+            &edge,
+            stage.affected_radius(),
+            &mut self.solver,
+            &mut self.neighbours,
+            &mut self.vp_changed,
+        );
+        refit_changed(
+            &mut self.vp_changed,
+            &mut self.solver,
+            &self.neighbours,
+            stage,
+        );
+    }
+
+    /// Stage surface incision: the new Σ triangles cut the surface's embedding, and the
+    /// stroke's tracker samples the path, hands re-cuts out and lands them. Returns whether
+    /// the surface was re-meshed.
+    fn surface_incision(&mut self, cut: &Option<CutTick>) -> bool {
+        let (Some(stage), Some(tick)) = (&self.cutting, cut) else {
+            return false;
+        };
+        for t in tick.new_sigma.clone() {
+            self.surface
+                .cut_embedding(&stage.sigma.triangles[t], self.solver.rest());
+        }
+        let Some(tracker) = &mut self.incisions else {
+            return false;
+        };
+        let edge = tick
+            .edge_rest
+            .filter(|_| tick.force.phase == CutPhase::Cutting);
+        tracker.update(
+            edge,
+            stage.direction(),
+            tick.withdrawing,
+            tick.slit_rest,
+            &mut self.surface,
+            &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
+        )
+    }
+
+    /// Stage surface follow: the surface's vertices follow the points that moved (all of
+    /// them in a scene that does not cut). Returns how many vertices moved.
+    fn surface_follow(&mut self) -> usize {
+        let moved = if self.cutting.is_some() {
+            self.solver.active_points()
+        } else {
+            &self.all_points
+        };
+        self.surface.follow(
+            self.solver.operator(),
+            self.solver.rest(),
+            self.solver.positions(),
+            moved,
+        )
+    }
+
+    /// Stage force model: the force on the tool, bounded, and the local model the haptic
+    /// loop renders until the next tick.
+    fn force_model(&mut self, cut: &Option<CutTick>, blade: &Option<Blade>) -> Vec3 {
+        match (cut, blade) {
+            (Some(t), Some(b)) => {
+                // Free, the force's direction is zero and so is the model's stiffness.
+                let force = bounded(&t.force, self.spec.force.max_force_n);
+                self.local_model = force.local_model(b.tip);
+                force.force_n
+            }
+            _ => Vec3::zeros(),
+        }
+    }
+
+    /// The next thing the simulation reports (solver events: rollbacks, divergence, the
+    /// time step), oldest first; `None` when there is nothing (drain it after each tick: the
+    /// queue has a fixed capacity and drops what does not fit).
+    #[must_use]
+    pub fn poll_event(&mut self) -> Option<SolverEvent> {
+        self.solver.poll_event()
     }
 
     /// Places virtual points on the walls of the surface, none within the affected radius
@@ -506,21 +692,33 @@ fn bounded(force: &CutForce, max_n: f64) -> CutForce {
     f
 }
 
+/// Every topology change goes through here — pairs cut by Σ (the cutting stage), virtual
+/// points released or placed: the points whose neighbour lists changed (`points`, unique)
+/// get new MLS rows, and `wake` wakes each to relax to its new fit.
+pub(crate) fn apply_topology(
+    points: &[u32],
+    solver: &mut Solver,
+    neighbours: &Neighbourhoods,
+    mut wake: impl FnMut(u32),
+) {
+    if points.is_empty() {
+        return;
+    }
+    solver.topology_changed(points, neighbours);
+    for &i in points {
+        wake(i);
+    }
+}
+
 /// The points whose neighbour lists virtual points changed (`changed`, any order, repeats)
-/// get new MLS rows and are woken to relax to their new fits; nothing when none changed.
+/// through [`apply_topology`], sorted.
 fn refit_changed(
     changed: &mut Vec<u32>,
     solver: &mut Solver,
     neighbours: &Neighbourhoods,
     stage: &mut CuttingStage,
 ) {
-    if changed.is_empty() {
-        return;
-    }
     changed.sort_unstable();
     changed.dedup();
-    solver.topology_changed(changed, neighbours);
-    for &i in changed.iter() {
-        stage.wake_point(i);
-    }
+    apply_topology(changed, solver, neighbours, |i| stage.wake_point(i));
 }
