@@ -41,7 +41,7 @@ pub fn too_old(force_age_s: f64) -> bool {
     force_age_s > DEVICE_WATCHDOG_S
 }
 
-pub use crate::frames::monotonic_ns;
+pub use crate::frame_reader::monotonic_ns;
 
 /// How to run the mock device.
 #[derive(Debug, Clone)]

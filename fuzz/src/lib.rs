@@ -68,7 +68,7 @@ pub fn shm_frame(data: &[u8]) {
         force_n: [f32_at(h, 104), f32_at(h, 108), f32_at(h, 112)],
         cut_length_mm: f32_at(h, 116),
     };
-    let _ = scalpel_client::frames::Frame::decode(&header, payload);
+    let _ = scalpel_client::frame_reader::Frame::decode(&header, payload);
 }
 
 /// A mesh file; the first byte picks the format.

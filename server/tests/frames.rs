@@ -4,9 +4,9 @@
 
 use std::time::Duration;
 
-use scalpel_client::frames::FrameReader;
+use scalpel_client::frame_reader::FrameReader;
 use scalpel_proto::shm::{self, FRAME_TOOL_PRESENT, MATERIAL_SURFACE};
-use scalpel_server::frames::{FrameInfo, FramePublisher};
+use scalpel_server::render_frames::{FrameInfo, FramePublisher};
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::Simulation;

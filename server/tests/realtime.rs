@@ -235,9 +235,9 @@ fn a_reconnecting_device_costs_one_receive_of_allocations_then_none() {
 /// on a cut surface too. Frames go out at the frame rate (60 Hz), not every tick.
 #[test]
 fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
-    use scalpel_client::frames::FrameReader;
+    use scalpel_client::frame_reader::FrameReader;
     use scalpel_proto::shm;
-    use scalpel_server::frames::{FrameInfo, FramePublisher};
+    use scalpel_server::render_frames::{FrameInfo, FramePublisher};
     use scalpel_sim::pipeline::{NoClock, Simulation};
 
     shm::quiet_logging();

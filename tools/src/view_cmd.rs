@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use scalpel_client::frames::{Frame, FrameReader};
+use scalpel_client::frame_reader::{Frame, FrameReader};
 use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
 use scalpel_proto::shm::FRAME_TOOL_PRESENT;
 

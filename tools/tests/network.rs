@@ -548,7 +548,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
         .parse()
         .unwrap();
     let station_now =
-        move || scalpel_client::frames::monotonic_ns().saturating_sub(origin_ns) / 1_000_000;
+        move || scalpel_client::frame_reader::monotonic_ns().saturating_sub(origin_ns) / 1_000_000;
 
     // The device: the liver's demo stroke at 3 mm/s (20 s of steady cutting, room for the
     // ten windows), recorded.
@@ -605,7 +605,7 @@ fn every_fault_has_its_documented_effect_and_the_limits_hold() {
     let renderer = {
         let (name, stop) = (name.clone(), stop.clone());
         std::thread::spawn(move || {
-            let mut reader = scalpel_client::frames::FrameReader::open(&name).unwrap();
+            let mut reader = scalpel_client::frame_reader::FrameReader::open(&name).unwrap();
             let mut arrivals = Vec::new();
             while !stop.load(std::sync::atomic::Ordering::Relaxed) {
                 if let Ok(Some(_)) = reader.wait(Duration::from_millis(50)) {

@@ -96,7 +96,7 @@ fn only_a_device_that_connected_is_taken_and_one_at_a_time() {
                 layout_version: LAYOUT_VERSION,
                 flags: 0,
                 seq,
-                device_time_ns: scalpel_client::frames::monotonic_ns(),
+                device_time_ns: scalpel_client::frame_reader::monotonic_ns(),
                 tip_m: [0.0, 0.0, 0.0],
                 orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
             })

@@ -542,7 +542,7 @@ fn malformed_poses_from_a_device_are_said_and_counted() {
             layout_version: scalpel_proto::shm::LAYOUT_VERSION,
             flags: 0,
             seq,
-            device_time_ns: scalpel_client::frames::monotonic_ns(),
+            device_time_ns: scalpel_client::frame_reader::monotonic_ns(),
             tip_m: [f64::NAN, 0.0, 0.0],
             orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
         };

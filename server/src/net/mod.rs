@@ -12,7 +12,7 @@
 //! closed after 3 s. A malformed or oversized message closes only its connection.
 
 pub mod admission;
-pub mod frames;
+pub mod observer_frames;
 pub mod refusal_log;
 pub mod seq_window;
 pub mod session;
@@ -28,7 +28,7 @@ use scalpel_proto::wire::{Event, Metrics};
 use tokio::sync::{broadcast, watch};
 
 use admission::{Admission, Budgets, HANDSHAKE_TIMEOUT, Refusal};
-use frames::SourceFrame;
+use observer_frames::SourceFrame;
 use refusal_log::RefusalLog;
 
 /// Events in flight to each observer; a slower one skips (its stream says how many).
@@ -377,7 +377,8 @@ fn spawn_frame_reader(
             if *stop.borrow() {
                 return;
             }
-            match scalpel_client::frames::FrameReader::open_as("scalpel-net.frames", &station) {
+            match scalpel_client::frame_reader::FrameReader::open_as("scalpel-net.frames", &station)
+            {
                 Ok(r) => break r,
                 Err(_) => std::thread::sleep(Duration::from_millis(200)),
             }

@@ -14,7 +14,7 @@ use scalpel_proto::wire::{
 };
 use tokio::sync::{broadcast, watch};
 
-use super::frames::{FrameEncoder, SourceFrame};
+use super::observer_frames::{FrameEncoder, SourceFrame};
 use super::seq_window::SeqWindow;
 use super::tls;
 

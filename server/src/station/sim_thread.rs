@@ -12,10 +12,10 @@ use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{NoClock, Simulation};
 
 use crate::faults::FaultTable;
-use crate::frames::{FrameInfo, FramePublisher};
 use crate::grid_clock::GridClock;
 use crate::journal::TickRecord;
 use crate::realtime;
+use crate::render_frames::{FrameInfo, FramePublisher};
 use crate::sim_wake::SimWake;
 
 use super::journal_writer::SimJournal;

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use scalpel_client::frames::FrameReader;
+use scalpel_client::frame_reader::FrameReader;
 use scalpel_client::mock_device::{MockDevice, MockOptions};
 use scalpel_client::render::RenderOptions;
 use scalpel_sim::pipeline::CutScript;

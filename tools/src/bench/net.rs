@@ -186,7 +186,7 @@ fn measure(
                             counting_from = Some(o.0.bytes_received());
                         }
                         if let (true, Update::Frame(f)) = (on, update) {
-                            let now = scalpel_client::frames::monotonic_ns();
+                            let now = scalpel_client::frame_reader::monotonic_ns();
                             let mut r = record.lock().unwrap_or_else(|e| e.into_inner());
                             r.frames += 1;
                             r.keyframes += u64::from(f.keyframe);

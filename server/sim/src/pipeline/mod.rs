@@ -27,10 +27,10 @@
 
 pub mod blade_motion;
 pub mod cutting;
-pub mod incision;
 pub mod recut;
 pub mod script;
 pub mod steady_motion;
+pub mod stroke_tracker;
 pub mod surface;
 pub mod virtual_points;
 
@@ -43,9 +43,9 @@ use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::{Solver, SolverConfig, SolverEvent, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
-pub use incision::{IncisionStats, IncisionTracker};
 pub use recut::{InlineRecuts, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner};
 pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
+pub use stroke_tracker::{IncisionStats, StrokeTracker};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
 
@@ -53,7 +53,7 @@ pub use virtual_points::{VirtualPointStats, VirtualPoints};
 /// and the offline runs and the real-time sampling rule plan for the same tick.
 pub const SIMULATION_TICK_S: f64 = 1e-3;
 
-use incision::IncisionInputs;
+use stroke_tracker::TrackerInputs;
 use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
 
 /// Virtual points placed at most per tick after a re-mesh: each changes the MLS rows of the
@@ -225,7 +225,7 @@ pub struct Simulation {
     grid: RestGrid,
     surface: CurrentSurface,
     cutting: Option<CuttingStage>,
-    incisions: Option<IncisionTracker>,
+    incisions: Option<StrokeTracker>,
     virtual_points: Option<VirtualPoints>,
     /// Scratch for the points whose lists virtual points changed.
     vp_changed: Vec<u32>,
@@ -278,7 +278,7 @@ impl Simulation {
             solver.set_active(&[]);
         }
         let incisions = spec.features.cutting.then(|| {
-            IncisionTracker::new(
+            StrokeTracker::new(
                 model.surface.mean_edge_length(),
                 IncisionParams::default(),
                 model,
@@ -490,7 +490,7 @@ impl Simulation {
             tick.withdrawing,
             tick.slit_rest,
             &mut self.surface,
-            &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
+            &TrackerInputs::of(&self.solver, &self.grid, &stage.sigma),
         )
     }
 
@@ -578,7 +578,7 @@ impl Simulation {
         };
         let remeshed = tracker.settle(
             &mut self.surface,
-            &IncisionInputs::of(&self.solver, &self.grid, &stage.sigma),
+            &TrackerInputs::of(&self.solver, &self.grid, &stage.sigma),
         );
         self.place_virtual_points(remeshed, None, usize::MAX);
         remeshed
@@ -654,7 +654,7 @@ impl Simulation {
     }
 
     /// The incision tracker, for scenes that cut.
-    pub fn incision_tracker(&self) -> Option<&IncisionTracker> {
+    pub fn stroke_tracker(&self) -> Option<&StrokeTracker> {
         self.incisions.as_ref()
     }
 

@@ -1,7 +1,7 @@
 //! The incision's re-cut, handed out of the simulation.
 //!
 //! A stroke's incision is recomputed from the surface as it was when the stroke started
-//! (`incision`). That re-cut grows with the wound: 7–17 ms on the cerebroma's 60 mm cut, a
+//! (`stroke_tracker`). That re-cut grows with the wound: 7–17 ms on the cerebroma's 60 mm cut, a
 //! tick's whole budget many times over, every 2 mm of travel. Its inputs are the tracker's
 //! own (the base surface and the path), so it can run elsewhere while the simulation goes
 //! on: the simulation hands each [`RecutJob`] to its [`RecutRunner`] when the stroke asks for
@@ -26,7 +26,7 @@ use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
-use super::incision::StrokeSamples;
+use super::stroke_tracker::StrokeSamples;
 use super::surface::SurfaceIndex;
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The

@@ -115,7 +115,7 @@ pub struct CurrentSurface {
     crossings: Vec<Crossing>,
 }
 
-/// The surface's per-vertex and per-triangle buffers (and a stroke's base, `incision`)
+/// The surface's per-vertex and per-triangle buffers (and a stroke's base, `stroke_tracker`)
 /// have room for this many times the uncut surface's vertices and triangles, so that a
 /// re-cut landing or a stroke's start fills them without allocating (a 60 mm cut grows
 /// the cerebroma's surface by 1.4×).

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use scalpel_client::frames::Frame;
+use scalpel_client::frame_reader::Frame;
 use scalpel_proto::wire::{ObserverFrame, ToolState, Topology, quantize, quantize_one};
 
 /// A keyframe at least this often (frames).

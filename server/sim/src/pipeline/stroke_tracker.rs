@@ -76,7 +76,7 @@ struct InFlight {
 }
 
 /// Follows the blade along the surface and keeps the drawn incision up to date.
-pub struct IncisionTracker {
+pub struct StrokeTracker {
     params: IncisionParams,
     sample_step_m: f64,
     rerun_step_m: f64,
@@ -114,7 +114,7 @@ pub struct IncisionTracker {
 }
 
 /// What the cutting stage knows that the incision needs.
-pub struct IncisionInputs<'a> {
+pub struct TrackerInputs<'a> {
     /// Rest positions of the points.
     pub rest_points: &'a [Vec3],
     /// Their grid.
@@ -127,7 +127,7 @@ pub struct IncisionInputs<'a> {
     pub positions: &'a [Vec3],
 }
 
-impl<'a> IncisionInputs<'a> {
+impl<'a> TrackerInputs<'a> {
     /// What `solver`'s points, their `grid` and the cut surface `sigma` give the incision.
     pub fn of(solver: &'a Solver, grid: &'a RestGrid, sigma: &'a SweptSurface) -> Self {
         Self {
@@ -146,9 +146,9 @@ const PATH_SAMPLE_CAPACITY: usize = 1024;
 /// Sets of job buffers kept for the next re-cuts.
 const SPARE_JOBS: usize = 3;
 
-impl IncisionTracker {
+impl StrokeTracker {
     /// A tracker for `model`'s surface (mean edge length `edge_m`), whose re-cuts run on
-    /// the simulation's thread ([`InlineRecuts`]) until [`IncisionTracker::set_runner`] gives
+    /// the simulation's thread ([`InlineRecuts`]) until [`StrokeTracker::set_runner`] gives
     /// them another, and land [`RECUT_HANDOVER_TICKS`] after they are asked for (`recut`).
     pub fn new(edge_m: f64, params: IncisionParams, model: &CoupledModel) -> Self {
         let surface = &model.surface;
@@ -206,7 +206,7 @@ impl IncisionTracker {
         withdrawing: bool,
         slit: Option<Vec3>,
         surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
+        inputs: &TrackerInputs<'_>,
     ) -> bool {
         self.tick += 1;
         // Due, or a new stroke starting: it starts from the last one's finished surface.
@@ -226,7 +226,7 @@ impl IncisionTracker {
         withdrawing: bool,
         slit: Option<Vec3>,
         surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
+        inputs: &TrackerInputs<'_>,
     ) -> bool {
         let Some([tip, entry]) = edge else {
             // The stroke ended: settle its incision on the final path, up to the most
@@ -410,7 +410,7 @@ impl IncisionTracker {
     /// Recomputes the stroke's incision from the base surface: hands it to the runner (it
     /// lands later, and this returns `false`). With a re-cut still in flight it waits: the
     /// samples since keep counting, so the next sample asks again.
-    fn run(&mut self, inputs: &IncisionInputs<'_>) -> bool {
+    fn run(&mut self, inputs: &TrackerInputs<'_>) -> bool {
         if self.in_flight.is_some() {
             return false;
         }
@@ -428,7 +428,7 @@ impl IncisionTracker {
     /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
     /// before a new stroke, and at the end of an offline run. Returns whether the surface
     /// changed.
-    pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+    pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &TrackerInputs<'_>) -> bool {
         self.in_flight.is_some() && self.land(surface, inputs)
     }
 
@@ -473,7 +473,7 @@ impl IncisionTracker {
     }
 
     /// Applies the re-cut in flight, waiting for it if need be.
-    fn land(&mut self, surface: &mut CurrentSurface, inputs: &IncisionInputs<'_>) -> bool {
+    fn land(&mut self, surface: &mut CurrentSurface, inputs: &TrackerInputs<'_>) -> bool {
         let Some(flight) = self.in_flight.take() else {
             return false;
         };
@@ -514,7 +514,7 @@ impl IncisionTracker {
         &mut self,
         recut: RecutResult,
         surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
+        inputs: &TrackerInputs<'_>,
     ) -> bool {
         self.base
             .as_mut()
@@ -617,7 +617,7 @@ impl Base {
         stats: &mut IncisionStats,
         recut: RecutResult,
         surface: &mut CurrentSurface,
-        inputs: &IncisionInputs<'_>,
+        inputs: &TrackerInputs<'_>,
     ) -> bool {
         let RecutResult {
             outcome,
