@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{NoClock, Simulation};
+use scalpel_sim::pipeline::{NoClock, Simulation, TickReport};
 
 use crate::faults::FaultTable;
 use crate::grid_clock::GridClock;
@@ -33,6 +33,53 @@ struct LastTick {
     force_n: Vec3,
     cutting: bool,
     in_tissue: bool,
+}
+
+/// The simulation's figures as its thread counts them, tick by tick.
+#[derive(Default)]
+struct Counted {
+    figures: SimStatus,
+    last_tip: Option<Vec3>,
+    last: LastTick,
+}
+
+impl Counted {
+    /// Counts a tick (`report`), the blade's tip after it and how long it took.
+    fn record(&mut self, report: &TickReport, tip: Option<Vec3>, took_ms: f64) {
+        let figures = &mut self.figures;
+        let cutting = report
+            .cut
+            .as_ref()
+            .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting);
+        // Where the blade went (a pose faster than a hand is followed at a hand's speed: the
+        // cut is as long as the blade's path, not the noise's).
+        if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, self.last_tip)
+            && cutting
+            && !cut.withdrawing
+        {
+            figures.cut_length_mm += (tip - last).norm() * 1e3;
+        }
+        let in_tissue = report.cut.as_ref().is_some_and(|c| c.in_tissue);
+        figures.entries += u64::from(in_tissue && !self.last.in_tissue);
+        if cutting && !self.last.cutting {
+            figures.ruptures += 1;
+            // The peak is the tick before: the rupture tick's force has dropped.
+            figures.rupture_force_n = self.last.force_n.norm().max(report.tool_force_n.norm());
+        }
+        self.last_tip = tip;
+        self.last = LastTick {
+            force_n: report.tool_force_n,
+            cutting,
+            in_tissue,
+        };
+        figures.ticks += 1;
+        figures.sim_force_n = report.tool_force_n.norm();
+        figures.active_points = report.active_points;
+        figures.substeps = report.solver.substeps;
+        figures.most_substeps = figures.most_substeps.max(report.solver.substeps);
+        figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
+        figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
+    }
 }
 
 /// The simulation thread's render frames.
@@ -111,10 +158,8 @@ pub(super) fn spawn_sim(
             // On the station's 1 ms grid, woken by the haptic thread's tick (or at the
             // latest `SIM_PHASE_S` after the grid point).
             let mut clock = GridClock::starting_at(t0, SIM_TICK_S, realtime::monotonic_s());
-            let mut figures = SimStatus::default();
-            let mut last_tip: Option<Vec3> = None;
+            let mut counted = Counted::default();
             let mut pose: Option<PoseIn> = None;
-            let mut last = LastTick::default();
             // Simulated ticks owed to a slowed-down simulation (1 per wall tick at real
             // time), and the stiffness factor in effect and last asked for.
             let mut credit = 0.0;
@@ -173,11 +218,11 @@ pub(super) fn spawn_sim(
                 stiffness_asked = effects.stiffness;
                 if let Some(k) = stiffness_change {
                     stiffness = k;
-                    figures.stiffness_factor = k;
+                    counted.figures.stiffness_factor = k;
                 }
                 // This tick's inputs, as the journal records them and a replay applies them.
                 let record = TickRecord {
-                    tick: figures.ticks + 1,
+                    tick: counted.figures.ticks + 1,
                     // What the simulation takes (only sound poses are latched above).
                     pose: pose.map(|p| p.pose),
                     stiffness: stiffness_change,
@@ -188,23 +233,23 @@ pub(super) fn spawn_sim(
                 // surface of the last tick (a tick of cutting takes a few hundred
                 // microseconds that the frame need not wait for).
                 if let Some(p) = &mut publisher
-                    && (figures.ticks + 1) % frames.every_ticks == 0
+                    && (counted.figures.ticks + 1) % frames.every_ticks == 0
                     && !effects.renderer_freeze
                 {
                     let info = FrameInfo {
-                        sim_tick: figures.ticks,
+                        sim_tick: counted.figures.ticks,
                         tool: sim.next_blade_pose(SIM_TICK_S),
                         pose_seq: pose.map_or(0, |p| p.seq),
                         pose_received_ns: pose.map_or(0, |p| p.received_ns),
-                        force_n: last.force_n,
-                        cutting: last.cutting,
-                        cut_length_mm: figures.cut_length_mm,
+                        force_n: counted.last.force_n,
+                        cutting: counted.last.cutting,
+                        cut_length_mm: counted.figures.cut_length_mm,
                     };
                     // A frame that cannot be sent (renderers holding every sample) is
                     // skipped and counted; the next one is a whole new frame anyway.
                     match p.publish(&sim, &info) {
-                        Ok(()) => figures.frames_sent = p.frames(),
-                        Err(_) => figures.frames_failed += 1,
+                        Ok(()) => counted.figures.frames_sent = p.frames(),
+                        Err(_) => counted.figures.frames_failed += 1,
                     }
                 }
                 if let Some(records) = &mut journal.records
@@ -213,40 +258,9 @@ pub(super) fn spawn_sim(
                     journal.dropped.fetch_add(1, Ordering::Relaxed);
                 }
                 let report = sim.tick(SIM_TICK_S, &mut NoClock);
-                // Where the blade went (a pose faster than a hand is followed at a hand's
-                // speed: the cut is as long as the blade's path, not the noise's).
-                let tip = sim.blade_pose().map(|p| p.tip_m);
-                let cutting = report
-                    .cut
-                    .as_ref()
-                    .is_some_and(|c| c.in_tissue && c.force.phase == CutPhase::Cutting);
-                if let (Some(cut), Some(tip), Some(last)) = (&report.cut, tip, last_tip)
-                    && cutting
-                    && !cut.withdrawing
-                {
-                    figures.cut_length_mm += (tip - last).norm() * 1e3;
-                }
-                let in_tissue = report.cut.as_ref().is_some_and(|c| c.in_tissue);
-                figures.entries += u64::from(in_tissue && !last.in_tissue);
-                if cutting && !last.cutting {
-                    figures.ruptures += 1;
-                    // The peak is the tick before: the rupture tick's force has dropped.
-                    figures.rupture_force_n = last.force_n.norm().max(report.tool_force_n.norm());
-                }
-                last_tip = tip;
-                last = LastTick {
-                    force_n: report.tool_force_n,
-                    cutting,
-                    in_tissue,
-                };
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
-                figures.ticks += 1;
-                figures.sim_force_n = report.tool_force_n.norm();
-                figures.active_points = report.active_points;
-                figures.substeps = report.solver.substeps;
-                figures.most_substeps = figures.most_substeps.max(report.solver.substeps);
-                figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
-                figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
+                counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms);
+                let figures = counted.figures;
                 models.write(ModelUpdate {
                     model: sim.local_force_model(),
                     tick: figures.ticks,

@@ -1,0 +1,117 @@
+//! What a station reports: the simulation's figures, the status line, events, and the run's
+//! summary.
+
+use super::HapticWindow;
+
+/// The simulation's figures, handed to the main thread.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SimStatus {
+    /// Simulation ticks so far.
+    pub ticks: u64,
+    /// Blade travel while cutting, summed (mm).
+    pub cut_length_mm: f64,
+    /// The tool force the simulation computed last (N).
+    pub sim_force_n: f64,
+    /// Points integrated in the last tick.
+    pub active_points: usize,
+    /// Explicit sub-steps the last tick took (1 for a projective step).
+    pub substeps: u32,
+    /// Most sub-steps one tick took so far (a rollback doubles them for that tick).
+    pub most_substeps: u32,
+    /// Longest tick so far (ms of wall time).
+    pub max_tick_ms: f64,
+    /// Ticks that took longer than the simulated time they advance.
+    pub late_ticks: u64,
+    /// Render frames sent over shared memory.
+    pub frames_sent: u64,
+    /// Render frames that could not be sent (no shared memory free: renderers hold
+    /// every sample).
+    pub frames_failed: u64,
+    /// Times the blade entered the tissue.
+    pub entries: u64,
+    /// Times the tissue ruptured under the blade (cutting began).
+    pub ruptures: u64,
+    /// The force on the tool as the tissue last ruptured: the peak before the drop (N).
+    pub rupture_force_n: f64,
+    /// Factor on the tissue's stiffness in effect (1: the scene's; an instructor's fault).
+    pub stiffness_factor: f64,
+}
+
+impl Default for SimStatus {
+    fn default() -> Self {
+        Self {
+            ticks: 0,
+            cut_length_mm: 0.0,
+            sim_force_n: 0.0,
+            active_points: 0,
+            substeps: 0,
+            most_substeps: 0,
+            max_tick_ms: 0.0,
+            late_ticks: 0,
+            frames_sent: 0,
+            frames_failed: 0,
+            entries: 0,
+            ruptures: 0,
+            rupture_force_n: 0.0,
+            stiffness_factor: 1.0,
+        }
+    }
+}
+
+/// A status line: the haptic window and the simulation's figures.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StatusLine {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// The haptic loop (`None` when the scene has no haptics).
+    pub haptic: Option<HapticWindow>,
+    /// The simulation.
+    pub sim: SimStatus,
+    /// A shared-memory device is connected (`None`: the device is in process).
+    pub device_connected: Option<bool>,
+    /// Dead iceoryx2 nodes (killed devices, viewers, servers) cleaned up so far.
+    pub dead_nodes_cleaned: u64,
+}
+
+/// Something that happened at the station, reported as it happens.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StationEvent {
+    /// Seconds since the start.
+    pub uptime_s: f64,
+    /// What happened.
+    pub event: String,
+}
+
+/// What the station reports while it runs.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum StationReport {
+    /// The periodic status line.
+    Status(StatusLine),
+    /// An event.
+    Event(StationEvent),
+}
+
+/// What the station did, at the end.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Haptic ticks.
+    pub haptic_ticks: u64,
+    /// Haptic ticks that woke a period or more late.
+    pub deadline_misses: u64,
+    /// Poses dropped because the simulation thread was behind (ring full).
+    pub poses_dropped: u64,
+    /// The simulation's figures.
+    pub sim: SimStatus,
+    /// The simulation's state hash at the end (see `Simulation::state_hash`).
+    pub state_hash: u64,
+    /// Journal records lost because the writer fell a minute behind (0: the journal is
+    /// complete and replays bit for bit).
+    pub journal_dropped: u64,
+    /// The real-time set-up in effect.
+    pub fifo_priority: i32,
+    /// Memory locked.
+    pub memory_locked: bool,
+    /// Why some real-time request was not granted.
+    pub warnings: Vec<String>,
+}
