@@ -191,6 +191,22 @@ pub struct CuttingStage {
     material_points: usize,
 }
 
+/// What the blade's edge is read from.
+struct Reading<'a> {
+    blade: Option<&'a Blade>,
+    contact: &'a SurfaceContact,
+    surface: &'a CurrentSurface,
+    solver: &'a Solver,
+    grid: &'a RestGrid,
+}
+
+/// What a tick's sweep added to Σ.
+struct Sweep {
+    new_sigma: Range<usize>,
+    slit_rest: Option<Vec3>,
+    plunge_normal: Option<Vec3>,
+}
+
 impl CuttingStage {
     /// A stage for `n` points (the body's `material_points` first, then any virtual
     /// nodes) with the scene's tool and force parameters.
@@ -257,7 +273,9 @@ impl CuttingStage {
     }
 
     /// Advances the stage by one tick at time `now_s`. The solver's active set, topology
-    /// and external loads are updated; the solver itself is stepped by the caller.
+    /// and external loads are updated; the solver itself is stepped by the caller. In order:
+    /// is the blade in the tissue, how it moved, its edge in rest space, the force, Σ grown
+    /// by its sweep, the pairs Σ cuts, the affected region, the tissue pressed.
     #[allow(clippy::too_many_arguments)]
     pub fn advance(
         &mut self,
@@ -270,12 +288,86 @@ impl CuttingStage {
         grid: &RestGrid,
     ) -> CutTick {
         self.tick += 1;
-        // Hysteresis: once in contact, the surface around the blade moves with it (the dent
-        // follows the tip, then relaxes and the lips part), so a tip a hair outside the
-        // surface is still pressing or in its cut, and a tip in its own open wound (between
-        // the walls) is still cutting. It leaves only when clearly out.
         let phase_before = self.force.phase();
-        let in_tissue = match (blade, phase_before) {
+        let in_tissue = self.in_tissue(blade, contact, surface, phase_before);
+        let last_tip = self.last_tip;
+        let dt = self.last_now_s.map_or(0.0, |t| (now_s - t).max(0.0));
+        self.last_now_s = Some(now_s);
+        let (motion, steady) = self.follow_motion(blade, dt);
+        let reading = Reading {
+            blade,
+            contact,
+            surface,
+            solver,
+            grid,
+        };
+        let (depth_m, edge_rest) =
+            self.edge_in_rest(&reading, in_tissue, phase_before, last_tip, dt);
+        let in_existing_cut = match (self.force.phase(), edge_rest) {
+            (CutPhase::Free, Some([tip, entry])) => {
+                self.near_sigma(&entry) || self.near_sigma(&tip)
+            }
+            _ => false,
+        };
+        // The fracture term is the work of opening new crack: J_c × the new crack's width
+        // per unit of motion. Moving back along its cut the blade opens nothing (friction
+        // only); a second, deeper pass along a cut opens only what lies below the first; a
+        // raked blade opens its vertical depth. Moving mostly toward its own back, it slides
+        // out of its cut.
+        let crack = match (phase_before, edge_rest) {
+            (CutPhase::Cutting, Some([tip, entry])) => self.crack_share(tip, entry),
+            _ => 1.0,
+        };
+        let retracing = phase_before == CutPhase::Cutting && crack == 0.0;
+        let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
+        // The force acts against the averaged motion; shortened while it turns round, so
+        // that on a reversal the resistance passes through zero over about half a
+        // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
+        // at least 0.71 of the length: no dip).
+        let heading = self.recent_motion / (0.5 * DIRECTION_TRAVEL_M);
+        let heading = heading / heading.norm().max(1.0);
+        let force = self.force.update(
+            now_s,
+            &BladeContact {
+                in_tissue,
+                depth_m,
+                motion_m: motion,
+                steady_motion_m: steady,
+                direction: heading,
+                in_existing_cut,
+                withdrawing,
+                crack_share: crack,
+            },
+        );
+        let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing);
+        let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
+        self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
+        self.press_tissue(now_s, &force, blade, edge_rest, solver, grid);
+        CutTick {
+            force,
+            in_tissue,
+            depth_m,
+            edge_rest,
+            new_sigma: sweep.new_sigma,
+            pairs_removed,
+            points_changed: self.changed.len(),
+            withdrawing,
+            slit_rest: sweep.slit_rest,
+        }
+    }
+
+    /// Whether the blade is in the tissue. Hysteresis: once in contact, the surface around
+    /// the blade moves with it (the dent follows the tip, then relaxes and the lips part),
+    /// so a tip a hair outside the surface is still pressing or in its cut, and a tip in its
+    /// own open wound (between the walls) is still cutting. It leaves only when clearly out.
+    fn in_tissue(
+        &self,
+        blade: Option<&Blade>,
+        contact: &SurfaceContact,
+        surface: &CurrentSurface,
+        phase_before: CutPhase,
+    ) -> bool {
+        match (blade, phase_before) {
             (None, _) => false,
             (Some(_), _) if contact.immersed() => true,
             (Some(_), CutPhase::Free) => false,
@@ -283,10 +375,12 @@ impl CuttingStage {
             (Some(b), CutPhase::Cutting) => {
                 surface.near(&b.tip, self.exit_margin_m, true) || self.in_own_wound(b)
             }
-        };
-        let last_tip = self.last_tip;
-        let dt = self.last_now_s.map_or(0.0, |t| (now_s - t).max(0.0));
-        self.last_now_s = Some(now_s);
+        }
+    }
+
+    /// The blade's motion this tick and its steady part (the device's noise filtered out),
+    /// and the direction of the averaged motion (`self.direction`).
+    fn follow_motion(&mut self, blade: Option<&Blade>, dt: f64) -> (Vec3, Vec3) {
         let mut motion = Vec3::zeros();
         let mut steady = Vec3::zeros();
         if let Some(b) = blade {
@@ -314,10 +408,23 @@ impl CuttingStage {
             self.recent_motion = Vec3::zeros();
             self.direction = Vec3::zeros();
         }
-        // The edge in rest space. The entry maps through the displacement field; the tip
-        // hangs below it along the current edge (the tissue around a cut is not dragged by
-        // the blade, so the rigid offset is accurate, and it does not jump when the nearest
-        // points change sides of the cut).
+        (motion, steady)
+    }
+
+    /// The blade's depth and its edge in rest space (tip, entry), read off the surface it
+    /// crossed, held or slewed where that reading is an artefact. The entry maps through the
+    /// displacement field; the tip hangs below it along the current edge (the tissue around
+    /// a cut is not dragged by the blade, so the rigid offset is accurate, and it does not
+    /// jump when the nearest points change sides of the cut).
+    fn edge_in_rest(
+        &mut self,
+        r: &Reading,
+        in_tissue: bool,
+        phase_before: CutPhase,
+        last_tip: Option<Vec3>,
+        dt: f64,
+    ) -> (f64, Option<[Vec3; 2]>) {
+        let (blade, contact) = (r.blade, r.contact);
         let mut depth_m = 0.0;
         let mut edge_rest = None;
         if let (true, Some(b)) = (in_tissue, blade) {
@@ -326,8 +433,8 @@ impl CuttingStage {
                     // Through the smooth displacement field of the points around it: the
                     // crossed triangle's own rest map jumps with every sliver of the
                     // deformed surface the edge happens to pierce.
-                    let guess = surface.rest_point(t, bary);
-                    let entry_rest = self.rest_of(&entry, &guess, solver, grid);
+                    let guess = r.surface.rest_point(t, bary);
+                    let entry_rest = self.rest_of(&entry, &guess, r.solver, r.grid);
                     // A blade right through a thin part is in it up to where it comes out.
                     let inner = contact.exit.unwrap_or(b.tip);
                     depth_m = (inner - entry).norm();
@@ -378,44 +485,19 @@ impl CuttingStage {
         }
         self.last_edge = edge_rest;
         self.last_depth_m = depth_m;
-        let in_existing_cut = match (self.force.phase(), edge_rest) {
-            (CutPhase::Free, Some([tip, entry])) => {
-                self.near_sigma(&entry) || self.near_sigma(&tip)
-            }
-            _ => false,
-        };
-        // The fracture term is the work of opening new crack: J_c × the new crack's width
-        // per unit of motion. Moving back along its cut the blade opens nothing (friction
-        // only); a second, deeper pass along a cut opens only what lies below the first; a
-        // raked blade opens its vertical depth. Moving mostly toward its own back, it slides
-        // out of its cut.
-        let crack = match (phase_before, edge_rest) {
-            (CutPhase::Cutting, Some([tip, entry])) => self.crack_share(tip, entry),
-            _ => 1.0,
-        };
-        let retracing = phase_before == CutPhase::Cutting && crack == 0.0;
-        let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
-        // The force acts against the averaged motion; shortened while it turns round, so
-        // that on a reversal the resistance passes through zero over about half a
-        // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
-        // at least 0.71 of the length: no dip).
-        let heading = self.recent_motion / (0.5 * DIRECTION_TRAVEL_M);
-        let heading = heading / heading.norm().max(1.0);
-        let force = self.force.update(
-            now_s,
-            &BladeContact {
-                in_tissue,
-                depth_m,
-                motion_m: motion,
-                steady_motion_m: steady,
-                direction: heading,
-                in_existing_cut,
-                withdrawing,
-                crack_share: crack,
-            },
-        );
+        (depth_m, edge_rest)
+    }
 
-        // Σ grows while cutting.
+    /// Σ grown by the blade's sweep while it cuts: the new triangles, the slit its flat
+    /// opened going in point first, and that flat's normal.
+    fn grow_sigma(
+        &mut self,
+        force: &CutForce,
+        edge_rest: Option<[Vec3; 2]>,
+        blade: Option<&Blade>,
+        retracing: bool,
+        withdrawing: bool,
+    ) -> Sweep {
         let sigma_before = self.sigma.triangles.len();
         let mut slit_rest = None;
         // While the blade goes in point first, the normal of its flat: the plane that parts
@@ -465,7 +547,23 @@ impl CuttingStage {
             }
             _ => (self.last_sweep, self.last_sweep_at) = (None, None),
         }
-        let new_sigma = sigma_before..self.sigma.triangles.len();
+        Sweep {
+            new_sigma: sigma_before..self.sigma.triangles.len(),
+            slit_rest,
+            plunge_normal,
+        }
+    }
+
+    /// The pairs the new Σ triangles cross cut (or, near the front, faded out), and the
+    /// points whose rows changed refitted and woken (`apply_topology`). Returns the pairs
+    /// removed.
+    fn cut_pairs(
+        &mut self,
+        new_sigma: Range<usize>,
+        solver: &mut Solver,
+        neighbours: &mut Neighbourhoods,
+        grid: &RestGrid,
+    ) -> usize {
         let mut pairs_removed = 0;
         self.changed.clear();
         let fade_m = 0.5 * self.transparency * self.kernel.support_m;
@@ -536,7 +634,19 @@ impl CuttingStage {
         super::apply_topology(&changed, solver, neighbours, |i| self.wake(i));
         self.changed = changed;
         self.pairs_removed_total += body_pairs_removed;
+        pairs_removed
+    }
 
+    /// The affected region: the points around the blade's edge woken (again once it has
+    /// moved, or a while has passed), the quiet ones put to sleep, the solver's active set
+    /// updated.
+    fn update_region(
+        &mut self,
+        edge_rest: Option<[Vec3; 2]>,
+        plunge_normal: Option<Vec3>,
+        solver: &mut Solver,
+        grid: &RestGrid,
+    ) {
         if let Some(edge) = edge_rest {
             let due = match self.last_mark {
                 None => true,
@@ -557,18 +667,6 @@ impl CuttingStage {
         if self.active_dirty {
             solver.set_active(&self.awake_list);
             self.active_dirty = false;
-        }
-        self.press_tissue(now_s, &force, blade, edge_rest, solver, grid);
-        CutTick {
-            force,
-            in_tissue,
-            depth_m,
-            edge_rest,
-            new_sigma,
-            pairs_removed,
-            points_changed: self.changed.len(),
-            withdrawing,
-            slit_rest,
         }
     }
 

@@ -229,44 +229,7 @@ impl StrokeTracker {
         inputs: &TrackerInputs<'_>,
     ) -> bool {
         let Some([tip, entry]) = edge else {
-            // The stroke ended: settle its incision on the final path, up to the most
-            // advanced entry past its last sample (past it along the path: a blade that
-            // turned round within a sample step leaves no fold).
-            let n = self.samples.len();
-            if let (Some(front), Some(last)) = (self.front.take(), self.samples.last())
-                && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
-                && (n < 2
-                    || (front.surface - last.surface)
-                        .dot(&(last.surface - self.samples[n - 2].surface))
-                        > 0.0)
-            {
-                self.samples.push(front);
-                self.added_since_run += 1;
-            }
-            let rerun = (self.samples.len() >= 2 || self.slit.is_some())
-                && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
-            // The last re-cut covers the whole path: one still in flight is superseded (its
-            // result read and dropped when this one lands).
-            if rerun && self.in_flight.take().is_some() {
-                self.superseded += 1;
-            }
-            let changed = rerun && self.run(inputs);
-            // Landing after the stroke, it applies to the stroke it finishes (this branch
-            // runs every tick the blade is not cutting: only a stroke that just ended has a
-            // base to hand on).
-            if let Some(base) = self.base.take() {
-                match &mut self.in_flight {
-                    Some(f) => f.ended = Some(base),
-                    None => self.spare_base = Some(base),
-                }
-            }
-            self.samples.clear();
-            self.ran_this_stroke = false;
-            self.added_since_run = 0;
-            self.deepened_since_run_m = 0.0;
-            self.slit = None;
-            self.slit_grew = false;
-            return changed;
+            return self.finish_stroke(inputs);
         };
         if self.base.is_none() {
             // The stroke's base surface, copied for its re-cuts into the last stroke's
@@ -394,6 +357,51 @@ impl StrokeTracker {
             (b - a).norm() >= self.rerun_step_m
         };
         due && self.run(inputs)
+    }
+
+    /// The blade left the tissue: the path's end (the most advanced entry since the last
+    /// sample), the stroke's last re-cut asked for if the path grew or deepened since the
+    /// last, the base handed to the re-cut in flight (or kept for the next stroke), and the
+    /// stroke forgotten. Returns whether the surface changed.
+    fn finish_stroke(&mut self, inputs: &TrackerInputs<'_>) -> bool {
+        // The stroke ended: settle its incision on the final path, up to the most
+        // advanced entry past its last sample (past it along the path: a blade that
+        // turned round within a sample step leaves no fold).
+        let n = self.samples.len();
+        if let (Some(front), Some(last)) = (self.front.take(), self.samples.last())
+            && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
+            && (n < 2
+                || (front.surface - last.surface)
+                    .dot(&(last.surface - self.samples[n - 2].surface))
+                    > 0.0)
+        {
+            self.samples.push(front);
+            self.added_since_run += 1;
+        }
+        let rerun = (self.samples.len() >= 2 || self.slit.is_some())
+            && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
+        // The last re-cut covers the whole path: one still in flight is superseded (its
+        // result read and dropped when this one lands).
+        if rerun && self.in_flight.take().is_some() {
+            self.superseded += 1;
+        }
+        let changed = rerun && self.run(inputs);
+        // Landing after the stroke, it applies to the stroke it finishes (this branch
+        // runs every tick the blade is not cutting: only a stroke that just ended has a
+        // base to hand on).
+        if let Some(base) = self.base.take() {
+            match &mut self.in_flight {
+                Some(f) => f.ended = Some(base),
+                None => self.spare_base = Some(base),
+            }
+        }
+        self.samples.clear();
+        self.ran_this_stroke = false;
+        self.added_since_run = 0;
+        self.deepened_since_run_m = 0.0;
+        self.slit = None;
+        self.slit_grew = false;
+        changed
     }
 
     /// Whether the samples have gone deep enough below the last run's to run again: a
