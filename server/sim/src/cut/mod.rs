@@ -5,16 +5,19 @@ mod chart;
 #[cfg(test)]
 pub(crate) mod checks;
 mod collapse;
+mod deepen;
 mod fan;
 pub mod incision;
 mod smooth;
 pub mod stroke;
 pub mod swept;
+pub(crate) mod wall_grid;
 pub mod wound;
 
 pub use crate::geometry::predicates::segment_meets_triangle;
 pub use blade::{Blade, ToolPose};
+pub use deepen::deepen;
 pub use incision::{FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise};
 pub use stroke::{StrokeOutcome, open_stroke};
 pub use swept::{SIGMA_ROOM, SweptSurface, cut_pairs, visit_crossing_pairs};
-pub use wound::{WallColumn, Wound, deepen};
+pub use wound::{WallColumn, Wound};

@@ -6,10 +6,11 @@ use crate::geometry::TriMesh;
 use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::Vec3;
 
+use super::deepen::deepen;
 use super::incision::{
     FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise, source_through,
 };
-use super::wound::{Wound, deepen};
+use super::wound::Wound;
 
 /// What opening a stroke's path did.
 #[derive(Debug, Clone)]

@@ -17,7 +17,7 @@ use std::sync::Arc;
 
 use serde::Serialize;
 
-use crate::cut::wound::first_hit;
+use crate::cut::wall_grid::first_hit;
 use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface};
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::distance_sq_to_segment;

@@ -36,25 +36,24 @@
 //! The rooms: `types` (what goes in and out), `path` (the path as the incision reads it),
 //! `region` (where R is and how it grows or falls back between tries), `layout` (one try:
 //! R's chart, the lips, the triangulation), `assemble` (the skin around the new
-//! triangulation), `walls` (the wound's columns), `quality` (flips), `plane` (2D
+//! triangulation), `columns` (the wound's wall columns), `quality` (flips), `plane` (2D
 //! geometry). [`incise`] drives them in that order.
 
 mod assemble;
+mod columns;
 mod layout;
 mod path;
 mod plane;
 mod quality;
 mod region;
 mod types;
-mod walls;
 
 use crate::geometry::TriMesh;
 use crate::geometry::angle_deg;
 use crate::geometry::topology::check_surface;
 
-use super::wound::{
-    Assembly, EdgeSplits, Wound, build_walls_choosing_ends, carry_wounds, limit_slope,
-};
+use super::wall_grid::{build_walls_choosing_ends, limit_slope};
+use super::wound::{Assembly, EdgeSplits, Wound, carry_wounds};
 use assemble::{Assembled, Lifter, assemble};
 use layout::{Context, Layout, Try, lay_out};
 use path::IncisionPath;
@@ -111,7 +110,7 @@ pub fn incise(
     };
     let lifter = Lifter::new(mesh, &layout);
     let assembled = assemble(mesh, kinds, &layout, site.edge, &lifter);
-    let wound = walls::wound(mesh, kinds, &site, &layout, &lifter, &assembled);
+    let wound = columns::wound(mesh, kinds, &site, &layout, &lifter, &assembled);
     finish(mesh, wounds, &layout, assembled, wound)
 }
 

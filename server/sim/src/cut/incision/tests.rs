@@ -1,7 +1,7 @@
 //! The incision's tests: soundness, shape and quality on the organs and scans.
 
 use super::super::collapse::cell_min_angle_deg;
-use super::walls::MAX_WALL_LEAN_DEG;
+use super::columns::MAX_WALL_LEAN_DEG;
 use super::*;
 use crate::cut::checks::{check, check_topology, top_path, uniform};
 use crate::geometry::organs::box_mesh;

@@ -5,7 +5,8 @@
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 
-use super::super::wound::{WallColumn, Wound, even_out_bottoms, held_short};
+use super::super::wall_grid::{even_out_bottoms, held_short};
+use super::super::wound::{WallColumn, Wound};
 use super::assemble::{Assembled, Lifter};
 use super::layout::Layout;
 use super::region::Site;
