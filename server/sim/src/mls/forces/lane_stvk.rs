@@ -1,0 +1,116 @@
+//! StVK stress per lane (four points at a time), shared by the pair and the stencil kernels.
+
+use super::*;
+
+/// StVK for one point whose F is given as column vectors (x, y, z, 0): P as column
+/// vectors, ψ and det F; `None` when the model is not plain StVK or det F needs the clamp.
+#[inline]
+pub(crate) fn point_stvk(
+    params: &ElasticParams,
+    fc: &[f64x4; 3],
+) -> Option<([f64x4; 3], f64, f64)> {
+    if params.model != ElasticModel::StVK || params.volume_k != 0.0 {
+        return None;
+    }
+    // f[c][r] = F[r][c].
+    let f = fc.map(|c| c.to_array());
+    let det = f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1])
+        - f[1][0] * (f[0][1] * f[2][2] - f[0][2] * f[2][1])
+        + f[2][0] * (f[0][1] * f[1][2] - f[0][2] * f[1][1]);
+    let (lo, hi) = DET_RANGE;
+    if !(det >= lo && det <= hi) {
+        return None;
+    }
+    // E = ½ (FᵀF − I): entries are dot products of columns.
+    let dot = |a: usize, b: usize| f[a][0] * f[b][0] + f[a][1] * f[b][1] + f[a][2] * f[b][2];
+    let mut e = [[0.0f64; 3]; 3];
+    for r in 0..3 {
+        for c in r..3 {
+            let v = 0.5 * (dot(r, c) - if r == c { 1.0 } else { 0.0 });
+            e[r][c] = v;
+            e[c][r] = v;
+        }
+    }
+    let tr = e[0][0] + e[1][1] + e[2][2];
+    let (lambda, mu) = (params.lame.lambda, params.lame.mu);
+    let ee: f64 = e.iter().flatten().map(|x| x * x).sum();
+    let psi = mu * ee + 0.5 * lambda * tr * tr;
+    let sm = |r: usize, c: usize| 2.0 * mu * e[r][c] + if r == c { lambda * tr } else { 0.0 };
+    // P = F S, column by column: P[:, c] = Σ_k F[:, k] S[k][c].
+    let pc = std::array::from_fn(|c| {
+        fc[0].mul_add(
+            f64x4::splat(sm(0, c)),
+            fc[1].mul_add(f64x4::splat(sm(1, c)), fc[2] * f64x4::splat(sm(2, c))),
+        )
+    });
+    Some((pc, psi, det))
+}
+
+/// StVK stress and energy density for four lanes, or `None` when the model is not plain
+/// StVK or some lane needs the clamp fallback.
+#[inline]
+pub(crate) fn lane_stvk(
+    params: &ElasticParams,
+    f: &[[f64x4; 3]; 3],
+) -> Option<([[f64x4; 3]; 3], f64x4, f64x4)> {
+    if params.model != ElasticModel::StVK || params.volume_k != 0.0 {
+        return None;
+    }
+    let det = f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1])
+        - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0])
+        + f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0]);
+    let (lo, hi) = DET_RANGE;
+    if det.to_array().iter().any(|d| !(*d >= lo && *d <= hi)) {
+        return None;
+    }
+    // E = ½ (FᵀF − I), symmetric.
+    let half = f64x4::splat(0.5);
+    let mut e = [[f64x4::ZERO; 3]; 3];
+    for r in 0..3 {
+        for c in r..3 {
+            let cc = f[0][r].mul_add(f[0][c], f[1][r].mul_add(f[1][c], f[2][r] * f[2][c]));
+            let v = if r == c {
+                (cc - f64x4::ONE) * half
+            } else {
+                cc * half
+            };
+            e[r][c] = v;
+            e[c][r] = v;
+        }
+    }
+    let tr = e[0][0] + e[1][1] + e[2][2];
+    let lambda = f64x4::splat(params.lame.lambda);
+    let two_mu = f64x4::splat(2.0 * params.lame.mu);
+    let mut sm = [[f64x4::ZERO; 3]; 3];
+    let mut ee = f64x4::ZERO;
+    for r in 0..3 {
+        for c in 0..3 {
+            sm[r][c] = two_mu * e[r][c] + if r == c { lambda * tr } else { f64x4::ZERO };
+            ee = e[r][c].mul_add(e[r][c], ee);
+        }
+    }
+    let psi = f64x4::splat(params.lame.mu) * ee + half * lambda * tr * tr;
+    let mut p = [[f64x4::ZERO; 3]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            p[r][c] = f[r][0].mul_add(sm[0][c], f[r][1].mul_add(sm[1][c], f[r][2] * sm[2][c]));
+        }
+    }
+    Some((p, psi, det))
+}
+
+/// Per-lane stress through the general (scalar) constitutive code.
+pub(crate) fn lane_stress_scalar(
+    params: &ElasticParams,
+    f: &[[f64x4; 3]; 3],
+) -> ([[f64x4; 3]; 3], f64x4, [PointCheck; LANES]) {
+    let fa: [[[f64; 4]; 3]; 3] =
+        std::array::from_fn(|r| std::array::from_fn(|c| f[r][c].to_array()));
+    let samples: [_; LANES] =
+        std::array::from_fn(|lane| stress(params, &Mat3::from_fn(|r, c| fa[r][c][lane])));
+    (
+        std::array::from_fn(|r| std::array::from_fn(|c| f64x4::from(samples.map(|s| s.p[(r, c)])))),
+        f64x4::from(samples.map(|s| s.psi)),
+        samples.map(|s| PointCheck::of(&s)),
+    )
+}
