@@ -16,6 +16,7 @@
 //! renders (and records) is the newest received, or zero once none has come for
 //! [`DEVICE_WATCHDOG_S`].
 
+use hdrhistogram::Histogram;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -155,21 +156,8 @@ fn circular_median(phases: &[f64], period: f64) -> f64 {
     unrolled[n / 2].rem_euclid(period)
 }
 
-/// Lags counted up to this many ticks (the last bin collects the rest).
-const LAG_BINS: usize = 64;
-
-fn quantile(counts: &[u64; LAG_BINS], q: f64) -> u64 {
-    let total: u64 = counts.iter().sum();
-    let want = ((q * total as f64).ceil() as u64).max(1);
-    let mut seen = 0;
-    for (lag, &c) in counts.iter().enumerate() {
-        seen += c;
-        if seen >= want {
-            return lag as u64;
-        }
-    }
-    0
-}
+/// Lags counted up to this many ticks (a larger one counts as this).
+const LAG_MAX_TICKS: u64 = 1 << 16;
 
 /// Longest wait for the station's welcome (it answers within its main loop's 10 ms).
 const HELLO_TIMEOUT: Duration = Duration::from_secs(2);
@@ -222,7 +210,8 @@ impl MockDevice {
             script.duration_s()
         });
         let mut tick = MockTick::default();
-        let mut lags = [0u64; LAG_BINS];
+        // Made before the loop: recording within its range does not allocate.
+        let mut lags = Histogram::<u64>::new_with_max(LAG_MAX_TICKS, 2).expect("a lag histogram");
         let mut newest: Option<(DeviceForce, Instant)> = None;
         let mut t0 = Instant::now();
         let t0_ns = monotonic_ns();
@@ -329,7 +318,7 @@ impl MockDevice {
                 }
             }
             if tick.pose_seq > 0 {
-                lags[((k - tick.pose_seq.min(k)) as usize).min(LAG_BINS - 1)] += 1;
+                let _ = lags.record((k - tick.pose_seq.min(k)).min(LAG_MAX_TICKS));
             }
             tick.t_s = t;
             tick.seq = k;
@@ -339,8 +328,8 @@ impl MockDevice {
             on_tick(&tick);
         }
         summary.rate_hz = summary.ticks as f64 / t0.elapsed().as_secs_f64().max(1e-9);
-        summary.lag_p50_ticks = quantile(&lags, 0.5);
-        summary.lag_p99_ticks = quantile(&lags, 0.99);
+        summary.lag_p50_ticks = lags.value_at_quantile(0.5);
+        summary.lag_p99_ticks = lags.value_at_quantile(0.99);
         Ok(summary)
     }
 }

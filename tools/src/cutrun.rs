@@ -130,37 +130,7 @@ pub fn run_cut(
     CutRun { rows, sim }
 }
 
-/// Median, 99th percentile and maximum of a sample (ms).
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct Quantiles {
-    /// Median.
-    pub p50: f64,
-    /// 99th percentile.
-    pub p99: f64,
-    /// Largest.
-    pub max: f64,
-}
-
-impl Quantiles {
-    /// Of a sample (zeros when empty).
-    pub fn of(values: &[f64]) -> Self {
-        if values.is_empty() {
-            return Self {
-                p50: 0.0,
-                p99: 0.0,
-                max: 0.0,
-            };
-        }
-        let mut v = values.to_vec();
-        v.sort_by(f64::total_cmp);
-        let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
-        Self {
-            p50: crate::bench::median(&mut v.clone()),
-            p99: at(0.99),
-            max: v[v.len() - 1],
-        }
-    }
-}
+pub use crate::stats::Quantiles;
 
 /// The figures of a run (the JSON of `scalpel cut`).
 #[derive(Debug, Clone, Serialize)]
@@ -332,15 +302,15 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
     CutMetrics {
         steps: run.rows.len(),
         cut_steps: cut_rows.len(),
-        surface_ms: Quantiles::of(&surface),
-        internal_ms: Quantiles::of(&internal),
-        total_ms: Quantiles::of(&total),
+        surface_ms: Quantiles::or_zero(&surface),
+        internal_ms: Quantiles::or_zero(&internal),
+        total_ms: Quantiles::or_zero(&total),
         stages_ms: Stage::ALL
             .iter()
             .enumerate()
             .map(|(k, st)| {
                 let v: Vec<f64> = cut_rows.iter().map(|r| r.stage_ms[k]).collect();
-                (st.name(), Quantiles::of(&v))
+                (st.name(), Quantiles::or_zero(&v))
             })
             .collect(),
         lip_max_turn_deg: opened.then_some(incisions.lip_max_turn_deg),

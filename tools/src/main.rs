@@ -18,6 +18,7 @@ mod progress;
 mod remote_target;
 mod replay_cmd;
 mod report;
+mod stats;
 mod validate_cmd;
 mod view_cmd;
 

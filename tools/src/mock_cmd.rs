@@ -147,11 +147,5 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
 
 /// Median, 99th percentile and largest of `samples` (s), in ms.
 pub fn quantiles_ms(samples: &[f64]) -> Option<(f64, f64, f64)> {
-    if samples.is_empty() {
-        return None;
-    }
-    let mut v = samples.to_vec();
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] * 1e3;
-    Some((at(0.5), at(0.99), v[v.len() - 1] * 1e3))
+    crate::stats::Quantiles::of(samples).map(|q| (q.p50 * 1e3, q.p99 * 1e3, q.max * 1e3))
 }

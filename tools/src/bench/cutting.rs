@@ -278,7 +278,7 @@ pub fn idle(target: &TargetArgs, ticks: usize, json: bool) -> anyhow::Result<()>
             cutting_stages_built: sim.cutting().is_some(),
             points_integrated: integrated,
             substeps,
-            tick_ms: Quantiles::of(&times),
+            tick_ms: Quantiles::or_zero(&times),
         });
     }
     if json {

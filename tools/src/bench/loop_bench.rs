@@ -23,31 +23,17 @@ use scalpel_client::render::RenderOptions;
 use scalpel_sim::pipeline::CutScript;
 use serde::Serialize;
 
-use crate::mock_cmd::quantiles_ms;
+use crate::stats::Quantiles;
 
 /// Targets of issue 5 on this machine, with SCHED_FIFO.
 const JITTER_P999_TARGET_MS: f64 = 0.100;
 /// See [`JITTER_P999_TARGET_MS`].
 const POSE_TO_FRAME_P99_TARGET_MS: f64 = 0.200;
 
-#[derive(Debug, Serialize, Default)]
-struct Quantiles {
-    n: usize,
-    p50: f64,
-    p99: f64,
-    max: f64,
-}
-
+/// Quantiles of samples in seconds, in ms.
 fn quantiles(samples: &[f64]) -> Quantiles {
-    match quantiles_ms(samples) {
-        Some((p50, p99, max)) => Quantiles {
-            n: samples.len(),
-            p50,
-            p99,
-            max,
-        },
-        None => Quantiles::default(),
-    }
+    let ms: Vec<f64> = samples.iter().map(|s| s * 1e3).collect();
+    Quantiles::or_zero(&ms)
 }
 
 #[derive(Debug, Serialize, Default)]

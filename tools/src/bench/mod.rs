@@ -30,13 +30,7 @@ struct SceneBuildBench {
 
 /// Median of a non-empty sample.
 pub fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
-    }
+    crate::stats::median(values)
 }
 
 /// Builds every built-in scene `runs` times and reports the build times.

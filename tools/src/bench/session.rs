@@ -143,7 +143,7 @@ fn stroke_row(stroke: usize, ticks: &[&TickRow]) -> StrokeRow {
     StrokeRow {
         stroke,
         cut_steps: ticks.len(),
-        total_ms: Quantiles::of(&total),
+        total_ms: Quantiles::or_zero(&total),
         max_active_points: ticks.iter().map(|r| r.active_points).max().unwrap_or(0),
         max_substeps: ticks.iter().map(|r| r.substeps).max().unwrap_or(0),
         rollback_ticks: ticks.iter().filter(|r| r.rollbacks > 0).count(),
