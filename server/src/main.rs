@@ -73,13 +73,42 @@ fn run() -> anyhow::Result<()> {
     if args.check {
         return check_host(&config, !args.no_timing, args.json);
     }
-    // Stopping works from here on, while the scene builds too (SIGINT, SIGTERM, SIGHUP, the
-    // end of --duration).
+    let stop = stop_on_signals_and_duration(args.duration)?;
+    let (scene, sim, cutting_note) =
+        build_scene_unless_stopped(&config.scene, SceneBudget::station(&config.limits), &stop)?;
+    let shm = Arc::new(ShmDeviceCounters::default());
+    let device_gate = Arc::new(DeviceGate::default());
+    let device = device_factory(&config, &scene, &shm, &device_gate)?;
+    let params = station_params(&config, &scene, device_gate)?;
+    if !args.json {
+        say_start(&config, &scene, &params, cutting_note.as_deref());
+    }
+    let journal = open_journal(args.journal.as_deref(), &config)?;
+    let json = args.json;
+    let mut notes = DeviceNotes::default();
+    let summary = station::run(&scene, sim, device, &params, journal, stop, |report| {
+        print_report(report, json);
+        if let StationReport::Status(line) = report {
+            notes.say_new(&shm, line.uptime_s, json);
+        }
+    })?;
+    print_summary(&summary, params.monitor_device.then_some(&*shm), json)?;
+    if summary.sim.ticks == 0 {
+        anyhow::bail!(
+            "the station stopped before its first simulation tick: it did no work (a stop or the end of --duration during its start)"
+        );
+    }
+    Ok(())
+}
+
+/// A stop flag set by SIGINT, SIGTERM, SIGHUP or the end of `duration` (s), from now on —
+/// while the scene builds too.
+fn stop_on_signals_and_duration(duration: Option<f64>) -> anyhow::Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let on_signal = stop.clone();
     ctrlc::set_handler(move || on_signal.store(true, Ordering::Relaxed))
         .context("cannot install the signal handler")?;
-    if let Some(d) = args.duration {
+    if let Some(d) = duration {
         let d = std::time::Duration::try_from_secs_f64(d)
             .map_err(|e| anyhow::anyhow!("--duration {d}: {e}"))?;
         let timer = stop.clone();
@@ -88,11 +117,18 @@ fn run() -> anyhow::Result<()> {
             timer.store(true, Ordering::Relaxed);
         });
     }
-    let (scene, sim, cutting_note) =
-        build_scene_unless_stopped(&config.scene, SceneBudget::station(&config.limits), &stop)?;
-    let shm_counters = Arc::new(ShmDeviceCounters::default());
-    let device_gate = Arc::new(DeviceGate::default());
-    let device: DeviceFactory = match (&config.device.kind, config.device.script.as_str()) {
+    Ok(stop)
+}
+
+/// How the haptic thread makes its device: the scripted one playing the configured script
+/// (or the scene's demo cut), or the shared-memory one.
+fn device_factory(
+    config: &ServerConfig,
+    scene: &scalpel_sim::scene::BuiltScene,
+    shm: &Arc<ShmDeviceCounters>,
+    gate: &Arc<DeviceGate>,
+) -> anyhow::Result<DeviceFactory> {
+    Ok(match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, script) => {
             let script = if script.is_empty() {
                 CutScript::default_for(&scene.model.surface)
@@ -106,17 +142,22 @@ fn run() -> anyhow::Result<()> {
             })
         }
         (DeviceKind::SharedMemory, _) => {
-            let station = config.station.clone();
-            let counters = shm_counters.clone();
-            let gate = device_gate.clone();
+            let (station, counters, gate) = (config.station.clone(), shm.clone(), gate.clone());
             Box::new(move || {
                 Ok(Box::new(ShmDevice::open(&station, counters, gate)?) as Box<dyn HapticDevice>)
             })
         }
-    };
-    let shared_memory_device = config.device.kind == DeviceKind::SharedMemory;
+    })
+}
+
+/// The station's parameters from its configuration and scene.
+fn station_params(
+    config: &ServerConfig,
+    scene: &scalpel_sim::scene::BuiltScene,
+    device_gate: Arc<DeviceGate>,
+) -> anyhow::Result<StationParams> {
     let o = &config.output;
-    let params = StationParams {
+    Ok(StationParams {
         haptic_hz: config.rates.haptic_hz,
         fifo_priority: config.realtime.fifo_priority,
         sim_fifo_priority: config.realtime.sim_fifo_priority,
@@ -150,139 +191,150 @@ fn run() -> anyhow::Result<()> {
         } else {
             0.0
         },
-        monitor_device: shared_memory_device,
+        monitor_device: config.device.kind == DeviceKind::SharedMemory,
         device_gate,
         haptics: scene.spec.features.haptics,
-        network: network_params(&config, &scene)?,
+        network: network_params(config, scene)?,
+    })
+}
+
+/// The station's first lines: what runs, and what the scene's loading noted.
+fn say_start(
+    config: &ServerConfig,
+    scene: &scalpel_sim::scene::BuiltScene,
+    params: &StationParams,
+    cutting_note: Option<&str>,
+) {
+    say!(
+        "station {}: scene {} ({} points), {}, frames {} Hz",
+        config.station,
+        scene.spec.name,
+        scene.model.points.len(),
+        match (params.haptics, params.monitor_device) {
+            (false, _) => "no haptics".to_string(),
+            (true, true) => format!("shared-memory device, haptic {} Hz", params.haptic_hz),
+            (true, false) => format!("scripted device, haptic {} Hz", params.haptic_hz),
+        },
+        params.frame_hz
+    );
+    if let Some(note) = cutting_note {
+        say!("  scene: {note}");
+    }
+    // Repairs of the surface, and a scan remeshed on loading, said once.
+    for w in &scene.mesh_warnings {
+        say!("  mesh: {w}");
+    }
+    // A mesh's default sampling thinned (or still over) for a real-time tick, likewise.
+    if let Some(plan) = scene
+        .sampling_plan
+        .as_ref()
+        .filter(|p| p.resampled() || !p.fits())
+    {
+        say!("  sampling: {plan}");
+    }
+}
+
+/// The journal file with its header, if asked for.
+fn open_journal(
+    path: Option<&std::path::Path>,
+    config: &ServerConfig,
+) -> anyhow::Result<Option<std::io::BufWriter<std::fs::File>>> {
+    let Some(path) = path else {
+        return Ok(None);
     };
-    if !args.json {
-        say!(
-            "station {}: scene {} ({} points), {}, frames {} Hz",
-            config.station,
-            scene.spec.name,
-            scene.model.points.len(),
-            match (params.haptics, shared_memory_device) {
-                (false, _) => "no haptics".to_string(),
-                (true, true) => format!("shared-memory device, haptic {} Hz", params.haptic_hz),
-                (true, false) => format!("scripted device, haptic {} Hz", params.haptic_hz),
-            },
-            params.frame_hz
-        );
-        if let Some(note) = &cutting_note {
-            say!("  scene: {note}");
+    let mut file = std::io::BufWriter::new(
+        std::fs::File::create(path)
+            .with_context(|| format!("cannot create journal {}", path.display()))?,
+    );
+    // A scene file is named by its absolute path, so the journal replays from anywhere.
+    let scene_name = match scalpel_sim::scene::builtin(&config.scene) {
+        Some(_) => config.scene.clone(),
+        None => std::fs::canonicalize(&config.scene)?.display().to_string(),
+    };
+    std::io::Write::write_all(
+        &mut file,
+        journal::header(&scene_name, &config.to_toml()).as_bytes(),
+    )?;
+    Ok(Some(file))
+}
+
+/// Malformed poses a shared-memory device sent since the last status line, and poses from
+/// processes that had not connected as the device: said with it (the force meanwhile fades
+/// as if the device were silent).
+#[derive(Default)]
+struct DeviceNotes {
+    rejected_said: u64,
+    unconnected_said: u64,
+}
+
+impl DeviceNotes {
+    fn say_new(&mut self, shm: &ShmDeviceCounters, uptime_s: f64, json: bool) {
+        let say = |event: String| {
+            print_report(
+                &StationReport::Event(station::StationEvent { uptime_s, event }),
+                json,
+            );
+        };
+        let rejected = shm.rejected.load(Ordering::Relaxed);
+        if rejected > self.rejected_said {
+            say(format!(
+                "device: {} poses rejected as malformed (a tip not finite or beyond {} m, an orientation far from a unit quaternion, or another layout version; docs/PROTOCOL.md)",
+                rejected - self.rejected_said,
+                scalpel_server::shm_device::WORKSPACE_RADIUS_M
+            ));
+            self.rejected_said = rejected;
         }
-        // Repairs of the surface, and a scan remeshed on loading, said once.
-        for w in &scene.mesh_warnings {
-            say!("  mesh: {w}");
-        }
-        // A mesh's default sampling thinned (or still over) for a real-time tick, likewise.
-        if let Some(plan) = scene
-            .sampling_plan
-            .as_ref()
-            .filter(|p| p.resampled() || !p.fits())
-        {
-            say!("  sampling: {plan}");
+        let unconnected = shm.unconnected.load(Ordering::Relaxed);
+        if unconnected > self.unconnected_said {
+            say(format!(
+                "device: {} poses dropped from a process that had not connected as the station's device (docs/PROTOCOL.md, \"Connecting a device\")",
+                unconnected - self.unconnected_said
+            ));
+            self.unconnected_said = unconnected;
         }
     }
-    let json = args.json;
-    let journal = match &args.journal {
-        Some(path) => {
-            let mut file = std::io::BufWriter::new(
-                std::fs::File::create(path)
-                    .with_context(|| format!("cannot create journal {}", path.display()))?,
-            );
-            // A scene file is named by its absolute path, so the journal replays from
-            // anywhere.
-            let scene_name = match scalpel_sim::scene::builtin(&config.scene) {
-                Some(_) => config.scene.clone(),
-                None => std::fs::canonicalize(&config.scene)?.display().to_string(),
-            };
-            std::io::Write::write_all(
-                &mut file,
-                journal::header(&scene_name, &config.to_toml()).as_bytes(),
-            )?;
-            Some(file)
-        }
-        None => None,
-    };
-    // Malformed poses a shared-memory device sent since the last status line, and poses
-    // from processes that had not connected as the device: said with it (the force
-    // meanwhile fades as if the device were silent).
-    let mut rejected_said = 0;
-    let mut unconnected_said = 0;
-    let summary = station::run(&scene, sim, device, &params, journal, stop, |report| {
-        print_report(report, json);
-        if let StationReport::Status(line) = report {
-            let rejected = shm_counters.rejected.load(Ordering::Relaxed);
-            if rejected > rejected_said {
-                print_report(
-                    &StationReport::Event(station::StationEvent {
-                        uptime_s: line.uptime_s,
-                        event: format!(
-                            "device: {} poses rejected as malformed (a tip not finite or beyond {} m, an orientation far from a unit quaternion, or another layout version; docs/PROTOCOL.md)",
-                            rejected - rejected_said,
-                            scalpel_server::shm_device::WORKSPACE_RADIUS_M
-                        ),
-                    }),
-                    json,
-                );
-                rejected_said = rejected;
-            }
-            let unconnected = shm_counters.unconnected.load(Ordering::Relaxed);
-            if unconnected > unconnected_said {
-                print_report(
-                    &StationReport::Event(station::StationEvent {
-                        uptime_s: line.uptime_s,
-                        event: format!(
-                            "device: {} poses dropped from a process that had not connected as the station's device (docs/PROTOCOL.md, \"Connecting a device\")",
-                            unconnected - unconnected_said
-                        ),
-                    }),
-                    json,
-                );
-                unconnected_said = unconnected;
-            }
-        }
-    })?;
+}
+
+/// The run's totals (with the shared-memory device's counters, if it had one).
+fn print_summary(
+    summary: &station::RunSummary,
+    shm: Option<&ShmDeviceCounters>,
+    json: bool,
+) -> anyhow::Result<()> {
+    use std::sync::atomic::Ordering::Relaxed;
     if json {
-        let mut summary = serde_json::to_value(&summary)?;
-        if shared_memory_device {
-            summary["device"] = serde_json::json!({
-                "poses_used": shm_counters.poses.load(Ordering::Relaxed),
-                "poses_rejected": shm_counters.rejected.load(Ordering::Relaxed),
-                "poses_unconnected": shm_counters.unconnected.load(Ordering::Relaxed),
-                "forces_not_sent": shm_counters.send_failures.load(Ordering::Relaxed),
+        let mut out = serde_json::to_value(summary)?;
+        if let Some(shm) = shm {
+            out["device"] = serde_json::json!({
+                "poses_used": shm.poses.load(Relaxed),
+                "poses_rejected": shm.rejected.load(Relaxed),
+                "poses_unconnected": shm.unconnected.load(Relaxed),
+                "forces_not_sent": shm.send_failures.load(Relaxed),
             });
         }
-        say!("{summary}");
-    } else {
-        say!(
-            "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
-            summary.haptic_ticks,
-            summary.deadline_misses,
-            summary.poses_dropped,
-            summary.sim.ticks,
-            summary.sim.late_ticks,
-            summary.sim.max_tick_ms,
-            summary.sim.most_substeps,
-            summary.sim.cut_length_mm,
-            summary.state_hash,
-            summary.fifo_priority,
-            summary.memory_locked
-        );
-        if shared_memory_device {
-            use std::sync::atomic::Ordering::Relaxed;
-            say!(
-                "device: {} poses used, {} rejected as malformed, {} forces not sent",
-                shm_counters.poses.load(Relaxed),
-                shm_counters.rejected.load(Relaxed),
-                shm_counters.send_failures.load(Relaxed)
-            );
-        }
+        say!("{out}");
+        return Ok(());
     }
-    if summary.sim.ticks == 0 {
-        anyhow::bail!(
-            "the station stopped before its first simulation tick: it did no work (a stop or the end of --duration during its start)"
+    say!(
+        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
+        summary.haptic_ticks,
+        summary.deadline_misses,
+        summary.poses_dropped,
+        summary.sim.ticks,
+        summary.sim.late_ticks,
+        summary.sim.max_tick_ms,
+        summary.sim.most_substeps,
+        summary.sim.cut_length_mm,
+        summary.state_hash,
+        summary.fifo_priority,
+        summary.memory_locked
+    );
+    if let Some(shm) = shm {
+        say!(
+            "device: {} poses used, {} rejected as malformed, {} forces not sent",
+            shm.poses.load(Relaxed),
+            shm.rejected.load(Relaxed),
+            shm.send_failures.load(Relaxed)
         );
     }
     Ok(())
