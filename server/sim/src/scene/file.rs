@@ -303,134 +303,13 @@ impl SceneSpec {
             &check,
         )?;
         if let Some(m) = &raw.material {
-            let mat = &mut spec.material;
-            let key = "material.youngs_modulus_kpa";
-            check.set(
-                &mut mat.youngs_modulus_pa,
-                m.youngs_modulus_kpa,
-                key,
-                Limit::positive(1.0e6, "kPa"),
-                1e3,
-            )?;
-            if let Some(nu) = m.poisson_ratio
-                && nu >= 0.5
-                && nu.is_finite()
-            {
-                return Err(check.fail(
-                    "material.poisson_ratio",
-                    format!("{nu} makes the material incompressible (λ = ∞); use at most 0.499"),
-                ));
-            }
-            let key = "material.poisson_ratio";
-            check.set(
-                &mut mat.poisson_ratio,
-                m.poisson_ratio,
-                key,
-                Limit::closed(0.0, 0.499, ""),
-                1.0,
-            )?;
-            let key = "material.density_kg_m3";
-            check.set(
-                &mut mat.density_kg_m3,
-                m.density_kg_m3,
-                key,
-                Limit::closed(100.0, 5000.0, "kg/m³"),
-                1.0,
-            )?;
-            let key = "material.damping_per_s";
-            check.set(
-                &mut mat.damping_per_s,
-                m.damping_per_s,
-                key,
-                Limit::closed(0.0, 1000.0, "1/s"),
-                1.0,
-            )?;
+            apply_material(&mut spec, m, &check)?;
         }
         if let Some(s) = &raw.sampling {
-            let p = &mut spec.sampling;
-            let count = |key: &str, n: usize| {
-                if (8..=MAX_POINTS).contains(&n) {
-                    Ok(n)
-                } else {
-                    Err(check.fail(
-                        key,
-                        format!("{n} is out of range; allowed 8 to {MAX_POINTS}"),
-                    ))
-                }
-            };
-            match (s.spacing_mm, s.target_points, s.real_time_points) {
-                (Some(mm), None, None) => {
-                    let limit = Limit::positive(1000.0, "mm");
-                    p.spacing =
-                        SpacingRule::Spacing(check.check("sampling.spacing_mm", mm, limit)? * MM);
-                }
-                (None, Some(n), None) => {
-                    p.spacing = SpacingRule::TargetPoints(count("sampling.target_points", n)?);
-                }
-                (None, None, Some(n)) => {
-                    let most_points = count("sampling.real_time_points", n)?;
-                    p.spacing = SpacingRule::RealTime { most_points };
-                }
-                (None, None, None) => {}
-                _ => {
-                    return Err(check.fail(
-                        "sampling",
-                        "give one of spacing_mm, target_points and real_time_points",
-                    ));
-                }
-            }
-            let key = "sampling.support_ratio";
-            check.set(
-                &mut p.support_ratio,
-                s.support_ratio,
-                key,
-                Limit::closed(1.2, 4.0, ""),
-                1.0,
-            )?;
-            let key = "sampling.min_cell_fraction";
-            check.set(
-                &mut p.min_cell_fraction,
-                s.min_cell_fraction,
-                key,
-                Limit::positive(1.0, ""),
-                1.0,
-            )?;
-            if let Some(h) = s.neighbour_headroom {
-                if h > 256 {
-                    return Err(check.fail(
-                        "sampling.neighbour_headroom",
-                        format!("{h} is out of range; allowed 0 to 256"),
-                    ));
-                }
-                p.neighbour_headroom = h;
-            }
+            apply_sampling(&mut spec, s, &check)?;
         }
         if let Some(f) = &raw.features {
-            let out = &mut spec.features;
-            let set = |slot: &mut bool, v: Option<bool>| {
-                if let Some(v) = v {
-                    *slot = v;
-                }
-            };
-            set(&mut out.cutting, f.cutting);
-            set(&mut out.haptics, f.haptics);
-            set(&mut out.virtual_points, f.virtual_points);
-            set(&mut out.ripple, f.ripple);
-            set(&mut out.volume_term, f.volume_term);
-            set(&mut out.stiff_mode, f.stiff_mode);
-            set(&mut out.frames, f.frames);
-            set(&mut out.observers, f.observers);
-            // Turning cutting off turns off what only cutting uses, unless this file asks
-            // for it (then the check below says so): `extends = "liver"` with
-            // `cutting = false` is a deformation scene, not three errors one at a time.
-            if f.cutting == Some(false) {
-                if f.virtual_points.is_none() {
-                    out.virtual_points = false;
-                }
-                if f.ripple.is_none() {
-                    out.ripple = false;
-                }
-            }
+            apply_features(&mut spec, f)?;
         }
         for (on, name) in [
             (spec.features.virtual_points, "virtual_points"),
@@ -444,136 +323,304 @@ impl SceneSpec {
             }
         }
         if let Some(t) = &raw.tool {
-            let tool = &mut spec.tool;
-            let mm = |hi| Limit::positive(hi, "mm");
-            check.set(
-                &mut tool.blade_length_m,
-                t.blade_length_mm,
-                "tool.blade_length_mm",
-                mm(200.0),
-                MM,
-            )?;
-            check.set(
-                &mut tool.blade_width_m,
-                t.blade_width_mm,
-                "tool.blade_width_mm",
-                mm(100.0),
-                MM,
-            )?;
-            let key = "tool.blade_thickness_mm";
-            check.set(
-                &mut tool.blade_thickness_m,
-                t.blade_thickness_mm,
-                key,
-                mm(10.0),
-                MM,
-            )?;
+            apply_tool(&mut spec, t, &check)?;
         }
         if let Some(f) = &raw.force {
-            let out = &mut spec.force;
-            let newtons = Limit::positive(100.0, "N");
-            check.set(
-                &mut out.rupture_force_n,
-                f.rupture_force_n,
-                "force.rupture_force_n",
-                newtons,
-                1.0,
-            )?;
-            let key = "force.rupture_displacement_mm";
-            check.set(
-                &mut out.rupture_displacement_m,
-                f.rupture_displacement_mm,
-                key,
-                Limit::positive(100.0, "mm"),
-                MM,
-            )?;
-            // N/mm → N/m.
-            let key = "force.toughness_n_per_mm";
-            check.set(
-                &mut out.toughness_n_per_m,
-                f.toughness_n_per_mm,
-                key,
-                Limit::closed(0.0, 10.0, "N/mm"),
-                1e3,
-            )?;
-            check.set(
-                &mut out.friction_n,
-                f.friction_n,
-                "force.friction_n",
-                Limit::closed(0.0, 50.0, "N"),
-                1.0,
-            )?;
-            check.set(
-                &mut out.friction_depth_m,
-                f.friction_depth_mm,
-                "force.friction_depth_mm",
-                Limit::closed(0.1, 200.0, "mm"),
-                MM,
-            )?;
-            let key = "force.ripple_amplitude";
-            check.set(
-                &mut out.ripple_amplitude,
-                f.ripple_amplitude,
-                key,
-                Limit::closed(0.0, 0.9, ""),
-                1.0,
-            )?;
-            let key = "force.ripple_wavelength_mm";
-            check.set(
-                &mut out.ripple_wavelength_m,
-                f.ripple_wavelength_mm,
-                key,
-                Limit::positive(100.0, "mm"),
-                MM,
-            )?;
-            let key = "force.ripple_decay_s";
-            check.set(
-                &mut out.ripple_decay_s,
-                f.ripple_decay_s,
-                key,
-                Limit::positive(600.0, "s"),
-                1.0,
-            )?;
-            check.set(
-                &mut out.crack_transparency,
-                f.crack_transparency,
-                "force.crack_transparency",
-                Limit::closed(0.0, 2.0, ""),
-                1.0,
-            )?;
-            check.set(
-                &mut out.motion_deadband_m,
-                f.motion_deadband_mm,
-                "force.motion_deadband_mm",
-                // A reversal holds the heading for twice the deadband at the full cutting
-                // force: work the tissue does on the hand.
-                Limit::closed(0.0, 0.5, "mm"),
-                MM,
-            )?;
-            check.set(
-                &mut out.max_force_n,
-                f.max_force_n,
-                "force.max_force_n",
-                // What a device is ever sent: the server's own limit on it
-                // (`output.max_force_n`) stops at 50 N too — no desktop haptic device
-                // renders more.
-                Limit::positive(MAX_DEVICE_FORCE_N, "N"),
-                1.0,
-            )?;
+            apply_force(&mut spec, f, &check)?;
         }
         if let Some(s) = &raw.solver {
-            check.set(
-                &mut spec.solver.mass_scaling_budget,
-                s.mass_scaling_percent,
-                "solver.mass_scaling_percent",
-                // Beyond a few per cent the inertia of the surface layer, not the tissue,
-                // sets how the organ swings.
-                Limit::closed(0.0, 10.0, "%"),
-                0.01,
-            )?;
+            apply_solver(&mut spec, s, &check)?;
         }
         Ok(spec)
     }
+}
+
+/// Applies the scene file's `[material]` table to `spec`.
+fn apply_material(
+    spec: &mut SceneSpec,
+    m: &RawMaterial,
+    check: &Checker<'_>,
+) -> Result<(), SceneError> {
+    let mat = &mut spec.material;
+    let key = "material.youngs_modulus_kpa";
+    check.set(
+        &mut mat.youngs_modulus_pa,
+        m.youngs_modulus_kpa,
+        key,
+        Limit::positive(1.0e6, "kPa"),
+        1e3,
+    )?;
+    if let Some(nu) = m.poisson_ratio
+        && nu >= 0.5
+        && nu.is_finite()
+    {
+        return Err(check.fail(
+            "material.poisson_ratio",
+            format!("{nu} makes the material incompressible (λ = ∞); use at most 0.499"),
+        ));
+    }
+    let key = "material.poisson_ratio";
+    check.set(
+        &mut mat.poisson_ratio,
+        m.poisson_ratio,
+        key,
+        Limit::closed(0.0, 0.499, ""),
+        1.0,
+    )?;
+    let key = "material.density_kg_m3";
+    check.set(
+        &mut mat.density_kg_m3,
+        m.density_kg_m3,
+        key,
+        Limit::closed(100.0, 5000.0, "kg/m³"),
+        1.0,
+    )?;
+    let key = "material.damping_per_s";
+    check.set(
+        &mut mat.damping_per_s,
+        m.damping_per_s,
+        key,
+        Limit::closed(0.0, 1000.0, "1/s"),
+        1.0,
+    )?;
+    Ok(())
+}
+
+/// Applies the scene file's `[sampling]` table to `spec`.
+fn apply_sampling(
+    spec: &mut SceneSpec,
+    s: &RawSampling,
+    check: &Checker<'_>,
+) -> Result<(), SceneError> {
+    let p = &mut spec.sampling;
+    let count = |key: &str, n: usize| {
+        if (8..=MAX_POINTS).contains(&n) {
+            Ok(n)
+        } else {
+            Err(check.fail(
+                key,
+                format!("{n} is out of range; allowed 8 to {MAX_POINTS}"),
+            ))
+        }
+    };
+    match (s.spacing_mm, s.target_points, s.real_time_points) {
+        (Some(mm), None, None) => {
+            let limit = Limit::positive(1000.0, "mm");
+            p.spacing = SpacingRule::Spacing(check.check("sampling.spacing_mm", mm, limit)? * MM);
+        }
+        (None, Some(n), None) => {
+            p.spacing = SpacingRule::TargetPoints(count("sampling.target_points", n)?);
+        }
+        (None, None, Some(n)) => {
+            let most_points = count("sampling.real_time_points", n)?;
+            p.spacing = SpacingRule::RealTime { most_points };
+        }
+        (None, None, None) => {}
+        _ => {
+            return Err(check.fail(
+                "sampling",
+                "give one of spacing_mm, target_points and real_time_points",
+            ));
+        }
+    }
+    let key = "sampling.support_ratio";
+    check.set(
+        &mut p.support_ratio,
+        s.support_ratio,
+        key,
+        Limit::closed(1.2, 4.0, ""),
+        1.0,
+    )?;
+    let key = "sampling.min_cell_fraction";
+    check.set(
+        &mut p.min_cell_fraction,
+        s.min_cell_fraction,
+        key,
+        Limit::positive(1.0, ""),
+        1.0,
+    )?;
+    if let Some(h) = s.neighbour_headroom {
+        if h > 256 {
+            return Err(check.fail(
+                "sampling.neighbour_headroom",
+                format!("{h} is out of range; allowed 0 to 256"),
+            ));
+        }
+        p.neighbour_headroom = h;
+    }
+    Ok(())
+}
+
+/// Applies the scene file's `[features]` table to `spec`.
+fn apply_features(spec: &mut SceneSpec, f: &RawFeatures) -> Result<(), SceneError> {
+    let out = &mut spec.features;
+    let set = |slot: &mut bool, v: Option<bool>| {
+        if let Some(v) = v {
+            *slot = v;
+        }
+    };
+    set(&mut out.cutting, f.cutting);
+    set(&mut out.haptics, f.haptics);
+    set(&mut out.virtual_points, f.virtual_points);
+    set(&mut out.ripple, f.ripple);
+    set(&mut out.volume_term, f.volume_term);
+    set(&mut out.stiff_mode, f.stiff_mode);
+    set(&mut out.frames, f.frames);
+    set(&mut out.observers, f.observers);
+    // Turning cutting off turns off what only cutting uses, unless this file asks
+    // for it (then the check below says so): `extends = "liver"` with
+    // `cutting = false` is a deformation scene, not three errors one at a time.
+    if f.cutting == Some(false) {
+        if f.virtual_points.is_none() {
+            out.virtual_points = false;
+        }
+        if f.ripple.is_none() {
+            out.ripple = false;
+        }
+    }
+    Ok(())
+}
+
+/// Applies the scene file's `[tool]` table to `spec`.
+fn apply_tool(spec: &mut SceneSpec, t: &RawTool, check: &Checker<'_>) -> Result<(), SceneError> {
+    let tool = &mut spec.tool;
+    let mm = |hi| Limit::positive(hi, "mm");
+    check.set(
+        &mut tool.blade_length_m,
+        t.blade_length_mm,
+        "tool.blade_length_mm",
+        mm(200.0),
+        MM,
+    )?;
+    check.set(
+        &mut tool.blade_width_m,
+        t.blade_width_mm,
+        "tool.blade_width_mm",
+        mm(100.0),
+        MM,
+    )?;
+    let key = "tool.blade_thickness_mm";
+    check.set(
+        &mut tool.blade_thickness_m,
+        t.blade_thickness_mm,
+        key,
+        mm(10.0),
+        MM,
+    )?;
+    Ok(())
+}
+
+/// Applies the scene file's `[force]` table to `spec`.
+fn apply_force(spec: &mut SceneSpec, f: &RawForce, check: &Checker<'_>) -> Result<(), SceneError> {
+    let out = &mut spec.force;
+    let newtons = Limit::positive(100.0, "N");
+    check.set(
+        &mut out.rupture_force_n,
+        f.rupture_force_n,
+        "force.rupture_force_n",
+        newtons,
+        1.0,
+    )?;
+    let key = "force.rupture_displacement_mm";
+    check.set(
+        &mut out.rupture_displacement_m,
+        f.rupture_displacement_mm,
+        key,
+        Limit::positive(100.0, "mm"),
+        MM,
+    )?;
+    // N/mm → N/m.
+    let key = "force.toughness_n_per_mm";
+    check.set(
+        &mut out.toughness_n_per_m,
+        f.toughness_n_per_mm,
+        key,
+        Limit::closed(0.0, 10.0, "N/mm"),
+        1e3,
+    )?;
+    check.set(
+        &mut out.friction_n,
+        f.friction_n,
+        "force.friction_n",
+        Limit::closed(0.0, 50.0, "N"),
+        1.0,
+    )?;
+    check.set(
+        &mut out.friction_depth_m,
+        f.friction_depth_mm,
+        "force.friction_depth_mm",
+        Limit::closed(0.1, 200.0, "mm"),
+        MM,
+    )?;
+    let key = "force.ripple_amplitude";
+    check.set(
+        &mut out.ripple_amplitude,
+        f.ripple_amplitude,
+        key,
+        Limit::closed(0.0, 0.9, ""),
+        1.0,
+    )?;
+    let key = "force.ripple_wavelength_mm";
+    check.set(
+        &mut out.ripple_wavelength_m,
+        f.ripple_wavelength_mm,
+        key,
+        Limit::positive(100.0, "mm"),
+        MM,
+    )?;
+    let key = "force.ripple_decay_s";
+    check.set(
+        &mut out.ripple_decay_s,
+        f.ripple_decay_s,
+        key,
+        Limit::positive(600.0, "s"),
+        1.0,
+    )?;
+    check.set(
+        &mut out.crack_transparency,
+        f.crack_transparency,
+        "force.crack_transparency",
+        Limit::closed(0.0, 2.0, ""),
+        1.0,
+    )?;
+    check.set(
+        &mut out.motion_deadband_m,
+        f.motion_deadband_mm,
+        "force.motion_deadband_mm",
+        // A reversal holds the heading for twice the deadband at the full cutting
+        // force: work the tissue does on the hand.
+        Limit::closed(0.0, 0.5, "mm"),
+        MM,
+    )?;
+    check.set(
+        &mut out.max_force_n,
+        f.max_force_n,
+        "force.max_force_n",
+        // What a device is ever sent: the server's own limit on it
+        // (`output.max_force_n`) stops at 50 N too — no desktop haptic device
+        // renders more.
+        Limit::positive(MAX_DEVICE_FORCE_N, "N"),
+        1.0,
+    )?;
+    Ok(())
+}
+
+/// Applies the scene file's `[solver]` table to `spec`.
+fn apply_solver(
+    spec: &mut SceneSpec,
+    s: &RawSolver,
+    check: &Checker<'_>,
+) -> Result<(), SceneError> {
+    check.set(
+        &mut spec.solver.mass_scaling_budget,
+        s.mass_scaling_percent,
+        "solver.mass_scaling_percent",
+        // Beyond a few per cent the inertia of the surface layer, not the tissue,
+        // sets how the organ swings.
+        Limit::closed(0.0, 10.0, "%"),
+        0.01,
+    )?;
+    Ok(())
 }
 
 fn apply_mesh(
