@@ -16,7 +16,7 @@ use std::thread::{JoinHandle, Thread};
 use std::time::Duration;
 
 use scalpel_sim::pipeline::recut::RECUTS_OUT;
-use scalpel_sim::pipeline::{RecutJob, RecutResult, RecutRunner};
+use scalpel_sim::pipeline::{InlineRecuts, RecutJob, RecutResult, RecutRunner};
 
 /// The longest a thread waiting for a result stays parked before it looks again: a
 /// backstop for a wake-up that cannot come (the worker died mid-job).
@@ -34,6 +34,11 @@ pub struct WorkerRecuts {
     waiter: Arc<OnceLock<Thread>>,
     stop: Arc<AtomicBool>,
     worker: Option<JoinHandle<()>>,
+    /// Jobs on the worker whose results have not been read.
+    out_on_worker: usize,
+    /// Where jobs run once the worker has died (a panic in a re-cut): on the simulation's
+    /// thread, as without a worker.
+    fallback: InlineRecuts,
 }
 
 impl WorkerRecuts {
@@ -75,7 +80,13 @@ impl WorkerRecuts {
             waiter,
             stop,
             worker: Some(worker),
+            out_on_worker: 0,
+            fallback: InlineRecuts::new(),
         })
+    }
+
+    fn worker_alive(&self) -> bool {
+        self.worker.as_ref().is_some_and(|w| !w.is_finished())
     }
 
     fn wake_worker(&self) {
@@ -87,21 +98,37 @@ impl WorkerRecuts {
 
 impl RecutRunner for WorkerRecuts {
     fn start(&mut self, job: RecutJob) {
+        if !self.worker_alive() {
+            return self.fallback.start(job);
+        }
         // The ring has room for twice what the simulation has out: a push cannot fail.
-        let pushed = self.jobs.push(job);
-        debug_assert!(pushed.is_ok(), "more re-cuts out than the ring holds");
-        self.wake_worker();
+        match self.jobs.push(job) {
+            Ok(()) => {
+                self.out_on_worker += 1;
+                self.wake_worker();
+            }
+            Err(rtrb::PushError::Full(job)) => self.fallback.start(job),
+        }
     }
 
     fn finish(&mut self, waited: &mut bool) -> Option<RecutResult> {
+        // Jobs are finished in the order they came: the worker's first, then any the
+        // fallback took after it died.
+        if self.out_on_worker == 0 {
+            return self.fallback.finish(waited);
+        }
         self.waiter.get_or_init(std::thread::current);
         loop {
             if let Ok(result) = self.results.pop() {
+                self.out_on_worker -= 1;
                 return Some(result);
             }
-            // A worker that ended (a panic in a re-cut) sends nothing more.
-            if self.worker.as_ref().is_none_or(JoinHandle::is_finished) {
-                return self.results.pop().ok();
+            // A worker that ended (a panic in a re-cut) sends nothing more: its job is
+            // lost, and the next ones run on this thread.
+            if !self.worker_alive() {
+                let last = self.results.pop().ok();
+                self.out_on_worker -= 1;
+                return last;
             }
             *waited = true;
             std::thread::park_timeout(PARK_LIMIT);

@@ -307,7 +307,7 @@ fn a_press_that_backs_out_before_rupture() {
 /// two rupture displacements wide on a fine lattice: the cerebroma's 147 held points had
 /// neighbours asleep, frozen where they were, that took the patch's whole strain at its rim
 /// — on the small tumour scan they sprang out inverted at 1.7 m/s when rupture woke them, a
-/// rollback in its default stroke (docs/CUTTING.md "Displacement-controlled dent").
+/// rollback in its default stroke (docs/CUTTING-DECISIONS.md "Displacement-controlled dent").
 #[test]
 fn a_held_dent_keeps_its_surroundings_integrated() {
     let scene = scene("cerebroma");
@@ -470,7 +470,7 @@ fn two_crossing_cuts() {
 }
 
 /// Three wounds made one after the other across the liver's top, 60 mm apart (one of the
-/// endurance scripts of docs/CUTTING.md, "Virtual points"): the virtual points on the
+/// endurance scripts of docs/CUTTING-DECISIONS.md, "Virtual points slaved to the points they join"): the virtual points on the
 /// earlier walls, moved once a tick to where their wall vertices went, drove the tissue
 /// that carries those vertices, a loop with a tick's lag that pumped energy into the walls
 /// during the second stroke — from then on the guard rolled ticks back, doubling their

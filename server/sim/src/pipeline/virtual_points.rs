@@ -13,7 +13,7 @@
 //! with the tissue of its wall as the wall vertex does (both are interpolations of the same
 //! points) but, unlike a node moved to its wall vertex once a tick, closes no lagged loop:
 //! that one pumped energy into the walls over a few wounds, until the solver's guard
-//! rolled every tick back (docs/CUTTING.md, "Virtual points").
+//! rolled every tick back (docs/CUTTING-DECISIONS.md, "Virtual points slaved to the points they join").
 //!
 //! They sit on the walls as the incision draws them (opened in rest space), a twentieth of
 //! a spacing inside the tissue, so the field they carry is the one the wall already
@@ -208,7 +208,7 @@ impl VirtualPoints {
     /// Keeping nodes is what makes a re-mesh cost what the wound gained, not what it is: a
     /// re-cut moves the lips along the whole path by a few hundredths of a spacing, and
     /// placing every node again made the cerebroma's landing ticks grow with the wound
-    /// (docs/CUTTING.md, "Virtual points kept across re-meshes"). A kept node's pairs are
+    /// (docs/CUTTING-DECISIONS.md, "Virtual points kept across re-meshes"). A kept node's pairs are
     /// still valid: Σ grows only where the blade is, and nodes within R_aff of it are
     /// released every tick ([`Self::release_near`]).
     pub fn remeshed(
