@@ -262,6 +262,9 @@ impl Default for OutputConfig {
     }
 }
 
+/// A range check: the key, its value, whether it is in range, and what is accepted.
+type Range<'a> = dyn Fn(&'static str, f64, bool, &'static str) -> Result<(), ConfigError> + 'a;
+
 impl ServerConfig {
     /// The configuration as TOML (what the journal records).
     pub fn to_toml(&self) -> String {
@@ -301,6 +304,16 @@ impl ServerConfig {
                 })
             }
         };
+        self.check_rates(&range)?;
+        self.check_realtime(&range)?;
+        self.check_output(file, &range)?;
+        self.check_limits(&range)?;
+        self.check_network(file, &range)?;
+        self.check_device(file)
+    }
+
+    /// `[rates]`.
+    fn check_rates(&self, range: &Range<'_>) -> Result<(), ConfigError> {
         let r = &self.rates;
         range(
             "rates.haptic_hz",
@@ -320,6 +333,11 @@ impl ServerConfig {
             r.frame_hz == 0.0 || (1.0..=500.0).contains(&r.frame_hz),
             "0 (no frames) or 1 to 500 Hz",
         )?;
+        Ok(())
+    }
+
+    /// `[realtime]`.
+    fn check_realtime(&self, range: &Range<'_>) -> Result<(), ConfigError> {
         let p = self.realtime.fifo_priority;
         range(
             "realtime.fifo_priority",
@@ -343,6 +361,11 @@ impl ServerConfig {
             (-1..=1023).contains(&c),
             "-1 (none) or a CPU number",
         )?;
+        Ok(())
+    }
+
+    /// `[output]`.
+    fn check_output(&self, file: &Path, range: &Range<'_>) -> Result<(), ConfigError> {
         let o = &self.output;
         range(
             "output.max_force_n",
@@ -358,7 +381,7 @@ impl ServerConfig {
         )?;
         // A timeout shorter than two of the loop's periods would fade the force in and out
         // between samples.
-        let period_ms = 1e3 / r.haptic_hz;
+        let period_ms = 1e3 / self.rates.haptic_hz;
         if !(o.device_timeout_ms >= 2.0 * period_ms && o.device_timeout_ms <= 10_000.0) {
             return Err(ConfigError::Range {
                 file: file.to_owned(),
@@ -367,7 +390,7 @@ impl ServerConfig {
                 expected: format!(
                     "at least two haptic periods ({:.3} ms at rates.haptic_hz = {}) and at most 10000 ms",
                     2.0 * period_ms,
-                    r.haptic_hz
+                    self.rates.haptic_hz
                 ),
             });
         }
@@ -397,6 +420,11 @@ impl ServerConfig {
             o.passivity_memory_ms == 0.0 || (10.0..=3_600_000.0).contains(&o.passivity_memory_ms),
             "0 (never forget) or 10 ms to one hour",
         )?;
+        Ok(())
+    }
+
+    /// `[limits]`.
+    fn check_limits(&self, range: &Range<'_>) -> Result<(), ConfigError> {
         let l = &self.limits;
         range(
             "limits.memory_mb",
@@ -410,6 +438,11 @@ impl ServerConfig {
             (1.0..=1000.0).contains(&l.max_slowdown),
             "between 1 (real time) and 1000",
         )?;
+        Ok(())
+    }
+
+    /// `[network]`.
+    fn check_network(&self, file: &Path, range: &Range<'_>) -> Result<(), ConfigError> {
         let n = &self.network;
         range(
             "network.frame_hz",
@@ -479,6 +512,11 @@ impl ServerConfig {
                         .into(),
             });
         }
+        Ok(())
+    }
+
+    /// `[device]`.
+    fn check_device(&self, file: &Path) -> Result<(), ConfigError> {
         if self.device.kind == DeviceKind::SharedMemory && !self.device.script.is_empty() {
             return Err(ConfigError::Range {
                 file: file.to_owned(),
