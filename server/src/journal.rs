@@ -256,25 +256,7 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
             continue;
         }
         match fields.as_slice() {
-            ["stiffness", tick, bits] => {
-                let tick: u64 = tick
-                    .parse()
-                    .with_context(|| format!("{}: bad tick", at()))?;
-                let raw = u64::from_str_radix(bits, 16)
-                    .with_context(|| format!("{}: bad number {bits:?}", at()))?;
-                let k = f64::from_bits(raw);
-                let (lo, hi) = (
-                    f64::from(crate::faults::MIN_STIFFNESS),
-                    f64::from(crate::faults::MAX_STIFFNESS),
-                );
-                if !(lo..=hi).contains(&k) {
-                    bail!(
-                        "{}: stiffness factor {k:e} is outside {lo:.1}–{hi:.0} (the faults' range)",
-                        at()
-                    );
-                }
-                stiffness = Some((tick, k));
-            }
+            ["stiffness", tick, bits] => stiffness = Some(stiffness_of(tick, bits, &at)?),
             ["tick", tick, rest @ ..] => {
                 let tick: u64 = tick
                     .parse()
@@ -283,31 +265,7 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
                 if tick != expected {
                     bail!("{}: tick {tick} where tick {expected} was expected", at());
                 }
-                let pose = match rest {
-                    ["-"] => None,
-                    bits if bits.len() == 7 => {
-                        let mut v = [0.0; 7];
-                        for (slot, b) in v.iter_mut().zip(bits) {
-                            let raw = u64::from_str_radix(b, 16)
-                                .with_context(|| format!("{}: bad number {b:?}", at()))?;
-                            *slot = f64::from_bits(raw);
-                        }
-                        let q = Quaternion::new(v[3], v[4], v[5], v[6]);
-                        let pose = ToolPose {
-                            tip_m: Vec3::new(v[0], v[1], v[2]),
-                            orientation: UnitQuaternion::new_unchecked(q),
-                        };
-                        // What the station journals is what its simulation took.
-                        if !pose.is_sound() {
-                            bail!(
-                                "{}: tick {tick}: the pose is not a finite tip and a unit quaternion",
-                                at()
-                            );
-                        }
-                        Some(pose)
-                    }
-                    _ => bail!("{}: expected '-' or seven numbers after the tick", at()),
-                };
+                let pose = pose_of(rest, tick, &at)?;
                 let stiffness = match stiffness.take() {
                     Some((t, k)) if t == tick => Some(k),
                     Some((t, _)) => {
@@ -335,6 +293,56 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
                 at()
             ),
         }
+    }
+}
+
+/// A stiffness line's tick and factor (within the faults' range).
+fn stiffness_of(tick: &str, bits: &str, at: &dyn Fn() -> String) -> anyhow::Result<(u64, f64)> {
+    let tick: u64 = tick
+        .parse()
+        .with_context(|| format!("{}: bad tick", at()))?;
+    let raw =
+        u64::from_str_radix(bits, 16).with_context(|| format!("{}: bad number {bits:?}", at()))?;
+    let k = f64::from_bits(raw);
+    let (lo, hi) = (
+        f64::from(crate::faults::MIN_STIFFNESS),
+        f64::from(crate::faults::MAX_STIFFNESS),
+    );
+    if !(lo..=hi).contains(&k) {
+        bail!(
+            "{}: stiffness factor {k:e} is outside {lo:.1}–{hi:.0} (the faults' range)",
+            at()
+        );
+    }
+    Ok((tick, k))
+}
+
+/// A tick line's pose: `-` (no tool) or seven numbers (tip, quaternion), sound.
+fn pose_of(rest: &[&str], tick: u64, at: &dyn Fn() -> String) -> anyhow::Result<Option<ToolPose>> {
+    match rest {
+        ["-"] => Ok(None),
+        bits if bits.len() == 7 => {
+            let mut v = [0.0; 7];
+            for (slot, b) in v.iter_mut().zip(bits) {
+                let raw = u64::from_str_radix(b, 16)
+                    .with_context(|| format!("{}: bad number {b:?}", at()))?;
+                *slot = f64::from_bits(raw);
+            }
+            let q = Quaternion::new(v[3], v[4], v[5], v[6]);
+            let pose = ToolPose {
+                tip_m: Vec3::new(v[0], v[1], v[2]),
+                orientation: UnitQuaternion::new_unchecked(q),
+            };
+            // What the station journals is what its simulation took.
+            if !pose.is_sound() {
+                bail!(
+                    "{}: tick {tick}: the pose is not a finite tip and a unit quaternion",
+                    at()
+                );
+            }
+            Ok(Some(pose))
+        }
+        _ => bail!("{}: expected '-' or seven numbers after the tick", at()),
     }
 }
 
