@@ -1,0 +1,231 @@
+//! The solver's state as its callers read and set it: positions, velocities, constraints,
+//! loads, the material, the active set, and the forces at the current positions.
+
+use super::*;
+
+impl Solver {
+    /// Current positions (m).
+    pub fn positions(&self) -> &[Vec3] {
+        &self.p
+    }
+
+    /// Current velocities (m/s).
+    pub fn velocities(&self) -> &[Vec3] {
+        &self.v
+    }
+
+    /// Rest positions (m).
+    pub fn rest(&self) -> &[Vec3] {
+        &self.rest
+    }
+
+    /// Point masses (kg).
+    pub fn masses(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// Point volumes (m³).
+    pub fn volumes(&self) -> &[f64] {
+        &self.volume
+    }
+
+    /// The MLS operator.
+    pub fn operator(&self) -> &MlsOperator {
+        &self.op
+    }
+
+    /// The material as the force evaluation sees it.
+    pub fn params(&self) -> &ElasticParams {
+        &self.params
+    }
+
+    /// Settings.
+    pub fn config(&self) -> &SolverConfig {
+        &self.config
+    }
+
+    /// The last tick's report.
+    pub fn last_report(&self) -> &StepReport {
+        &self.last
+    }
+
+    /// Ticks taken.
+    pub fn tick_count(&self) -> u64 {
+        self.tick
+    }
+
+    /// Sub-steps per tick currently used by the explicit mode.
+    pub fn substeps(&self) -> u32 {
+        self.substeps
+    }
+
+    /// Overwrites positions (e.g. an initial deformation); velocities are kept.
+    pub fn set_positions(&mut self, p: &[Vec3]) {
+        self.p.copy_from_slice(p);
+    }
+
+    /// Overwrites velocities.
+    pub fn set_velocities(&mut self, v: &[Vec3]) {
+        self.v.copy_from_slice(v);
+    }
+
+    /// Fixes the dofs of point i selected by `mask` at their current positions.
+    pub fn fix(&mut self, i: usize, mask: [bool; 3]) {
+        self.fixed[i] = mask;
+        self.target[i] = self.p[i];
+        self.invalidate_projective();
+    }
+
+    /// Releases every constraint.
+    pub fn release_all(&mut self) {
+        self.fixed.iter_mut().for_each(|m| *m = [false; 3]);
+        self.invalidate_projective();
+    }
+
+    /// Where the fixed dofs of point i should be at the end of the next tick (m). The
+    /// explicit mode moves them linearly over the tick's sub-steps.
+    pub fn set_target(&mut self, i: usize, target: Vec3) {
+        self.target[i] = target;
+    }
+
+    /// Which dofs of each point are fixed.
+    pub fn fixed(&self) -> &[[bool; 3]] {
+        &self.fixed
+    }
+
+    /// Sets the external force on point i (N), held until changed.
+    pub fn set_external_force(&mut self, i: usize, f: Vec3) {
+        self.external[i] = f;
+    }
+
+    /// Removes every external force.
+    pub fn clear_external_forces(&mut self) {
+        self.external.iter_mut().for_each(|f| *f = Vec3::zeros());
+    }
+
+    /// Changes the material stiffness (Young's modulus, Pa) in place, e.g. a ramped
+    /// tissue-stiffness fault; the time step is recomputed before the next tick.
+    pub fn set_youngs_modulus(&mut self, e: f64) {
+        let nu = self.poisson_ratio();
+        let ratio = e / self.params.youngs_modulus_pa;
+        self.params.lame = Lame::from_young_poisson(e, nu);
+        self.params.youngs_modulus_pa = e;
+        // The diagonal is linear in E at a fixed ν (the wave modulus and the hourglass
+        // stiffness both are): scaled in place, no allocation on the simulation thread.
+        if ratio.is_finite() && ratio > 0.0 {
+            self.precond.iter_mut().for_each(|d| *d *= ratio);
+            // ω² of M⁻¹K is linear in E too: the critical step scales as 1/√ratio, with
+            // no power iteration (milliseconds at organ scale, on the simulation thread).
+            self.dt_crit = self.dt_crit.map(|dt| dt / ratio.sqrt());
+            // The fits' ω² are linear in E too, and so is their cap.
+            self.omega_sq_cap = self.omega_sq_cap.map(|cap| cap * ratio);
+            self.fit_omega_sq.iter_mut().for_each(|w| *w *= ratio);
+            self.through_slaves.iter_mut().for_each(|w| *w *= ratio);
+        } else {
+            self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
+            self.dt_crit = None;
+            self.omega_sq_cap = None;
+        }
+        self.substeps_for_dt = f64::NAN;
+        self.invalidate_projective();
+    }
+
+    pub(super) fn poisson_ratio(&self) -> f64 {
+        let Lame { lambda, mu } = self.params.lame;
+        lambda / (2.0 * (lambda + mu))
+    }
+
+    /// Restricts the explicit mode to `points` (the cutting-affected region): every other
+    /// point is frozen where it is, at rest, and costs nothing per sub-step; frozen points
+    /// next to active ones still push on them through their fits. Reuses its buffers.
+    pub fn set_active(&mut self, points: &[u32]) {
+        for &i in &self.active_list {
+            self.is_active[i as usize] = false;
+        }
+        // The previous list, to stop the points that leave it.
+        std::mem::swap(&mut self.active_list, &mut self.retired);
+        self.active_list.clear();
+        for &i in points {
+            // Slaved nodes are never integrated: they follow their masters.
+            if !self.slaves.is_slaved(i as usize)
+                && !std::mem::replace(&mut self.is_active[i as usize], true)
+            {
+                self.active_list.push(i);
+            }
+        }
+        self.active_list.sort_unstable();
+        for &i in &self.retired {
+            if !self.is_active[i as usize] {
+                self.v[i as usize] = Vec3::zeros();
+            }
+        }
+        self.eval_set.get_or_insert_with(EvalSet::default);
+        self.rebuild_eval_set();
+    }
+
+    /// Rebuilds the restricted evaluation set for the active list and the slaved nodes with
+    /// an active master (whose every fit must be evaluated: they hand the force back).
+    pub(super) fn rebuild_eval_set(&mut self) {
+        let Some(set) = &mut self.eval_set else {
+            return;
+        };
+        self.eval_seed.clear();
+        self.eval_seed.extend_from_slice(&self.active_list);
+        for &s in self.slaves.list() {
+            let masters = self.slaves.masters_of(s as usize);
+            if masters.iter().any(|&(k, _)| self.is_active[k as usize]) {
+                self.eval_seed.push(s);
+            }
+        }
+        self.eval_seed.sort_unstable();
+        set.rebuild(&self.op, &self.eval_seed, true);
+    }
+
+    /// Makes every point active again.
+    pub fn activate_all(&mut self) {
+        self.active_list.clear();
+        for i in 0..self.p.len() {
+            let active = !self.slaves.is_slaved(i);
+            self.is_active[i] = active;
+            if active {
+                self.active_list.push(i as u32);
+            }
+        }
+        self.eval_set = None;
+    }
+
+    /// The points the explicit mode integrates.
+    pub fn active_points(&self) -> &[u32] {
+        &self.active_list
+    }
+
+    /// Kinetic energy of the free dofs of active points (J).
+    pub(super) fn active_kinetic_energy(&self) -> f64 {
+        let mut e = 0.0;
+        for &i in &self.active_list {
+            let i = i as usize;
+            for a in 0..3 {
+                if !self.fixed[i][a] {
+                    e += 0.5 * self.mass[i] * self.v[i][a] * self.v[i][a];
+                }
+            }
+        }
+        e
+    }
+
+    /// Deformation gradient of point i now.
+    pub fn deformation_gradient(&self, i: usize) -> Mat3 {
+        self.op.deformation_gradient(i, &self.p)
+    }
+
+    /// Elastic forces at the current positions (N), and their statistics.
+    pub fn elastic_forces(&mut self) -> (&[Vec3], ForceStats) {
+        let stats = self.evaluate_elastic(ForceBuffer::Force);
+        (&self.force, stats)
+    }
+
+    /// Kinetic energy of the free dofs (J).
+    pub fn kinetic_energy(&self) -> f64 {
+        kinetic_energy(&self.mass, &self.v, &self.fixed)
+    }
+}
