@@ -106,6 +106,16 @@ impl Blade {
     }
 }
 
+/// One sample of the blade's path: where its edge crossed the surface and where its tip
+/// was, both in rest space (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathSample {
+    /// Entry point on the surface.
+    pub surface: Vec3,
+    /// Deepest tip position there.
+    pub bottom: Vec3,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

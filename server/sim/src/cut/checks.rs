@@ -5,7 +5,8 @@ use crate::geometry::topology::check_surface;
 use crate::math::Vec3;
 use crate::pipeline::script::vertical_extent;
 
-use super::incision::{FaceKind, Incised, PathSample};
+use super::incision::Incised;
+use super::{FaceKind, PathSample};
 
 /// A straight path across the top of `mesh` from (x0, y0) to (x1, y1), `depth` deep.
 pub fn top_path(mesh: &TriMesh, from: [f64; 2], to: [f64; 2], depth: f64) -> Vec<PathSample> {

@@ -14,11 +14,10 @@
 
 use std::collections::{HashMap, HashSet};
 
-use crate::geometry::triangle_min_angle_deg;
 use crate::math::Vec3;
 
+use super::cells::{FaceKind, cell_min_angle_deg, cell_normal};
 use super::fan::plan_fan;
-use super::incision::FaceKind;
 
 /// Cells whose smallest angle is under this are worked on.
 const COLLAPSE_BELOW_DEG: f64 = 20.0;
@@ -26,17 +25,6 @@ const COLLAPSE_BELOW_DEG: f64 = 20.0;
 const COLLAPSE_GAIN_DEG: f64 = 1.0;
 /// Largest turn of a cell's normal that a collapse may cause (as for flips).
 const COLLAPSE_MAX_TURN_DEG: f64 = 30.0;
-
-/// Smallest angle of the cell `tri` of `positions` (degrees).
-pub(crate) fn cell_min_angle_deg(positions: &[Vec3], tri: [u32; 3]) -> f64 {
-    triangle_min_angle_deg(tri.map(|v| positions[v as usize]))
-}
-
-/// Unit normal of the cell `tri` of `positions` (none if it has no area).
-pub(crate) fn cell_normal(positions: &[Vec3], tri: [u32; 3]) -> Option<Vec3> {
-    let [a, b, c] = tri.map(|v| positions[v as usize]);
-    (b - a).cross(&(c - a)).try_normalize(1e-300)
-}
 
 /// Keeps the items of `items` whose index `keep` says.
 fn retain_indexed<T>(items: &mut Vec<T>, keep: impl Fn(usize) -> bool) {
@@ -475,6 +463,7 @@ fn drop_dead(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::triangle_min_angle_deg;
 
     const MM: f64 = 1e-3;
 

@@ -10,13 +10,12 @@ use std::collections::{HashMap, HashSet};
 
 use crate::geometry::TriMesh;
 
-use super::incision::{
-    FaceKind, Incised, IncisionParams, PathSample, incise, source_through, tracks_across,
-};
+use super::incision::{Incised, IncisionParams, incise, source_through, tracks_across};
 use super::wall_grid::{
     build_walls_choosing_ends, even_out_bottoms, held_short, limit_slope, path_cut_near,
 };
 use super::wound::{Assembly, EdgeSplits, Wound, edge_key};
+use super::{FaceKind, PathSample};
 
 /// Takes the walls of `wounds` down where `path` cut deeper than them, and opens again
 /// the wounds deepened along at least half their columns (see the module docs). `None`
@@ -296,7 +295,7 @@ fn without(mesh: &TriMesh, kinds: &[FaceKind], removed: &[bool]) -> (Assembly, V
 mod tests {
     use super::*;
     use crate::cut::checks::{check, check_topology, top_path};
-    use crate::cut::incision::corners_of_kind;
+    use crate::cut::corners_of_kind;
     use crate::cut::{IncisionParams, incise};
     use crate::math::Vec3;
     use crate::pipeline::script::vertical_extent;

@@ -16,7 +16,7 @@ use std::collections::{HashMap, HashSet};
 
 use crate::math::Vec3;
 
-use super::collapse::{cell_min_angle_deg, cell_normal};
+use super::cells::{cell_min_angle_deg, cell_normal};
 
 /// Cells whose smallest angle is under this are worked on.
 const SMOOTH_BELOW_DEG: f64 = 20.0;

@@ -7,10 +7,9 @@ use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::Vec3;
 
 use super::deepen::deepen;
-use super::incision::{
-    FaceKind, Incised, IncisionError, IncisionParams, PathSample, incise, source_through,
-};
+use super::incision::{Incised, IncisionError, IncisionParams, incise, source_through};
 use super::wound::Wound;
+use super::{FaceKind, PathSample};
 
 /// What opening a stroke's path did.
 #[derive(Debug, Clone)]

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 use crate::geometry::triangle_min_angle_deg;
 use crate::math::Vec3;
 
-use super::incision::FaceKind;
+use super::cells::FaceKind;
 
 /// One column of a wound's walls.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -5,8 +5,6 @@
 pub mod forces;
 pub mod material;
 pub mod operator;
-pub mod stencil;
-mod stencil_kernel;
 
 pub use forces::{ForceStats, add_elastic_forces, hourglass_stiffness, stiffness_product};
 pub use material::{ElasticModel, ElasticParams, Lame};

@@ -19,6 +19,7 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+use crate::cut::wall_grid::first_hit;
 use crate::cut::{
     FaceKind, IncisionParams, PathSample, SIGMA_ROOM, StrokeOutcome, Wound, open_stroke,
 };
@@ -26,8 +27,7 @@ use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::{CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
-use super::stroke_tracker::StrokeSamples;
-use super::surface::SurfaceIndex;
+use super::surface::{PrecomputedRows, SurfaceIndex};
 
 /// Ticks from a re-cut's request to its result on the surface: 40 ms at 1 kHz. The
 /// cerebroma's longest re-cut took 17 ms on this project's 2-core machine, so a busy hour
@@ -137,6 +137,66 @@ impl JobBuffers {
     }
 }
 
+/// A stroke as the tracker sampled it, copied for a re-cut: the job resolves its path on
+/// the base surface (on the worker, where the slit's rays against the surface cost the
+/// simulation thread nothing).
+#[derive(Debug)]
+pub(crate) struct StrokeSamples {
+    pub samples: Vec<PathSample>,
+    pub slit: Option<Vec3>,
+    pub sample_step_m: f64,
+}
+
+impl StrokeSamples {
+    /// The stroke's path on `mesh`: its samples, after the slit the blade's flat opened
+    /// behind the first one (unless the path then ran back over it), sampled as the path
+    /// is. Each slit sample is where the flat, a distance x behind the edge, meets the
+    /// surface (up the edge from the blade's depth: in the flat's plane, so the slit runs
+    /// straight on a faceted, sloping surface); its floor is the point's 45° taper, x up
+    /// the edge from the tip.
+    pub fn path(&self, mesh: &TriMesh, kinds: &[FaceKind]) -> Vec<PathSample> {
+        let mut path = Vec::with_capacity(self.samples.len() + 16);
+        if let (Some(slit), Some(first)) = (self.slit, self.samples.first()) {
+            let onward = self.samples.get(1).map(|s| s.surface - first.surface);
+            let cut = first.bottom - first.surface;
+            if let (true, Some(up)) = (
+                onward.is_none_or(|o| o.dot(&slit) < 0.0),
+                (-cut).try_normalize(1e-12),
+            ) {
+                let (skin, wound): (Vec<usize>, Vec<usize>) =
+                    (0..mesh.triangles.len()).partition(|&t| kinds[t] == FaceKind::Skin);
+                let (length, depth) = (slit.norm(), cut.norm());
+                // (Reaching a surface that rises behind the blade as steeply as 60°.)
+                let reach = depth + 2.0 * length;
+                let n = (length / self.sample_step_m).ceil().max(1.0) as usize;
+                // From the edge back: the slit ends where its floor comes up through a
+                // surface falling away behind the blade, or at an earlier wound.
+                for k in 1..=n {
+                    let behind = slit * (k as f64 / n as f64);
+                    let below = first.bottom + behind;
+                    let Some(rise) = first_hit(mesh, &skin, &below, &up, reach) else {
+                        break;
+                    };
+                    let deep = rise - behind.norm();
+                    if deep <= 0.0
+                        || first_hit(mesh, &wound, &below, &up, reach).is_some_and(|w| w < rise)
+                    {
+                        break;
+                    }
+                    let surface = below + up * rise;
+                    path.push(PathSample {
+                        surface,
+                        bottom: surface - up * deep,
+                    });
+                }
+                path.reverse();
+            }
+        }
+        path.extend_from_slice(&self.samples);
+        path
+    }
+}
+
 /// A re-cut's result.
 pub struct RecutResult {
     pub(crate) outcome: StrokeOutcome,
@@ -150,35 +210,6 @@ pub struct RecutResult {
     /// The incised surface's wounds, taken out of it and shared (made here, off the
     /// simulation thread; none when nothing was incised).
     pub(crate) wounds: Arc<Vec<Wound>>,
-}
-
-/// New vertices' embedding rows computed before they land.
-pub struct PrecomputedRows {
-    pub(crate) rows: Vec<Option<Vec<(u32, f64)>>>,
-    pub(crate) sigma_seen: usize,
-}
-
-impl PrecomputedRows {
-    /// Vertex `v`'s row at `x`, if it was computed and no triangle Σ gained since (`sigma`
-    /// whole, with `boxes`) hides one of its points: then it is the row
-    /// [`SurfaceEmbedding::row_for`] gives against all of Σ, exactly (the points it finds
-    /// are those the snapshot's Σ let through less those the new triangles hide, and the
-    /// support it widened to is the same).
-    pub fn take(
-        &mut self,
-        v: usize,
-        x: &Vec3,
-        body: &[Vec3],
-        sigma: &[[Vec3; 3]],
-        boxes: &[Aabb],
-    ) -> Option<Vec<(u32, f64)>> {
-        let row = self.rows.get_mut(v)?.take()?;
-        let (new, new_boxes) = (&sigma[self.sigma_seen..], &boxes[self.sigma_seen..]);
-        let hidden = row
-            .iter()
-            .any(|&(k, _)| SurfaceEmbedding::hidden(x, &body[k as usize], new, new_boxes));
-        (!hidden).then_some(row)
-    }
 }
 
 impl RecutJob {

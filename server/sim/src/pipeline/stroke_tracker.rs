@@ -17,9 +17,7 @@ use std::sync::Arc;
 
 use serde::Serialize;
 
-use crate::cut::wall_grid::first_hit;
-use crate::cut::{FaceKind, IncisionParams, PathSample, SweptSurface};
-use crate::geometry::TriMesh;
+use crate::cut::{IncisionParams, PathSample, SweptSurface};
 use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 use crate::mls::MlsOperator;
@@ -28,7 +26,7 @@ use crate::solver::Solver;
 
 use super::recut::{
     BaseShape, InlineRecuts, JobBuffers, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner,
-    RestSpace,
+    RestSpace, StrokeSamples,
 };
 use super::surface::{CurrentSurface, SURFACE_ROOM};
 
@@ -527,66 +525,6 @@ impl StrokeTracker {
         self.base
             .as_mut()
             .is_some_and(|base| base.apply(&mut self.stats, recut, surface, inputs))
-    }
-}
-
-/// A stroke as the tracker sampled it, copied for a re-cut: the job resolves its path on
-/// the base surface (on the worker, where the slit's rays against the surface cost the
-/// simulation thread nothing).
-#[derive(Debug)]
-pub(crate) struct StrokeSamples {
-    pub samples: Vec<PathSample>,
-    pub slit: Option<Vec3>,
-    pub sample_step_m: f64,
-}
-
-impl StrokeSamples {
-    /// The stroke's path on `mesh`: its samples, after the slit the blade's flat opened
-    /// behind the first one (unless the path then ran back over it), sampled as the path
-    /// is. Each slit sample is where the flat, a distance x behind the edge, meets the
-    /// surface (up the edge from the blade's depth: in the flat's plane, so the slit runs
-    /// straight on a faceted, sloping surface); its floor is the point's 45° taper, x up
-    /// the edge from the tip.
-    pub fn path(&self, mesh: &TriMesh, kinds: &[FaceKind]) -> Vec<PathSample> {
-        let mut path = Vec::with_capacity(self.samples.len() + 16);
-        if let (Some(slit), Some(first)) = (self.slit, self.samples.first()) {
-            let onward = self.samples.get(1).map(|s| s.surface - first.surface);
-            let cut = first.bottom - first.surface;
-            if let (true, Some(up)) = (
-                onward.is_none_or(|o| o.dot(&slit) < 0.0),
-                (-cut).try_normalize(1e-12),
-            ) {
-                let (skin, wound): (Vec<usize>, Vec<usize>) =
-                    (0..mesh.triangles.len()).partition(|&t| kinds[t] == FaceKind::Skin);
-                let (length, depth) = (slit.norm(), cut.norm());
-                // (Reaching a surface that rises behind the blade as steeply as 60°.)
-                let reach = depth + 2.0 * length;
-                let n = (length / self.sample_step_m).ceil().max(1.0) as usize;
-                // From the edge back: the slit ends where its floor comes up through a
-                // surface falling away behind the blade, or at an earlier wound.
-                for k in 1..=n {
-                    let behind = slit * (k as f64 / n as f64);
-                    let below = first.bottom + behind;
-                    let Some(rise) = first_hit(mesh, &skin, &below, &up, reach) else {
-                        break;
-                    };
-                    let deep = rise - behind.norm();
-                    if deep <= 0.0
-                        || first_hit(mesh, &wound, &below, &up, reach).is_some_and(|w| w < rise)
-                    {
-                        break;
-                    }
-                    let surface = below + up * rise;
-                    path.push(PathSample {
-                        surface,
-                        bottom: surface - up * deep,
-                    });
-                }
-                path.reverse();
-            }
-        }
-        path.extend_from_slice(&self.samples);
-        path
     }
 }
 

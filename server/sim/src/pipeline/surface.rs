@@ -6,15 +6,14 @@
 //! (refitted in place, never rebuilt). After a cut, a vertex stops following points across the
 //! cut surface Σ (its weights toward them drop to zero).
 
-use super::recut::PrecomputedRows;
 use std::sync::Arc;
 
-use crate::cut::incision::corners_of_kind;
+use crate::cut::corners_of_kind;
 use crate::cut::{Blade, FaceKind, Incised, SweptSurface, Wound, segment_meets_triangle};
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
-use crate::math::{Mat3, Vec3};
+use crate::math::{Aabb, Mat3, Vec3};
 use crate::mls::MlsOperator;
 use crate::model::rows::Rows;
 use crate::model::{Blockers, CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
@@ -50,6 +49,35 @@ impl SurfaceContact {
             normal: Vec3::z(),
             exit: None,
         }
+    }
+}
+
+/// New vertices' embedding rows computed before they land.
+pub struct PrecomputedRows {
+    pub(crate) rows: Vec<Option<Vec<(u32, f64)>>>,
+    pub(crate) sigma_seen: usize,
+}
+
+impl PrecomputedRows {
+    /// Vertex `v`'s row at `x`, if it was computed and no triangle Σ gained since (`sigma`
+    /// whole, with `boxes`) hides one of its points: then it is the row
+    /// [`SurfaceEmbedding::row_for`] gives against all of Σ, exactly (the points it finds
+    /// are those the snapshot's Σ let through less those the new triangles hide, and the
+    /// support it widened to is the same).
+    pub fn take(
+        &mut self,
+        v: usize,
+        x: &Vec3,
+        body: &[Vec3],
+        sigma: &[[Vec3; 3]],
+        boxes: &[Aabb],
+    ) -> Option<Vec<(u32, f64)>> {
+        let row = self.rows.get_mut(v)?.take()?;
+        let (new, new_boxes) = (&sigma[self.sigma_seen..], &boxes[self.sigma_seen..]);
+        let hidden = row
+            .iter()
+            .any(|&(k, _)| SurfaceEmbedding::hidden(x, &body[k as usize], new, new_boxes));
+        (!hidden).then_some(row)
     }
 }
 

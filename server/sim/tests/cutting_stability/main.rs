@@ -4,7 +4,7 @@
 //! the drawn surface still closed, manifold and consistently oriented. The harness that
 //! drives a scripted blade and records each tick is here.
 
-use scalpel_sim::cut::incision::corners_of_kind;
+use scalpel_sim::cut::corners_of_kind;
 use scalpel_sim::cut::{FaceKind, ToolPose};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;

@@ -12,16 +12,15 @@ use spade::handles::FixedVertexHandle;
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 
-use super::super::collapse::{
-    SplitTriangle, collapse_boundary_splits, collapse_to_quality, drop_vertices,
-};
-use super::super::fan::plan_fan;
-use super::super::smooth::smooth_to_quality;
-use super::super::wound::Assembly;
 use super::layout::Layout;
 use super::plane::{barycentric_2d, dist_sq_point_segment_2d, point_in_polygon, sub2};
-use super::quality::flip_to_surface_quality;
-use super::types::FaceKind;
+use crate::cut::cells::{FaceKind, flip_to_surface_quality};
+use crate::cut::collapse::{
+    SplitTriangle, collapse_boundary_splits, collapse_to_quality, drop_vertices,
+};
+use crate::cut::fan::plan_fan;
+use crate::cut::smooth::smooth_to_quality;
+use crate::cut::wound::Assembly;
 
 /// Points of the chart lifted onto the original surface through R's triangles.
 pub(super) struct Lifter<'a> {

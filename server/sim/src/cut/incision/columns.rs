@@ -5,12 +5,12 @@
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 
-use super::super::wall_grid::{even_out_bottoms, held_short};
-use super::super::wound::{WallColumn, Wound};
 use super::assemble::{Assembled, Lifter};
 use super::layout::Layout;
 use super::region::Site;
-use super::types::FaceKind;
+use crate::cut::cells::FaceKind;
+use crate::cut::wall_grid::{even_out_bottoms, held_short};
+use crate::cut::wound::{WallColumn, Wound};
 
 /// Largest lean of a wound wall from the surface normal (degrees). A blade held flatter
 /// than this cuts a flap thinner than the lips' opening; its walls are drawn at this lean.

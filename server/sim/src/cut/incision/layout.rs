@@ -12,7 +12,6 @@ use spade::{AngleLimit, Point2, RefinementParameters, Triangulation};
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 
-use super::super::chart::Chart;
 use super::path::IncisionPath;
 use super::plane::{
     ArcPolyline, Cdt, V2, cross2, dist_sq_point_segment_2d, nearest_on_segment_2d,
@@ -21,6 +20,7 @@ use super::plane::{
 use super::region::{Region, Site};
 use super::types::{IncisionError, IncisionParams};
 use super::{LIP_ROOM, LIP_TURN_DEG};
+use crate::cut::chart::Chart;
 
 /// What a try works from.
 pub(super) struct Context<'a> {

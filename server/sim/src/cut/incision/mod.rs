@@ -44,7 +44,6 @@ mod columns;
 mod layout;
 mod path;
 mod plane;
-mod quality;
 mod region;
 mod types;
 
@@ -54,16 +53,15 @@ use crate::geometry::topology::check_surface;
 
 use super::wall_grid::{build_walls_choosing_ends, limit_slope};
 use super::wound::{Assembly, EdgeSplits, Wound, carry_wounds};
+use super::{FaceKind, PathSample};
 use assemble::{Assembled, Lifter, assemble};
 use layout::{Context, Layout, Try, lay_out};
 use path::IncisionPath;
 use region::{Region, choose_site};
 
 pub(crate) use path::tracks_across;
-pub use quality::corners_of_kind;
-pub(crate) use quality::flip_to_surface_quality;
 pub(crate) use types::source_through;
-pub use types::{FaceKind, Incised, IncisionError, IncisionParams, PathSample};
+pub use types::{Incised, IncisionError, IncisionParams};
 
 /// Largest turn of a lip from one segment to the next on a curved path (degrees), unless
 /// that would take segments shorter than a quarter of the spacing.

@@ -4,7 +4,8 @@
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 
-use super::types::{IncisionError, PathSample};
+use super::types::IncisionError;
+use crate::cut::blade::PathSample;
 
 /// The path of one incision.
 pub(super) struct IncisionPath {

@@ -10,7 +10,8 @@ use crate::math::Vec3;
 use super::LIP_ROOM;
 use super::path::IncisionPath;
 use super::plane::{Frame, dist_sq_segment_triangle_2d, sub2};
-use super::types::{FaceKind, IncisionError, IncisionParams};
+use super::types::{IncisionError, IncisionParams};
+use crate::cut::cells::FaceKind;
 
 /// Where the incision is made.
 pub(super) struct Site {

@@ -1,8 +1,8 @@
 //! The incision's tests: soundness, shape and quality on the organs and scans.
 
-use super::super::collapse::cell_min_angle_deg;
 use super::columns::MAX_WALL_LEAN_DEG;
 use super::*;
+use crate::cut::cells::{cell_min_angle_deg, flip_to_surface_quality};
 use crate::cut::checks::{check, check_topology, top_path, uniform};
 use crate::geometry::organs::box_mesh;
 use crate::math::Vec3;

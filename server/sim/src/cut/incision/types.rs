@@ -1,37 +1,14 @@
-//! What an incision takes and gives: the kinds of surface triangles, the path samples, the
-//! shape parameters, the re-triangulated surface and why an incision can fail.
+//! What an incision takes and gives: the shape parameters, the re-triangulated surface and
+//! why an incision can fail.
 
 use serde::Serialize;
 use thiserror::Error;
 
 use crate::geometry::TriMesh;
 use crate::geometry::topology::SurfaceCheck;
-use crate::math::Vec3;
 
-use super::super::wound::Wound;
-
-/// What a surface triangle is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FaceKind {
-    /// Outer surface of the organ (drawn, touched by the blade).
-    Skin,
-    /// Wound wall inside an incision (drawn in its own colour; the blade passes it).
-    Wall,
-    /// The closed-incision lid between two lips (not drawn; closes the envelope for blade
-    /// contact).
-    Lid,
-}
-
-/// One sample of the blade's path: where its edge crossed the surface and where its tip
-/// was, both in rest space (m).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PathSample {
-    /// Entry point on the surface.
-    pub surface: Vec3,
-    /// Deepest tip position there.
-    pub bottom: Vec3,
-}
+use crate::cut::cells::FaceKind;
+use crate::cut::wound::Wound;
 
 /// Shape parameters of an incision.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

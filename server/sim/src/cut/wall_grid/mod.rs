@@ -9,7 +9,8 @@ use crate::geometry::predicates::{line_triangle, nearest_on_segment};
 use crate::geometry::triangle_min_angle_deg;
 use crate::math::{Aabb, Vec3};
 
-use super::incision::{FaceKind, PathSample, flip_to_surface_quality};
+use super::blade::PathSample;
+use super::cells::{FaceKind, flip_to_surface_quality};
 use super::wound::{Assembly, WallColumn, Wound};
 
 /// Largest turn of a column toward its spread-out bottom ([`even_out_bottoms`]): the

@@ -17,6 +17,7 @@
 mod eval_set;
 mod lane_stvk;
 mod pair_kernel;
+mod stencil_kernel;
 
 use crate::math::{Mat3, Vec3};
 use wide::f64x4;
@@ -24,9 +25,9 @@ use wide::f64x4;
 use crate::mls::material::{
     DET_RANGE, ElasticModel, ElasticParams, StressSample, stress, stress_differential,
 };
+use crate::mls::operator::stencil::LatticeStencil;
 use crate::mls::operator::{LANES, MAX_RUN_ROW, MlsOperator, PointRank, complete};
-use crate::mls::stencil::LatticeStencil;
-use crate::mls::stencil_kernel::{self, Restriction, StencilFields, StencilInputs};
+use stencil_kernel::{Restriction, StencilFields, StencilInputs};
 
 pub use eval_set::EvalSet;
 pub(crate) use eval_set::StencilChunks;

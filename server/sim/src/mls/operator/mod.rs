@@ -18,9 +18,11 @@
 //! of [`LANES`]: the force kernel reads four pairs at a time. Padding slots name the point
 //! itself and carry zero weights, so they add nothing wherever they are read.
 
+pub mod stencil;
+
 use crate::math::{Mat3, Vec3};
-use crate::mls::stencil::LatticeStencil;
 use crate::model::{Kernel, Neighbourhoods};
+use stencil::LatticeStencil;
 
 /// A direction is unsampled when its eigenvalue is below σ_max divided by this.
 pub const MAX_CONDITION: f64 = 1e4;

@@ -1,12 +1,36 @@
-//! Cell quality on the surface: flips of created triangles, and the corners of a kind.
+//! The surface's cells: what each triangle is (skin, wall, lid), a cell's smallest angle and
+//! normal, flips that raise the quality of created cells, and the corners of a kind.
 
 use std::collections::{HashMap, HashSet};
 
-use crate::geometry::TriMesh;
+use serde::Serialize;
+
+use crate::geometry::{TriMesh, triangle_min_angle_deg};
 use crate::math::Vec3;
 
-use super::super::collapse::{cell_min_angle_deg, cell_normal};
-use super::types::FaceKind;
+/// What a surface triangle is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaceKind {
+    /// Outer surface of the organ (drawn, touched by the blade).
+    Skin,
+    /// Wound wall inside an incision (drawn in its own colour; the blade passes it).
+    Wall,
+    /// The closed-incision lid between two lips (not drawn; closes the envelope for blade
+    /// contact).
+    Lid,
+}
+
+/// Smallest angle of the cell `tri` of `positions` (degrees).
+pub(crate) fn cell_min_angle_deg(positions: &[Vec3], tri: [u32; 3]) -> f64 {
+    triangle_min_angle_deg(tri.map(|v| positions[v as usize]))
+}
+
+/// Unit normal of the cell `tri` of `positions` (none if it has no area).
+pub(crate) fn cell_normal(positions: &[Vec3], tri: [u32; 3]) -> Option<Vec3> {
+    let [a, b, c] = tri.map(|v| positions[v as usize]);
+    (b - a).cross(&(c - a)).try_normalize(1e-300)
+}
 
 /// The corners of the triangles of `kind`, with repeats.
 pub fn corners_of_kind<'a>(

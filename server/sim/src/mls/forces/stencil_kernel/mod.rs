@@ -29,12 +29,12 @@
 
 use wide::f64x4;
 
-use super::forces::StencilChunks;
-use super::forces::{ForceStats, PointCheck, Threads, lane_stress_scalar, lane_stvk};
-use super::material::ElasticParams;
-use super::operator::LANES;
-use super::stencil::{ChunkTerms, JOIN_GAP_CHUNKS, LatticeStencil, NONE, Span};
+use super::StencilChunks;
+use super::{ForceStats, PointCheck, Threads, lane_stress_scalar, lane_stvk};
 use crate::math::Vec3;
+use crate::mls::material::ElasticParams;
+use crate::mls::operator::LANES;
+use crate::mls::operator::stencil::{ChunkTerms, JOIN_GAP_CHUNKS, LatticeStencil, NONE, Span};
 
 mod passes;
 mod plane_sums;
