@@ -6,12 +6,14 @@
 
 use crate::geometry::TriMesh;
 use crate::geometry::predicates::{line_triangle, nearest_on_segment};
-use crate::geometry::triangle_min_angle_deg;
 use crate::math::{Aabb, Vec3};
 
 use super::blade::PathSample;
 use super::cells::{FaceKind, flip_to_surface_quality};
 use super::wound::{Assembly, WallColumn, Wound};
+use zip::{Columns, OneWall, end_column};
+
+mod zip;
 
 /// Largest turn of a column toward its spread-out bottom ([`even_out_bottoms`]): the
 /// columns lean with the cut's own direction, and a small turn keeps the wall near Σ and
@@ -240,219 +242,38 @@ fn build_wall_grids(
     let rows: Vec<usize> = cols.iter().map(|c| rows_for(c.depth, cell)).collect();
     let a_id = wound.upper[0].1;
     let b_id = wound.upper[wound.upper.len() - 1].1;
-    // The end columns, rows 1 ..= rows, shared. One that ends at the surface is the end
-    // vertex alone (its row 1 and bottom): the walls fan from it.
-    let end_column = |id: u32, c: usize, out: &mut Assembly| {
-        if rows[c] == 0 {
-            return vec![id, id];
-        }
-        let top = out.positions[id as usize];
-        let mut ids = vec![id];
-        for j in 1..=rows[c] {
-            let f = j as f64 / rows[c] as f64;
-            ids.push(out.vertex(top * (1.0 - f) + cols[c].bottom() * f));
-        }
-        ids
-    };
-    let end0 = end_column(a_id, 0, out);
-    let end1 = end_column(b_id, n - 1, out);
+    // The end columns, rows 1 ..= rows, shared.
+    let end0 = end_column(a_id, rows[0], &cols[0], out);
+    let end1 = end_column(b_id, rows[n - 1], &cols[n - 1], out);
     let mut bottoms = vec![end0[end0.len() - 1]];
     for c in cols.iter().take(n - 1).skip(1) {
         bottoms.push(out.vertex(c.bottom()));
     }
     bottoms.push(end1[end1.len() - 1]);
-    // Rows the zips below step through (an end column at the surface: its one pseudo-row).
-    let zip_rows = |c: usize| rows[c].max(1);
-    let end = |c: usize| c == 0 || c == n - 1;
-
+    let columns = Columns {
+        cols,
+        rows,
+        ends: [end0, end1],
+        bottoms,
+    };
     for (lip, side) in [(&wound.upper, 1.0), (&wound.lower, -1.0)] {
-        // The lip's position at any parameter (on its polyline).
-        let lip_at = |tp: f64, positions: &[Vec3]| -> Vec3 {
-            let i = lip
-                .partition_point(|&(t, _)| t <= tp)
-                .clamp(1, lip.len() - 1)
-                - 1;
-            let (t0, v0) = lip[i];
-            let (t1, v1) = lip[i + 1];
-            let f = if t1 > t0 {
-                ((tp - t0) / (t1 - t0)).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            positions[v0 as usize] * (1.0 - f) + positions[v1 as usize] * f
-        };
-        // grid[c][j]: column c, row j ≥ 1 (row 0 is the lip, not on the columns).
-        let mut grid: Vec<Vec<u32>> = Vec::with_capacity(n);
-        for (c, col) in cols.iter().enumerate() {
-            let ids = if c == 0 {
-                end0.clone()
-            } else if c == n - 1 {
-                end1.clone()
-            } else {
-                let top = lip_at(col.param, &out.positions);
-                let mut ids = vec![u32::MAX];
-                for j in 1..rows[c] {
-                    let f = j as f64 / rows[c] as f64;
-                    ids.push(out.vertex(top * (1.0 - f) + col.bottom() * f));
-                }
-                ids.push(bottoms[c]);
-                ids
-            };
-            grid.push(ids);
-        }
-        // The wall faces the gap: its outward normal points away from its own side. The
-        // winding follows from the grid (the lips and columns run from A to B, the rows
-        // down, the upper lip on the path's left seen from outside), not from each
-        // triangle's own normal, which a sliver of a narrow, deep wound can have pointing
-        // either way.
-        // Listed as the zips list them, a triangle between a lip and row 1 faces the lower
-        // side, and one between two columns the upper side.
-        let emit = |tri: [u32; 3], faces_lower: bool, out: &mut Assembly| {
-            // Stepping off or onto an end column at the surface (the end vertex twice).
-            if tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0] {
-                return;
-            }
-            let tri = if faces_lower == (side > 0.0) {
-                tri
-            } else {
-                [tri[0], tri[2], tri[1]]
-            };
-            out.created.push(out.triangles.len() as u32);
-            out.triangles.push(tri);
-            out.kinds.push(FaceKind::Wall);
-        };
-        let shape = |t: [u32; 3], out: &Assembly| {
-            triangle_min_angle_deg(t.map(|v| out.positions[v as usize]))
-        };
-        // Between the lip and row 1: zip the two polylines together by parameter, keeping
-        // the two fronts in step along the cut — and again letting a step out of turn
-        // where in turn it lays a sliver the other order avoids: at a shallow end column,
-        // rows a fraction of a gap apart beside a lip leaving sideways make the in-turn
-        // step's fan from the end vertex a 14.5° cell (the cerebroma's session), the other
-        // order 22.6°. Which is used is `out_of_turn`'s (see [`build_walls`]).
-        let strip = |lenient: bool, out: &Assembly| -> Vec<[u32; 3]> {
-            let mut cells = Vec::with_capacity(lip.len() + n);
-            let (mut i, mut k) = (0, 0);
-            while i + 1 < lip.len() || k + 1 < n {
-                // (u32::MAX where that polyline has ended: the step is then never taken.)
-                let lip_step = [
-                    lip[i].1,
-                    grid[k][1],
-                    lip.get(i + 1).map_or(u32::MAX, |l| l.1),
-                ];
-                let column_step = [
-                    lip[i].1,
-                    grid[k][1],
-                    grid.get(k + 1).map_or(u32::MAX, |g| g[1]),
-                ];
-                let advance_lip = if i + 1 == lip.len() {
-                    false
-                } else if k + 1 == n {
-                    true
-                } else if k == 0 && rows[0] == 0 {
-                    // An end column at the surface is left first and reached last: a lip
-                    // step there would lay a cell along the lip from the end vertex.
-                    false
-                } else if k + 2 == n && rows[n - 1] == 0 {
-                    true
-                } else if k == 1 && i == 0 && rows[0] == 0 && i + 2 < lip.len() {
-                    // And the lip leaves that end vertex next (reaches it after the
-                    // columns): a column step from it would join it to two rows of a wall
-                    // rising to it, nearly on a line (exactly, on a straight cut with
-                    // columns graded near the end beside a lip that is not).
-                    true
-                } else if i + 2 == lip.len() && k + 2 < n && rows[n - 1] == 0 {
-                    false
-                } else if (lip[i + 1].0 - cols[k + 1].param).abs()
-                    > 0.5 * (cols[k + 1].param - cols[k].param)
-                {
-                    let in_turn = lip[i + 1].0 < cols[k + 1].param;
-                    if lenient {
-                        // Each order weighed with the step that follows it.
-                        let lip_first = shape(lip_step, out)
-                            .min(shape([lip[i + 1].1, grid[k][1], grid[k + 1][1]], out));
-                        let column_first = shape(column_step, out)
-                            .min(shape([lip[i].1, grid[k + 1][1], lip[i + 1].1], out));
-                        let (in_order, out_of_order) = if in_turn {
-                            (lip_first, column_first)
-                        } else {
-                            (column_first, lip_first)
-                        };
-                        if in_order < WALL_MIN_ANGLE_DEG && out_of_order > in_order {
-                            !in_turn
-                        } else {
-                            in_turn
-                        }
-                    } else {
-                        in_turn
-                    }
-                } else {
-                    shape(lip_step, out) >= shape(column_step, out)
-                };
-                if advance_lip {
-                    cells.push(lip_step);
-                    i += 1;
-                } else {
-                    cells.push(column_step);
-                    k += 1;
-                }
-            }
-            cells
-        };
-        let in_step = strip(false, out);
-        let lenient = strip(true, out);
+        let wall = OneWall::new(lip, side, &columns, out);
+        let in_step = wall.strip(false, out);
+        let lenient = wall.strip(true, out);
         differs |= lenient != in_step;
         let cells = if out_of_turn { lenient } else { in_step };
         for tri in cells {
-            emit(tri, true, out);
+            wall.emit(tri, true, out);
         }
-        // Between neighbouring columns, row 1 down to the bottom: zip the two columns
-        // together by depth fraction (they may have different numbers of rows).
-        for a in 0..n - 1 {
-            let b = a + 1;
-            let (ra, rb) = (zip_rows(a), zip_rows(b));
-            let (mut j, mut k) = (1, 1);
-            while j < ra || k < rb {
-                // A column may reach its bottom only after an end column beside it has:
-                // a triangle of three shared vertices would be emitted by both walls.
-                let may_reach = |x_next: usize, rx: usize, y: usize, y_at: usize, ry: usize| {
-                    x_next < rx || !end(y) || y_at == ry
-                };
-                let can_a = j < ra && may_reach(j + 1, ra, b, k, rb);
-                let can_b = k < rb && may_reach(k + 1, rb, a, j, ra);
-                let tri_a = |j: usize| [grid[a][j], grid[b][k], grid[a][j + 1]];
-                let tri_b = |k: usize| [grid[a][j], grid[b][k], grid[b][k + 1]];
-                let advance_a = match (can_a, can_b) {
-                    (true, false) => true,
-                    (false, _) => false,
-                    (true, true) => {
-                        let (fa, fb) = ((j + 1) as f64 / ra as f64, (k + 1) as f64 / rb as f64);
-                        if (fa - fb).abs() > 0.5 / ra.max(rb) as f64 {
-                            // Keep the two fronts in step down the wall.
-                            fa < fb
-                        } else {
-                            // The cell's better diagonal: each choice is followed by the
-                            // other column's step, so weigh both triangles (the first
-                            // alone picked a fine triangle and left a sliver beside it
-                            // where the floor falls steeply).
-                            let then_b = [grid[a][j + 1], grid[b][k], grid[b][k + 1]];
-                            let then_a = [grid[a][j], grid[b][k + 1], grid[a][j + 1]];
-                            shape(tri_a(j), out).min(shape(then_b, out))
-                                >= shape(tri_b(k), out).min(shape(then_a, out))
-                        }
-                    }
-                };
-                if advance_a {
-                    emit(tri_a(j), false, out);
-                    j += 1;
-                } else {
-                    emit(tri_b(k), false, out);
-                    k += 1;
-                }
-            }
-        }
+        wall.zip_columns(out);
     }
-    let mut shared: Vec<u32> = end0.iter().chain(&end1).chain(&bottoms).copied().collect();
+    let [end0, end1] = &columns.ends;
+    let mut shared: Vec<u32> = end0
+        .iter()
+        .chain(end1)
+        .chain(&columns.bottoms)
+        .copied()
+        .collect();
     shared.sort_unstable();
     shared.dedup();
     (shared, differs)
