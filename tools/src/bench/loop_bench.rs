@@ -14,6 +14,7 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
@@ -187,73 +188,134 @@ fn measure(
     let stop = Arc::new(AtomicBool::new(false));
 
     // The device, for both phases.
-    let device = {
-        let station = station.to_string();
-        let stop = stop.clone();
-        std::thread::Builder::new()
-            .name("bench-device".into())
-            .spawn(move || -> anyhow::Result<Vec<(f64, f64)>> {
-                let mut device = MockDevice::open(&station)?;
-                let started = Instant::now();
-                let mut latencies = Vec::new();
-                device.run(
-                    &script,
-                    &MockOptions {
-                        looping: true,
-                        ..MockOptions::default()
-                    },
-                    &stop,
-                    |t| {
-                        if let Some(l) = t.latency_s
-                            && t.seq > scalpel_client::mock_device::PHASE_LOCK_AFTER
-                        {
-                            latencies.push((started.elapsed().as_secs_f64(), l));
-                        }
-                    },
-                )?;
-                Ok(latencies)
-            })?
-    };
+    let device = spawn_device(station, script, &stop)?;
     // The measuring subscriber.
-    let subscriber = {
-        let station = station.to_string();
-        let stop = stop.clone();
-        std::thread::Builder::new()
-            .name("bench-frames".into())
-            .spawn(move || -> anyhow::Result<Vec<(f64, f64, f64)>> {
-                // A renderer's frame thread that wants frames promptly: real-time, below
-                // the server's threads.
-                scalpel_client::mock_device::make_fifo(50);
-                let mut reader = FrameReader::open(&station)?;
-                let started = Instant::now();
-                let mut latencies = Vec::new();
-                while !stop.load(Ordering::Relaxed) {
-                    if let Some(f) = reader.wait(Duration::from_millis(50))?
-                        && f.header.pose_received_ns > 0
-                        && f.received_ns > f.header.pose_received_ns
-                    {
-                        let l = (f.received_ns - f.header.pose_received_ns) as f64 * 1e-9;
-                        // Signed: the split must not filter the frames the total counts.
-                        let stamped = (f.header.server_time_ns as f64
-                            - f.header.pose_received_ns as f64)
-                            * 1e-9;
-                        latencies.push((started.elapsed().as_secs_f64(), l, stamped));
-                    }
-                }
-                Ok(latencies)
-            })?
-    };
+    let subscriber = spawn_subscriber(station, &stop)?;
     // Phase 1: let the phase lock settle, then S seconds with no viewers.
-    std::thread::sleep(Duration::from_secs(1));
-    let phase1 = (wall_t0.elapsed().as_secs_f64(), 0.0);
-    std::thread::sleep(Duration::from_secs_f64(seconds));
-    let phase1 = (phase1.0, wall_t0.elapsed().as_secs_f64());
+    let phase1 = settle_then_wait(wall_t0, seconds);
     // Phase 2: with the viewers.
     let viewer_stop = Arc::new(AtomicBool::new(false));
+    let viewer_threads = spawn_viewers(station, viewers, &viewer_stop)?;
+    let phase2 = settle_then_wait(wall_t0, seconds);
+    // One more status line covering the end of phase 2.
+    std::thread::sleep(Duration::from_millis(1100));
+    viewer_stop.store(true, Ordering::Relaxed);
+    let mut rendered = 0;
+    for t in viewer_threads {
+        rendered += t
+            .join()
+            .map_err(|_| anyhow::anyhow!("a viewer panicked"))??;
+    }
+    stop.store(true, Ordering::Relaxed);
+    let device_latencies = device
+        .join()
+        .map_err(|_| anyhow::anyhow!("the device panicked"))??;
+    let frame_latencies = subscriber
+        .join()
+        .map_err(|_| anyhow::anyhow!("the subscriber panicked"))??;
+    let lines = lines.lock().map_err(|_| anyhow::anyhow!("poisoned"))?;
+    let recorded = Recorded {
+        device_latencies,
+        frame_latencies,
+        // The device's and the subscriber's clocks started a little after wall_t0.
+        device_offset: 1.0,
+        lines: &lines,
+        server_t0,
+    };
+    let phases = vec![
+        recorded.phase(phase1, 0, 0),
+        recorded.phase(phase2, viewers, rendered),
+    ];
+    Ok(LoopBench::judge(station, seconds, phases))
+}
+
+/// Sleeps a second for things to settle, then `seconds` measured: the measured span, in
+/// seconds since `wall_t0`.
+fn settle_then_wait(wall_t0: Instant, seconds: f64) -> (f64, f64) {
+    std::thread::sleep(Duration::from_secs(1));
+    let from = wall_t0.elapsed().as_secs_f64();
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    (from, wall_t0.elapsed().as_secs_f64())
+}
+
+/// The mock device playing `script` in a loop until `stop`: pose → force latencies as
+/// (s since it started, latency s), once phase-locked.
+fn spawn_device(
+    station: &str,
+    script: CutScript,
+    stop: &Arc<AtomicBool>,
+) -> anyhow::Result<JoinHandle<anyhow::Result<Vec<(f64, f64)>>>> {
+    let station = station.to_string();
+    let stop = stop.clone();
+    Ok(std::thread::Builder::new()
+        .name("bench-device".into())
+        .spawn(move || -> anyhow::Result<Vec<(f64, f64)>> {
+            let mut device = MockDevice::open(&station)?;
+            let started = Instant::now();
+            let mut latencies = Vec::new();
+            device.run(
+                &script,
+                &MockOptions {
+                    looping: true,
+                    ..MockOptions::default()
+                },
+                &stop,
+                |t| {
+                    if let Some(l) = t.latency_s
+                        && t.seq > scalpel_client::mock_device::PHASE_LOCK_AFTER
+                    {
+                        latencies.push((started.elapsed().as_secs_f64(), l));
+                    }
+                },
+            )?;
+            Ok(latencies)
+        })?)
+}
+
+/// The measuring frame subscriber until `stop`: per frame (s since it started, pose →
+/// received s, pose → stamped s).
+fn spawn_subscriber(
+    station: &str,
+    stop: &Arc<AtomicBool>,
+) -> anyhow::Result<JoinHandle<anyhow::Result<Vec<(f64, f64, f64)>>>> {
+    let station = station.to_string();
+    let stop = stop.clone();
+    Ok(std::thread::Builder::new()
+        .name("bench-frames".into())
+        .spawn(move || -> anyhow::Result<Vec<(f64, f64, f64)>> {
+            // A renderer's frame thread that wants frames promptly: real-time, below
+            // the server's threads.
+            scalpel_client::mock_device::make_fifo(50);
+            let mut reader = FrameReader::open(&station)?;
+            let started = Instant::now();
+            let mut latencies = Vec::new();
+            while !stop.load(Ordering::Relaxed) {
+                if let Some(f) = reader.wait(Duration::from_millis(50))?
+                    && f.header.pose_received_ns > 0
+                    && f.received_ns > f.header.pose_received_ns
+                {
+                    let l = (f.received_ns - f.header.pose_received_ns) as f64 * 1e-9;
+                    // Signed: the split must not filter the frames the total counts.
+                    let stamped =
+                        (f.header.server_time_ns as f64 - f.header.pose_received_ns as f64) * 1e-9;
+                    latencies.push((started.elapsed().as_secs_f64(), l, stamped));
+                }
+            }
+            Ok(latencies)
+        })?)
+}
+
+/// `viewers` viewers that receive, decode and render every frame until `stop`; each
+/// returns the frames it drew.
+fn spawn_viewers(
+    station: &str,
+    viewers: usize,
+    stop: &Arc<AtomicBool>,
+) -> anyhow::Result<Vec<JoinHandle<anyhow::Result<u64>>>> {
     let mut viewer_threads = Vec::new();
     for v in 0..viewers {
         let station = station.to_string();
-        let stop = viewer_stop.clone();
+        let stop = stop.clone();
         viewer_threads.push(
             std::thread::Builder::new()
                 .name(format!("bench-viewer-{v}"))
@@ -280,37 +342,31 @@ fn measure(
                 })?,
         );
     }
-    std::thread::sleep(Duration::from_secs(1));
-    let phase2_start = wall_t0.elapsed().as_secs_f64();
-    std::thread::sleep(Duration::from_secs_f64(seconds));
-    let phase2 = (phase2_start, wall_t0.elapsed().as_secs_f64());
-    // One more status line covering the end of phase 2.
-    std::thread::sleep(Duration::from_millis(1100));
-    viewer_stop.store(true, Ordering::Relaxed);
-    let mut rendered = 0;
-    for t in viewer_threads {
-        rendered += t
-            .join()
-            .map_err(|_| anyhow::anyhow!("a viewer panicked"))??;
-    }
-    stop.store(true, Ordering::Relaxed);
-    let device_latencies = device
-        .join()
-        .map_err(|_| anyhow::anyhow!("the device panicked"))??;
-    let frame_latencies = subscriber
-        .join()
-        .map_err(|_| anyhow::anyhow!("the subscriber panicked"))??;
-    // The device's and the subscriber's clocks started a little after wall_t0.
-    let device_offset = 1.0;
-    let lines = lines.lock().map_err(|_| anyhow::anyhow!("poisoned"))?;
-    let phase = |(from, to): (f64, f64), viewers: usize, rendered: u64| {
+    Ok(viewer_threads)
+}
+
+/// What the device, the subscriber and the server recorded over both phases.
+struct Recorded<'a> {
+    device_latencies: Vec<(f64, f64)>,
+    frame_latencies: Vec<(f64, f64, f64)>,
+    device_offset: f64,
+    lines: &'a [(f64, serde_json::Value)],
+    server_t0: f64,
+}
+
+impl Recorded<'_> {
+    /// The figures of the phase spanning `from..to` (s since wall_t0).
+    fn phase(&self, (from, to): (f64, f64), viewers: usize, rendered: u64) -> Phase {
+        let device_offset = self.device_offset;
         let within = |t: f64| t >= from - device_offset && t < to - device_offset;
-        let force: Vec<f64> = device_latencies
+        let force: Vec<f64> = self
+            .device_latencies
             .iter()
             .filter(|(t, _)| within(*t))
             .map(|(_, l)| *l)
             .collect();
-        let frames: Vec<&(f64, f64, f64)> = frame_latencies
+        let frames: Vec<&(f64, f64, f64)> = self
+            .frame_latencies
             .iter()
             .filter(|(t, _, _)| within(*t))
             .collect();
@@ -318,74 +374,85 @@ fn measure(
         let stamped: Vec<f64> = frames.iter().map(|(_, _, s)| *s).collect();
         let rest: Vec<f64> = frames.iter().map(|(_, l, s)| l - s).collect();
         // Status windows wholly inside the phase (a window ends at its line's uptime).
-        let windows: Vec<&serde_json::Value> = lines
+        let server_t0 = self.server_t0;
+        let windows: Vec<&serde_json::Value> = self
+            .lines
             .iter()
             .filter(|(t, _)| *t - server_t0 >= from + 1.0 && *t - server_t0 <= to + 1e-3)
             .map(|(_, v)| &v["haptic"])
             .collect();
-        let get = |w: &serde_json::Value, k: &str| w[k].as_f64().unwrap_or(f64::NAN);
-        let mut p50s: Vec<f64> = windows.iter().map(|w| get(w, "jitter_p50_ms")).collect();
-        p50s.sort_by(f64::total_cmp);
-        let sum = |k: &str| -> u64 { windows.iter().map(|w| w[k].as_u64().unwrap_or(0)).sum() };
-        let haptic = HapticFigures {
-            windows: windows.len(),
-            ticks: sum("ticks"),
-            ticks_late_over_0_1_ms: sum("ticks_late_over_0_1_ms"),
-            jitter_p50_ms: p50s.get(p50s.len() / 2).copied().unwrap_or(f64::NAN),
-            jitter_p99_ms: windows
-                .iter()
-                .map(|w| get(w, "jitter_p99_ms"))
-                .fold(0.0, f64::max),
-            jitter_p999_ms: windows
-                .iter()
-                .map(|w| get(w, "jitter_p999_ms"))
-                .fold(0.0, f64::max),
-            jitter_max_ms: windows
-                .iter()
-                .map(|w| get(w, "jitter_max_ms"))
-                .fold(0.0, f64::max),
-            deadline_misses: windows
-                .iter()
-                .map(|w| w["deadline_misses"].as_u64().unwrap_or(0))
-                .sum(),
-            rate_hz_min: windows
-                .iter()
-                .map(|w| get(w, "rate_hz"))
-                .fold(f64::INFINITY, f64::min),
-        };
         Phase {
             viewers,
-            haptic,
+            haptic: haptic_figures(&windows),
             pose_to_force_ms: quantiles(&force),
             pose_to_frame_ms: quantiles(&frame),
             pose_to_frame_stamped_ms: quantiles(&stamped),
             frame_stamped_to_received_ms: quantiles(&rest),
             frames_rendered_by_viewers: rendered,
         }
-    };
-    let phases = vec![phase(phase1, 0, 0), phase(phase2, viewers, rendered)];
-    // p99.9 ≤ 0.1 ms over the whole phase: at most one tick in a thousand 0.1 ms late.
-    let jitter_p999_met = phases.iter().all(|p| {
-        p.haptic.ticks > 0
-            && p.haptic.ticks_late_over_0_1_ms * 1000 <= p.haptic.ticks
-            && JITTER_P999_TARGET_MS >= 0.1
-    });
-    let pose_to_frame_p99_met = phases
-        .iter()
-        .all(|p| p.pose_to_frame_ms.n > 0 && p.pose_to_frame_ms.p99 <= POSE_TO_FRAME_P99_TARGET_MS);
-    let viewers_add_no_misses =
-        phases[1].haptic.deadline_misses <= phases[0].haptic.deadline_misses;
-    Ok(LoopBench {
-        station: station.to_string(),
-        seconds_per_phase: seconds,
-        haptic_cpu: None,
-        phases,
-        jitter_p999_target_ms: JITTER_P999_TARGET_MS,
-        pose_to_frame_p99_target_ms: POSE_TO_FRAME_P99_TARGET_MS,
-        jitter_p999_met,
-        pose_to_frame_p99_met,
-        viewers_add_no_misses,
-    })
+    }
+}
+
+/// The haptic figures of a phase from its status windows.
+fn haptic_figures(windows: &[&serde_json::Value]) -> HapticFigures {
+    let get = |w: &serde_json::Value, k: &str| w[k].as_f64().unwrap_or(f64::NAN);
+    let mut p50s: Vec<f64> = windows.iter().map(|w| get(w, "jitter_p50_ms")).collect();
+    p50s.sort_by(f64::total_cmp);
+    let sum = |k: &str| -> u64 { windows.iter().map(|w| w[k].as_u64().unwrap_or(0)).sum() };
+    HapticFigures {
+        windows: windows.len(),
+        ticks: sum("ticks"),
+        ticks_late_over_0_1_ms: sum("ticks_late_over_0_1_ms"),
+        jitter_p50_ms: p50s.get(p50s.len() / 2).copied().unwrap_or(f64::NAN),
+        jitter_p99_ms: windows
+            .iter()
+            .map(|w| get(w, "jitter_p99_ms"))
+            .fold(0.0, f64::max),
+        jitter_p999_ms: windows
+            .iter()
+            .map(|w| get(w, "jitter_p999_ms"))
+            .fold(0.0, f64::max),
+        jitter_max_ms: windows
+            .iter()
+            .map(|w| get(w, "jitter_max_ms"))
+            .fold(0.0, f64::max),
+        deadline_misses: windows
+            .iter()
+            .map(|w| w["deadline_misses"].as_u64().unwrap_or(0))
+            .sum(),
+        rate_hz_min: windows
+            .iter()
+            .map(|w| get(w, "rate_hz"))
+            .fold(f64::INFINITY, f64::min),
+    }
+}
+
+impl LoopBench {
+    /// The report of both phases, against the targets.
+    fn judge(station: &str, seconds: f64, phases: Vec<Phase>) -> Self {
+        // p99.9 ≤ 0.1 ms over the whole phase: at most one tick in a thousand 0.1 ms late.
+        let jitter_p999_met = phases.iter().all(|p| {
+            p.haptic.ticks > 0
+                && p.haptic.ticks_late_over_0_1_ms * 1000 <= p.haptic.ticks
+                && JITTER_P999_TARGET_MS >= 0.1
+        });
+        let pose_to_frame_p99_met = phases.iter().all(|p| {
+            p.pose_to_frame_ms.n > 0 && p.pose_to_frame_ms.p99 <= POSE_TO_FRAME_P99_TARGET_MS
+        });
+        let viewers_add_no_misses =
+            phases[1].haptic.deadline_misses <= phases[0].haptic.deadline_misses;
+        LoopBench {
+            station: station.to_string(),
+            seconds_per_phase: seconds,
+            haptic_cpu: None,
+            phases,
+            jitter_p999_target_ms: JITTER_P999_TARGET_MS,
+            pose_to_frame_p99_target_ms: POSE_TO_FRAME_P99_TARGET_MS,
+            jitter_p999_met,
+            pose_to_frame_p99_met,
+            viewers_add_no_misses,
+        }
+    }
 }
 
 fn print_report(r: &LoopBench) {
