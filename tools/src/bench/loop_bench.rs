@@ -229,6 +229,9 @@ fn measure(
     Ok(LoopBench::judge(station, seconds, phases))
 }
 
+/// A thread recording samples until it is stopped.
+type Recorder<T> = JoinHandle<anyhow::Result<Vec<T>>>;
+
 /// Sleeps a second for things to settle, then `seconds` measured: the measured span, in
 /// seconds since `wall_t0`.
 fn settle_then_wait(wall_t0: Instant, seconds: f64) -> (f64, f64) {
@@ -244,7 +247,7 @@ fn spawn_device(
     station: &str,
     script: CutScript,
     stop: &Arc<AtomicBool>,
-) -> anyhow::Result<JoinHandle<anyhow::Result<Vec<(f64, f64)>>>> {
+) -> anyhow::Result<Recorder<(f64, f64)>> {
     let station = station.to_string();
     let stop = stop.clone();
     Ok(std::thread::Builder::new()
@@ -277,7 +280,7 @@ fn spawn_device(
 fn spawn_subscriber(
     station: &str,
     stop: &Arc<AtomicBool>,
-) -> anyhow::Result<JoinHandle<anyhow::Result<Vec<(f64, f64, f64)>>>> {
+) -> anyhow::Result<Recorder<(f64, f64, f64)>> {
     let station = station.to_string();
     let stop = stop.clone();
     Ok(std::thread::Builder::new()
