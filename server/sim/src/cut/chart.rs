@@ -64,166 +64,33 @@ impl Chart {
         vertices.sort_unstable();
         let index: HashMap<u32, usize> =
             vertices.iter().enumerate().map(|(i, &v)| (v, i)).collect();
-        let n = vertices.len();
-        if n < 3 {
+        if vertices.len() < 3 {
             return None;
         }
-        // Two vertices far apart are pinned (the map is otherwise free to move, turn and
-        // scale): the one farthest from the first vertex, and the one farthest from that.
-        let at = |i: usize| mesh.positions[vertices[i] as usize];
-        let farthest = |from: usize| {
-            (0..n)
-                .max_by(|&a, &b| {
-                    (at(a) - at(from))
-                        .norm()
-                        .total_cmp(&(at(b) - at(from)).norm())
-                })
-                .unwrap_or(0)
-        };
-        let pin_a = farthest(0);
-        let pin_b = farthest(pin_a);
-        let span = (at(pin_b) - at(pin_a)).norm();
-        if pin_a == pin_b || span <= 0.0 {
-            return None;
-        }
-        let pins = [[0.0, 0.0], [span, 0.0]];
-        let pin_of = |i: usize| {
-            if i == pin_a {
-                Some(0)
-            } else if i == pin_b {
-                Some(1)
-            } else {
-                None
-            }
-        };
-        // Unknowns: (u, v) of each free vertex.
-        let mut free_of = vec![usize::MAX; n];
-        let mut free = 0;
-        for (i, f) in free_of.iter_mut().enumerate() {
-            if pin_of(i).is_none() {
-                *f = free;
-                free += 1;
-            }
-        }
-        let m = 2 * free;
-        // Normal equations, lower triangle, and the right-hand side from the pins.
-        let mut entries: HashMap<(usize, usize), f64> = HashMap::new();
-        let mut rhs = vec![0.0; m];
-        for &t in region {
-            let corners = mesh.triangles[t].map(|v| index[&v]);
-            let [p0, p1, p2] = corners.map(at);
-            let ex = (p1 - p0).try_normalize(1e-300)?;
-            let normal = (p1 - p0).cross(&(p2 - p0)).try_normalize(1e-300)?;
-            let ey = normal.cross(&ex);
-            let q = [p0, p1, p2].map(|p| [(p - p0).dot(&ex), (p - p0).dot(&ey)]);
-            let doubled = q[1][0] * q[2][1] - q[1][1] * q[2][0];
-            let w = 1.0 / doubled.sqrt();
-            // The conformality residual Σ W_j U_j with W_j = z_{j+2} − z_{j+1}: its real
-            // and imaginary rows over (u_j, v_j).
-            let mut rows = [[(0usize, 0.0); 6], [(0usize, 0.0); 6]];
-            for j in 0..3 {
-                let (a, b) = (
-                    w * (q[(j + 2) % 3][0] - q[(j + 1) % 3][0]),
-                    w * (q[(j + 2) % 3][1] - q[(j + 1) % 3][1]),
-                );
-                let (iu, iv) = (2 * corners[j], 2 * corners[j] + 1);
-                rows[0][2 * j] = (iu, a);
-                rows[0][2 * j + 1] = (iv, -b);
-                rows[1][2 * j] = (iu, b);
-                rows[1][2 * j + 1] = (iv, a);
-            }
-            // An unknown's row in the system, or the pinned value it stands for.
-            let unknown = |k: usize| -> Result<usize, f64> {
-                let (i, c) = (k / 2, k % 2);
-                match pin_of(i) {
-                    Some(p) => Err(pins[p][c]),
-                    None => Ok(2 * free_of[i] + c),
-                }
-            };
-            for row in &rows {
-                for &(k, a) in row {
-                    let Ok(r) = unknown(k) else { continue };
-                    for &(l, b) in row {
-                        match unknown(l) {
-                            Ok(c) if c <= r => *entries.entry((c, r)).or_insert(0.0) += a * b,
-                            Ok(_) => {}
-                            Err(value) => rhs[r] -= a * b * value,
-                        }
-                    }
-                }
-            }
-        }
-        // Column-major lower triangle.
-        let mut sorted: Vec<((usize, usize), f64)> = entries.into_iter().collect();
-        sorted.sort_unstable_by_key(|&(key, _)| key);
-        let mut col_ptr = vec![0usize; m + 1];
-        let mut row_idx = Vec::with_capacity(sorted.len());
-        let mut values = Vec::with_capacity(sorted.len());
-        for &((c, r), v) in &sorted {
-            col_ptr[c + 1] += 1;
-            row_idx.push(r);
-            values.push(v);
-        }
-        for c in 0..m {
-            col_ptr[c + 1] += col_ptr[c];
-        }
-        SparseLlt::factor(m, &col_ptr, &row_idx, &values, 1)
-            .ok()?
-            .solve_in_place(&mut rhs, 1);
-        let mut flat: Vec<[f64; 2]> = (0..n)
-            .map(|i| match pin_of(i) {
-                Some(p) => pins[p],
-                None => [rhs[2 * free_of[i]], rhs[2 * free_of[i] + 1]],
-            })
+        let at: Vec<Vec3> = vertices
+            .iter()
+            .map(|&v| mesh.positions[v as usize])
             .collect();
-        if flat.iter().any(|p| !p[0].is_finite() || !p[1].is_finite()) {
-            return None;
-        }
+        let triangles: Vec<[usize; 3]> = region
+            .iter()
+            .map(|&t| mesh.triangles[t].map(|v| index[&v]))
+            .collect();
+        let pins = Pins::far_apart(&at)?;
+        let (entries, mut rhs) = pins.normal_equations(&triangles, &at)?;
+        solve_lower(pins.unknowns(), entries, &mut rhs)?;
+        let mut flat = pins.placed(&rhs)?;
 
         // Turned and moved onto the projection (least squares over the vertices), scaled
         // to the region's area on the surface.
         let target: Vec<[f64; 2]> = vertices.iter().map(|v| projected.coords[v]).collect();
-        let mean = |pts: &[[f64; 2]]| {
-            let s = pts
-                .iter()
-                .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
-            [s[0] / n as f64, s[1] / n as f64]
-        };
-        let (cf, ct) = (mean(&flat), mean(&target));
-        let (mut dot, mut cross) = (0.0, 0.0);
-        for (f, t) in flat.iter().zip(&target) {
-            let (a, b) = ([f[0] - cf[0], f[1] - cf[1]], [t[0] - ct[0], t[1] - ct[1]]);
-            dot += a[0] * b[0] + a[1] * b[1];
-            cross += a[0] * b[1] - a[1] * b[0];
-        }
-        let angle = cross.atan2(dot);
-        let doubled_2d = |p: &[[f64; 2]], tri: [usize; 3]| {
-            let [a, b, c] = tri.map(|i| p[i]);
-            (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-        };
-        let corners_of = |t: usize| mesh.triangles[t].map(|v| index[&v]);
         let area_3d: f64 = region
             .iter()
             .map(|&t| mesh.doubled_area_normal(t).norm())
             .sum();
-        let area_2d: f64 = region
-            .iter()
-            .map(|&t| doubled_2d(&flat, corners_of(t)))
-            .sum();
-        if area_2d <= 0.0 {
-            return None;
-        }
-        let scale = (area_3d / area_2d).sqrt();
-        let (cos, sin) = (scale * angle.cos(), scale * angle.sin());
-        for p in &mut flat {
-            let (x, y) = (p[0] - cf[0], p[1] - cf[1]);
-            *p = [ct[0] + cos * x - sin * y, ct[1] + sin * x + cos * y];
-        }
+        fit_onto(&mut flat, &target, &triangles, area_3d)?;
         // Every triangle the right way round and not squashed.
-        for &t in region {
-            if doubled_2d(&flat, corners_of(t))
-                < MIN_AREA_SHARE * mesh.doubled_area_normal(t).norm()
-            {
+        for (&t, &tri) in region.iter().zip(&triangles) {
+            if doubled_2d(&flat, tri) < MIN_AREA_SHARE * mesh.doubled_area_normal(t).norm() {
                 return None;
             }
         }
@@ -313,6 +180,203 @@ impl Chart {
             u * qa[1] + v * qb[1] + w * qc[1],
         ]
     }
+}
+
+/// A symmetric matrix's lower triangle by (column, row).
+type Lower = HashMap<(usize, usize), f64>;
+
+/// Two vertices far apart pinned (a conformal map is otherwise free to move, turn and
+/// scale) and the numbering of the free ones' unknowns.
+struct Pins {
+    /// The pinned vertices and where they are pinned.
+    at: [usize; 2],
+    values: [[f64; 2]; 2],
+    /// Each vertex's place among the free ones (`usize::MAX` for a pinned one).
+    free_of: Vec<usize>,
+    free: usize,
+}
+
+impl Pins {
+    /// The vertex farthest from the first, and the one farthest from that, at their
+    /// distance apart on the x axis.
+    fn far_apart(at: &[Vec3]) -> Option<Self> {
+        let n = at.len();
+        let farthest = |from: usize| {
+            (0..n)
+                .max_by(|&a, &b| {
+                    (at[a] - at[from])
+                        .norm()
+                        .total_cmp(&(at[b] - at[from]).norm())
+                })
+                .unwrap_or(0)
+        };
+        let pin_a = farthest(0);
+        let pin_b = farthest(pin_a);
+        let span = (at[pin_b] - at[pin_a]).norm();
+        if pin_a == pin_b || span <= 0.0 {
+            return None;
+        }
+        let mut pins = Pins {
+            at: [pin_a, pin_b],
+            values: [[0.0, 0.0], [span, 0.0]],
+            free_of: vec![usize::MAX; n],
+            free: 0,
+        };
+        for i in 0..n {
+            if pins.of(i).is_none() {
+                pins.free_of[i] = pins.free;
+                pins.free += 1;
+            }
+        }
+        Some(pins)
+    }
+
+    /// Which pin vertex `i` is, if any.
+    fn of(&self, i: usize) -> Option<usize> {
+        if i == self.at[0] {
+            Some(0)
+        } else if i == self.at[1] {
+            Some(1)
+        } else {
+            None
+        }
+    }
+
+    /// The number of unknowns: (u, v) of each free vertex.
+    fn unknowns(&self) -> usize {
+        2 * self.free
+    }
+
+    /// Unknown `k`'s row in the system (u of vertex k / 2 for even k, v for odd), or the
+    /// pinned value it stands for.
+    fn unknown(&self, k: usize) -> Result<usize, f64> {
+        let (i, c) = (k / 2, k % 2);
+        match self.of(i) {
+            Some(p) => Err(self.values[p][c]),
+            None => Ok(2 * self.free_of[i] + c),
+        }
+    }
+
+    /// The normal equations of the conformality residuals (lower triangle, by (column,
+    /// row)) and their right-hand side from the pins; `None` for a degenerate triangle.
+    fn normal_equations(&self, triangles: &[[usize; 3]], at: &[Vec3]) -> Option<(Lower, Vec<f64>)> {
+        let mut entries: Lower = HashMap::new();
+        let mut rhs = vec![0.0; self.unknowns()];
+        for &corners in triangles {
+            let [p0, p1, p2] = corners.map(|i| at[i]);
+            let ex = (p1 - p0).try_normalize(1e-300)?;
+            let normal = (p1 - p0).cross(&(p2 - p0)).try_normalize(1e-300)?;
+            let ey = normal.cross(&ex);
+            let q = [p0, p1, p2].map(|p| [(p - p0).dot(&ex), (p - p0).dot(&ey)]);
+            let doubled = q[1][0] * q[2][1] - q[1][1] * q[2][0];
+            let w = 1.0 / doubled.sqrt();
+            // The conformality residual Σ W_j U_j with W_j = z_{j+2} − z_{j+1}: its real
+            // and imaginary rows over (u_j, v_j).
+            let mut rows = [[(0usize, 0.0); 6], [(0usize, 0.0); 6]];
+            for j in 0..3 {
+                let (a, b) = (
+                    w * (q[(j + 2) % 3][0] - q[(j + 1) % 3][0]),
+                    w * (q[(j + 2) % 3][1] - q[(j + 1) % 3][1]),
+                );
+                let (iu, iv) = (2 * corners[j], 2 * corners[j] + 1);
+                rows[0][2 * j] = (iu, a);
+                rows[0][2 * j + 1] = (iv, -b);
+                rows[1][2 * j] = (iu, b);
+                rows[1][2 * j + 1] = (iv, a);
+            }
+            for row in &rows {
+                for &(k, a) in row {
+                    let Ok(r) = self.unknown(k) else { continue };
+                    for &(l, b) in row {
+                        match self.unknown(l) {
+                            Ok(c) if c <= r => *entries.entry((c, r)).or_insert(0.0) += a * b,
+                            Ok(_) => {}
+                            Err(value) => rhs[r] -= a * b * value,
+                        }
+                    }
+                }
+            }
+        }
+        Some((entries, rhs))
+    }
+
+    /// Every vertex's map: the pins' values and the solved free ones; `None` if any is
+    /// not finite.
+    fn placed(&self, solved: &[f64]) -> Option<Vec<[f64; 2]>> {
+        let flat: Vec<[f64; 2]> = (0..self.free_of.len())
+            .map(|i| match self.of(i) {
+                Some(p) => self.values[p],
+                None => [solved[2 * self.free_of[i]], solved[2 * self.free_of[i] + 1]],
+            })
+            .collect();
+        flat.iter()
+            .all(|p| p[0].is_finite() && p[1].is_finite())
+            .then_some(flat)
+    }
+}
+
+/// Solves the `m` × `m` system whose lower triangle is `entries` (by (column, row)) in
+/// place of `rhs`; `None` if it does not factor.
+fn solve_lower(m: usize, entries: Lower, rhs: &mut [f64]) -> Option<()> {
+    let mut sorted: Vec<((usize, usize), f64)> = entries.into_iter().collect();
+    sorted.sort_unstable_by_key(|&(key, _)| key);
+    let mut col_ptr = vec![0usize; m + 1];
+    let mut row_idx = Vec::with_capacity(sorted.len());
+    let mut values = Vec::with_capacity(sorted.len());
+    for &((c, r), v) in &sorted {
+        col_ptr[c + 1] += 1;
+        row_idx.push(r);
+        values.push(v);
+    }
+    for c in 0..m {
+        col_ptr[c + 1] += col_ptr[c];
+    }
+    SparseLlt::factor(m, &col_ptr, &row_idx, &values, 1)
+        .ok()?
+        .solve_in_place(rhs, 1);
+    Some(())
+}
+
+/// A chart triangle's doubled signed area.
+fn doubled_2d(p: &[[f64; 2]], tri: [usize; 3]) -> f64 {
+    let [a, b, c] = tri.map(|i| p[i]);
+    (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+}
+
+/// Turns and moves `flat` onto `target` (least squares over the vertices) and scales it to
+/// the doubled area `area_3d`; `None` if the map is turned over as a whole.
+fn fit_onto(
+    flat: &mut [[f64; 2]],
+    target: &[[f64; 2]],
+    triangles: &[[usize; 3]],
+    area_3d: f64,
+) -> Option<()> {
+    let n = flat.len();
+    let mean = |pts: &[[f64; 2]]| {
+        let s = pts
+            .iter()
+            .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
+        [s[0] / n as f64, s[1] / n as f64]
+    };
+    let (cf, ct) = (mean(flat), mean(target));
+    let (mut dot, mut cross) = (0.0, 0.0);
+    for (f, t) in flat.iter().zip(target) {
+        let (a, b) = ([f[0] - cf[0], f[1] - cf[1]], [t[0] - ct[0], t[1] - ct[1]]);
+        dot += a[0] * b[0] + a[1] * b[1];
+        cross += a[0] * b[1] - a[1] * b[0];
+    }
+    let angle = cross.atan2(dot);
+    let area_2d: f64 = triangles.iter().map(|&tri| doubled_2d(flat, tri)).sum();
+    if area_2d <= 0.0 {
+        return None;
+    }
+    let scale = (area_3d / area_2d).sqrt();
+    let (cos, sin) = (scale * angle.cos(), scale * angle.sin());
+    for p in flat.iter_mut() {
+        let (x, y) = (p[0] - cf[0], p[1] - cf[1]);
+        *p = [ct[0] + cos * x - sin * y, ct[1] + sin * x + cos * y];
+    }
+    Some(())
 }
 
 #[cfg(test)]

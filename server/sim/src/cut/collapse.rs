@@ -221,50 +221,8 @@ pub(crate) fn collapse_boundary_splits(
     created: &mut Vec<u32>,
     outside: &mut [SplitTriangle],
 ) -> Vec<(u32, u32)> {
-    let smallest = |tri: [u32; 3]| cell_min_angle_deg(positions, tri);
-    let normal = |tri: [u32; 3]| cell_normal(positions, tri);
-    let max_turn = COLLAPSE_MAX_TURN_DEG.to_radians().cos();
-    // The region's cells at each split vertex, and who owns each directed edge.
-    let mut cells_at: HashMap<u32, Vec<u32>> = HashMap::new();
-    for o in outside.iter() {
-        for &v in o.splits.iter().flatten() {
-            cells_at.entry(v).or_default();
-        }
-    }
-    for &t in created.iter() {
-        for v in triangles[t as usize] {
-            if let Some(list) = cells_at.get_mut(&v) {
-                list.push(t);
-            }
-        }
-    }
-    // The triangles beyond are not fanned yet: their rings stand for them (owner
-    // `BEYOND`), so a region cell cannot take an edge one of their cells will have.
-    const BEYOND: u32 = u32::MAX;
-    let mut owner: HashMap<(u32, u32), u32> = HashMap::new();
-    for (t, tri) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
-        }
-    }
-    for out in outside.iter() {
-        let ring: Vec<u32> = (0..3)
-            .flat_map(|e| std::iter::once(out.corners[e]).chain(out.splits[e].iter().copied()))
-            .collect();
-        for k in 0..ring.len() {
-            owner.insert((ring[k], ring[(k + 1) % ring.len()]), BEYOND);
-        }
-    }
-    // The fan the triangle beyond gets with `splits`, and the region's cells at split v.
-    let around = |out: &SplitTriangle,
-                  splits: &[Vec<u32>; 3],
-                  v: Option<u32>,
-                  cells_at: &HashMap<u32, Vec<u32>>,
-                  triangles: &[[u32; 3]]| {
-        let cells = v.map_or(&[][..], |v| &cells_at[&v][..]);
-        Quality::of(plan_fan(positions, out.corners, splits).angles(positions))
-            .with(cells.iter().map(|&c| smallest(triangles[c as usize])))
-    };
+    let mut cells_at = cells_at_splits(outside, created, triangles);
+    let mut owner = edge_owners(triangles, outside);
     let mut alive = vec![true; triangles.len()];
     let mut collapsed = Vec::new();
     for _pass in 0..8 {
@@ -276,7 +234,8 @@ pub(crate) fn collapse_boundary_splits(
             }
             for e in 0..3 {
                 for (i, &v) in out.splits[e].iter().enumerate() {
-                    let around = around(out, &out.splits, Some(v), &cells_at, triangles);
+                    let around =
+                        quality_around(positions, out, &out.splits, &cells_at[&v], triangles);
                     if around.min < COLLAPSE_BELOW_DEG {
                         worst.push((around, o, e, i));
                     }
@@ -294,54 +253,26 @@ pub(crate) fn collapse_boundary_splits(
             let out = &outside[o];
             let chain = &out.splits[e];
             let v = chain[i];
-            // As things are now: a collapse at a neighbouring split may have changed them.
-            let before = around(out, &out.splits, Some(v), &cells_at, triangles);
             let prev = if i == 0 { out.corners[e] } else { chain[i - 1] };
             let next = chain
                 .get(i + 1)
                 .copied()
                 .unwrap_or(out.corners[(e + 1) % 3]);
+            let cells = &cells_at[&v];
+            // As things are now: a collapse at a neighbouring split may have changed them.
+            let before = quality_around(positions, out, &out.splits, cells, triangles);
             let mut fewer = out.splits.clone();
             fewer[e].remove(i);
-            let fan_after = around(out, &fewer, None, &cells_at, triangles);
-            let cells = &cells_at[&v];
-            let mut best: Option<(Quality, u32)> = None;
-            'target: for u in [prev, next] {
-                let on_edge: Vec<u32> = cells
-                    .iter()
-                    .copied()
-                    .filter(|&c| triangles[c as usize].contains(&u))
-                    .collect();
-                if on_edge.len() != 1 || cells.iter().any(|&c| kinds[c as usize] != FaceKind::Skin)
-                {
-                    continue;
-                }
-                let mut after = fan_after;
-                let mut new_edges: HashSet<(u32, u32)> = HashSet::new();
-                for &c in cells.iter().filter(|&&c| c != on_edge[0]) {
-                    let old = triangles[c as usize];
-                    let new = old.map(|w| if w == v { u } else { w });
-                    let (Some(n_old), Some(n_new)) = (normal(old), normal(new)) else {
-                        continue 'target;
-                    };
-                    if n_old.dot(&n_new) < max_turn {
-                        continue 'target;
-                    }
-                    // Each directed edge once, or the surface would pinch at u.
-                    for k in 0..3 {
-                        let edge = (new[k], new[(k + 1) % 3]);
-                        let taken = owner.get(&edge).is_some_and(|&t| !cells.contains(&t));
-                        if taken || !new_edges.insert(edge) {
-                            continue 'target;
-                        }
-                    }
-                    after = after.with([smallest(new)]);
-                }
-                if after.improves_on(&before) && best.is_none_or(|b| after.improves_on(&b.0)) {
-                    best = Some((after, u));
-                }
-            }
-            let Some((_, u)) = best else {
+            let fan_after = quality_around(positions, out, &fewer, &[], triangles);
+            let slide = Slide {
+                positions,
+                triangles,
+                kinds,
+                owner: &owner,
+                cells,
+                v,
+            };
+            let Some(u) = slide.best_target([prev, next], fan_after, &before) else {
                 continue;
             };
             touched.insert(o);
@@ -374,6 +305,132 @@ pub(crate) fn collapse_boundary_splits(
     }
     drop_dead(triangles, kinds, created, &alive);
     collapsed
+}
+
+/// The owner standing for a triangle beyond the region that is not fanned yet.
+const BEYOND: u32 = u32::MAX;
+
+/// The region's cells at each split vertex of the triangles `outside`.
+fn cells_at_splits(
+    outside: &[SplitTriangle],
+    created: &[u32],
+    triangles: &[[u32; 3]],
+) -> HashMap<u32, Vec<u32>> {
+    let mut cells_at: HashMap<u32, Vec<u32>> = HashMap::new();
+    for o in outside {
+        for &v in o.splits.iter().flatten() {
+            cells_at.entry(v).or_default();
+        }
+    }
+    for &t in created {
+        for v in triangles[t as usize] {
+            if let Some(list) = cells_at.get_mut(&v) {
+                list.push(t);
+            }
+        }
+    }
+    cells_at
+}
+
+/// Who owns each directed edge. The triangles beyond are not fanned yet: their rings
+/// stand for them (owner [`BEYOND`]), so a region cell cannot take an edge one of their
+/// cells will have.
+fn edge_owners(triangles: &[[u32; 3]], outside: &[SplitTriangle]) -> HashMap<(u32, u32), u32> {
+    let mut owner: HashMap<(u32, u32), u32> = HashMap::new();
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            owner.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+        }
+    }
+    for out in outside {
+        let ring: Vec<u32> = (0..3)
+            .flat_map(|e| std::iter::once(out.corners[e]).chain(out.splits[e].iter().copied()))
+            .collect();
+        for k in 0..ring.len() {
+            owner.insert((ring[k], ring[(k + 1) % ring.len()]), BEYOND);
+        }
+    }
+    owner
+}
+
+/// The quality of the fan the triangle beyond gets with `splits`, together with the
+/// region's `cells` (at a split).
+fn quality_around(
+    positions: &[Vec3],
+    out: &SplitTriangle,
+    splits: &[Vec<u32>; 3],
+    cells: &[u32],
+    triangles: &[[u32; 3]],
+) -> Quality {
+    Quality::of(plan_fan(positions, out.corners, splits).angles(positions)).with(
+        cells
+            .iter()
+            .map(|&c| cell_min_angle_deg(positions, triangles[c as usize])),
+    )
+}
+
+/// Split `v` on the region's boundary sliding into a neighbour along its original edge.
+struct Slide<'a> {
+    positions: &'a [Vec3],
+    triangles: &'a [[u32; 3]],
+    kinds: &'a [FaceKind],
+    owner: &'a HashMap<(u32, u32), u32>,
+    /// The region's cells at `v`.
+    cells: &'a [u32],
+    v: u32,
+}
+
+impl Slide<'_> {
+    /// The neighbour among `targets` whose collapse improves most on `before` (the fan
+    /// beyond without `v` scoring `fan_after`): the cells must all be skin, exactly one
+    /// of them on the edge to it, none may turn by more than the collapse limit, and no
+    /// directed edge may be taken twice.
+    fn best_target(&self, targets: [u32; 2], fan_after: Quality, before: &Quality) -> Option<u32> {
+        let max_turn = COLLAPSE_MAX_TURN_DEG.to_radians().cos();
+        let (positions, triangles, cells, v) = (self.positions, self.triangles, self.cells, self.v);
+        let mut best: Option<(Quality, u32)> = None;
+        'target: for u in targets {
+            let on_edge: Vec<u32> = cells
+                .iter()
+                .copied()
+                .filter(|&c| triangles[c as usize].contains(&u))
+                .collect();
+            if on_edge.len() != 1
+                || cells
+                    .iter()
+                    .any(|&c| self.kinds[c as usize] != FaceKind::Skin)
+            {
+                continue;
+            }
+            let mut after = fan_after;
+            let mut new_edges: HashSet<(u32, u32)> = HashSet::new();
+            for &c in cells.iter().filter(|&&c| c != on_edge[0]) {
+                let old = triangles[c as usize];
+                let new = old.map(|w| if w == v { u } else { w });
+                let (Some(n_old), Some(n_new)) =
+                    (cell_normal(positions, old), cell_normal(positions, new))
+                else {
+                    continue 'target;
+                };
+                if n_old.dot(&n_new) < max_turn {
+                    continue 'target;
+                }
+                // Each directed edge once, or the surface would pinch at u.
+                for k in 0..3 {
+                    let edge = (new[k], new[(k + 1) % 3]);
+                    let taken = self.owner.get(&edge).is_some_and(|&t| !cells.contains(&t));
+                    if taken || !new_edges.insert(edge) {
+                        continue 'target;
+                    }
+                }
+                after = after.with([cell_min_angle_deg(positions, new)]);
+            }
+            if after.improves_on(before) && best.is_none_or(|b| after.improves_on(&b.0)) {
+                best = Some((after, u));
+            }
+        }
+        best.map(|(_, u)| u)
+    }
 }
 
 /// Collapses v into u over v's `cells`: the cells on edge v–u die and leave every list in

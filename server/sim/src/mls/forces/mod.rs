@@ -422,6 +422,26 @@ pub fn add_elastic_forces(
             || shared.part(runs_b, points_b, part_b),
         ),
     };
+    merge_parts(f, part_a, part_b, touched);
+    scratch.pair_work = work;
+    let pair_stats = stats_a.merge(&stats_b);
+    match (stencil, stencil_stats) {
+        (Some(stencil), Some(stats)) => {
+            add_gathered(f, stencil, fields, set);
+            stats.merge(&pair_stats)
+        }
+        _ => pair_stats,
+    }
+}
+
+/// Sums both parts' forces on `touched` (all points when `None`) into `f`, clearing them
+/// for the next evaluation.
+fn merge_parts(
+    f: &mut [Vec3],
+    part_a: &mut PartForces,
+    part_b: &mut PartForces,
+    touched: Option<&[u32]>,
+) {
     let n = f.len();
     let mut add = |i: usize| {
         let (ga, gb) = (part_a.lanes[i].to_array(), part_b.lanes[i].to_array());
@@ -437,36 +457,36 @@ pub fn add_elastic_forces(
         Some(list) => list.iter().for_each(|&i| add(i as usize)),
         None => (0..n).for_each(add),
     }
-    scratch.pair_work = work;
-    let pair_stats = stats_a.merge(&stats_b);
-    match (stencil, stencil_stats) {
-        (Some(stencil), Some(stats)) => {
-            // The stencil's gathered forces: the sites of the points whose forces are whole
-            // (all, or the set's active points) are written by each evaluation, so nothing
-            // needs clearing.
-            let sites = stencil.site_of();
-            let [fx, fy, fz] = fields.forces();
-            let at = |site: u32| {
-                let s = site as usize;
-                Vec3::new(fx[s], fy[s], fz[s])
-            };
-            match set {
-                None => {
-                    for (f, &site) in f.iter_mut().zip(sites) {
-                        *f += at(site);
-                    }
-                }
-                Some(s) => {
-                    for &i in &s.active {
-                        if let Some(&site) = sites.get(i as usize) {
-                            f[i as usize] += at(site);
-                        }
-                    }
+}
+
+/// Adds the stencil's gathered forces to `f`: the sites of the points whose forces are
+/// whole (all, or the set's active points) are written by each evaluation, so nothing
+/// needs clearing.
+fn add_gathered(
+    f: &mut [Vec3],
+    stencil: &LatticeStencil,
+    fields: &StencilFields,
+    set: Option<&EvalSet>,
+) {
+    let sites = stencil.site_of();
+    let [fx, fy, fz] = fields.forces();
+    let at = |site: u32| {
+        let s = site as usize;
+        Vec3::new(fx[s], fy[s], fz[s])
+    };
+    match set {
+        None => {
+            for (f, &site) in f.iter_mut().zip(sites) {
+                *f += at(site);
+            }
+        }
+        Some(s) => {
+            for &i in &s.active {
+                if let Some(&site) = sites.get(i as usize) {
+                    f[i as usize] += at(site);
                 }
             }
-            stats.merge(&pair_stats)
         }
-        _ => pair_stats,
     }
 }
 

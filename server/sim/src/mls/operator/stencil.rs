@@ -122,34 +122,20 @@ pub struct LatticeStencil {
     weighted_offset: [f64; 3],
 }
 
-impl LatticeStencil {
-    /// The stencil of `op`'s lattice points, or `None` when the support does not give the
-    /// 26-point stencil (h/s outside (√3, 2]) or no point qualifies.
-    pub(crate) fn build(
-        op: &MlsOperator,
-        rest: &[Vec3],
-        lattice: &LatticeOffsets,
-        kernel: &Kernel,
-    ) -> Option<Self> {
-        let s = lattice.spacing;
-        let coords = &lattice.coords;
-        let ratio = kernel.support_m / s;
-        if coords.is_empty() || !(ratio > 3f64.sqrt() && ratio <= 2.0) {
-            return None;
-        }
-        // The class values exactly as the operator computes them for a lattice offset.
-        let class = |n: usize| {
-            let x = Vec3::new(
-                s,
-                if n >= 2 { s } else { 0.0 },
-                if n >= 3 { s } else { 0.0 },
-            );
-            let w = kernel.weight_sq(x.norm_squared());
-            (w, s * w)
-        };
-        let (w1, cw1) = class(1);
-        let (w2, cw2) = class(2);
-        let (w3, cw3) = class(3);
+/// The lattice laid out as a box of sites: its dimensions, axes and occupants.
+struct BoxLayout {
+    dims: [usize; 3],
+    axes: [usize; 3],
+    /// The point at each site, or [`NONE`].
+    occupant: Vec<u32>,
+    /// Per lattice point: its site.
+    site_of: Vec<u32>,
+}
+
+impl BoxLayout {
+    /// The box of `coords`, or `None` when it is too big to index or two points share a
+    /// site.
+    fn of(coords: &[[u32; 3]]) -> Option<Self> {
         let low = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).min().unwrap_or(0));
         let high = [0, 1, 2].map(|a| coords.iter().map(|c| c[a]).max().unwrap_or(0));
         // The box's rows run along the body's longest axis: long rows make long spans (a
@@ -186,63 +172,77 @@ impl LatticeStencil {
             occupant[site] = i as u32;
             site_of.push(site as u32);
         }
-        let (sy, sz) = (dims[0] as isize, (dims[0] * dims[1]) as isize);
-        let stencil_sites = |site: usize| {
-            (-1isize..=1).flat_map(move |dz| {
-                (-1isize..=1).flat_map(move |dy| {
-                    (-1isize..=1).map(move |dx| (site as isize + dx + dy * sy + dz * sz) as usize)
+        Some(BoxLayout {
+            dims,
+            axes,
+            occupant,
+            site_of,
+        })
+    }
+
+    /// The 27 sites of `site`'s stencil, itself included.
+    fn stencil_sites(&self, site: usize) -> impl Iterator<Item = usize> {
+        let (sy, sz) = (
+            self.dims[0] as isize,
+            (self.dims[0] * self.dims[1]) as isize,
+        );
+        (-1isize..=1).flat_map(move |dz| {
+            (-1isize..=1).flat_map(move |dy| {
+                (-1isize..=1).map(move |dx| (site as isize + dx + dy * sy + dz * sz) as usize)
+            })
+        })
+    }
+
+    /// Whether point `i`'s row is exactly the points present in its stencil, with the
+    /// class values (w, s·w of a face, edge and corner neighbour) bit for bit.
+    fn qualifies(
+        &self,
+        op: &MlsOperator,
+        coords: &[[u32; 3]],
+        i: usize,
+        s: f64,
+        classes: &[(f64, f64); 3],
+    ) -> bool {
+        if !matches!(op.point(i).rank, PointRank::Full) {
+            return false;
+        }
+        let own = self.site_of[i] as usize;
+        let present = self
+            .stencil_sites(own)
+            .filter(|&t| self.occupant[t] != NONE && t != own)
+            .count();
+        let ids = op.neighbours(i);
+        if ids.len() != present {
+            return false;
+        }
+        ids.iter().zip(op.pair_terms(i)).all(|(&j, pair)| {
+            let Some(cj) = coords.get(j as usize) else {
+                return false;
+            };
+            let o = [0, 1, 2].map(|a| cj[a] as i64 - coords[i][a] as i64);
+            let n = o.iter().map(|d| d.unsigned_abs() as usize).sum::<usize>();
+            if o.iter().any(|d| d.abs() > 1) || n == 0 {
+                return false;
+            }
+            let (w, _) = classes[n - 1];
+            pair.w.to_bits() == w.to_bits()
+                && (0..3).all(|a| {
+                    let x = o[a] as f64 * s;
+                    pair.wx[a].to_bits() == (x * w).to_bits()
                 })
-            })
-        };
-        // A point qualifies when its row is exactly the points present in its stencil, with
-        // the class values bit for bit.
-        let qualifies = |i: usize| {
-            if !matches!(op.point(i).rank, PointRank::Full) {
-                return false;
-            }
-            let present = stencil_sites(site_of[i] as usize)
-                .filter(|&t| occupant[t] != NONE && t != site_of[i] as usize)
-                .count();
-            let ids = op.neighbours(i);
-            if ids.len() != present {
-                return false;
-            }
-            ids.iter().zip(op.pair_terms(i)).all(|(&j, pair)| {
-                let Some(cj) = coords.get(j as usize) else {
-                    return false;
-                };
-                let o = [0, 1, 2].map(|a| cj[a] as i64 - coords[i][a] as i64);
-                let n = o.iter().map(|d| d.unsigned_abs() as usize).sum::<usize>();
-                if o.iter().any(|d| d.abs() > 1) || n == 0 {
-                    return false;
-                }
-                let (w, _) = [class(1), class(2), class(3)][n - 1];
-                pair.w.to_bits() == w.to_bits()
-                    && (0..3).all(|a| {
-                        let x = o[a] as f64 * s;
-                        pair.wx[a].to_bits() == (x * w).to_bits()
-                    })
-            })
-        };
-        let mut evaluated = vec![false; op.len()];
-        let mut evaluated_count = 0;
-        for i in 0..coords.len() {
-            if qualifies(i) {
-                evaluated[i] = true;
-                evaluated_count += 1;
-            }
-        }
-        if evaluated_count == 0 {
-            return None;
-        }
-        // The chunks holding points, in box order, as spans joined across short gaps.
+        })
+    }
+
+    /// The chunks holding points, in box order, as spans joined across short gaps (their
+    /// `terms` not yet set).
+    fn spans(&self) -> Vec<Span> {
         let occupied = |chunk: usize| {
-            occupant[LANES * chunk..LANES * (chunk + 1)]
+            self.occupant[LANES * chunk..LANES * (chunk + 1)]
                 .iter()
                 .any(|&i| i != NONE)
         };
         let mut spans: Vec<Span> = Vec::new();
-        for chunk in 0..sites / LANES {
+        for chunk in 0..self.occupant.len() / LANES {
             if !occupied(chunk) {
                 continue;
             }
@@ -257,6 +257,76 @@ impl LatticeStencil {
                 }),
             }
         }
+        spans
+    }
+}
+
+impl ChunkTerms {
+    /// The terms of the chunk whose lanes hold `points` ([`NONE`] for an empty site): the
+    /// operator's sums for the lanes the stencil evaluates, zero for the others.
+    fn of(op: &MlsOperator, points: &[u32], evaluated: &[bool], spacing: f64) -> Self {
+        let mut t = ChunkTerms::default();
+        for (lane, &i) in points.iter().enumerate() {
+            t.point[lane] = i;
+            if i == NONE || !evaluated[i as usize] {
+                continue;
+            }
+            let p = op.point(i as usize);
+            for r in 0..3 {
+                for c in 0..3 {
+                    t.a_inv[3 * r + c] = with_lane(t.a_inv[3 * r + c], lane, p.a_pinv[(r, c)]);
+                }
+                t.sum_wx[r] = with_lane(t.sum_wx[r], lane, p.sum_wx[r]);
+            }
+            t.sum_w = with_lane(t.sum_w, lane, p.sum_w);
+            t.inv_trace_a = with_lane(t.inv_trace_a, lane, 1.0 / p.trace_a);
+            t.evaluated[lane] = true;
+        }
+        t.diagonal = t.is_diagonal(spacing);
+        t
+    }
+}
+
+impl LatticeStencil {
+    /// The stencil of `op`'s lattice points, or `None` when the support does not give the
+    /// 26-point stencil (h/s outside (√3, 2]) or no point qualifies.
+    pub(crate) fn build(
+        op: &MlsOperator,
+        rest: &[Vec3],
+        lattice: &LatticeOffsets,
+        kernel: &Kernel,
+    ) -> Option<Self> {
+        let s = lattice.spacing;
+        let coords = &lattice.coords;
+        let ratio = kernel.support_m / s;
+        if coords.is_empty() || !(ratio > 3f64.sqrt() && ratio <= 2.0) {
+            return None;
+        }
+        // The class values exactly as the operator computes them for a lattice offset.
+        let class = |n: usize| {
+            let x = Vec3::new(
+                s,
+                if n >= 2 { s } else { 0.0 },
+                if n >= 3 { s } else { 0.0 },
+            );
+            let w = kernel.weight_sq(x.norm_squared());
+            (w, s * w)
+        };
+        let classes = [class(1), class(2), class(3)];
+        let layout = BoxLayout::of(coords)?;
+        let mut evaluated = vec![false; op.len()];
+        let mut evaluated_count = 0;
+        for i in 0..coords.len() {
+            if layout.qualifies(op, coords, i, s, &classes) {
+                evaluated[i] = true;
+                evaluated_count += 1;
+            }
+        }
+        if evaluated_count == 0 {
+            return None;
+        }
+        let mut spans = layout.spans();
+        let sites = layout.occupant.len();
         let mut terms = Vec::new();
         let mut lane_of = vec![NONE; coords.len()];
         let mut terms_of_chunk = vec![NONE; sites / LANES];
@@ -264,36 +334,20 @@ impl LatticeStencil {
             span.terms = terms.len() as u32;
             for chunk in span.chunk as usize..(span.chunk + span.len) as usize {
                 terms_of_chunk[chunk] = terms.len() as u32;
-                let mut t = ChunkTerms::default();
-                for lane in 0..LANES {
-                    let i = occupant[LANES * chunk + lane];
-                    t.point[lane] = i;
-                    if i == NONE {
-                        continue;
-                    }
-                    lane_of[i as usize] = (terms.len() * LANES + lane) as u32;
-                    if evaluated[i as usize] {
-                        let p = op.point(i as usize);
-                        for r in 0..3 {
-                            for c in 0..3 {
-                                t.a_inv[3 * r + c] =
-                                    with_lane(t.a_inv[3 * r + c], lane, p.a_pinv[(r, c)]);
-                            }
-                            t.sum_wx[r] = with_lane(t.sum_wx[r], lane, p.sum_wx[r]);
-                        }
-                        t.sum_w = with_lane(t.sum_w, lane, p.sum_w);
-                        t.inv_trace_a = with_lane(t.inv_trace_a, lane, 1.0 / p.trace_a);
-                        t.evaluated[lane] = true;
+                let points = &layout.occupant[LANES * chunk..LANES * (chunk + 1)];
+                for (lane, &i) in points.iter().enumerate() {
+                    if i != NONE {
+                        lane_of[i as usize] = (terms.len() * LANES + lane) as u32;
                     }
                 }
-                t.diagonal = t.is_diagonal(s);
-                terms.push(t);
+                terms.push(ChunkTerms::of(op, points, &evaluated, s));
             }
         }
+        let [(w1, cw1), (w2, cw2), (w3, cw3)] = classes;
         Some(Self {
-            dims,
-            axes,
-            site_of,
+            dims: layout.dims,
+            axes: layout.axes,
+            site_of: layout.site_of,
             rest: rest[..coords.len()].to_vec(),
             spans,
             terms,
