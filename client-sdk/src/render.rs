@@ -9,6 +9,7 @@
 //! materials (the wound wall meets the skin at a crease), a key light, a fill light and
 //! ambient; 2×2 supersampling against jagged edges.
 
+use std::collections::HashMap;
 use std::io::Write;
 
 use euc::Pipeline;
@@ -219,6 +220,21 @@ pub fn render(
             height: h,
         });
     }
+    check_surface(surface, palette)?;
+    let view = View::new(camera, surface.positions, w as f64 / h as f64)?;
+    let normals = smoothed_normals(surface);
+    let corners = shade_corners(surface, palette, &view, &normals);
+    let s = options.supersample.clamp(1, 4) as usize;
+    let colour = rasterize(&corners, w as usize * s, h as usize * s, options.background);
+    Ok(Image {
+        width: w,
+        height: h,
+        rgba: downsample(colour.as_ref(), w as usize, h as usize, s),
+    })
+}
+
+/// Refuses a triangle naming a missing vertex or a material without a palette colour.
+fn check_surface(surface: &SurfaceView<'_>, palette: &[[f32; 3]]) -> Result<(), RenderError> {
     let nv = surface.positions.len();
     for (t, tri) in surface.triangles.iter().enumerate() {
         if let Some(v) = tri.iter().find(|&&v| v as usize >= nv) {
@@ -238,110 +254,168 @@ pub fn render(
             });
         }
     }
-    // View basis.
-    let forward = normalize(sub(camera.target, camera.eye))
-        .ok_or_else(|| RenderError::BadCamera("the eye is at the target".into()))?;
-    let right = normalize(cross(forward, camera.up))
-        .ok_or_else(|| RenderError::BadCamera("up is along the view direction".into()))?;
-    let up = cross(right, forward);
-    let aspect = w as f64 / h as f64;
-    let f = 1.0 / (0.5 * camera.fov_y_deg.to_radians()).tan();
-    // Near and far planes around the surface.
-    let depths: Vec<f64> = surface
-        .positions
-        .iter()
-        .map(|p| dot(sub(*p, camera.eye), forward))
-        .collect();
-    let far = depths.iter().copied().fold(0.0, f64::max) * 1.05 + 1e-9;
-    let near = (far * 1e-3).max(
-        depths
+    Ok(())
+}
+
+/// The camera's view basis, projection (near and far planes around the surface) and lights.
+struct View {
+    eye: V3,
+    forward: V3,
+    right: V3,
+    up: V3,
+    aspect: f64,
+    /// Focal length: cot(fov_y / 2).
+    f: f64,
+    near: f64,
+    far: f64,
+    key: V3,
+    fill: V3,
+}
+
+impl View {
+    /// The view of `positions` through `camera` on an image `aspect` wide per unit high.
+    fn new(camera: &Camera, positions: &[[f64; 3]], aspect: f64) -> Result<Self, RenderError> {
+        let forward = normalize(sub(camera.target, camera.eye))
+            .ok_or_else(|| RenderError::BadCamera("the eye is at the target".into()))?;
+        let right = normalize(cross(forward, camera.up))
+            .ok_or_else(|| RenderError::BadCamera("up is along the view direction".into()))?;
+        let up = cross(right, forward);
+        let f = 1.0 / (0.5 * camera.fov_y_deg.to_radians()).tan();
+        // Near and far planes around the surface.
+        let depths: Vec<f64> = positions
             .iter()
-            .copied()
-            .filter(|d| *d > 0.0)
-            .fold(f64::INFINITY, f64::min)
-            * 0.5,
-    );
-    let clip_of = |p: V3| -> [f32; 4] {
-        let d = sub(p, camera.eye);
-        let (x, y, z) = (dot(d, right), dot(d, up), dot(d, forward));
+            .map(|p| dot(sub(*p, camera.eye), forward))
+            .collect();
+        let far = depths.iter().copied().fold(0.0, f64::max) * 1.05 + 1e-9;
+        let near = (far * 1e-3).max(
+            depths
+                .iter()
+                .copied()
+                .filter(|d| *d > 0.0)
+                .fold(f64::INFINITY, f64::min)
+                * 0.5,
+        );
+        let key = normalize([
+            0.4 * right[0] + 0.7 * up[0] - forward[0],
+            0.4 * right[1] + 0.7 * up[1] - forward[1],
+            0.4 * right[2] + 0.7 * up[2] - forward[2],
+        ])
+        .unwrap_or(up);
+        let fill = normalize([
+            -right[0] - 0.3 * forward[0],
+            -right[1] - 0.3 * forward[1],
+            -right[2] - 0.3 * forward[2],
+        ])
+        .unwrap_or(right);
+        Ok(Self {
+            eye: camera.eye,
+            forward,
+            right,
+            up,
+            aspect,
+            f,
+            near,
+            far,
+            key,
+            fill,
+        })
+    }
+
+    /// The clip-space position of `p`; its w is the depth along the view.
+    fn clip_of(&self, p: V3) -> [f32; 4] {
+        let (near, far, f, aspect) = (self.near, self.far, self.f, self.aspect);
+        let d = sub(p, self.eye);
+        let (x, y, z) = (dot(d, self.right), dot(d, self.up), dot(d, self.forward));
         // OpenGL-style projection with depth mapped to [-1, 1].
         let zc = (far + near) / (far - near) * z - 2.0 * far * near / (far - near);
         [(f / aspect * x) as f32, (f * y) as f32, zc as f32, z as f32]
-    };
-    // Normals smoothed within each material.
-    let face_normal = |t: usize| {
-        let [a, b, c] = surface.triangles[t].map(|v| surface.positions[v as usize]);
-        cross(sub(b, a), sub(c, a))
-    };
-    let mut groups: std::collections::HashMap<(u32, u8), V3> = std::collections::HashMap::new();
+    }
+
+    /// `base` lit by the key light, the fill light and ambient at normal `n`.
+    fn shade(&self, n: V3, base: [f32; 3]) -> (f32, f32, f32) {
+        // Two-sided: a normal facing away from the eye is flipped.
+        let n = if dot(n, self.forward) > 0.0 {
+            [-n[0], -n[1], -n[2]]
+        } else {
+            n
+        };
+        let light = 0.22 + 0.68 * dot(n, self.key).max(0.0) + 0.18 * dot(n, self.fill).max(0.0);
+        let light = light as f32;
+        (base[0] * light, base[1] * light, base[2] * light)
+    }
+}
+
+/// Triangle `t`'s normal, scaled by twice its area.
+fn face_normal(surface: &SurfaceView<'_>, t: usize) -> V3 {
+    let [a, b, c] = surface.triangles[t].map(|v| surface.positions[v as usize]);
+    cross(sub(b, a), sub(c, a))
+}
+
+/// Vertex normals smoothed within each material (unnormalised), by (vertex, material).
+fn smoothed_normals(surface: &SurfaceView<'_>) -> HashMap<(u32, u8), V3> {
+    let mut groups: HashMap<(u32, u8), V3> = HashMap::new();
     for (t, tri) in surface.triangles.iter().enumerate() {
-        let n = face_normal(t);
+        let n = face_normal(surface, t);
         let m = surface.materials.get(t).copied().unwrap_or(0);
         for &v in tri {
             let e = groups.entry((v, m)).or_insert([0.0; 3]);
             *e = [e[0] + n[0], e[1] + n[1], e[2] + n[2]];
         }
     }
-    let key = normalize([
-        0.4 * right[0] + 0.7 * up[0] - forward[0],
-        0.4 * right[1] + 0.7 * up[1] - forward[1],
-        0.4 * right[2] + 0.7 * up[2] - forward[2],
-    ])
-    .unwrap_or(up);
-    let fill = normalize([
-        -right[0] - 0.3 * forward[0],
-        -right[1] - 0.3 * forward[1],
-        -right[2] - 0.3 * forward[2],
-    ])
-    .unwrap_or(right);
-    let shade = |n: V3, base: [f32; 3]| -> (f32, f32, f32) {
-        // Two-sided: a normal facing away from the eye is flipped.
-        let n = if dot(n, forward) > 0.0 {
-            [-n[0], -n[1], -n[2]]
-        } else {
-            n
-        };
-        let light = 0.22 + 0.68 * dot(n, key).max(0.0) + 0.18 * dot(n, fill).max(0.0);
-        let light = light as f32;
-        (base[0] * light, base[1] * light, base[2] * light)
-    };
+    groups
+}
+
+/// The lit corners of every triangle wholly in front of the near plane, three per triangle.
+fn shade_corners(
+    surface: &SurfaceView<'_>,
+    palette: &[[f32; 3]],
+    view: &View,
+    normals: &HashMap<(u32, u8), V3>,
+) -> Vec<Corner> {
     let mut corners = Vec::with_capacity(3 * surface.triangles.len());
     for (t, tri) in surface.triangles.iter().enumerate() {
-        let clip = tri.map(|v| clip_of(surface.positions[v as usize]));
+        let clip = tri.map(|v| view.clip_of(surface.positions[v as usize]));
         if clip
             .iter()
-            .any(|c| (c[3] as f64) < near || !c.iter().all(|x| x.is_finite()))
+            .any(|c| (c[3] as f64) < view.near || !c.iter().all(|x| x.is_finite()))
         {
             continue;
         }
         let m = surface.materials.get(t).copied().unwrap_or(0);
         let base = palette[m as usize];
         for (k, &v) in tri.iter().enumerate() {
-            let n = groups
+            let n = normals
                 .get(&(v, m))
                 .and_then(|n| normalize(*n))
-                .or_else(|| normalize(face_normal(t)))
-                .unwrap_or(forward);
+                .or_else(|| normalize(face_normal(surface, t)))
+                .unwrap_or(view.forward);
             corners.push(Corner {
                 clip: clip[k],
-                colour: shade(n, base),
+                colour: view.shade(n, base),
             });
         }
     }
-    let s = options.supersample.clamp(1, 4) as usize;
-    let (sw, sh) = (w as usize * s, h as usize * s);
-    let mut colour = Buffer2d::new([sw, sh], options.background);
+    corners
+}
+
+/// Rasterizes `corners` with a depth test into a `sw`×`sh` linear colour buffer.
+fn rasterize(corners: &[Corner], sw: usize, sh: usize, background: [f32; 3]) -> Buffer2d<[f32; 3]> {
+    let mut colour = Buffer2d::new([sw, sh], background);
     let mut depth = Buffer2d::new([sw, sh], 1.0f32);
     Shaded.draw::<Triangles<Buffer2d<f32>, BackfaceCullingDisabled>, _>(
-        &corners,
+        corners,
         &mut colour,
         Some(&mut depth),
     );
-    // Box filter down to the output size, then gamma-encode.
-    let samples: &[[f32; 3]] = colour.as_ref();
-    let mut rgba = Vec::with_capacity(4 * w as usize * h as usize);
-    for y in 0..h as usize {
-        for x in 0..w as usize {
+    colour
+}
+
+/// Box-filters `s`×`s` supersamples down to `w`×`h` and gamma-encodes them as RGBA8.
+fn downsample(samples: &[[f32; 3]], w: usize, h: usize, s: usize) -> Vec<u8> {
+    let sw = w * s;
+    let mut rgba = Vec::with_capacity(4 * w * h);
+    for y in 0..h {
+        for x in 0..w {
             let mut sum = [0.0f32; 3];
             for dy in 0..s {
                 for dx in 0..s {
@@ -357,11 +431,7 @@ pub fn render(
             rgba.push(255);
         }
     }
-    Ok(Image {
-        width: w,
-        height: h,
-        rgba,
-    })
+    rgba
 }
 
 #[cfg(test)]

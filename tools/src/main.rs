@@ -459,7 +459,18 @@ fn main() -> ExitCode {
     if !matches!(cli.command, Command::View { .. }) {
         end_quietly_when_the_reader_goes();
     }
-    let result = match cli.command {
+    match dispatch(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs `command`; its error is reported by `main`.
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Demo { scene, json } => run_inspect(
             &TargetArgs {
                 target: scene,
@@ -469,9 +480,7 @@ fn main() -> ExitCode {
             },
             json,
         ),
-        Command::Scene(SceneCommand::List { json }) => report::print_scene_list(json),
-        Command::Scene(SceneCommand::Inspect { target, json }) => run_inspect(&target, json),
-        Command::Scene(SceneCommand::Export { target, out }) => run_export(&target, &out),
+        Command::Scene(what) => run_scene(what),
         Command::Validate { json, only } => validate_cmd::run(json, &only),
         Command::Cut {
             target,
@@ -481,18 +490,15 @@ fn main() -> ExitCode {
             out,
             mesh_format,
             json,
-        } => {
-            let script = match (script, strokes) {
-                (Some(file), _) => cut_cmd::ScriptChoice::File(file),
-                (None, Some(strokes)) => cut_cmd::ScriptChoice::Session { strokes, seed },
-                (None, None) => cut_cmd::ScriptChoice::Default,
-            };
-            cut_cmd::run(&target, &script, &out, &mesh_format, json)
-        }
-        Command::Replay { file, json } => replay_cmd::run(&file, json),
-        Command::Certs(CertsCommand::Init { dir, host }) => {
-            certs_cmd::init(&dir, &host).map(|made| println!("{made}"))
-        }
+        } => cut_cmd::run(
+            &target,
+            &script_choice(script, strokes, seed),
+            &out,
+            &mesh_format,
+            json,
+        ),
+        Command::Bench(what) => run_bench(what),
+        Command::Certs(what) => run_certs(what),
         Command::Observe {
             target,
             frames,
@@ -511,25 +517,8 @@ fn main() -> ExitCode {
                 target: &target,
                 json,
             },
-            match what {
-                InstructCommand::Fault {
-                    kind,
-                    params,
-                    at,
-                    duration_ms,
-                } => instruct_cmd::Request::Fault {
-                    kind,
-                    params,
-                    at,
-                    duration_ms,
-                },
-                InstructCommand::List => instruct_cmd::Request::List,
-                InstructCommand::Clear { id } => instruct_cmd::Request::Clear(id),
-            },
+            instruct_request(what),
         ),
-        Command::Certs(CertsCommand::Issue { dir, role, name }) => {
-            certs_cmd::issue(&dir, &role, &name).map(|made| println!("{made}"))
-        }
         Command::MockDevice {
             station,
             script,
@@ -539,31 +528,14 @@ fn main() -> ExitCode {
             looping,
             rate_hz,
             json,
-        } => {
-            if !(rate_hz.is_finite() && (10.0..=10_000.0).contains(&rate_hz)) {
-                eprintln!("error: --rate-hz must be between 10 and 10000, got {rate_hz}");
-                return ExitCode::FAILURE;
-            }
-            if let Some(d) = duration
-                && !(d.is_finite() && d > 0.0)
-            {
-                eprintln!("error: --duration must be a positive number of seconds, got {d}");
-                return ExitCode::FAILURE;
-            }
-            mock_cmd::run(&mock_cmd::MockArgs {
-                station: &station,
-                script: script.as_deref(),
-                scene: &scene,
-                out: out.as_deref(),
-                options: scalpel_client::mock_device::MockOptions {
-                    rate_hz,
-                    duration_s: duration,
-                    looping,
-                    ..Default::default()
-                },
-                json,
-            })
-        }
+        } => mock_cmd::run(&mock_cmd::MockArgs {
+            station: &station,
+            script: script.as_deref(),
+            scene: &scene,
+            out: out.as_deref(),
+            options: mock_options(rate_hz, duration, looping)?,
+            json,
+        }),
         Command::View {
             station,
             snapshot,
@@ -574,19 +546,45 @@ fn main() -> ExitCode {
             Some(out) => view_cmd::snapshot(&station, &out, after, timeout),
             None => view_cmd::window(&station, exit_after),
         },
-        Command::Bench(BenchCommand::Scenes { runs, json }) => bench::scenes(runs, json),
-        Command::Bench(BenchCommand::Stability { json }) => bench::stability::run(json),
-        Command::Bench(BenchCommand::Table1 { json }) => bench::cutting::table1(json),
-        Command::Bench(BenchCommand::Scaling { points, json }) => {
-            bench::cutting::scaling(&points, json)
+        Command::Replay { file, json } => replay_cmd::run(&file, json),
+    }
+}
+
+/// `scalpel scene ...`.
+fn run_scene(what: SceneCommand) -> anyhow::Result<()> {
+    match what {
+        SceneCommand::List { json } => report::print_scene_list(json),
+        SceneCommand::Inspect { target, json } => run_inspect(&target, json),
+        SceneCommand::Export { target, out } => run_export(&target, &out),
+    }
+}
+
+/// `scalpel certs ...`: prints what was made.
+fn run_certs(what: CertsCommand) -> anyhow::Result<()> {
+    match what {
+        CertsCommand::Init { dir, host } => {
+            certs_cmd::init(&dir, &host).map(|made| println!("{made}"))
         }
-        Command::Bench(BenchCommand::Idle {
+        CertsCommand::Issue { dir, role, name } => {
+            certs_cmd::issue(&dir, &role, &name).map(|made| println!("{made}"))
+        }
+    }
+}
+
+/// `scalpel bench ...`.
+fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
+    match what {
+        BenchCommand::Scenes { runs, json } => bench::scenes(runs, json),
+        BenchCommand::Stability { json } => bench::stability::run(json),
+        BenchCommand::Table1 { json } => bench::cutting::table1(json),
+        BenchCommand::Scaling { points, json } => bench::cutting::scaling(&points, json),
+        BenchCommand::Idle {
             target,
             units,
             target_points,
             ticks,
             json,
-        }) => {
+        } => {
             let target = TargetArgs {
                 target,
                 units,
@@ -595,19 +593,19 @@ fn main() -> ExitCode {
             };
             bench::cutting::idle(&target, ticks, json)
         }
-        Command::Bench(BenchCommand::Session {
+        BenchCommand::Session {
             target,
             strokes,
             seed,
             json,
-        }) => bench::session::run(&target, strokes, seed, json),
-        Command::Bench(BenchCommand::Loop {
+        } => bench::session::run(&target, strokes, seed, json),
+        BenchCommand::Loop {
             seconds,
             viewers,
             haptic_cpu,
             json,
-        }) => bench::loop_bench::run(seconds, viewers, haptic_cpu, json),
-        Command::Bench(BenchCommand::Admission {
+        } => bench::loop_bench::run(seconds, viewers, haptic_cpu, json),
+        BenchCommand::Admission {
             attempts,
             addresses,
             rate,
@@ -615,7 +613,7 @@ fn main() -> ExitCode {
             certs,
             name,
             json,
-        }) => {
+        } => {
             let target = match (target, certs, name) {
                 (Some(addr), Some(certs), Some(name)) => {
                     Some(bench::admission::Target { addr, certs, name })
@@ -624,26 +622,73 @@ fn main() -> ExitCode {
             };
             bench::admission::run(attempts, addresses, rate, target, json)
         }
-        Command::Bench(BenchCommand::Net {
+        BenchCommand::Net {
             seconds,
             observers,
             scene,
             json,
-        }) => bench::net::run(seconds, observers, &scene, json),
-        Command::Bench(BenchCommand::Accuracy {
+        } => bench::net::run(seconds, observers, &scene, json),
+        BenchCommand::Accuracy {
             out,
             min_across,
             max_across,
             json,
-        }) => bench::accuracy::run(&out, min_across, max_across, json),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+        } => bench::accuracy::run(&out, min_across, max_across, json),
     }
+}
+
+/// `scalpel cut`'s blade script: a file, a session of strokes, or the default stroke.
+fn script_choice(
+    script: Option<PathBuf>,
+    strokes: Option<usize>,
+    seed: u64,
+) -> cut_cmd::ScriptChoice {
+    match (script, strokes) {
+        (Some(file), _) => cut_cmd::ScriptChoice::File(file),
+        (None, Some(strokes)) => cut_cmd::ScriptChoice::Session { strokes, seed },
+        (None, None) => cut_cmd::ScriptChoice::Default,
+    }
+}
+
+/// The request `scalpel instruct ...` sends.
+fn instruct_request(what: InstructCommand) -> instruct_cmd::Request {
+    match what {
+        InstructCommand::Fault {
+            kind,
+            params,
+            at,
+            duration_ms,
+        } => instruct_cmd::Request::Fault {
+            kind,
+            params,
+            at,
+            duration_ms,
+        },
+        InstructCommand::List => instruct_cmd::Request::List,
+        InstructCommand::Clear { id } => instruct_cmd::Request::Clear(id),
+    }
+}
+
+/// `scalpel mock-device`'s timing, once `--rate-hz` and `--duration` are checked.
+fn mock_options(
+    rate_hz: f64,
+    duration: Option<f64>,
+    looping: bool,
+) -> anyhow::Result<scalpel_client::mock_device::MockOptions> {
+    if !(rate_hz.is_finite() && (10.0..=10_000.0).contains(&rate_hz)) {
+        anyhow::bail!("--rate-hz must be between 10 and 10000, got {rate_hz}");
+    }
+    if let Some(d) = duration
+        && !(d.is_finite() && d > 0.0)
+    {
+        anyhow::bail!("--duration must be a positive number of seconds, got {d}");
+    }
+    Ok(scalpel_client::mock_device::MockOptions {
+        rate_hz,
+        duration_s: duration,
+        looping,
+        ..Default::default()
+    })
 }
 
 fn run_inspect(target: &TargetArgs, json: bool) -> anyhow::Result<()> {

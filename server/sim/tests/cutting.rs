@@ -4,7 +4,7 @@ use scalpel_sim::cut::{FaceKind, segment_meets_triangle};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{CutScript, NoClock, Simulation};
+use scalpel_sim::pipeline::{CutScript, IncisionStats, NoClock, Simulation};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{BuiltScene, build_scene, builtin};
 
@@ -18,8 +18,44 @@ fn default_liver_cut() -> (BuiltScene, CutScript) {
 #[test]
 fn default_liver_stroke_cuts_with_the_expected_forces() {
     let (scene, script) = default_liver_cut();
-    let spec = &scene.spec;
     let mut sim = Simulation::new(&scene);
+    let stroke = play_the_stroke(&mut sim, &scene, &script);
+    check_the_whole_step_mass_floor(&sim, &stroke);
+    check_the_single_rupture_at_the_rupture_force(&sim, &scene, &stroke);
+    check_that_exactly_the_pairs_crossing_sigma_are_cut(&sim, &scene);
+    check_that_virtual_points_sit_on_their_own_walls(&sim, &scene);
+    assert!(sim.cutting().unwrap().pairs_removed_total > 30);
+    check_the_sides_of_the_blade_plane(&sim, &scene);
+    assert!(
+        sim.surface()
+            .positions
+            .iter()
+            .all(|x| x.iter().all(|c| c.is_finite()))
+    );
+    check_the_steady_cutting_force(&scene, &stroke);
+    let stats = sim.incisions().unwrap();
+    check_that_the_surface_is_opened_and_sound(&sim, stats);
+    check_the_wound_size(&sim, stats);
+    // The work stays in the affected region.
+    let max_active = stroke.max_active;
+    assert!(max_active < scene.model.points.len() / 2, "{max_active}");
+}
+
+/// What the default stroke's ticks recorded.
+struct Stroke {
+    /// The largest force sent to the device (N).
+    peak: f64,
+    ruptures: usize,
+    /// (force N, depth m) of the ticks cutting 9 mm deep or more along the stroke.
+    cutting_forces: Vec<(f64, f64)>,
+    max_active: usize,
+    most_substeps: u32,
+}
+
+/// Plays `script` tick by tick at 1 kHz: every force finite and bounded, the solver never
+/// diverging.
+fn play_the_stroke(sim: &mut Simulation, scene: &BuiltScene, script: &CutScript) -> Stroke {
+    let spec = &scene.spec;
     let dt = 1e-3;
     let ticks = (script.duration_s() / dt).ceil() as usize;
     let mut peak: f64 = 0.0;
@@ -43,8 +79,19 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         most_substeps = most_substeps.max(r.solver.substeps);
         assert!(!r.solver.diverged, "tick {k}");
     }
-    // dt_crit as built (1.92 ms) is 4 % short of one sub-step per 1 ms tick: a mass floor
-    // on the surface's clipped cells (under 1 % of the body) gives it, through the cut.
+    Stroke {
+        peak,
+        ruptures,
+        cutting_forces,
+        max_active,
+        most_substeps,
+    }
+}
+
+/// dt_crit as built (1.92 ms) is 4 % short of one sub-step per 1 ms tick: a mass floor on
+/// the surface's clipped cells (under 1 % of the body) gives it, through the cut.
+fn check_the_whole_step_mass_floor(sim: &Simulation, stroke: &Stroke) {
+    let most_substeps = stroke.most_substeps;
     let floor = sim
         .solver()
         .whole_step_mass()
@@ -52,6 +99,16 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     println!("{floor:?}, at most {most_substeps} sub-steps");
     assert_eq!((floor.substeps_before, most_substeps), (2, 1));
     assert!(floor.fraction <= 0.01);
+}
+
+/// One rupture as the blade goes in, at a peak force near the scene's rupture force.
+fn check_the_single_rupture_at_the_rupture_force(
+    sim: &Simulation,
+    scene: &BuiltScene,
+    stroke: &Stroke,
+) {
+    let spec = &scene.spec;
+    let (peak, ruptures, max_active) = (stroke.peak, stroke.ruptures, stroke.max_active);
     let stage = sim.cutting().unwrap();
     println!(
         "peak {peak:.3} N, ruptures {ruptures}, Σ {} triangles, pairs removed {}, max active {max_active}",
@@ -60,9 +117,13 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     );
     assert_eq!(ruptures, 1);
     assert!((peak - spec.force.rupture_force_n).abs() < 0.05 * spec.force.rupture_force_n);
-    // Exactly the pairs whose rest segment crosses Σ are gone (visibility criterion), but
-    // for those at the final crack front: transparent there (physics.md §4.3), they keep a
-    // weight faded by a distance added in the kernel.
+}
+
+/// Exactly the pairs whose rest segment crosses Σ are gone (visibility criterion), but for
+/// those at the final crack front: transparent there (physics.md §4.3), they keep a weight
+/// faded by a distance added in the kernel.
+fn check_that_exactly_the_pairs_crossing_sigma_are_cut(sim: &Simulation, scene: &BuiltScene) {
+    let stage = sim.cutting().unwrap();
     let rest = &scene.model.points.rest;
     let before = &scene.model.neighbours;
     let after = sim.neighbours();
@@ -114,7 +175,13 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     );
     assert!(kept > 0, "the final front should have transparent pairs");
     assert_eq!(crossing, 2 * stage.pairs_removed_total + kept);
-    // Virtual points sit on the walls, joined to interior points on their own side only.
+}
+
+/// Virtual points sit on the walls, joined to interior points on their own side only.
+fn check_that_virtual_points_sit_on_their_own_walls(sim: &Simulation, scene: &BuiltScene) {
+    let stage = sim.cutting().unwrap();
+    let rest = &scene.model.points.rest;
+    let after = sim.neighbours();
     let vp = sim
         .virtual_points()
         .expect("the liver scene uses virtual points");
@@ -154,9 +221,13 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
             "node {node} is off its wall"
         );
     }
-    assert!(stage.pairs_removed_total > 30);
-    // Left/right of the blade plane: the stroke runs along +x with the edge up, so left is
-    // +y of the cut (physics.md §4.4).
+}
+
+/// Left/right of the blade plane: the stroke runs along +x with the edge up, so left is +y
+/// of the cut (physics.md §4.4). Both sides well filled and about even.
+fn check_the_sides_of_the_blade_plane(sim: &Simulation, scene: &BuiltScene) {
+    let stage = sim.cutting().unwrap();
+    let rest = &scene.model.points.rest;
     let y_cut = stage.sigma.triangles.iter().map(|t| t[0].y).sum::<f64>()
         / stage.sigma.triangles.len() as f64;
     let sides = stage.classification();
@@ -172,13 +243,12 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
             side => assert_eq!(side > 0, x.y > y_cut, "point {i} at y {}", x.y - y_cut),
         }
     }
-    assert!(
-        sim.surface()
-            .positions
-            .iter()
-            .all(|x| x.iter().all(|c| c.is_finite()))
-    );
-    // The mean cutting force is J_c d + friction (the ripple averages out).
+}
+
+/// The mean cutting force is J_c d + friction (the ripple averages out).
+fn check_the_steady_cutting_force(scene: &BuiltScene, stroke: &Stroke) {
+    let spec = &scene.spec;
+    let cutting_forces = &stroke.cutting_forces;
     let n = cutting_forces.len() as f64;
     let mean_f = cutting_forces.iter().map(|c| c.0).sum::<f64>() / n;
     let mean_d = cutting_forces.iter().map(|c| c.1).sum::<f64>() / n;
@@ -188,8 +258,10 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         mean_d * 1e3
     );
     assert!((mean_f - want).abs() < 0.05 * want);
-    // The surface was opened along the stroke and is still a sound closed surface.
-    let stats = sim.incisions().unwrap();
+}
+
+/// The surface was opened along the stroke and is still a sound closed surface.
+fn check_that_the_surface_is_opened_and_sound(sim: &Simulation, stats: &IncisionStats) {
     println!("{stats:?}");
     assert_eq!(stats.incisions, 1);
     assert_eq!(stats.refused, 0, "{:?}", stats.last_refusal);
@@ -201,8 +273,11 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
         "{check:?}"
     );
     assert!(kinds.contains(&FaceKind::Wall));
-    // The wound is about 68 mm long and 10 mm deep: the 60 mm stroke, and the slit the
-    // blade's flat opened behind the edge going in (8 mm, the blade's width).
+}
+
+/// The wound is about 68 mm long and 10 mm deep: the 60 mm stroke, and the slit the
+/// blade's flat opened behind the edge going in (8 mm, the blade's width).
+fn check_the_wound_size(sim: &Simulation, stats: &IncisionStats) {
     let walls = sim.current_surface().wall_corners();
     let lo = walls
         .iter()
@@ -214,8 +289,6 @@ fn default_liver_stroke_cuts_with_the_expected_forces() {
     assert!((0.06..0.073).contains(&(hi.x - lo.x)), "{}", hi.x - lo.x);
     assert!((stats.depth_m - 0.0105).abs() < 0.002, "{}", stats.depth_m);
     assert!(stats.lip_max_turn_deg < 15.0, "{}", stats.lip_max_turn_deg);
-    // The work stays in the affected region.
-    assert!(max_active < scene.model.points.len() / 2, "{max_active}");
 }
 
 /// `[solver] mass_scaling_percent = 0` in a scene reaches the simulation: the liver keeps
