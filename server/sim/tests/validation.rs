@@ -1,5 +1,5 @@
-//! The analytic benchmarks of physics.md §8 (B1, B2, B3, B5, B5b, B6, B9, B11, B12) pass
-//! their bands. The same functions back `scalpel validate`.
+//! The analytic benchmarks of physics.md §8 (B1, B2, B3, B5, B5b, B6, B9, B11, B12) and
+//! cutting-physics.md §1 (B13) pass their bands. The same functions back `scalpel validate`.
 
 use scalpel_sim::validate;
 

@@ -7,12 +7,14 @@
 mod bodies;
 mod cases;
 mod stability;
+mod supports;
 
 use serde::Serialize;
 
 pub use bodies::{BoxBody, LatticeCube, box_body, cut_down_to, timoshenko_tip_deflection};
 pub use cases::*;
 pub use stability::*;
+pub use supports::*;
 
 /// The outcome of one benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -100,6 +102,10 @@ pub fn all() -> Vec<Benchmark> {
         Benchmark {
             name: "B12",
             run: b12_momentum,
+        },
+        Benchmark {
+            name: "B13",
+            run: b13_column_under_gravity,
         },
     ]
 }
