@@ -31,6 +31,7 @@ pub mod recut;
 pub mod script;
 pub mod steady_motion;
 pub mod stroke_tracker;
+pub mod supports;
 pub mod surface;
 pub mod virtual_points;
 
@@ -52,6 +53,9 @@ pub use virtual_points::{VirtualPointStats, VirtualPoints};
 /// Simulated time per simulation tick (s): the station's simulation thread runs at 1 kHz,
 /// and the offline runs and the real-time sampling rule plan for the same tick.
 pub const SIMULATION_TICK_S: f64 = 1e-3;
+
+/// The longest a body is given to come to rest under gravity before the first tick (s).
+pub const SETTLE_MAX_S: f64 = 10.0;
 
 use stroke_tracker::TrackerInputs;
 use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
@@ -239,6 +243,7 @@ pub struct Simulation {
     time_s: f64,
     local_model: LocalForceModel,
     all_points: Vec<u32>,
+    settled: Option<supports::SettleReport>,
 }
 
 impl Simulation {
@@ -246,7 +251,10 @@ impl Simulation {
     pub fn new(scene: &BuiltScene) -> Self {
         let spec = scene.spec.clone();
         let model = &scene.model;
-        let config = SolverConfig::for_scene(&spec.features, &spec.material, &spec.solver);
+        let config = SolverConfig {
+            gravity: spec.loads.gravity,
+            ..SolverConfig::for_scene(&spec.features, &spec.material, &spec.solver)
+        };
         let n = model.points.len();
         // Virtual points are spare nodes after the body's points (virtual_points.rs).
         let spare = if spec.features.cutting && spec.features.virtual_points {
@@ -260,6 +268,16 @@ impl Simulation {
         } else {
             Solver::for_model(model, &spec.material, config)
         };
+        supports::apply_supports(&spec, model, &mut solver);
+        // Under gravity the body starts where it rests, before anything touches it.
+        let settled = (spec.loads.gravity != Vec3::zeros()).then(|| {
+            supports::settle(
+                &mut solver,
+                spec.loads.gravity,
+                SIMULATION_TICK_S,
+                SETTLE_MAX_S,
+            )
+        });
         let virtual_points = (spare > 0)
             .then(|| VirtualPoints::new(n, spare, model.lattice.spacing, model.kernel.support_m));
         let cutting = spec.features.cutting.then(|| {
@@ -284,7 +302,8 @@ impl Simulation {
                 model,
             )
         });
-        Self {
+        let mut sim = Self {
+            settled,
             incisions,
             virtual_points,
             vp_changed: Vec::with_capacity(4096),
@@ -305,7 +324,22 @@ impl Simulation {
             },
             all_points: (0..n as u32).collect(),
             spec,
+        };
+        if sim.settled.is_some() {
+            sim.surface.follow(
+                sim.solver.operator(),
+                sim.solver.rest(),
+                sim.solver.positions(),
+                &sim.all_points,
+            );
         }
+        sim
+    }
+
+    /// How the body came to rest under gravity before the first tick (`None` without
+    /// gravity).
+    pub fn settled(&self) -> Option<&supports::SettleReport> {
+        self.settled.as_ref()
     }
 
     /// Plans ticks of `dt` before the first (see [`Solver::prepare`]): the power iterations

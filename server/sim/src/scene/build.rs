@@ -47,6 +47,14 @@ pub enum SceneBuildError {
         /// The model error.
         error: ModelBuildError,
     },
+    /// A support of the scene holds nothing of the body.
+    #[error("scene '{scene}': {message}")]
+    Supports {
+        /// Scene name.
+        scene: String,
+        /// Which support and why.
+        message: String,
+    },
     /// The scene names a mesh file, but no bytes were given for it.
     #[error("scene '{scene}': its mesh is the file {path}; read the file and pass its bytes")]
     MissingMeshBytes {
@@ -206,6 +214,12 @@ pub fn build_model(
         scene: spec.name.clone(),
         error,
     })?;
+    spec.supports
+        .check_holds(&model.points.rest, &model.surface.positions)
+        .map_err(|message| SceneBuildError::Supports {
+            scene: spec.name.clone(),
+            message,
+        })?;
     Ok(BuiltScene {
         spec,
         mesh_warnings: validated.warnings,

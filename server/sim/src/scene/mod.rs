@@ -7,6 +7,7 @@ mod build;
 pub mod file;
 pub mod footprint;
 pub mod real_time;
+pub mod supports;
 
 use std::path::PathBuf;
 
@@ -17,6 +18,7 @@ pub use build::{
 };
 pub use file::SceneError;
 pub use real_time::{PlannedSampling, SamplingPlan};
+pub use supports::{Loads, Region, Supports};
 
 use crate::geometry::organs;
 use crate::geometry::remesh::POOR_ANGLE_DEG;
@@ -45,6 +47,10 @@ pub struct SceneSpec {
     pub force: ForceSpec,
     /// Numerical choices of the solver a scene may make.
     pub solver: SolverSpec,
+    /// Gravity.
+    pub loads: Loads,
+    /// What holds the body.
+    pub supports: Supports,
 }
 
 /// Numerical choices of the solver a scene may make (`[solver]` in a scene file).
@@ -442,6 +448,13 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
         tool: ToolSpec::default(),
         force: ForceSpec::default(),
         solver: SolverSpec::default(),
+        loads: Loads::default(),
+        supports: match shape {
+            BuiltinMesh::Liver => supports::anatomical::liver(),
+            BuiltinMesh::Shoulder => supports::anatomical::shoulder(),
+            BuiltinMesh::Cerebroma => supports::anatomical::cerebroma(),
+            BuiltinMesh::Block | BuiltinMesh::Beam => Supports::default(),
+        },
     })
 }
 
@@ -470,5 +483,7 @@ pub fn for_mesh_file(path: PathBuf, units: LengthUnit) -> SceneSpec {
         tool: ToolSpec::default(),
         force: ForceSpec::default(),
         solver: SolverSpec::default(),
+        loads: Loads::default(),
+        supports: Supports::default(),
     }
 }

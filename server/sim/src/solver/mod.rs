@@ -19,6 +19,7 @@
 
 pub mod events;
 mod explicit;
+pub mod held;
 mod kept_substeps;
 mod projective;
 mod slaves;
@@ -193,6 +194,10 @@ pub struct Solver {
     fixed: Vec<[bool; 3]>,
     target: Vec<Vec3>,
     external: Vec<Vec3>,
+    /// What holds the body through its surface (attachments, a tray); `None` for nothing.
+    held: Option<held::Held>,
+    /// The held vertices' forces on the points, this sub-step (zero where none reach).
+    held_force: Vec<Vec3>,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
@@ -385,6 +390,8 @@ impl Solver {
             fixed: vec![[false; 3]; n],
             target: rest.to_vec(),
             external: zeros.clone(),
+            held: None,
+            held_force: zeros.clone(),
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n).with_threads(Threads::One),
             #[cfg(feature = "parallel")]

@@ -126,12 +126,16 @@ impl Projective {
         let n = s.p.len();
         let h2 = dt * dt;
         self.start.copy_from_slice(&s.p);
+        if let Some(held) = &mut s.held {
+            // Taken at the step's start: explicit in the implicit step.
+            held.forces(&s.p, &mut s.held_force, true);
+        }
         // The inertial prediction y (with the applied loads) goes into the right-hand side; the
         // iterations start from p + dt·v instead. With a truncated number of iterations the
         // tick map's steady state is then the true equilibrium: started from y, a resting
         // body would settle where the unfinished iterations balance the load, not at rest.
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.mass[i];
+            let applied = s.external[i] + s.config.gravity * s.mass[i] + s.held_force[i];
             for a in 0..3 {
                 if s.fixed[i][a] {
                     s.scratch[0][i][a] = s.target[i][a];
@@ -153,7 +157,7 @@ impl Projective {
         // Work of the applied loads over the step (moving constraints are not tracked here).
         let mut work = 0.0;
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.mass[i];
+            let applied = s.external[i] + s.config.gravity * s.mass[i] + s.held_force[i];
             work += applied.dot(&(s.p[i] - self.start[i]));
         }
         let mut finite = true;

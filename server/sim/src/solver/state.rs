@@ -98,6 +98,18 @@ impl Solver {
         self.external[i] = f;
     }
 
+    /// Holds the body by `held` (attachments, a tray) from the next step on; the
+    /// critical step is measured again with its stiffness.
+    pub fn hold(&mut self, held: held::Held) {
+        self.held = Some(held);
+        self.dt_crit = None;
+    }
+
+    /// What holds the body through its surface, if anything.
+    pub fn held(&self) -> Option<&held::Held> {
+        self.held.as_ref()
+    }
+
     /// Removes every external force.
     pub fn clear_external_forces(&mut self) {
         self.external.iter_mut().for_each(|f| *f = Vec3::zeros());

@@ -157,11 +157,14 @@ impl Solver {
     fn residual_into_scratch(&mut self) -> (f64, f64) {
         let n = self.p.len();
         let stats = self.evaluate_elastic(ForceBuffer::Scratch(0));
+        if let Some(held) = &mut self.held {
+            held.forces(&self.p, &mut self.held_force, false);
+        }
         let r = &mut self.scratch[0];
         self.last_stats = Some(stats);
         let mut norm = 0.0;
         for i in 0..n {
-            r[i] += self.external[i] + self.config.gravity * self.mass[i];
+            r[i] += self.external[i] + self.config.gravity * self.mass[i] + self.held_force[i];
             for a in 0..3 {
                 if self.fixed[i][a] {
                     r[i][a] = 0.0;
@@ -177,6 +180,9 @@ impl Solver {
         let n = self.p.len();
         let stats = self.evaluate_elastic(ForceBuffer::Scratch(3));
         let mut potential = stats.energy();
+        if let Some(held) = &mut self.held {
+            potential += held.forces(&self.p, &mut self.held_force, false);
+        }
         for i in 0..n {
             potential -= (self.external[i] + self.config.gravity * self.mass[i]).dot(&self.p[i]);
         }
@@ -217,6 +223,9 @@ impl Solver {
         for k in 0..MAX_CG {
             iterations = k + 1;
             stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
+            if let Some(held) = &self.held {
+                held.add_stiffness_product(&self.p, d, q);
+            }
             mask(q);
             let dq = dot(d, q);
             if dq <= 0.0 {

@@ -68,6 +68,9 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
         // is the one the masters feel (Pᵀ K P).
         s.slaves.interpolate_vectors(x);
         stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
+        if let Some(held) = &s.held {
+            held.add_stiffness_product(&s.p, x, y);
+        }
         s.slaves.hand_back(y);
         for i in 0..n {
             for a in 0..3 {

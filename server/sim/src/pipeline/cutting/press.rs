@@ -84,11 +84,16 @@ impl CuttingStage {
                 let c = rest[centre as usize];
                 let radius = radius_holding(grid, rest, &c, radius, MAX_DENT_POINTS);
                 let positions = solver.positions();
+                // A point the scene's supports fix (bone) is not the dent's to hold or free.
+                let fixed = solver.fixed();
                 let pressed = &mut self.pressed;
                 pressed.clear();
                 grid.for_each_within(rest, &c, radius, |k, d2| {
                     let q = 1.0 - d2 / (radius * radius);
-                    if q > 0.0 && pressed.len() < MAX_DENT_POINTS {
+                    if q > 0.0
+                        && pressed.len() < MAX_DENT_POINTS
+                        && !fixed[k as usize].contains(&true)
+                    {
                         pressed.push(Pressed {
                             point: k,
                             start_position: positions[k as usize],

@@ -3,6 +3,8 @@
 //! start from a built-in scene with `extends = "liver"` and change only what it lists.
 //! The keys are documented in docs/SCENES.md.
 
+mod supports;
+
 use std::path::Path;
 
 use serde::Deserialize;
@@ -49,6 +51,8 @@ struct RawScene {
     tool: Option<RawTool>,
     force: Option<RawForce>,
     solver: Option<RawSolver>,
+    loads: Option<supports::RawLoads>,
+    supports: Option<supports::RawSupports>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -330,6 +334,15 @@ impl SceneSpec {
         }
         if let Some(s) = &raw.solver {
             apply_solver(&mut spec, s, &check)?;
+        }
+        if let Some(l) = &raw.loads {
+            supports::apply_loads(&mut spec, l, &check)?;
+        }
+        if let Some(s) = &raw.supports {
+            supports::apply_supports(&mut spec, s, &check)?;
+        }
+        if let Some(why) = spec.supports.unable_to_hold(&spec.loads.gravity) {
+            return Err(check.fail("supports", why));
         }
         Ok(spec)
     }

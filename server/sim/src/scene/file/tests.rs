@@ -170,6 +170,8 @@ fn docs_example_is_complete() {
         tool,
         force,
         solver,
+        loads,
+        supports,
     } = raw;
     assert!(name.is_some() && description.is_some() && extends.is_none());
     let RawMesh {
@@ -267,6 +269,14 @@ fn docs_example_is_complete() {
         mass_scaling_percent,
     } = solver.expect("[solver]");
     assert!(mass_scaling_percent.is_some());
+    let supports::RawLoads { gravity_m_s2 } = loads.expect("[loads]");
+    assert!(gravity_m_s2.is_some());
+    let supports::RawSupports {
+        fixed,
+        attachments,
+        tray,
+    } = supports.expect("[supports]");
+    assert!(fixed.is_some() && attachments.is_some() && tray.is_some());
 
     // The values shown are the defaults of a mesh-file scene.
     let parsed = SceneSpec::from_toml(text, Path::new("docs/organ.toml")).expect("valid");

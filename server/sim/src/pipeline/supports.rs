@@ -1,0 +1,160 @@
+//! The scene's supports put on the solver (cutting-physics.md §1), and settling a body
+//! under gravity before anything touches it.
+
+use serde::Serialize;
+
+use crate::math::{Aabb, Vec3};
+use crate::model::CoupledModel;
+use crate::scene::SceneSpec;
+use crate::solver::Solver;
+use crate::solver::held::{Held, HeldVertex, TrayPlane};
+
+/// How many of the body's supports took hold.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct SupportCounts {
+    /// Points fixed at their rest places.
+    pub fixed_points: usize,
+    /// Surface vertices attached by springs.
+    pub attached_vertices: usize,
+    /// Surface vertices that may touch the tray.
+    pub tray_vertices: usize,
+}
+
+/// Fixes the points in the scene's fixed regions and hands the attachments and the tray
+/// to `solver` (the scene's build checked that each holds something).
+pub fn apply_supports(
+    spec: &SceneSpec,
+    model: &CoupledModel,
+    solver: &mut Solver,
+) -> SupportCounts {
+    let supports = &spec.supports;
+    let surface = &model.surface;
+    let body = Aabb::around(&surface.positions);
+    let mut counts = SupportCounts::default();
+    for region in &supports.fixed {
+        for i in 0..model.points.len() {
+            if region.contains(&model.points.rest[i], &body) {
+                solver.fix(i, [true; 3]);
+                counts.fixed_points += 1;
+            }
+        }
+    }
+    // A third of each incident triangle's area per vertex.
+    let mut area = vec![0.0; surface.positions.len()];
+    for (t, tri) in surface.triangles.iter().enumerate() {
+        let third = surface.doubled_area_normal(t).norm() / 6.0;
+        for &v in tri {
+            area[v as usize] += third;
+        }
+    }
+    let mut spring = vec![0.0; surface.positions.len()];
+    for a in &supports.attachments {
+        for (v, x) in surface.positions.iter().enumerate() {
+            if a.region.contains(x, &body) {
+                spring[v] += a.stiffness_pa_per_m * area[v];
+                counts.attached_vertices += 1;
+            }
+        }
+    }
+    let tray = supports.tray.map(|t| {
+        let normal = Vec3::from(t.normal);
+        let lowest = surface
+            .positions
+            .iter()
+            .map(|x| normal.dot(x))
+            .fold(f64::INFINITY, f64::min);
+        let plane = TrayPlane {
+            normal,
+            offset: t.point.map_or(lowest, |p| normal.dot(&Vec3::from(p))),
+            friction: t.friction,
+        };
+        (plane, t.stiffness_pa_per_m)
+    });
+    // The vertices within half the body's height of the tray may touch it.
+    let reach = |x: &Vec3| match &tray {
+        Some((plane, _)) => plane.normal.dot(x) - plane.offset <= 0.5 * body.size().norm(),
+        None => false,
+    };
+    let mut vertices = Vec::new();
+    for (v, x) in surface.positions.iter().enumerate() {
+        let on_tray = reach(x);
+        if spring[v] == 0.0 && !on_tray {
+            continue;
+        }
+        let (points, weights) = model.embedding.of(v);
+        counts.tray_vertices += usize::from(on_tray);
+        vertices.push(HeldVertex {
+            row: points
+                .iter()
+                .copied()
+                .zip(weights.iter().copied())
+                .collect(),
+            rest: *x,
+            spring_n_per_m: spring[v],
+            tray_n_per_m: tray.map_or(0.0, |(_, k)| if on_tray { k * area[v] } else { 0.0 }),
+        });
+    }
+    if !vertices.is_empty() {
+        solver.hold(Held::new(
+            &vertices,
+            &model.points.rest,
+            tray.map(|(plane, _)| plane),
+        ));
+    }
+    counts
+}
+
+/// How a body came to rest under gravity.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SettleReport {
+    /// Mean displacement of the points along gravity (mm).
+    pub sag_mm: f64,
+    /// Largest displacement of any point (mm).
+    pub max_displacement_mm: f64,
+    /// Simulated time to rest (s).
+    pub settle_s: f64,
+    /// Largest out-of-balance force on a point at the end, from its last tick's change of
+    /// momentum (N).
+    pub residual_n: f64,
+    /// Whether it came to rest within the time allowed.
+    pub settled: bool,
+    /// Vertices on the tray at the end.
+    pub on_tray: usize,
+}
+
+/// A body is at rest when no point moves faster than this (m/s) for [`CALM_TICKS`].
+const REST_SPEED: f64 = 1e-4;
+const CALM_TICKS: u32 = 100;
+
+/// Steps `solver` with every point awake, `dt` at a time, until the body rests or
+/// `max_s` has passed.
+pub fn settle(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> SettleReport {
+    let n = solver.material_points();
+    let all: Vec<u32> = (0..n as u32).collect();
+    solver.set_active(&all);
+    let start = solver.positions()[..n].to_vec();
+    let mut before = solver.velocities()[..n].to_vec();
+    let (mut time, mut calm, mut residual) = (0.0, 0, f64::INFINITY);
+    while time < max_s && calm < CALM_TICKS {
+        solver.step(dt);
+        time += dt;
+        let v = &solver.velocities()[..n];
+        let fastest = v.iter().map(|v| v.norm()).fold(0.0, f64::max);
+        residual = (0..n)
+            .map(|i| solver.masses()[i] * (v[i] - before[i]).norm() / dt)
+            .fold(0.0, f64::max);
+        before.copy_from_slice(v);
+        calm = if fastest < REST_SPEED { calm + 1 } else { 0 };
+    }
+    let p = &solver.positions()[..n];
+    let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());
+    let moved = |i: usize| p[i] - start[i];
+    SettleReport {
+        sag_mm: 1e3 * (0..n).map(|i| moved(i).dot(&down)).sum::<f64>() / n.max(1) as f64,
+        max_displacement_mm: 1e3 * (0..n).map(|i| moved(i).norm()).fold(0.0, f64::max),
+        settle_s: time,
+        residual_n: residual,
+        settled: calm >= CALM_TICKS,
+        on_tray: solver.held().map_or(0, Held::touching),
+    }
+}

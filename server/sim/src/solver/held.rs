@@ -1,0 +1,293 @@
+//! Surface vertices that hold the body (cutting-physics.md §1): elastic attachments tie
+//! them to their rest places, a tray pushes them out of its plane with Coulomb friction.
+//!
+//! A held vertex follows the points as the surface does, linearised about the rest state:
+//! `x_v = Σ_k ŵ_vk p_k + (X_v − Σ_k ŵ_vk X_k)` (the F_k term's change is left out), so its
+//! force reaches the points through the embedding's transpose, `f_k = ŵ_vk f_v`, and the
+//! springs are exactly the gradient of their energy: the explicit step counts their work
+//! as applied work, and the stiffness product (for the critical step and static solves)
+//! is `Σ_v k_v ŵ_v ŵ_vᵀ`.
+
+use crate::math::Vec3;
+
+/// The tray's plane: `n·x ≥ offset` outside it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrayPlane {
+    /// Unit normal toward the body.
+    pub normal: Vec3,
+    /// `n·x` on the plane (m).
+    pub offset: f64,
+    /// Coulomb friction coefficient.
+    pub friction: f64,
+}
+
+/// One held vertex, as the caller describes it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeldVertex {
+    /// The points it follows and their weights (summing to 1).
+    pub row: Vec<(u32, f64)>,
+    /// Its rest position (m).
+    pub rest: Vec3,
+    /// Attachment stiffness k_a·A_v (N/m); 0 for none.
+    pub spring_n_per_m: f64,
+    /// Tray penalty stiffness k_t·A_v (N/m); 0 when it cannot touch the tray.
+    pub tray_n_per_m: f64,
+}
+
+/// The held vertices of a body, their weights in compressed rows, and the tray's
+/// friction state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Held {
+    start: Vec<u32>,
+    points: Vec<u32>,
+    weights: Vec<f64>,
+    /// `X_v − Σ ŵ X_k`.
+    offset: Vec<Vec3>,
+    rest: Vec<Vec3>,
+    spring: Vec<f64>,
+    tray_stiffness: Vec<f64>,
+    tray: Option<TrayPlane>,
+    /// Where each vertex sticks on the tray (its tangential anchor), while it touches.
+    anchor: Vec<Vec3>,
+    touching: Vec<bool>,
+    /// The points any held vertex follows, each once (the forces' support).
+    reached: Vec<u32>,
+}
+
+impl Held {
+    /// The held vertices `vertices` over points at rest positions `rest_points`, with the
+    /// tray `tray` (if any).
+    pub fn new(vertices: &[HeldVertex], rest_points: &[Vec3], tray: Option<TrayPlane>) -> Self {
+        let mut held = Held {
+            start: vec![0],
+            points: Vec::new(),
+            weights: Vec::new(),
+            offset: Vec::with_capacity(vertices.len()),
+            rest: Vec::with_capacity(vertices.len()),
+            spring: Vec::with_capacity(vertices.len()),
+            tray_stiffness: Vec::with_capacity(vertices.len()),
+            tray,
+            anchor: vec![Vec3::zeros(); vertices.len()],
+            touching: vec![false; vertices.len()],
+            reached: Vec::new(),
+        };
+        let mut seen = vec![false; rest_points.len()];
+        for v in vertices {
+            let mut followed = Vec3::zeros();
+            for &(k, w) in &v.row {
+                held.points.push(k);
+                held.weights.push(w);
+                followed += rest_points[k as usize] * w;
+                if !std::mem::replace(&mut seen[k as usize], true) {
+                    held.reached.push(k);
+                }
+            }
+            held.start.push(held.points.len() as u32);
+            held.offset.push(v.rest - followed);
+            held.rest.push(v.rest);
+            held.spring.push(v.spring_n_per_m);
+            held.tray_stiffness
+                .push(if tray.is_some() { v.tray_n_per_m } else { 0.0 });
+        }
+        held.reached.sort_unstable();
+        held
+    }
+
+    /// Number of held vertices.
+    pub fn len(&self) -> usize {
+        self.rest.len()
+    }
+
+    /// Whether no vertex is held.
+    pub fn is_empty(&self) -> bool {
+        self.rest.is_empty()
+    }
+
+    /// The points the held vertices follow.
+    pub fn reached(&self) -> &[u32] {
+        &self.reached
+    }
+
+    fn row(&self, v: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+        let (a, b) = (self.start[v] as usize, self.start[v + 1] as usize);
+        self.points[a..b]
+            .iter()
+            .zip(&self.weights[a..b])
+            .map(|(&k, &w)| (k as usize, w))
+    }
+
+    /// Vertex v's position with the points at `p`.
+    pub fn position(&self, v: usize, p: &[Vec3]) -> Vec3 {
+        self.row(v).fold(self.offset[v], |x, (k, w)| x + p[k] * w)
+    }
+
+    /// Writes the held vertices' forces on the points at `p` into `out` (zeroed on the
+    /// reached points first) and returns their stored energy (J). With `slide`, a vertex
+    /// on the tray whose tangential pull exceeds friction slips (its anchor follows), and
+    /// one that leaves the tray lets go; without it the friction state is only read (a
+    /// static solve's trial positions must not move it).
+    pub fn forces(&mut self, p: &[Vec3], out: &mut [Vec3], slide: bool) -> f64 {
+        for &k in &self.reached {
+            out[k as usize] = Vec3::zeros();
+        }
+        let mut energy = 0.0;
+        for v in 0..self.rest.len() {
+            let x = self.position(v, p);
+            let mut f = Vec3::zeros();
+            let k = self.spring[v];
+            if k > 0.0 {
+                let d = x - self.rest[v];
+                f -= d * k;
+                energy += 0.5 * k * d.norm_squared();
+            }
+            if let Some(tray) = self.tray
+                && self.tray_stiffness[v] > 0.0
+            {
+                let (ft, e) = self.tray_force(v, &x, &tray, slide);
+                f += ft;
+                energy += e;
+            }
+            if f != Vec3::zeros() {
+                let (a, b) = (self.start[v] as usize, self.start[v + 1] as usize);
+                for (&k, &w) in self.points[a..b].iter().zip(&self.weights[a..b]) {
+                    out[k as usize] += f * w;
+                }
+            }
+        }
+        energy
+    }
+
+    /// The tray's force on vertex v at `x` and its stored energy: a penalty out of the
+    /// plane, and a tangential spring to the vertex's anchor bounded by μ times it.
+    fn tray_force(&mut self, v: usize, x: &Vec3, tray: &TrayPlane, slide: bool) -> (Vec3, f64) {
+        let k = self.tray_stiffness[v];
+        let n = tray.normal;
+        let gap = n.dot(x) - tray.offset;
+        if gap >= 0.0 {
+            if slide {
+                self.touching[v] = false;
+            }
+            return (Vec3::zeros(), 0.0);
+        }
+        let tangential = x - n * n.dot(x);
+        if !self.touching[v] {
+            if !slide {
+                // A trial position touching where the vertex does not yet: no friction.
+                return (n * (-k * gap), 0.5 * k * gap * gap);
+            }
+            self.touching[v] = true;
+            self.anchor[v] = tangential;
+        }
+        let normal_force = -k * gap;
+        let mut pull = (self.anchor[v] - tangential) * k;
+        let limit = tray.friction * normal_force;
+        let size = pull.norm();
+        if size > limit {
+            pull *= limit / size;
+            if slide {
+                self.anchor[v] = tangential + pull / k;
+            }
+        }
+        let stretch = pull.norm_squared() / k;
+        (n * normal_force + pull, 0.5 * k * gap * gap + 0.5 * stretch)
+    }
+
+    /// `y += K x` with K = −∂f/∂p of the springs and of the tray contacts as they stand
+    /// (a sticking contact holds in every direction, a free one not at all).
+    pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3]) {
+        for v in 0..self.rest.len() {
+            let mut k = self.spring[v];
+            if let Some(tray) = self.tray
+                && self.tray_stiffness[v] > 0.0
+                && tray.normal.dot(&self.position(v, p)) < tray.offset
+            {
+                k += self.tray_stiffness[v];
+            }
+            if k == 0.0 {
+                continue;
+            }
+            let moved = self.row(v).fold(Vec3::zeros(), |s, (j, w)| s + x[j] * w);
+            for (j, w) in self.row(v) {
+                y[j] += moved * (k * w);
+            }
+        }
+    }
+
+    /// Vertices touching the tray (friction state).
+    pub fn touching(&self) -> usize {
+        self.touching.iter().filter(|&&t| t).count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_vertex(spring: f64, tray: f64) -> (Held, Vec<Vec3>) {
+        let rest = vec![Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.01, 0.0, 0.0)];
+        let v = HeldVertex {
+            row: vec![(0, 0.25), (1, 0.75)],
+            rest: Vec3::new(0.0075, 0.0, 0.0),
+            spring_n_per_m: spring,
+            tray_n_per_m: tray,
+        };
+        let plane = TrayPlane {
+            normal: Vec3::z(),
+            offset: 0.0,
+            friction: 0.5,
+        };
+        (Held::new(&[v], &rest, Some(plane)), rest)
+    }
+
+    /// The spring's force is the negative gradient of its energy, and reaches the points
+    /// by the weights (their sum is the vertex's force).
+    #[test]
+    fn attachment_forces_are_the_energy_gradient() {
+        let (mut held, rest) = one_vertex(100.0, 0.0);
+        let p: Vec<Vec3> = rest
+            .iter()
+            .map(|x| x + Vec3::new(1e-3, -2e-3, 3e-3))
+            .collect();
+        let mut f = vec![Vec3::zeros(); 2];
+        let e = held.forces(&p, &mut f, true);
+        assert!((e - 0.5 * 100.0 * 14e-6).abs() < 1e-15);
+        let total = f[0] + f[1];
+        assert!((total - Vec3::new(-0.1, 0.2, -0.3)).norm() < 1e-12);
+        assert!((f[1] - total * 0.75).norm() < 1e-12);
+        // K x against a finite difference of the forces.
+        let dx = vec![Vec3::new(1e-6, 0.0, 0.0), Vec3::new(0.0, 2e-6, 0.0)];
+        let mut kx = vec![Vec3::zeros(); 2];
+        held.add_stiffness_product(&p, &dx, &mut kx);
+        let moved: Vec<Vec3> = p.iter().zip(&dx).map(|(a, b)| a + b).collect();
+        let mut f2 = vec![Vec3::zeros(); 2];
+        held.forces(&moved, &mut f2, true);
+        for k in 0..2 {
+            assert!((f[k] - f2[k] - kx[k]).norm() < 1e-12);
+        }
+    }
+
+    /// Pressed into the tray the vertex is pushed out; dragged along it, friction holds it
+    /// up to μ times the push, then it slides.
+    #[test]
+    fn the_tray_pushes_out_and_holds_by_friction_up_to_mu() {
+        let (mut held, rest) = one_vertex(0.0, 1000.0);
+        let at = |shift: Vec3| -> Vec<Vec3> { rest.iter().map(|x| x + shift).collect() };
+        let mut f = vec![Vec3::zeros(); 2];
+        held.forces(&at(Vec3::new(0.0, 0.0, -1e-3)), &mut f, true);
+        let total = f[0] + f[1];
+        assert!((total - Vec3::new(0.0, 0.0, 1.0)).norm() < 1e-12, "{total}");
+        // 0.2 mm sideways: 0.2 N of friction, under μ N = 0.5 N: sticks.
+        held.forces(&at(Vec3::new(2e-4, 0.0, -1e-3)), &mut f, true);
+        let total = f[0] + f[1];
+        assert!((total.x + 0.2).abs() < 1e-12, "{total}");
+        // 2 mm: capped at 0.5 N, and the anchor slides along.
+        held.forces(&at(Vec3::new(2e-3, 0.0, -1e-3)), &mut f, true);
+        assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
+        held.forces(&at(Vec3::new(2e-3, 0.0, -1e-3)), &mut f, true);
+        assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
+        // Lifted off: nothing, and the contact lets go.
+        held.forces(&at(Vec3::new(2e-3, 0.0, 1e-3)), &mut f, true);
+        assert_eq!(f[0] + f[1], Vec3::zeros());
+        assert_eq!(held.touching(), 0);
+    }
+}

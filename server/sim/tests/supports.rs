@@ -1,0 +1,102 @@
+//! Supports and gravity (cutting-physics.md §1) on a built organ: the liver comes to rest
+//! on its tray and its ligament, a fixed region holds, an unsupported body is refused.
+
+use std::path::Path;
+
+use scalpel_sim::pipeline::Simulation;
+use scalpel_sim::progress::Silent;
+use scalpel_sim::scene::{SceneSpec, build_scene};
+
+fn scene(text: &str) -> SceneSpec {
+    SceneSpec::from_toml(text, Path::new("test.toml")).expect("a valid scene")
+}
+
+/// Under gravity the liver settles on its tray before the first tick: it sags, comes to
+/// rest, rests on the tray, and its ligament side stays close to where it was.
+#[test]
+fn the_liver_settles_on_its_tray_under_gravity() {
+    let spec = scene("extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n");
+    let built = build_scene(&spec, None, &mut Silent).expect("builds");
+    let sim = Simulation::new(&built);
+    let r = *sim.settled().expect("settled under gravity");
+    println!("{r:?}");
+    assert!(r.settled, "at rest within the time allowed: {r:?}");
+    assert!(r.sag_mm > 0.1 && r.max_displacement_mm < 50.0, "{r:?}");
+    assert!(r.on_tray > 0, "resting on the tray: {r:?}");
+    assert!(r.residual_n < 1e-3, "{r:?}");
+    let p = sim.solver().positions();
+    assert!(p.iter().all(|x| x.iter().all(|c| c.is_finite())));
+}
+
+/// Without gravity nothing settles and nothing moves.
+#[test]
+fn without_gravity_the_body_starts_at_rest() {
+    let built = build_scene(&scene("extends = \"liver\"\n"), None, &mut Silent).expect("builds");
+    let sim = Simulation::new(&built);
+    assert!(sim.settled().is_none());
+    assert_eq!(sim.solver().positions(), sim.solver().rest());
+}
+
+/// A fixed region's points do not move under gravity; the rest of a cube hangs from them.
+#[test]
+fn a_fixed_face_holds_a_hanging_block() {
+    let spec = scene(
+        "extends = \"block\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n\
+         [supports]\nfixed = [ { box_fraction = { min = [0.0, 0.0, 0.95], max = [1.0, 1.0, 1.0] } } ]\n",
+    );
+    let built = build_scene(&spec, None, &mut Silent).expect("builds");
+    let sim = Simulation::new(&built);
+    let r = *sim.settled().expect("settled");
+    assert!(r.settled && r.sag_mm > 0.0, "{r:?}");
+    let (p, rest) = (sim.solver().positions(), sim.solver().rest());
+    let top = rest.iter().map(|x| x.z).fold(f64::MIN, f64::max);
+    for (x, x0) in p.iter().zip(rest) {
+        if x0.z >= top - 1e-9 {
+            assert_eq!(x, x0, "a fixed point moved");
+        }
+    }
+    let lowest = p
+        .iter()
+        .zip(rest)
+        .map(|(x, x0)| x.z - x0.z)
+        .fold(0.0, f64::min);
+    assert!(lowest < 0.0, "the bottom hangs down");
+}
+
+/// Gravity with nothing to hold the body, or a region that holds nothing, is refused with
+/// a message that says which.
+#[test]
+fn an_unsupported_body_is_refused() {
+    let e = SceneSpec::from_toml(
+        "extends = \"block\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n",
+        Path::new("test.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("supports") && e.contains("nothing holds"), "{e}");
+    let spec = scene(
+        "extends = \"block\"\n[supports]\n\
+         fixed = [ { box_mm = { min = [500.0, 0.0, 0.0], max = [600.0, 1.0, 1.0] } } ]\n",
+    );
+    let e = build_scene(&spec, None, &mut Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("supports.fixed[0] holds no point"), "{e}");
+    let e = SceneSpec::from_toml(
+        "extends = \"liver\"\n[supports]\ntray = { normal = [0.0, 0.0, 0.0] }\n",
+        Path::new("test.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("supports.tray.normal"), "{e}");
+    let e = SceneSpec::from_toml(
+        "extends = \"liver\"\n[supports]\nfixed = [ { box_fraction = { min = [0.5, 0.0, 0.0], max = [0.2, 1.0, 1.0] } } ]\n",
+        Path::new("test.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("supports.fixed[0].box_fraction") && e.contains("above"),
+        "{e}"
+    );
+}
