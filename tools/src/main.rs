@@ -18,6 +18,7 @@ mod progress;
 mod remote_target;
 mod replay_cmd;
 mod report;
+mod settle_cmd;
 mod stats;
 mod validate_cmd;
 mod view_cmd;
@@ -86,6 +87,19 @@ enum Command {
         #[arg(long, default_value = "vtk", value_parser = ["vtk", "ply", "obj"])]
         mesh_format: String,
         /// Print the metrics as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Let a supported organ come to rest under gravity (the scene's, or standard gravity
+    /// when it has none) and report its sag; writes the settled surface (settled.vtk) and a
+    /// render of it on its supports (settled.png).
+    Settle {
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Output folder (created if missing).
+        #[arg(long, default_value = "settled")]
+        out: PathBuf,
+        /// Print {sag_mm, max_displacement_mm, settle_s, residual_n, ...} as JSON.
         #[arg(long)]
         json: bool,
     },
@@ -497,6 +511,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             &mesh_format,
             json,
         ),
+        Command::Settle { target, out, json } => settle_cmd::run(&target, &out, json),
         Command::Bench(what) => run_bench(what),
         Command::Certs(what) => run_certs(what),
         Command::Observe {

@@ -39,6 +39,38 @@ fn demo_prints_the_liver_report() {
     assert!(text.contains("508 triangles"), "{text}");
 }
 
+/// `scalpel settle` brings the liver to rest on its tray under standard gravity and writes
+/// the settled surface and its render; a block held by nothing is refused.
+#[test]
+fn settle_rests_the_liver_on_its_supports() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("settled");
+    let r = ok_json(&["settle", "liver", "--json", "--out", out.to_str().unwrap()]);
+    for key in [
+        "sag_mm",
+        "max_displacement_mm",
+        "settle_s",
+        "residual_n",
+        "on_tray",
+    ] {
+        assert!(r.get(key).is_some(), "missing {key}: {r}");
+    }
+    assert_eq!(r["settled"], true, "{r}");
+    assert_eq!(r["gravity_added"], true, "{r}");
+    assert!(r["sag_mm"].as_f64().unwrap() > 0.1, "{r}");
+    assert!(r["on_tray"].as_u64().unwrap() > 0, "{r}");
+    for file in ["settled.vtk", "settled.png"] {
+        assert!(
+            std::fs::metadata(out.join(file)).unwrap().len() > 1000,
+            "{file}"
+        );
+    }
+    let refused = scalpel(&["settle", "block", "--out", out.to_str().unwrap()]);
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(err.contains("nothing holds the body"), "{err}");
+}
+
 #[test]
 fn scene_list_names_every_builtin() {
     let list = ok_json(&["scene", "list", "--json"]);

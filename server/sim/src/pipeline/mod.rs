@@ -244,6 +244,7 @@ pub struct Simulation {
     local_model: LocalForceModel,
     all_points: Vec<u32>,
     settled: Option<supports::SettleReport>,
+    support_counts: supports::SupportCounts,
 }
 
 impl Simulation {
@@ -268,7 +269,7 @@ impl Simulation {
         } else {
             Solver::for_model(model, &spec.material, config)
         };
-        supports::apply_supports(&spec, model, &mut solver);
+        let support_counts = supports::apply_supports(&spec, model, &mut solver);
         // Under gravity the body starts where it rests, before anything touches it.
         let settled = (spec.loads.gravity != Vec3::zeros()).then(|| {
             supports::settle(
@@ -304,6 +305,7 @@ impl Simulation {
         });
         let mut sim = Self {
             settled,
+            support_counts,
             incisions,
             virtual_points,
             vp_changed: Vec::with_capacity(4096),
@@ -334,6 +336,11 @@ impl Simulation {
             );
         }
         sim
+    }
+
+    /// How many points and vertices the scene's supports hold.
+    pub fn supports(&self) -> supports::SupportCounts {
+        self.support_counts
     }
 
     /// How the body came to rest under gravity before the first tick (`None` without

@@ -51,6 +51,15 @@ pub enum Region {
         /// Unit normal.
         normal: [f64; 3],
     },
+    /// Within `radius` of a line (m, scene coordinates): a bone the tissue lies on.
+    InsideCylinder {
+        /// A point of the axis.
+        point: [f64; 3],
+        /// Unit direction of the axis.
+        axis: [f64; 3],
+        /// Radius (m).
+        radius: f64,
+    },
 }
 
 impl Region {
@@ -69,6 +78,14 @@ impl Region {
             }),
             Region::BeyondPlane { point, normal } => {
                 (x - Vec3::from(point)).dot(&Vec3::from(normal)) >= 0.0
+            }
+            Region::InsideCylinder {
+                point,
+                axis,
+                radius,
+            } => {
+                let (d, a) = (x - Vec3::from(point), Vec3::from(axis));
+                (d - a * d.dot(&a)).norm() <= radius
             }
         }
     }
@@ -219,12 +236,16 @@ pub mod anatomical {
         }
     }
 
-    /// The shoulder muscle: its deep face (the lowest tenth) fixed to the bone.
+    /// The shoulder muscle: its deep layer fixed to the bone it is draped over. The sheet
+    /// is bent round an axis along y through (−32.4, 0, 0) mm (fitted to the built-in
+    /// mesh: its vertices lie 49.7–77.6 mm from it, the mid-surface at 65); the points
+    /// within 56 mm of it are the deep layer.
     pub fn shoulder() -> Supports {
         Supports {
-            fixed: vec![Region::BoxFraction {
-                min: [0.0, 0.0, 0.0],
-                max: [1.0, 1.0, 0.1],
+            fixed: vec![Region::InsideCylinder {
+                point: [-0.0324, 0.0, 0.0],
+                axis: [0.0, 1.0, 0.0],
+                radius: 0.056,
             }],
             attachments: Vec::new(),
             tray: None,

@@ -213,6 +213,11 @@ impl Held {
         }
     }
 
+    /// The tray, if the body has one.
+    pub fn tray(&self) -> Option<&TrayPlane> {
+        self.tray.as_ref()
+    }
+
     /// Vertices touching the tray (friction state).
     pub fn touching(&self) -> usize {
         self.touching.iter().filter(|&&t| t).count()

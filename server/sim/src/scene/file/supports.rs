@@ -29,6 +29,15 @@ pub(super) struct RawRegion {
     box_mm: Option<RawBox>,
     box_fraction: Option<RawBox>,
     beyond_plane_mm: Option<RawPlane>,
+    inside_cylinder_mm: Option<RawCylinder>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawCylinder {
+    point: [f64; 3],
+    axis: [f64; 3],
+    radius: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -169,6 +178,31 @@ fn tray(t: &RawTray, check: &Checker<'_>) -> Result<Tray, SceneError> {
 
 /// A region: exactly one of `box_mm`, `box_fraction` and `beyond_plane_mm`.
 fn region(r: &RawRegion, key: &str, check: &Checker<'_>) -> Result<Region, SceneError> {
+    let given = [
+        r.box_mm.is_some(),
+        r.box_fraction.is_some(),
+        r.beyond_plane_mm.is_some(),
+        r.inside_cylinder_mm.is_some(),
+    ];
+    if given.iter().filter(|&&g| g).count() != 1 {
+        return Err(check.fail(
+            key,
+            "give exactly one of box_mm = { min, max }, box_fraction = { min, max }, \
+             beyond_plane_mm = { point, normal } and inside_cylinder_mm = { point, axis, radius }",
+        ));
+    }
+    if let Some(c) = &r.inside_cylinder_mm {
+        let radius = check.check(
+            &format!("{key}.inside_cylinder_mm.radius"),
+            c.radius,
+            Limit::positive(MAX_COORDINATE_MM, "mm"),
+        )?;
+        return Ok(Region::InsideCylinder {
+            point: coordinates(c.point, &format!("{key}.inside_cylinder_mm.point"), check)?,
+            axis: unit(c.axis, &format!("{key}.inside_cylinder_mm.axis"), check)?,
+            radius: radius * MM,
+        });
+    }
     match (&r.box_mm, &r.box_fraction, &r.beyond_plane_mm) {
         (Some(b), None, None) => {
             let (min, max) = (
@@ -194,11 +228,7 @@ fn region(r: &RawRegion, key: &str, check: &Checker<'_>) -> Result<Region, Scene
             point: coordinates(p.point, &format!("{key}.beyond_plane_mm.point"), check)?,
             normal: unit(p.normal, &format!("{key}.beyond_plane_mm.normal"), check)?,
         }),
-        _ => Err(check.fail(
-            key,
-            "give exactly one of box_mm = { min, max }, box_fraction = { min, max } and \
-             beyond_plane_mm = { point, normal }",
-        )),
+        _ => unreachable!("exactly one region form, checked above"),
     }
 }
 
