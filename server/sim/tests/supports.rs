@@ -20,7 +20,7 @@ fn the_liver_settles_on_its_tray_under_gravity() {
     let sim = Simulation::new(&built);
     let r = *sim.settled().expect("settled under gravity");
     println!("{r:?}");
-    assert!(r.settled, "at rest within the time allowed: {r:?}");
+    assert!(r.settled, "in equilibrium: {r:?}");
     assert!(r.sag_mm > 0.1 && r.max_displacement_mm < 50.0, "{r:?}");
     assert!(r.on_tray > 0, "resting on the tray: {r:?}");
     assert!(r.residual_n < 1e-3, "{r:?}");

@@ -270,9 +270,9 @@ impl Simulation {
             Solver::for_model(model, &spec.material, config)
         };
         let support_counts = supports::apply_supports(&spec, model, &mut solver);
-        // Under gravity the body starts where it rests, before anything touches it.
+        // Under gravity the body starts in its static equilibrium, before anything touches it.
         let settled = (spec.loads.gravity != Vec3::zeros()).then(|| {
-            supports::settle(
+            supports::settle_start(
                 &mut solver,
                 spec.loads.gravity,
                 SIMULATION_TICK_S,
@@ -343,8 +343,27 @@ impl Simulation {
         self.support_counts
     }
 
+    /// Lets the body come to rest dynamically under `gravity` (every point awake, ticks of
+    /// [`SIMULATION_TICK_S`], at most [`SETTLE_MAX_S`]), from where it is: how long that
+    /// takes and how far it sags (`scalpel settle`). Before any tool touches it.
+    pub fn settle_under(&mut self, gravity: Vec3) -> supports::SettleReport {
+        self.solver.set_gravity(gravity);
+        let report = supports::settle(&mut self.solver, gravity, SIMULATION_TICK_S, SETTLE_MAX_S);
+        if self.cutting.is_some() {
+            self.solver.set_active(&[]);
+        }
+        self.surface.follow(
+            self.solver.operator(),
+            self.solver.rest(),
+            self.solver.positions(),
+            &self.all_points,
+        );
+        self.settled = Some(report);
+        report
+    }
+
     /// How the body came to rest under gravity before the first tick (`None` without
-    /// gravity).
+    /// gravity): in static equilibrium, unless [`Self::settle_under`] let it come to rest.
     pub fn settled(&self) -> Option<&supports::SettleReport> {
         self.settled.as_ref()
     }

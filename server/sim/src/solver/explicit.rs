@@ -214,7 +214,7 @@ impl Solver {
             kinetic = 0.0;
             for idx in 0..self.active_list.len() {
                 let i = self.active_list[idx] as usize;
-                let applied = self.external[i] + gravity * self.mass[i] + self.held_force[i];
+                let applied = self.external[i] + gravity * self.base_mass[i] + self.held_force[i];
                 let mass = self.mass[i];
                 let moved = if self.fixed[i] == [false; 3] {
                     // A free point (nearly all of them): its three dofs at once.

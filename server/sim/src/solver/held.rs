@@ -213,6 +213,11 @@ impl Held {
         }
     }
 
+    /// Whether vertex v can touch the tray.
+    pub fn touches_tray(&self, v: usize) -> bool {
+        self.tray.is_some() && self.tray_stiffness[v] > 0.0
+    }
+
     /// The tray, if the body has one.
     pub fn tray(&self) -> Option<&TrayPlane> {
         self.tray.as_ref()

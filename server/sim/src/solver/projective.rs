@@ -135,7 +135,7 @@ impl Projective {
         // tick map's steady state is then the true equilibrium: started from y, a resting
         // body would settle where the unfinished iterations balance the load, not at rest.
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.mass[i] + s.held_force[i];
+            let applied = s.external[i] + s.config.gravity * s.base_mass[i] + s.held_force[i];
             for a in 0..3 {
                 if s.fixed[i][a] {
                     s.scratch[0][i][a] = s.target[i][a];
@@ -157,7 +157,7 @@ impl Projective {
         // Work of the applied loads over the step (moving constraints are not tracked here).
         let mut work = 0.0;
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.mass[i] + s.held_force[i];
+            let applied = s.external[i] + s.config.gravity * s.base_mass[i] + s.held_force[i];
             work += applied.dot(&(s.p[i] - self.start[i]));
         }
         let mut finite = true;

@@ -110,6 +110,11 @@ impl Solver {
         self.held.as_ref()
     }
 
+    /// Sets the gravitational acceleration (m/s²) from the next step on.
+    pub fn set_gravity(&mut self, g: Vec3) {
+        self.config.gravity = g;
+    }
+
     /// Removes every external force.
     pub fn clear_external_forces(&mut self) {
         self.external.iter_mut().for_each(|f| *f = Vec3::zeros());

@@ -118,7 +118,9 @@ impl Solver {
             report.elastic_energy = energy;
             report.newton_iterations = it;
             let loads: f64 = (0..n)
-                .map(|i| (self.external[i] + self.config.gravity * self.mass[i]).norm_squared())
+                .map(|i| {
+                    (self.external[i] + self.config.gravity * self.base_mass[i]).norm_squared()
+                })
                 .sum::<f64>()
                 .sqrt();
             reference = reference
@@ -164,7 +166,7 @@ impl Solver {
         self.last_stats = Some(stats);
         let mut norm = 0.0;
         for i in 0..n {
-            r[i] += self.external[i] + self.config.gravity * self.mass[i] + self.held_force[i];
+            r[i] += self.external[i] + self.config.gravity * self.base_mass[i] + self.held_force[i];
             for a in 0..3 {
                 if self.fixed[i][a] {
                     r[i][a] = 0.0;
@@ -184,7 +186,8 @@ impl Solver {
             potential += held.forces(&self.p, &mut self.held_force, false);
         }
         for i in 0..n {
-            potential -= (self.external[i] + self.config.gravity * self.mass[i]).dot(&self.p[i]);
+            potential -=
+                (self.external[i] + self.config.gravity * self.base_mass[i]).dot(&self.p[i]);
         }
         if stats.finite {
             potential
