@@ -183,7 +183,7 @@ fn station_script(
                 .map_err(|e| format!("device.script: {e:#}")),
         ),
         _ => scene.map(|s| {
-            CutScript::default_for(&s.model.surface).map_err(|e| {
+            CutScript::default_for(&scalpel_sim::pipeline::start_surface(s)).map_err(|e| {
                 format!("the scene has no place for the demo cut ({e}): give device.script")
             })
         }),

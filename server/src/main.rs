@@ -131,7 +131,7 @@ fn device_factory(
     Ok(match (&config.device.kind, config.device.script.as_str()) {
         (DeviceKind::Scripted, script) => {
             let script = if script.is_empty() {
-                CutScript::default_for(&scene.model.surface)
+                CutScript::default_for(&scalpel_sim::pipeline::start_surface(scene))
                     .context("the scene has no place for the demo cut")?
             } else {
                 scene_file::load_script(std::path::Path::new(script))?

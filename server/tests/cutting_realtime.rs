@@ -42,7 +42,7 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
     let mut spec = builtin(scene).unwrap();
     spec.features.cutting = true;
     let scene = build_scene(&spec, None, &mut Silent).unwrap();
-    let surface = &scene.model.surface;
+    let surface = &scalpel_sim::pipeline::start_surface(&scene);
     let script = match strokes {
         0 => CutScript::default_for(surface),
         n => CutScript::session_for(surface, n, 1),

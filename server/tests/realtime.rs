@@ -24,7 +24,7 @@ use scalpel_sim::scene::{build_scene, builtin};
 #[test]
 fn haptic_ticks_do_not_allocate() {
     let scene = build_scene(&builtin("liver").unwrap(), None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene)).unwrap();
     let mut device = ScriptedDevice::new(script, true);
     let limits = OutputLimits::default();
     // A stiff model pushing up: the coupling (at its 4 mm reach: 2000 N/m gives 8 N), the
@@ -243,7 +243,7 @@ fn a_render_frame_costs_the_simulation_thread_only_iceoryx2s_loan() {
     shm::quiet_logging();
     let station = format!("t-frame-cost-{}", std::process::id());
     let liver = scalpel_server::scene_file::load_scene("liver").unwrap();
-    let script = CutScript::default_for(&liver.model.surface).unwrap();
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&liver)).unwrap();
     let mut sim = Simulation::new(&liver);
     // The station's services, made as its server makes them.
     let _services =

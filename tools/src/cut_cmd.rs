@@ -39,7 +39,7 @@ pub enum ScriptChoice {
 
 /// The script of a run.
 pub fn script_for(scene: &BuiltScene, choice: &ScriptChoice) -> anyhow::Result<CutScript> {
-    let surface = &scene.model.surface;
+    let surface = &scalpel_sim::pipeline::start_surface(scene);
     Ok(match choice {
         ScriptChoice::Default => CutScript::default_for(surface)?,
         ScriptChoice::File(path) => scalpel_server::scene_file::load_script(path)?,

@@ -37,7 +37,7 @@ pub fn run(args: &MockArgs<'_>) -> anyhow::Result<()> {
         Some(path) => scalpel_server::scene_file::load_script(path)?,
         None => {
             let scene = scalpel_server::scene_file::load_scene(args.scene)?;
-            CutScript::default_for(&scene.model.surface)?
+            CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?
         }
     };
     let mut out = match args.out {

@@ -136,7 +136,7 @@ impl Cut {
 fn run_cut(scene_name: &str, cut: Cut) -> CutReference {
     let spec = builtin(scene_name).unwrap();
     let scene = build_scene(&spec, None, &mut Silent).unwrap();
-    let surface = &scene.model.surface;
+    let surface = &scalpel_sim::pipeline::start_surface(&scene);
     let script = match cut {
         Cut::Default => CutScript::default_for(surface),
         Cut::Session { strokes, seed } => CutScript::session_for(surface, strokes, seed),

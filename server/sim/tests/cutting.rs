@@ -11,7 +11,7 @@ use scalpel_sim::scene::{BuiltScene, build_scene, builtin};
 /// The built-in liver and its default stroke (paper Fig. 9).
 fn default_liver_cut() -> (BuiltScene, CutScript) {
     let scene = build_scene(&builtin("liver").unwrap(), None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene)).unwrap();
     (scene, script)
 }
 
@@ -362,7 +362,7 @@ fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
     use scalpel_sim::geometry::predicates::distance_sq_to_segment;
     use scalpel_sim::pipeline::NODES_PER_TICK;
     let scene = build_scene(&builtin("cerebroma").unwrap(), None, &mut Silent).unwrap();
-    let script = CutScript::default_for(&scene.model.surface).unwrap();
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene)).unwrap();
     let spacing = scene.model.lattice.spacing;
     let mut sim = Simulation::new(&scene);
     let dt = 1e-3;

@@ -64,7 +64,7 @@ pub fn table1(json: bool) -> anyhow::Result<()> {
     for (name, paper_tris, paper_points, paper_surface, paper_internal) in PAPER_TABLE1 {
         let spec = scene::builtin(name).expect("built-in scene");
         let scene = build(&spec)?;
-        let script = CutScript::default_for(&scene.model.surface)?;
+        let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?;
         let run = cut_cmd::run_with_progress(&scene, &script);
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let paper_total = paper_surface + paper_internal;
@@ -184,7 +184,9 @@ pub fn scaling(targets: &[usize], json: bool) -> anyhow::Result<()> {
         spec.name = format!("liver@{target}");
         let scene = build(&spec)?;
         // The same stroke at every resolution (the surface is the same).
-        let script = script.get_or_insert(CutScript::default_for(&scene.model.surface)?);
+        let script = script.get_or_insert(CutScript::default_for(
+            &scalpel_sim::pipeline::start_surface(&scene),
+        )?);
         let run = cut_cmd::run_with_progress(&scene, script);
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let base = rows.first().map_or(m.total_ms.p50, |r| r.total_ms.p50);

@@ -184,7 +184,7 @@ fn measure(
     let server_t0 = lines.lock().map(|l| l[0].0).unwrap_or(1.0) - 1.0;
     let wall_t0 = Instant::now() - Duration::from_secs_f64(1.0);
     let scene = scalpel_server::scene_file::load_scene("liver")?;
-    let script = CutScript::default_for(&scene.model.surface)?;
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?;
     let stop = Arc::new(AtomicBool::new(false));
 
     // The device, for both phases.

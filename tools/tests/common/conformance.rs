@@ -37,7 +37,7 @@ impl ConformanceCut {
     /// The cut for the built-in liver.
     pub fn liver() -> Self {
         let scene = scalpel_server::scene_file::load_scene("liver").unwrap();
-        let demo = CutScript::default_for(&scene.model.surface).unwrap();
+        let demo = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene)).unwrap();
         let at = |t: f64| demo.pose_at(t);
         let down = 3.0;
         let along = down + 2.0;

@@ -211,9 +211,13 @@ fn start_device(dir: &Path, name: &str, server: &mut Running) -> (Running, PathB
         &mut scalpel_sim::progress::Silent,
     )
     .unwrap();
-    let stroke =
-        scalpel_sim::pipeline::CutScript::stroke_for(&liver.model.surface, 0.06, 0.01, 0.003)
-            .unwrap();
+    let stroke = scalpel_sim::pipeline::CutScript::stroke_for(
+        &scalpel_sim::pipeline::start_surface(&liver),
+        0.06,
+        0.01,
+        0.003,
+    )
+    .unwrap();
     let script = dir.join("stroke.csv");
     std::fs::write(&script, common::conformance::script_csv(&stroke)).unwrap();
     let forces_csv = dir.join("forces.csv");

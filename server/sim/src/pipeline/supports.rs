@@ -1,10 +1,14 @@
 //! The scene's supports put on the solver (cutting-physics.md §1), and settling a body
 //! under gravity before anything touches it.
 
+use std::borrow::Cow;
+
 use serde::Serialize;
 
+use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
 use crate::model::CoupledModel;
+use crate::scene::BuiltScene;
 use crate::scene::SceneSpec;
 use crate::solver::Solver;
 use crate::solver::held::{Held, HeldVertex, TrayPlane};
@@ -216,5 +220,15 @@ pub fn settle_start(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> 
         max_displacement_mm: 1e3 * (0..n).map(|i| moved(i).norm()).fold(0.0, f64::max),
         newton_iterations: statics.newton_iterations,
         ..finish
+    }
+}
+
+/// The surface a scene starts from: the built surface, or, under gravity, where it rests
+/// on its supports (what a scripted stroke is placed on).
+pub fn start_surface(scene: &BuiltScene) -> Cow<'_, TriMesh> {
+    if scene.spec.loads.gravity == Vec3::zeros() {
+        Cow::Borrowed(&scene.model.surface)
+    } else {
+        Cow::Owned(super::Simulation::new(scene).surface().clone())
     }
 }

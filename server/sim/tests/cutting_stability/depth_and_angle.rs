@@ -381,7 +381,8 @@ fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
     // k_open × 10 mm deep is 3 mm (physics.md §5.1, w_o = min(0.15 L, k_open d),
     // k_open = 0.3).
     let scene = scene("shoulder");
-    let script = CutScript::default_for(&scene.model.surface).expect("default stroke");
+    let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))
+        .expect("default stroke");
     let (sim, trace) = calm_run(&scene, &script, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert_one_incision(&sim);
