@@ -40,8 +40,9 @@ use crate::force::{CutForce, CutPhase, LocalForceModel};
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
+use crate::scene::supports::StartState;
 use crate::scene::{BuiltScene, SceneSpec};
-use crate::solver::{Solver, SolverConfig, SolverEvent, StepReport};
+use crate::solver::{Solver, SolverEvent, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
 pub use recut::{InlineRecuts, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner};
@@ -253,10 +254,6 @@ impl Simulation {
     pub fn new(scene: &BuiltScene) -> Self {
         let spec = scene.spec.clone();
         let model = &scene.model;
-        let config = SolverConfig {
-            gravity: spec.loads.gravity,
-            ..SolverConfig::for_scene(&spec.features, &spec.material, &spec.solver)
-        };
         let n = model.points.len();
         // Virtual points are spare nodes after the body's points (virtual_points.rs).
         let spare = if spec.features.cutting && spec.features.virtual_points {
@@ -265,20 +262,25 @@ impl Simulation {
             0
         };
         let neighbours = model.neighbours.with_spare_lists(spare);
-        let mut solver = if spare > 0 {
-            Solver::for_model_with_spare_nodes(model, &spec.material, config, &neighbours, spare)
-        } else {
-            Solver::for_model(model, &spec.material, config)
-        };
-        let support_counts = supports::apply_supports(&spec, model, &mut solver);
-        // Under gravity the body starts in its static equilibrium, before anything touches it.
+        let (mut solver, support_counts) = supports::held_solver(scene, &neighbours, spare);
+        // Under gravity the body starts where it rests, before anything touches it: settled
+        // once per built scene.
         let settled = (spec.loads.gravity != Vec3::zeros()).then(|| {
-            supports::settle_start(
-                &mut solver,
-                spec.loads.gravity,
-                SIMULATION_TICK_S,
-                SETTLE_MAX_S,
-            )
+            let start = scene.start.get_or_init(|| {
+                let (mut s, _) = supports::held_solver(scene, &neighbours, spare);
+                let report = supports::settle_start(
+                    &mut s,
+                    spec.loads.gravity,
+                    SIMULATION_TICK_S,
+                    SETTLE_MAX_S,
+                );
+                StartState {
+                    positions: s.positions().to_vec(),
+                    report,
+                }
+            });
+            solver.set_positions(&start.positions);
+            start.report
         });
         let virtual_points = (spare > 0)
             .then(|| VirtualPoints::new(n, spare, model.lattice.spacing, model.kernel.support_m));

@@ -10,8 +10,8 @@ use crate::math::{Aabb, Vec3};
 use crate::model::CoupledModel;
 use crate::scene::BuiltScene;
 use crate::scene::SceneSpec;
-use crate::solver::Solver;
 use crate::solver::held::{Held, HeldVertex, TrayPlane};
+use crate::solver::{Solver, SolverConfig};
 
 /// How many of the body's supports took hold.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
@@ -22,6 +22,27 @@ pub struct SupportCounts {
     pub attached_vertices: usize,
     /// Surface vertices that may touch the tray.
     pub tray_vertices: usize,
+}
+
+/// The scene's solver with its supports: fixed points, attachments, tray (and gravity in
+/// its configuration), over `neighbours` with `spare` spare nodes.
+pub(super) fn held_solver(
+    scene: &BuiltScene,
+    neighbours: &crate::model::Neighbourhoods,
+    spare: usize,
+) -> (Solver, SupportCounts) {
+    let (spec, model) = (&scene.spec, &scene.model);
+    let config = SolverConfig {
+        gravity: spec.loads.gravity,
+        ..SolverConfig::for_scene(&spec.features, &spec.material, &spec.solver)
+    };
+    let mut solver = if spare > 0 {
+        Solver::for_model_with_spare_nodes(model, &spec.material, config, neighbours, spare)
+    } else {
+        Solver::for_model(model, &spec.material, config)
+    };
+    let counts = apply_supports(spec, model, &mut solver);
+    (solver, counts)
 }
 
 /// Fixes the points in the scene's fixed regions and hands the attachments and the tray
@@ -108,25 +129,7 @@ pub fn apply_supports(
     counts
 }
 
-/// How a body came to rest under gravity.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct SettleReport {
-    /// Mean displacement of the points along gravity (mm).
-    pub sag_mm: f64,
-    /// Largest displacement of any point (mm).
-    pub max_displacement_mm: f64,
-    /// Simulated time to rest (s).
-    pub settle_s: f64,
-    /// Largest out-of-balance force on a point at the end, from its last tick's change of
-    /// momentum (N).
-    pub residual_n: f64,
-    /// Whether it came to rest within the time allowed.
-    pub settled: bool,
-    /// Vertices on the tray at the end.
-    pub on_tray: usize,
-    /// Newton iterations of a static settle (0 for a dynamic one).
-    pub newton_iterations: u32,
-}
+pub use crate::scene::supports::SettleReport;
 
 /// A body is at rest when no point moves faster than this (m/s) for [`CALM_TICKS`].
 const REST_SPEED: f64 = 1e-4;

@@ -27,6 +27,9 @@ pub struct BuiltScene {
     /// How a real-time sampling rule chose the point count (`SpacingRule::RealTime` with the
     /// explicit solver); `None` for a fixed spacing or count.
     pub sampling_plan: Option<SamplingPlan>,
+    /// Where the body starts under gravity: found by the first simulation of it and kept
+    /// (a settle takes seconds), `pipeline::Simulation::new`.
+    pub start: std::sync::OnceLock<super::supports::StartState>,
 }
 
 /// Why a scene could not be built.
@@ -226,5 +229,6 @@ pub fn build_model(
         mesh_stats: validated.stats,
         model,
         sampling_plan,
+        start: std::sync::OnceLock::new(),
     })
 }

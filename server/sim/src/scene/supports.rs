@@ -195,6 +195,36 @@ impl Supports {
     }
 }
 
+/// How a body came to rest under gravity.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SettleReport {
+    /// Mean displacement of the points along gravity (mm).
+    pub sag_mm: f64,
+    /// Largest displacement of any point (mm).
+    pub max_displacement_mm: f64,
+    /// Simulated time to rest (s).
+    pub settle_s: f64,
+    /// Largest out-of-balance force on a point at the end, from its last tick's change of
+    /// momentum (N).
+    pub residual_n: f64,
+    /// Whether it came to rest within the time allowed.
+    pub settled: bool,
+    /// Vertices on the tray at the end.
+    pub on_tray: usize,
+    /// Newton iterations of a static settle (0 for a dynamic one).
+    pub newton_iterations: u32,
+}
+
+/// Where a scene under gravity starts: its points at rest on its supports, found once per
+/// built scene (`pipeline::Simulation::new`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StartState {
+    /// Every node's position (m).
+    pub positions: Vec<Vec3>,
+    /// How it came to rest.
+    pub report: SettleReport,
+}
+
 /// The built-in organs' anatomical supports, in fractions of their bounding boxes: the
 /// liver on a tray and held at its ligament side (its +x end); the tumour attached on its
 /// deep half (the brain around it); the shoulder muscle fixed on its deep face (the bone).
