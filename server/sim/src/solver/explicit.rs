@@ -2,7 +2,7 @@
 //! (physics.md §2.1, §2.5).
 
 use super::events::{DivergenceReason, SolverEvent, StepReport};
-use super::{ForceBuffer, MAX_SUBSTEPS, Solver};
+use super::{ForceBuffer, MAX_SUBSTEPS, Solver, held};
 use crate::math::Vec3;
 use crate::mls::forces::ForceStats;
 
@@ -195,7 +195,7 @@ impl Solver {
             let st = self.evaluate_elastic(ForceBuffer::Force);
             if let Some(held) = &mut self.held {
                 // Their work is counted with the applied loads' below.
-                held.forces(&self.p, &mut self.held_force, true);
+                held.forces(&self.p, &mut self.held_force, true, held::Vertices::Awake);
             }
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));

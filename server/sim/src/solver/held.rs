@@ -52,6 +52,18 @@ pub struct Held {
     touching: Vec<bool>,
     /// The points any held vertex follows, each once (the forces' support).
     reached: Vec<u32>,
+    /// The vertices following at least one integrated point ([`Held::wake`]): the only
+    /// ones whose forces an explicit tick over a restricted active set reads.
+    awake: Vec<u32>,
+}
+
+/// Which held vertices a force evaluation takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Vertices {
+    /// Every one (static solves, the stiff mode: the whole body moves).
+    All,
+    /// Those following an integrated point (the explicit tick).
+    Awake,
 }
 
 impl Held {
@@ -70,6 +82,7 @@ impl Held {
             anchor: vec![Vec3::zeros(); vertices.len()],
             touching: vec![false; vertices.len()],
             reached: Vec::new(),
+            awake: (0..vertices.len() as u32).collect(),
         };
         let mut seen = vec![false; rest_points.len()];
         for v in vertices {
@@ -121,17 +134,51 @@ impl Held {
         self.row(v).fold(self.offset[v], |x, (k, w)| x + p[k] * w)
     }
 
-    /// Writes the held vertices' forces on the points at `p` into `out` (zeroed on the
-    /// reached points first) and returns their stored energy (J). With `slide`, a vertex
-    /// on the tray whose tangential pull exceeds friction slips (its anchor follows), and
-    /// one that leaves the tray lets go; without it the friction state is only read (a
-    /// static solve's trial positions must not move it).
-    pub fn forces(&mut self, p: &[Vec3], out: &mut [Vec3], slide: bool) -> f64 {
-        for &k in &self.reached {
-            out[k as usize] = Vec3::zeros();
-        }
-        let mut energy = 0.0;
+    /// Lists the vertices that follow a point with `is_active` set (call when the active
+    /// set changes; no allocation).
+    pub fn wake(&mut self, is_active: &[bool]) {
+        self.awake.clear();
         for v in 0..self.rest.len() {
+            if self.row(v).any(|(k, _)| is_active[k]) {
+                self.awake.push(v as u32);
+            }
+        }
+    }
+
+    /// Writes the forces of the held vertices `which` takes on the points at `p` into
+    /// `out` and returns their stored energy (J). `out` is zeroed first on the points those
+    /// vertices follow (with [`Vertices::All`], on every point any vertex follows); other
+    /// entries are left as they are. With `slide`, a vertex on the tray whose tangential
+    /// pull exceeds friction slips (its anchor follows), and one that leaves the tray lets
+    /// go; without it the friction state is only read (a static solve's trial positions
+    /// must not move it).
+    pub fn forces(&mut self, p: &[Vec3], out: &mut [Vec3], slide: bool, which: Vertices) -> f64 {
+        let count = match which {
+            Vertices::All => {
+                for &k in &self.reached {
+                    out[k as usize] = Vec3::zeros();
+                }
+                self.rest.len()
+            }
+            Vertices::Awake => {
+                for &v in &self.awake {
+                    let (a, b) = (
+                        self.start[v as usize] as usize,
+                        self.start[v as usize + 1] as usize,
+                    );
+                    for &k in &self.points[a..b] {
+                        out[k as usize] = Vec3::zeros();
+                    }
+                }
+                self.awake.len()
+            }
+        };
+        let mut energy = 0.0;
+        for index in 0..count {
+            let v = match which {
+                Vertices::All => index,
+                Vertices::Awake => self.awake[index] as usize,
+            };
             let x = self.position(v, p);
             let mut f = Vec3::zeros();
             let k = self.spring[v];
@@ -213,9 +260,16 @@ impl Held {
         }
     }
 
-    /// Whether vertex v can touch the tray.
-    pub fn touches_tray(&self, v: usize) -> bool {
-        self.tray.is_some() && self.tray_stiffness[v] > 0.0
+    /// The vertices pressed into the tray with the points at `p`.
+    pub fn on_tray(&self, p: &[Vec3]) -> usize {
+        let Some(tray) = self.tray else {
+            return 0;
+        };
+        (0..self.rest.len())
+            .filter(|&v| {
+                self.tray_stiffness[v] > 0.0 && tray.normal.dot(&self.position(v, p)) < tray.offset
+            })
+            .count()
     }
 
     /// The tray, if the body has one.
@@ -223,8 +277,9 @@ impl Held {
         self.tray.as_ref()
     }
 
-    /// Vertices touching the tray (friction state).
-    pub fn touching(&self) -> usize {
+    /// Vertices holding a friction anchor on the tray.
+    #[cfg(test)]
+    fn touching(&self) -> usize {
         self.touching.iter().filter(|&&t| t).count()
     }
 }
@@ -259,7 +314,7 @@ mod tests {
             .map(|x| x + Vec3::new(1e-3, -2e-3, 3e-3))
             .collect();
         let mut f = vec![Vec3::zeros(); 2];
-        let e = held.forces(&p, &mut f, true);
+        let e = held.forces(&p, &mut f, true, Vertices::All);
         assert!((e - 0.5 * 100.0 * 14e-6).abs() < 1e-15);
         let total = f[0] + f[1];
         assert!((total - Vec3::new(-0.1, 0.2, -0.3)).norm() < 1e-12);
@@ -270,10 +325,25 @@ mod tests {
         held.add_stiffness_product(&p, &dx, &mut kx);
         let moved: Vec<Vec3> = p.iter().zip(&dx).map(|(a, b)| a + b).collect();
         let mut f2 = vec![Vec3::zeros(); 2];
-        held.forces(&moved, &mut f2, true);
+        held.forces(&moved, &mut f2, true, Vertices::All);
         for k in 0..2 {
             assert!((f[k] - f2[k] - kx[k]).norm() < 1e-12);
         }
+    }
+
+    /// A vertex that follows no integrated point is left out of the explicit tick's
+    /// forces: nothing written, no energy; woken, it is back.
+    #[test]
+    fn an_asleep_vertex_costs_nothing() {
+        let (mut held, rest) = one_vertex(100.0, 0.0);
+        let p: Vec<Vec3> = rest.iter().map(|x| x + Vec3::new(1e-3, 0.0, 0.0)).collect();
+        let mut f = vec![Vec3::new(7.0, 7.0, 7.0); 2];
+        held.wake(&[false, false]);
+        assert_eq!(held.forces(&p, &mut f, true, Vertices::Awake), 0.0);
+        assert_eq!(f, vec![Vec3::new(7.0, 7.0, 7.0); 2]);
+        held.wake(&[false, true]);
+        assert!(held.forces(&p, &mut f, true, Vertices::Awake) > 0.0);
+        assert!((f[0] + f[1] - Vec3::new(-0.1, 0.0, 0.0)).norm() < 1e-12);
     }
 
     /// Pressed into the tray the vertex is pushed out; dragged along it, friction holds it
@@ -283,20 +353,35 @@ mod tests {
         let (mut held, rest) = one_vertex(0.0, 1000.0);
         let at = |shift: Vec3| -> Vec<Vec3> { rest.iter().map(|x| x + shift).collect() };
         let mut f = vec![Vec3::zeros(); 2];
-        held.forces(&at(Vec3::new(0.0, 0.0, -1e-3)), &mut f, true);
+        held.forces(&at(Vec3::new(0.0, 0.0, -1e-3)), &mut f, true, Vertices::All);
         let total = f[0] + f[1];
         assert!((total - Vec3::new(0.0, 0.0, 1.0)).norm() < 1e-12, "{total}");
         // 0.2 mm sideways: 0.2 N of friction, under μ N = 0.5 N: sticks.
-        held.forces(&at(Vec3::new(2e-4, 0.0, -1e-3)), &mut f, true);
+        held.forces(
+            &at(Vec3::new(2e-4, 0.0, -1e-3)),
+            &mut f,
+            true,
+            Vertices::All,
+        );
         let total = f[0] + f[1];
         assert!((total.x + 0.2).abs() < 1e-12, "{total}");
         // 2 mm: capped at 0.5 N, and the anchor slides along.
-        held.forces(&at(Vec3::new(2e-3, 0.0, -1e-3)), &mut f, true);
+        held.forces(
+            &at(Vec3::new(2e-3, 0.0, -1e-3)),
+            &mut f,
+            true,
+            Vertices::All,
+        );
         assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
-        held.forces(&at(Vec3::new(2e-3, 0.0, -1e-3)), &mut f, true);
+        held.forces(
+            &at(Vec3::new(2e-3, 0.0, -1e-3)),
+            &mut f,
+            true,
+            Vertices::All,
+        );
         assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
         // Lifted off: nothing, and the contact lets go.
-        held.forces(&at(Vec3::new(2e-3, 0.0, 1e-3)), &mut f, true);
+        held.forces(&at(Vec3::new(2e-3, 0.0, 1e-3)), &mut f, true, Vertices::All);
         assert_eq!(f[0] + f[1], Vec3::zeros());
         assert_eq!(held.touching(), 0);
     }

@@ -128,7 +128,7 @@ impl Projective {
         self.start.copy_from_slice(&s.p);
         if let Some(held) = &mut s.held {
             // Taken at the step's start: explicit in the implicit step.
-            held.forces(&s.p, &mut s.held_force, true);
+            held.forces(&s.p, &mut s.held_force, true, super::held::Vertices::All);
         }
         // The inertial prediction y (with the applied loads) goes into the right-hand side; the
         // iterations start from p + dt·v instead. With a truncated number of iterations the

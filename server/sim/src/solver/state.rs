@@ -100,7 +100,8 @@ impl Solver {
 
     /// Holds the body by `held` (attachments, a tray) from the next step on; the
     /// critical step is measured again with its stiffness.
-    pub fn hold(&mut self, held: held::Held) {
+    pub fn hold(&mut self, mut held: held::Held) {
+        held.wake(&self.is_active);
         self.held = Some(held);
         self.dt_crit = None;
     }
@@ -178,6 +179,9 @@ impl Solver {
         }
         self.eval_set.get_or_insert_with(EvalSet::default);
         self.rebuild_eval_set();
+        if let Some(held) = &mut self.held {
+            held.wake(&self.is_active);
+        }
     }
 
     /// Rebuilds the restricted evaluation set for the active list and the slaved nodes with
@@ -209,6 +213,9 @@ impl Solver {
             }
         }
         self.eval_set = None;
+        if let Some(held) = &mut self.held {
+            held.wake(&self.is_active);
+        }
     }
 
     /// The points the explicit mode integrates.

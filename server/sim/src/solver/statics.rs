@@ -3,6 +3,7 @@
 
 use serde::Serialize;
 
+use super::held::Vertices;
 use super::{ForceBuffer, Solver};
 use crate::math::Vec3;
 use crate::mls::forces::{hourglass_stiffness, stiffness_product};
@@ -160,7 +161,7 @@ impl Solver {
         let n = self.p.len();
         let stats = self.evaluate_elastic(ForceBuffer::Scratch(0));
         if let Some(held) = &mut self.held {
-            held.forces(&self.p, &mut self.held_force, false);
+            held.forces(&self.p, &mut self.held_force, false, Vertices::All);
         }
         let r = &mut self.scratch[0];
         self.last_stats = Some(stats);
@@ -183,7 +184,7 @@ impl Solver {
         let stats = self.evaluate_elastic(ForceBuffer::Scratch(3));
         let mut potential = stats.energy();
         if let Some(held) = &mut self.held {
-            potential += held.forces(&self.p, &mut self.held_force, false);
+            potential += held.forces(&self.p, &mut self.held_force, false, Vertices::All);
         }
         for i in 0..n {
             potential -=
