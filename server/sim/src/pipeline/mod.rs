@@ -40,7 +40,6 @@ use crate::force::{CutForce, CutPhase, LocalForceModel};
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
-use crate::scene::supports::StartState;
 use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::{Solver, SolverEvent, StepReport};
 
@@ -265,21 +264,10 @@ impl Simulation {
         let (mut solver, support_counts) = supports::held_solver(scene, &neighbours, spare);
         // Under gravity the body starts where it rests, before anything touches it: settled
         // once per built scene.
-        let settled = (spec.loads.gravity != Vec3::zeros()).then(|| {
-            let start = scene.start.get_or_init(|| {
-                let (mut s, _) = supports::held_solver(scene, &neighbours, spare);
-                let report = supports::settle_start(
-                    &mut s,
-                    spec.loads.gravity,
-                    SIMULATION_TICK_S,
-                    SETTLE_MAX_S,
-                );
-                StartState {
-                    positions: s.positions().to_vec(),
-                    report,
-                }
-            });
-            solver.set_positions(&start.positions);
+        let settled = supports::start_state(scene).map(|start| {
+            let mut p = solver.positions().to_vec();
+            p[..n].copy_from_slice(&start.positions);
+            solver.set_positions(&p);
             start.report
         });
         let virtual_points = (spare > 0)

@@ -7,9 +7,9 @@ use serde::Serialize;
 
 use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
-use crate::model::CoupledModel;
-use crate::scene::BuiltScene;
-use crate::scene::SceneSpec;
+use crate::model::{CoupledModel, Neighbourhoods};
+use crate::scene::supports::StartState;
+use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::held::{Held, HeldVertex, TrayPlane};
 use crate::solver::{Solver, SolverConfig};
 
@@ -28,7 +28,7 @@ pub struct SupportCounts {
 /// its configuration), over `neighbours` with `spare` spare nodes.
 pub(super) fn held_solver(
     scene: &BuiltScene,
-    neighbours: &crate::model::Neighbourhoods,
+    neighbours: &Neighbourhoods,
     spare: usize,
 ) -> (Solver, SupportCounts) {
     let (spec, model) = (&scene.spec, &scene.model);
@@ -47,11 +47,7 @@ pub(super) fn held_solver(
 
 /// Fixes the points in the scene's fixed regions and hands the attachments and the tray
 /// to `solver` (the scene's build checked that each holds something).
-pub fn apply_supports(
-    spec: &SceneSpec,
-    model: &CoupledModel,
-    solver: &mut Solver,
-) -> SupportCounts {
+fn apply_supports(spec: &SceneSpec, model: &CoupledModel, solver: &mut Solver) -> SupportCounts {
     let supports = &spec.supports;
     let surface = &model.surface;
     let body = Aabb::around(&surface.positions);
@@ -135,6 +131,32 @@ pub use crate::scene::supports::SettleReport;
 const REST_SPEED: f64 = 1e-4;
 const CALM_TICKS: u32 = 100;
 
+/// The report of a settle that moved the body's `n` points from `start` to where `solver`
+/// has them: the mean move along `gravity` and the largest, and the vertices on the tray.
+fn moved_by(solver: &Solver, start: &[Vec3], gravity: Vec3) -> SettleReport {
+    let p = &solver.positions()[..start.len()];
+    let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());
+    let n = start.len().max(1) as f64;
+    SettleReport {
+        sag_mm: 1e3
+            * p.iter()
+                .zip(start)
+                .map(|(x, x0)| (x - x0).dot(&down))
+                .sum::<f64>()
+            / n,
+        max_displacement_mm: 1e3
+            * p.iter()
+                .zip(start)
+                .map(|(x, x0)| (x - x0).norm())
+                .fold(0.0, f64::max),
+        on_tray: solver.held().map_or(0, |h| h.on_tray(p)),
+        settle_s: 0.0,
+        residual_n: 0.0,
+        settled: false,
+        newton_iterations: 0,
+    }
+}
+
 /// Steps `solver` with every point awake, `dt` at a time, until the body rests or
 /// `max_s` has passed.
 pub fn settle(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> SettleReport {
@@ -155,83 +177,86 @@ pub fn settle(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> Settle
         before.copy_from_slice(v);
         calm = if fastest < REST_SPEED { calm + 1 } else { 0 };
     }
-    let p = &solver.positions()[..n];
-    let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());
-    let moved = |i: usize| p[i] - start[i];
     SettleReport {
-        sag_mm: 1e3 * (0..n).map(|i| moved(i).dot(&down)).sum::<f64>() / n.max(1) as f64,
-        max_displacement_mm: 1e3 * (0..n).map(|i| moved(i).norm()).fold(0.0, f64::max),
         settle_s: time,
         residual_n: residual,
         settled: calm >= CALM_TICKS,
-        on_tray: solver.held().map_or(0, Held::touching),
-        newton_iterations: 0,
+        ..moved_by(solver, &start, gravity)
     }
 }
 
-/// Puts `solver`'s body straight into its static equilibrium under its gravity and
-/// supports, every point awake (Newton with CG; the tray without friction, which a body
-/// also held by fixed points or attachments does not need to stand still): the state a
-/// scene starts from. `settle_s` is zero.
-pub fn settle_static(solver: &mut Solver, gravity: Vec3) -> SettleReport {
+/// Puts `solver`'s body into its static equilibrium under its gravity and supports, every
+/// point awake (Newton with CG; the tray without friction, which a body also held by fixed
+/// points or attachments does not need to stand still), and where that stalls (a tray's
+/// contacts switching on and off) the rest of the way by letting it come to rest from
+/// there: the state a scene starts from. `settle_s` is the dynamic finish's, if any.
+pub fn settle_start(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> SettleReport {
     let n = solver.material_points();
     let all: Vec<u32> = (0..n as u32).collect();
     solver.set_active(&all);
     let start = solver.positions()[..n].to_vec();
-    let report = solver.solve_static();
-    let p = &solver.positions()[..n];
-    let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());
-    let moved = |i: usize| p[i] - start[i];
-    let on_tray = match solver.held().and_then(Held::tray) {
-        Some(tray) => (0..solver.held().map_or(0, Held::len))
-            .filter(|&v| {
-                solver.held().is_some_and(|h| {
-                    h.touches_tray(v) && tray.normal.dot(&h.position(v, p)) < tray.offset
-                })
-            })
-            .count(),
-        None => 0,
+    let statics = solver.solve_static();
+    let (settle_s, residual_n, settled) = if statics.converged {
+        (0.0, statics.residual_n, true)
+    } else {
+        let finish = settle(solver, gravity, dt, max_s);
+        (finish.settle_s, finish.residual_n, finish.settled)
     };
     SettleReport {
-        sag_mm: 1e3 * (0..n).map(|i| moved(i).dot(&down)).sum::<f64>() / n.max(1) as f64,
-        max_displacement_mm: 1e3 * (0..n).map(|i| moved(i).norm()).fold(0.0, f64::max),
-        settle_s: 0.0,
-        residual_n: report.residual_n,
-        settled: report.converged,
-        on_tray,
-        newton_iterations: report.newton_iterations,
+        settle_s,
+        residual_n,
+        settled,
+        newton_iterations: statics.newton_iterations,
+        ..moved_by(solver, &start, gravity)
     }
 }
 
-/// The state a scene under gravity starts from: its static equilibrium, and where the
-/// static solve stalls (a tray's contacts switching on and off), the rest of the way by
-/// letting it come to rest from there. The report is the static one's with the dynamic
-/// finish's time, residual and tray contacts.
-pub fn settle_start(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> SettleReport {
-    let n = solver.material_points();
-    let start = solver.positions()[..n].to_vec();
-    let statics = settle_static(solver, gravity);
-    if statics.settled {
-        return statics;
+/// Where the scene's body starts under gravity (`None` without): settled the first time it
+/// is asked for and kept with the built scene, on a solver of its own so that every
+/// simulation of the scene starts from the same state.
+pub fn start_state(scene: &BuiltScene) -> Option<&StartState> {
+    let gravity = scene.spec.loads.gravity;
+    if gravity == Vec3::zeros() {
+        return None;
     }
-    let finish = settle(solver, gravity, dt, max_s);
-    let p = &solver.positions()[..n];
-    let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());
-    let moved = |i: usize| p[i] - start[i];
-    SettleReport {
-        sag_mm: 1e3 * (0..n).map(|i| moved(i).dot(&down)).sum::<f64>() / n.max(1) as f64,
-        max_displacement_mm: 1e3 * (0..n).map(|i| moved(i).norm()).fold(0.0, f64::max),
-        newton_iterations: statics.newton_iterations,
-        ..finish
-    }
+    Some(scene.start.get_or_init(|| {
+        let model = &scene.model;
+        let (mut s, _) = held_solver(scene, &model.neighbours, 0);
+        let report = settle_start(
+            &mut s,
+            gravity,
+            super::SIMULATION_TICK_S,
+            super::SETTLE_MAX_S,
+        );
+        let n = model.points.len();
+        let surface = (0..model.surface.positions.len())
+            .map(|v| {
+                model.embedding.vertex_position(
+                    v,
+                    &model.surface.positions[v],
+                    s.rest(),
+                    s.positions(),
+                    |k| s.deformation_gradient(k),
+                )
+            })
+            .collect();
+        StartState {
+            positions: s.positions()[..n].to_vec(),
+            surface,
+            report,
+        }
+    }))
 }
 
 /// The surface a scene starts from: the built surface, or, under gravity, where it rests
 /// on its supports (what a scripted stroke is placed on).
 pub fn start_surface(scene: &BuiltScene) -> Cow<'_, TriMesh> {
-    if scene.spec.loads.gravity == Vec3::zeros() {
-        Cow::Borrowed(&scene.model.surface)
-    } else {
-        Cow::Owned(super::Simulation::new(scene).surface().clone())
+    match start_state(scene) {
+        None => Cow::Borrowed(&scene.model.surface),
+        Some(start) => {
+            let mut surface = scene.model.surface.clone();
+            surface.positions.clone_from(&start.surface);
+            Cow::Owned(surface)
+        }
     }
 }

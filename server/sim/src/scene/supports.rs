@@ -219,8 +219,10 @@ pub struct SettleReport {
 /// built scene (`pipeline::Simulation::new`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StartState {
-    /// Every node's position (m).
+    /// The body's points (m).
     pub positions: Vec<Vec3>,
+    /// The surface's vertices placed by the points (m).
+    pub surface: Vec<Vec3>,
     /// How it came to rest.
     pub report: SettleReport,
 }
