@@ -100,3 +100,44 @@ fn an_unsupported_body_is_refused() {
         "{e}"
     );
 }
+
+/// Every region form reads in the scene's millimetres; two forms at once are refused.
+#[test]
+fn region_forms_read_in_millimetres_and_one_at_a_time() {
+    use scalpel_sim::scene::Region;
+    let spec = scene(
+        "extends = \"block\"\n[supports]\nfixed = [\n\
+         { box_mm = { min = [-1.0, -2.0, -3.0], max = [1.0, 2.0, 3.0] } },\n\
+         { beyond_plane_mm = { point = [0.0, 0.0, 14.0], normal = [0.0, 0.0, 2.0] } },\n\
+         { inside_cylinder_mm = { point = [0.0, 0.0, 0.0], axis = [0.0, 3.0, 0.0], radius = 4.0 } },\n]\n",
+    );
+    assert_eq!(
+        spec.supports.fixed,
+        vec![
+            Region::Box {
+                min: [-1e-3, -2e-3, -3e-3],
+                max: [1e-3, 2e-3, 3e-3],
+            },
+            Region::BeyondPlane {
+                point: [0.0, 0.0, 0.014],
+                normal: [0.0, 0.0, 1.0],
+            },
+            Region::InsideCylinder {
+                point: [0.0, 0.0, 0.0],
+                axis: [0.0, 1.0, 0.0],
+                radius: 0.004,
+            },
+        ]
+    );
+    let e = SceneSpec::from_toml(
+        "extends = \"block\"\n[supports]\nfixed = [ { box_mm = { min = [0.0, 0.0, 0.0], max = [1.0, 1.0, 1.0] }, \
+         box_fraction = { min = [0.0, 0.0, 0.0], max = [1.0, 1.0, 1.0] } } ]\n",
+        Path::new("test.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("supports.fixed[0]") && e.contains("exactly one"),
+        "{e}"
+    );
+}

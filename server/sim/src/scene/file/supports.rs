@@ -178,41 +178,20 @@ fn tray(t: &RawTray, check: &Checker<'_>) -> Result<Tray, SceneError> {
 
 /// A region: exactly one of `box_mm`, `box_fraction` and `beyond_plane_mm`.
 fn region(r: &RawRegion, key: &str, check: &Checker<'_>) -> Result<Region, SceneError> {
-    let given = [
-        r.box_mm.is_some(),
-        r.box_fraction.is_some(),
-        r.beyond_plane_mm.is_some(),
-        r.inside_cylinder_mm.is_some(),
-    ];
-    if given.iter().filter(|&&g| g).count() != 1 {
-        return Err(check.fail(
-            key,
-            "give exactly one of box_mm = { min, max }, box_fraction = { min, max }, \
-             beyond_plane_mm = { point, normal } and inside_cylinder_mm = { point, axis, radius }",
-        ));
-    }
-    if let Some(c) = &r.inside_cylinder_mm {
-        let radius = check.check(
-            &format!("{key}.inside_cylinder_mm.radius"),
-            c.radius,
-            Limit::positive(MAX_COORDINATE_MM, "mm"),
-        )?;
-        return Ok(Region::InsideCylinder {
-            point: coordinates(c.point, &format!("{key}.inside_cylinder_mm.point"), check)?,
-            axis: unit(c.axis, &format!("{key}.inside_cylinder_mm.axis"), check)?,
-            radius: radius * MM,
-        });
-    }
-    match (&r.box_mm, &r.box_fraction, &r.beyond_plane_mm) {
-        (Some(b), None, None) => {
-            let (min, max) = (
-                coordinates(b.min, &format!("{key}.box_mm.min"), check)?,
-                coordinates(b.max, &format!("{key}.box_mm.max"), check)?,
-            );
+    match (
+        &r.box_mm,
+        &r.box_fraction,
+        &r.beyond_plane_mm,
+        &r.inside_cylinder_mm,
+    ) {
+        (Some(b), None, None, None) => {
             ordered(b.min, b.max, &format!("{key}.box_mm"), check)?;
-            Ok(Region::Box { min, max })
+            Ok(Region::Box {
+                min: coordinates(b.min, &format!("{key}.box_mm.min"), check)?,
+                max: coordinates(b.max, &format!("{key}.box_mm.max"), check)?,
+            })
         }
-        (None, Some(b), None) => {
+        (None, Some(b), None, None) => {
             let limit = Limit::closed(0.0, 1.0, "");
             for (a, (lo, hi)) in b.min.iter().zip(&b.max).enumerate() {
                 check.check(&format!("{key}.box_fraction.min[{a}]"), *lo, limit)?;
@@ -224,11 +203,25 @@ fn region(r: &RawRegion, key: &str, check: &Checker<'_>) -> Result<Region, Scene
                 max: b.max,
             })
         }
-        (None, None, Some(p)) => Ok(Region::BeyondPlane {
+        (None, None, Some(p), None) => Ok(Region::BeyondPlane {
             point: coordinates(p.point, &format!("{key}.beyond_plane_mm.point"), check)?,
             normal: unit(p.normal, &format!("{key}.beyond_plane_mm.normal"), check)?,
         }),
-        _ => unreachable!("exactly one region form, checked above"),
+        (None, None, None, Some(c)) => {
+            let limit = Limit::positive(MAX_COORDINATE_MM, "mm");
+            let radius =
+                check.check(&format!("{key}.inside_cylinder_mm.radius"), c.radius, limit)?;
+            Ok(Region::InsideCylinder {
+                point: coordinates(c.point, &format!("{key}.inside_cylinder_mm.point"), check)?,
+                axis: unit(c.axis, &format!("{key}.inside_cylinder_mm.axis"), check)?,
+                radius: radius * MM,
+            })
+        }
+        _ => Err(check.fail(
+            key,
+            "give exactly one of box_mm = { min, max }, box_fraction = { min, max }, \
+             beyond_plane_mm = { point, normal } and inside_cylinder_mm = { point, axis, radius }",
+        )),
     }
 }
 
