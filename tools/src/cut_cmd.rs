@@ -402,8 +402,5 @@ pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
         &camera,
         &RenderOptions::default(),
     )?;
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    image.write_png(std::io::BufWriter::new(file))?;
-    Ok(())
+    export::save_png(&image, path)
 }

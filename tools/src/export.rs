@@ -219,3 +219,11 @@ fn obj(scene: &BuiltScene) -> String {
     }
     s
 }
+
+/// Writes a rendered image to `path` as PNG.
+pub fn save_png(image: &scalpel_client::render::Image, path: &Path) -> anyhow::Result<()> {
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    image.write_png(std::io::BufWriter::new(file))?;
+    Ok(())
+}

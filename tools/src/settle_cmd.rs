@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
-use scalpel_sim::math::Vec3;
+use scalpel_sim::math::{Aabb, Vec3};
 use scalpel_sim::pipeline::Simulation;
 use scalpel_sim::pipeline::supports::SettleReport;
 use scalpel_sim::scene::Region;
@@ -114,25 +114,14 @@ fn render_settled(sim: &Simulation, path: &Path) -> anyhow::Result<()> {
     let mut positions: Vec<[f64; 3]> = drawn.positions.iter().map(|p| (*p).into()).collect();
     let mut triangles = drawn.triangles.clone();
     let mut materials = vec![0u8; triangles.len()];
-    let lo = drawn
-        .positions
-        .iter()
-        .fold(Vec3::repeat(f64::INFINITY), |a, b| a.inf(b));
-    let hi = drawn
-        .positions
-        .iter()
-        .fold(Vec3::repeat(f64::NEG_INFINITY), |a, b| a.sup(b));
+    let bounds = Aabb::around(&drawn.positions);
+    let (lo, hi) = (bounds.min_v(), bounds.max_v());
+    let centre = (lo + hi) * 0.5;
     let extent = (hi - lo).norm().max(0.01);
-    if let Some(tray) = sim.spec().supports.tray {
+    if let Some(tray) = sim.solver().held().and_then(|h| h.tray()) {
         // A square of the tray's plane, 1.4 times the body across, under it.
-        let n = Vec3::from(tray.normal);
-        let offset = sim
-            .solver()
-            .held()
-            .and_then(|h| h.tray())
-            .map_or(lo.z, |t| t.offset);
-        let centre = (lo + hi) * 0.5;
-        let on_plane = centre - n * (n.dot(&centre) - offset);
+        let n = tray.normal;
+        let on_plane = centre - n * (n.dot(&centre) - tray.offset);
         let u = n.cross(&Vec3::x()).try_normalize(1e-9).unwrap_or(Vec3::y());
         let v = n.cross(&u);
         let half = 0.7 * extent;
@@ -162,7 +151,6 @@ fn render_settled(sim: &Simulation, path: &Path) -> anyhow::Result<()> {
             );
         }
     }
-    let centre = (lo + hi) * 0.5;
     let fov = 40.0;
     let distance = 0.75 * extent / (0.5 * f64::to_radians(fov)).tan();
     let camera = Camera::orbit(centre.into(), distance, 25.0, -60.0, fov);
@@ -176,10 +164,7 @@ fn render_settled(sim: &Simulation, path: &Path) -> anyhow::Result<()> {
         &camera,
         &RenderOptions::default(),
     )?;
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    image.write_png(std::io::BufWriter::new(file))?;
-    Ok(())
+    export::save_png(&image, path)
 }
 
 /// A closed-ended cylinder of `radius` round `axis` (a point and a unit direction), as long

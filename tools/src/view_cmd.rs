@@ -42,9 +42,7 @@ pub fn snapshot(station: &str, out: &Path, after: u64, timeout_s: f64) -> anyhow
     }
     let frame = newest.context("no frame")?;
     let image = draw(&frame, &Orbit::default(), &RenderOptions::default())?;
-    let file =
-        std::fs::File::create(out).with_context(|| format!("cannot write {}", out.display()))?;
-    image.write_png(std::io::BufWriter::new(file))?;
+    crate::export::save_png(&image, out)?;
     println!(
         "frame {} (simulation tick {}): {} vertices, {} triangles ({} wound wall), tool {}, force {:.2} N -> {}",
         frame.header.frame,
