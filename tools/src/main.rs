@@ -14,6 +14,7 @@ mod mock_cmd;
 mod observe_cmd;
 mod observe_tui;
 mod plot;
+mod probe_cmd;
 mod progress;
 mod remote_target;
 mod replay_cmd;
@@ -100,6 +101,33 @@ enum Command {
         #[arg(long, default_value = "settled")]
         out: PathBuf,
         /// Print {sag_mm, max_displacement_mm, settle_s, residual_n, ...} as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Press a flat cylindrical punch quasi-statically into the supported organ (from
+    /// where it rests under the scene's gravity) and report the force the tissue puts
+    /// back, its stiffness and the half-space value 2aE/(1−ν²).
+    Probe {
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Where to press: a point on or near the surface, X,Y,Z in mm (default: the top
+        /// of the organ above the middle of its bounding box).
+        #[arg(long, allow_hyphen_values = true)]
+        at: Option<String>,
+        /// Punch radius (mm).
+        #[arg(long, default_value_t = 5.0)]
+        radius_mm: f64,
+        /// Depth past first touch (mm).
+        #[arg(long, default_value_t = 3.0)]
+        depth_mm: f64,
+        /// Static solves on the way down.
+        #[arg(long, default_value_t = 6)]
+        steps: u32,
+        /// Young's modulus in kPa (overrides the scene's material).
+        #[arg(long)]
+        youngs_kpa: Option<f64>,
+        /// Print {force_n, stiffness_n_per_mm, analytic_n_per_mm, contact_points,
+        /// max_det_f_loss, curve, ...} as JSON.
         #[arg(long)]
         json: bool,
     },
@@ -512,6 +540,25 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             json,
         ),
         Command::Settle { target, out, json } => settle_cmd::run(&target, &out, json),
+        Command::Probe {
+            target,
+            at,
+            radius_mm,
+            depth_mm,
+            steps,
+            youngs_kpa,
+            json,
+        } => probe_cmd::run(
+            &target,
+            &probe_cmd::ProbeArgs {
+                at,
+                radius_mm,
+                depth_mm,
+                steps,
+                youngs_kpa,
+                json,
+            },
+        ),
         Command::Bench(what) => run_bench(what),
         Command::Certs(what) => run_certs(what),
         Command::Observe {

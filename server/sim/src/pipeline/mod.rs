@@ -27,6 +27,7 @@
 
 pub mod blade_motion;
 pub mod cutting;
+pub mod probe;
 pub mod recut;
 pub mod script;
 pub mod steady_motion;

@@ -8,6 +8,8 @@
 //! as applied work, and the stiffness product (for the critical step and static solves)
 //! is `Σ_v k_v ŵ_v ŵ_vᵀ`.
 
+use super::contact_set::ContactSet;
+use super::embedded::EmbeddedRows;
 use crate::math::Vec3;
 
 /// The tray's plane: `n·x ≥ offset` outside it.
@@ -38,11 +40,7 @@ pub struct HeldVertex {
 /// friction state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Held {
-    start: Vec<u32>,
-    points: Vec<u32>,
-    weights: Vec<f64>,
-    /// `X_v − Σ ŵ X_k`.
-    offset: Vec<Vec3>,
+    rows: EmbeddedRows,
     rest: Vec<Vec3>,
     spring: Vec<f64>,
     tray_stiffness: Vec<f64>,
@@ -50,8 +48,8 @@ pub struct Held {
     /// Where each vertex sticks on the tray (its tangential anchor), while it touches.
     anchor: Vec<Vec3>,
     touching: Vec<bool>,
-    /// The points any held vertex follows, each once (the forces' support).
-    reached: Vec<u32>,
+    /// The vertices a static solve holds on the tray.
+    set: ContactSet,
     /// The vertices following at least one integrated point ([`Held::wake`]): the only
     /// ones whose forces an explicit tick over a restricted active set reads.
     awake: Vec<u32>,
@@ -70,40 +68,20 @@ impl Held {
     /// The held vertices `vertices` over points at rest positions `rest_points`, with the
     /// tray `tray` (if any).
     pub fn new(vertices: &[HeldVertex], rest_points: &[Vec3], tray: Option<TrayPlane>) -> Self {
-        let mut held = Held {
-            start: vec![0],
-            points: Vec::new(),
-            weights: Vec::new(),
-            offset: Vec::with_capacity(vertices.len()),
-            rest: Vec::with_capacity(vertices.len()),
-            spring: Vec::with_capacity(vertices.len()),
-            tray_stiffness: Vec::with_capacity(vertices.len()),
+        Held {
+            rows: EmbeddedRows::new(vertices.iter().map(|v| (&v.row[..], v.rest)), rest_points),
+            rest: vertices.iter().map(|v| v.rest).collect(),
+            spring: vertices.iter().map(|v| v.spring_n_per_m).collect(),
+            tray_stiffness: vertices
+                .iter()
+                .map(|v| if tray.is_some() { v.tray_n_per_m } else { 0.0 })
+                .collect(),
             tray,
             anchor: vec![Vec3::zeros(); vertices.len()],
             touching: vec![false; vertices.len()],
-            reached: Vec::new(),
+            set: ContactSet::new(vertices.len()),
             awake: (0..vertices.len() as u32).collect(),
-        };
-        let mut seen = vec![false; rest_points.len()];
-        for v in vertices {
-            let mut followed = Vec3::zeros();
-            for &(k, w) in &v.row {
-                held.points.push(k);
-                held.weights.push(w);
-                followed += rest_points[k as usize] * w;
-                if !std::mem::replace(&mut seen[k as usize], true) {
-                    held.reached.push(k);
-                }
-            }
-            held.start.push(held.points.len() as u32);
-            held.offset.push(v.rest - followed);
-            held.rest.push(v.rest);
-            held.spring.push(v.spring_n_per_m);
-            held.tray_stiffness
-                .push(if tray.is_some() { v.tray_n_per_m } else { 0.0 });
         }
-        held.reached.sort_unstable();
-        held
     }
 
     /// Number of held vertices.
@@ -118,20 +96,12 @@ impl Held {
 
     /// The points the held vertices follow.
     pub fn reached(&self) -> &[u32] {
-        &self.reached
-    }
-
-    fn row(&self, v: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
-        let (a, b) = (self.start[v] as usize, self.start[v + 1] as usize);
-        self.points[a..b]
-            .iter()
-            .zip(&self.weights[a..b])
-            .map(|(&k, &w)| (k as usize, w))
+        self.rows.reached()
     }
 
     /// Vertex v's position with the points at `p`.
     pub fn position(&self, v: usize, p: &[Vec3]) -> Vec3 {
-        self.row(v).fold(self.offset[v], |x, (k, w)| x + p[k] * w)
+        self.rows.position(v, p)
     }
 
     /// Lists the vertices that follow a point with `is_active` set (call when the active
@@ -139,7 +109,7 @@ impl Held {
     pub fn wake(&mut self, is_active: &[bool]) {
         self.awake.clear();
         for v in 0..self.rest.len() {
-            if self.row(v).any(|(k, _)| is_active[k]) {
+            if self.rows.row(v).any(|(k, _)| is_active[k]) {
                 self.awake.push(v as u32);
             }
         }
@@ -155,18 +125,14 @@ impl Held {
     pub fn forces(&mut self, p: &[Vec3], out: &mut [Vec3], slide: bool, which: Vertices) -> f64 {
         let count = match which {
             Vertices::All => {
-                for &k in &self.reached {
+                for &k in self.rows.reached() {
                     out[k as usize] = Vec3::zeros();
                 }
                 self.rest.len()
             }
             Vertices::Awake => {
                 for &v in &self.awake {
-                    let (a, b) = (
-                        self.start[v as usize] as usize,
-                        self.start[v as usize + 1] as usize,
-                    );
-                    for &k in &self.points[a..b] {
+                    for &k in self.rows.points_of(v as usize) {
                         out[k as usize] = Vec3::zeros();
                     }
                 }
@@ -195,10 +161,7 @@ impl Held {
                 energy += e;
             }
             if f != Vec3::zeros() {
-                let (a, b) = (self.start[v] as usize, self.start[v + 1] as usize);
-                for (&k, &w) in self.points[a..b].iter().zip(&self.weights[a..b]) {
-                    out[k as usize] += f * w;
-                }
+                self.rows.spread(v, f, out);
             }
         }
         energy
@@ -210,7 +173,7 @@ impl Held {
         let k = self.tray_stiffness[v];
         let n = tray.normal;
         let gap = n.dot(x) - tray.offset;
-        if gap >= 0.0 {
+        if !self.set.pressed(v, gap) {
             if slide {
                 self.touching[v] = false;
             }
@@ -239,25 +202,49 @@ impl Held {
         (n * normal_force + pull, 0.5 * k * gap * gap + 0.5 * stretch)
     }
 
-    /// `y += K x` with K = −∂f/∂p of the springs and of the tray contacts as they stand
-    /// (a sticking contact holds in every direction, a free one not at all).
+    /// `y += K x` with K = −∂f/∂p of the springs and of the tray contacts as they stand: a
+    /// vertex stuck to its anchor holds in every direction, a free one along the normal.
     pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3]) {
         for v in 0..self.rest.len() {
-            let mut k = self.spring[v];
+            let k = self.spring[v];
+            let moved = self.rows.moved(v, x);
+            let mut f = moved * k;
             if let Some(tray) = self.tray
                 && self.tray_stiffness[v] > 0.0
-                && tray.normal.dot(&self.position(v, p)) < tray.offset
+                && self
+                    .set
+                    .pressed(v, tray.normal.dot(&self.position(v, p)) - tray.offset)
             {
-                k += self.tray_stiffness[v];
+                let kt = self.tray_stiffness[v];
+                f += if self.touching[v] {
+                    moved * kt
+                } else {
+                    tray.normal * (kt * tray.normal.dot(&moved))
+                };
             }
-            if k == 0.0 {
-                continue;
-            }
-            let moved = self.row(v).fold(Vec3::zeros(), |s, (j, w)| s + x[j] * w);
-            for (j, w) in self.row(v) {
-                y[j] += moved * (k * w);
+            if f != Vec3::zeros() {
+                self.rows.spread(v, f, y);
             }
         }
+    }
+
+    /// Freezes the vertices a static solve holds on the tray to those in it with the
+    /// points at `p`; returns how many changed (`contact_set`).
+    pub fn freeze(&mut self, p: &[Vec3]) -> usize {
+        let Some(tray) = self.tray else {
+            return 0;
+        };
+        let (rows, stiffness) = (&self.rows, &self.tray_stiffness);
+        self.set.freeze(
+            (0..rows.len())
+                .filter(|&v| stiffness[v] > 0.0)
+                .map(|v| (v, tray.normal.dot(&rows.position(v, p)) - tray.offset)),
+        )
+    }
+
+    /// Each vertex on the tray while inside its plane again.
+    pub fn thaw(&mut self) {
+        self.set.thaw();
     }
 
     /// The vertices pressed into the tray with the points at `p`.

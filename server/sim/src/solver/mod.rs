@@ -17,6 +17,9 @@
 //! Call order: `new` → (`fix`, `set_external_force`, `set_target`)* → `step(dt)` per tick →
 //! `poll_event` until `None`. `step` does not allocate after the first call.
 
+pub mod contact;
+mod contact_set;
+pub mod embedded;
 pub mod events;
 mod explicit;
 pub mod held;
@@ -198,6 +201,10 @@ pub struct Solver {
     held: Option<held::Held>,
     /// The held vertices' forces on the points, this sub-step (zero where none reach).
     held_force: Vec<Vec3>,
+    /// A rigid tool pressed into the body (static solves), if any.
+    contact: Option<contact::ToolContact>,
+    /// The tool's forces on the points (zero where no sample reaches).
+    contact_force: Vec<Vec3>,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
@@ -392,6 +399,8 @@ impl Solver {
             external: zeros.clone(),
             held: None,
             held_force: zeros.clone(),
+            contact: None,
+            contact_force: zeros.clone(),
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n).with_threads(Threads::One),
             #[cfg(feature = "parallel")]

@@ -106,6 +106,24 @@ impl Solver {
         self.dt_crit = None;
     }
 
+    /// Presses `contact`'s tool into the body in static solves (`None` lifts it off).
+    pub fn press(&mut self, contact: Option<contact::ToolContact>) {
+        self.contact_force
+            .iter_mut()
+            .for_each(|f| *f = Vec3::zeros());
+        self.contact = contact;
+    }
+
+    /// The tool pressed into the body, if any.
+    pub fn contact(&self) -> Option<&contact::ToolContact> {
+        self.contact.as_ref()
+    }
+
+    /// The tool pressed into the body, to move it.
+    pub fn contact_mut(&mut self) -> Option<&mut contact::ToolContact> {
+        self.contact.as_mut()
+    }
+
     /// What holds the body through its surface, if anything.
     pub fn held(&self) -> Option<&held::Held> {
         self.held.as_ref()

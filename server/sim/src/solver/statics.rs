@@ -22,9 +22,13 @@ pub struct StaticReport {
     pub residual_n: f64,
     /// Elastic energy at the solution (J).
     pub elastic_energy: f64,
+    /// Newton solves on a frozen contact set after the first (0 when the first converged).
+    pub contact_rounds: u32,
 }
 
 const MAX_NEWTON: u32 = 40;
+/// Contact-set updates before a static solve gives up.
+const MAX_CONTACT_ROUNDS: u32 = 30;
 const MAX_CG: u32 = 20_000;
 const CG_TOLERANCE: f64 = 1e-10;
 
@@ -95,6 +99,10 @@ pub(super) fn diagonal_stiffness_of(
 impl Solver {
     /// Solves for static equilibrium under the current loads and constraints, starting from
     /// the current positions (fixed dofs go to their targets). Velocities are zeroed.
+    /// One-sided contacts (a tray, a pressed tool) are solved by an active set
+    /// (`contact_set`): if a first Newton solve with each contact following its gap
+    /// stalls, Newton on a frozen set, the set updated from the gaps, until it stops
+    /// changing.
     pub fn solve_static(&mut self) -> StaticReport {
         let n = self.p.len();
         for i in 0..n {
@@ -111,13 +119,53 @@ impl Solver {
             cg_iterations: 0,
             residual_n: f64::INFINITY,
             elastic_energy: 0.0,
+            contact_rounds: 0,
         };
+        // First with each contact following its gap's sign: from a body that has not met
+        // its supports yet, a set frozen at the start would let it fall through them.
+        self.newton(&mut report);
+        let mut settled = report.converged || self.freeze_contacts() == 0;
+        for _ in 0..MAX_CONTACT_ROUNDS {
+            if settled {
+                break;
+            }
+            report.contact_rounds += 1;
+            self.newton(&mut report);
+            settled = self.freeze_contacts() == 0;
+        }
+        self.thaw_contacts();
+        report.converged &= settled;
+        if let Some(stats) = self.last_stats {
+            self.note_clamping(&stats);
+        }
+        report
+    }
+
+    /// Freezes the contact sets at the current positions; how many contacts changed.
+    fn freeze_contacts(&mut self) -> usize {
+        let held = self.held.as_mut().map_or(0, |h| h.freeze(&self.p));
+        held + self.contact.as_mut().map_or(0, |c| c.freeze(&self.p))
+    }
+
+    fn thaw_contacts(&mut self) {
+        if let Some(held) = &mut self.held {
+            held.thaw();
+        }
+        if let Some(contact) = &mut self.contact {
+            contact.thaw();
+        }
+    }
+
+    /// Newton's method with a backtracking line search on the potential energy, adding its
+    /// iterations to `report`.
+    fn newton(&mut self, report: &mut StaticReport) {
+        let n = self.p.len();
+        report.converged = false;
         let mut reference = 0.0f64;
         for it in 0..MAX_NEWTON {
             let (residual, energy) = self.residual_into_scratch();
             report.residual_n = residual;
             report.elastic_energy = energy;
-            report.newton_iterations = it;
             let loads: f64 = (0..n)
                 .map(|i| {
                     (self.external[i] + self.config.gravity * self.base_mass[i]).norm_squared()
@@ -129,8 +177,9 @@ impl Solver {
                 .max(if it == 0 { residual } else { 0.0 });
             if residual <= self.config.static_tolerance * reference || residual == 0.0 {
                 report.converged = true;
-                break;
+                return;
             }
+            report.newton_iterations += 1;
             let cg = self.conjugate_gradients();
             report.cg_iterations += cg;
             // Backtrack on the potential energy if the full Newton step does not decrease it.
@@ -149,10 +198,6 @@ impl Solver {
                 alpha *= 0.5;
             }
         }
-        if let Some(stats) = self.last_stats {
-            self.note_clamping(&stats);
-        }
-        report
     }
 
     /// Writes the out-of-balance force (elastic + applied) on the free dofs into scratch[0];
@@ -163,11 +208,17 @@ impl Solver {
         if let Some(held) = &mut self.held {
             held.forces(&self.p, &mut self.held_force, false, Vertices::All);
         }
+        if let Some(contact) = &self.contact {
+            contact.forces(&self.p, &mut self.contact_force);
+        }
         let r = &mut self.scratch[0];
         self.last_stats = Some(stats);
         let mut norm = 0.0;
         for i in 0..n {
-            r[i] += self.external[i] + self.config.gravity * self.base_mass[i] + self.held_force[i];
+            r[i] += self.external[i]
+                + self.config.gravity * self.base_mass[i]
+                + self.held_force[i]
+                + self.contact_force[i];
             for a in 0..3 {
                 if self.fixed[i][a] {
                     r[i][a] = 0.0;
@@ -185,6 +236,9 @@ impl Solver {
         let mut potential = stats.energy();
         if let Some(held) = &mut self.held {
             potential += held.forces(&self.p, &mut self.held_force, false, Vertices::All);
+        }
+        if let Some(contact) = &self.contact {
+            potential += contact.forces(&self.p, &mut self.contact_force);
         }
         for i in 0..n {
             potential -=
@@ -229,6 +283,9 @@ impl Solver {
             stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
             if let Some(held) = &self.held {
                 held.add_stiffness_product(&self.p, d, q);
+            }
+            if let Some(contact) = &self.contact {
+                contact.add_stiffness_product(&self.p, d, q);
             }
             mask(q);
             let dq = dot(d, q);

@@ -6,6 +6,7 @@
 
 mod bodies;
 mod cases;
+mod punch;
 mod stability;
 mod supports;
 
@@ -13,6 +14,7 @@ use serde::Serialize;
 
 pub use bodies::{BoxBody, LatticeCube, box_body, cut_down_to, timoshenko_tip_deflection};
 pub use cases::*;
+pub use punch::*;
 pub use stability::*;
 pub use supports::*;
 
@@ -106,6 +108,10 @@ pub fn all() -> Vec<Benchmark> {
         Benchmark {
             name: "B13",
             run: b13_column_under_gravity,
+        },
+        Benchmark {
+            name: "B14",
+            run: b14_flat_punch,
         },
     ]
 }

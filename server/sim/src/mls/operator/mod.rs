@@ -497,6 +497,48 @@ impl MlsOperator {
         }
         b * self.points[i].a_pinv
     }
+
+    /// The surface's map `x = Σ_k w_k (p_k + F_k (X − X_k))` (physics.md §5.3) at rest
+    /// point `x` as one row over the points, linear in them: F_k's fitted part is
+    /// `Σ_j (p_j − p_k) (w x_kj · A_k⁺ (X − X_k))`. A planar point's completion and an
+    /// orphan's identity are left out (their rest value goes to the sample's offset).
+    /// `zero` is the kernel row (k, w_k); `out` gets the row sorted by point, merged.
+    pub fn linear_row(
+        &self,
+        zero: &[(u32, f64)],
+        x: &Vec3,
+        rest: &[Vec3],
+        out: &mut Vec<(u32, f64)>,
+    ) {
+        out.clear();
+        for &(k, w) in zero {
+            out.push((k, w));
+            let term = &self.points[k as usize];
+            if let PointRank::Orphan = term.rank {
+                continue;
+            }
+            let r = term.a_pinv * (x - rest[k as usize]);
+            let mut own = 0.0;
+            for (j, pair) in self
+                .neighbours(k as usize)
+                .iter()
+                .zip(self.pair_terms(k as usize))
+            {
+                let s = w * pair.wx.dot(&r);
+                out.push((*j, s));
+                own -= s;
+            }
+            out.push((k, own));
+        }
+        out.sort_unstable_by_key(|e| e.0);
+        out.dedup_by(|later, kept| {
+            let same = later.0 == kept.0;
+            if same {
+                kept.1 += later.1;
+            }
+            same
+        });
+    }
 }
 
 /// Completes a planar point's fitted gradient with the current normal (physics.md §3):

@@ -1,0 +1,248 @@
+//! A rigid tool pressed into the tissue (cutting-physics.md §2): material samples of the
+//! surface under it follow the points (`embedded`) and are pushed out of the tool by stiff
+//! one-sided penalties. The force on the tool is minus the sum of what the samples receive,
+//! so the tissue and the tool balance exactly; a penalty's compliance is in series with the
+//! tissue's and is reported (`max_penetration`) rather than hidden.
+
+use serde::Serialize;
+
+use super::contact_set::ContactSet;
+use super::embedded::EmbeddedRows;
+use crate::math::Vec3;
+
+/// A flat cylindrical punch: its face a disc of `radius` about `centre`, normal to `axis`
+/// (unit, pointing into the tissue), pressed `depth` along it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Punch {
+    /// Where the face starts: a point of the undeformed surface (m).
+    pub centre: Vec3,
+    /// Unit direction of the press, into the tissue.
+    pub axis: Vec3,
+    /// Face radius (m).
+    pub radius: f64,
+    /// How far the face has been pressed past `centre` along `axis` (m).
+    pub depth: f64,
+}
+
+impl Punch {
+    /// How far a point at `x` is from the face along the axis (m, negative inside), or
+    /// infinity beside it (beyond the radius).
+    pub fn gap(&self, x: &Vec3) -> f64 {
+        let r = x - self.centre;
+        let along = r.dot(&self.axis);
+        let radial = (r - self.axis * along).norm_squared();
+        if radial > self.radius * self.radius {
+            f64::INFINITY
+        } else {
+            along - self.depth
+        }
+    }
+
+    /// How far a point at `x` is inside the punch (m, zero if outside).
+    pub fn penetration(&self, x: &Vec3) -> f64 {
+        (-self.gap(x)).max(0.0)
+    }
+}
+
+/// The samples the tool can touch, their penalty stiffnesses and the tool.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ToolContact {
+    samples: EmbeddedRows,
+    /// Penalty stiffness of each sample (N/m): a stiffness per area times its area.
+    stiffness: Vec<f64>,
+    punch: Punch,
+    /// The samples a static solve holds against the face.
+    set: ContactSet,
+    /// Each sample's multiplier over its stiffness (m): the face acts on it as if this much
+    /// further in, so that the penalty's give can be taken out (`absorb_give`).
+    extra: Vec<f64>,
+}
+
+impl ToolContact {
+    /// `samples` with penalty stiffnesses `stiffness` (N/m each) against `punch`.
+    pub fn new(samples: EmbeddedRows, stiffness: Vec<f64>, punch: Punch) -> Self {
+        assert_eq!(samples.len(), stiffness.len(), "one stiffness per sample");
+        Self {
+            set: ContactSet::new(samples.len()),
+            extra: vec![0.0; samples.len()],
+            samples,
+            stiffness,
+            punch,
+        }
+    }
+
+    /// The tool.
+    pub fn punch(&self) -> &Punch {
+        &self.punch
+    }
+
+    /// Moves the face's starting place along the axis to where it first touches a sample
+    /// with the points at `p` (a sloped or curved surface meets a flat face at its
+    /// highest point first), so that depth counts from first touch.
+    pub fn touch_down(&mut self, p: &[Vec3]) {
+        let first = (0..self.samples.len())
+            .map(|s| (self.samples.position(s, p) - self.punch.centre).dot(&self.punch.axis))
+            .fold(f64::INFINITY, f64::min);
+        if first.is_finite() {
+            self.punch.centre += self.punch.axis * first;
+        }
+    }
+
+    /// Presses the tool to `depth` (m).
+    pub fn set_depth(&mut self, depth: f64) {
+        self.punch.depth = depth;
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// Sample s's position with the points at `p`.
+    pub fn sample_position(&self, s: usize, p: &[Vec3]) -> Vec3 {
+        self.samples.position(s, p)
+    }
+
+    /// The tool's force on sample s with the points at `p`: out of the face while it is
+    /// pressed (with the set frozen, also pulling a pressed sample that lifted off).
+    fn push(&self, s: usize, p: &[Vec3]) -> Vec3 {
+        let gap = self.gap(s, p);
+        if self.set.pressed(s, gap) {
+            self.punch.axis * (-self.stiffness[s] * gap)
+        } else {
+            Vec3::zeros()
+        }
+    }
+
+    /// Freezes the pressed samples to those inside the face with the points at `p`;
+    /// returns how many changed (`contact_set`).
+    pub fn freeze(&mut self, p: &[Vec3]) -> usize {
+        let gaps: Vec<(usize, f64)> = (0..self.len()).map(|s| (s, self.gap(s, p))).collect();
+        self.set.freeze(gaps.into_iter())
+    }
+
+    /// Sample s's gap to the face the penalty sees (m, negative inside): its geometric
+    /// gap less its multiplier.
+    fn gap(&self, s: usize, p: &[Vec3]) -> f64 {
+        self.punch.gap(&self.samples.position(s, p)) - self.extra[s]
+    }
+
+    /// One augmented-Lagrangian (Uzawa) update: each sample's multiplier grows by how far
+    /// it is inside the face (and shrinks, not below zero, by how far it is off it), so
+    /// that the next static solve holds it closer to the face with the same force.
+    pub fn absorb_give(&mut self, p: &[Vec3]) {
+        for s in 0..self.samples.len() {
+            let gap = self.punch.gap(&self.samples.position(s, p));
+            self.extra[s] = if gap.is_finite() {
+                (self.extra[s] - gap).max(0.0)
+            } else {
+                0.0
+            };
+        }
+    }
+
+    /// Each sample pressed while inside the face again.
+    pub fn thaw(&mut self) {
+        self.set.thaw();
+    }
+
+    /// Writes the tool's forces on the points at `p` into `out` (zeroing the points the
+    /// samples follow first); returns the penalties' stored energy (J).
+    pub fn forces(&self, p: &[Vec3], out: &mut [Vec3]) -> f64 {
+        for &k in self.samples.reached() {
+            out[k as usize] = Vec3::zeros();
+        }
+        let mut energy = 0.0;
+        for s in 0..self.samples.len() {
+            let f = self.push(s, p);
+            if f != Vec3::zeros() {
+                energy += 0.5 * f.norm_squared() / self.stiffness[s];
+                self.samples.spread(s, f, out);
+            }
+        }
+        energy
+    }
+
+    /// `y += K x` with K = −∂f/∂p of the contacts as they stand (frictionless: a touching
+    /// sample is held along the axis only).
+    pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3]) {
+        let a = self.punch.axis;
+        for s in 0..self.samples.len() {
+            if self.set.pressed(s, self.gap(s, p)) {
+                let along = a.dot(&self.samples.moved(s, x));
+                self.samples.spread(s, a * (self.stiffness[s] * along), y);
+            }
+        }
+    }
+
+    /// The force the tissue puts on the tool (N): minus the sum of the tool's pushes.
+    pub fn on_tool(&self, p: &[Vec3]) -> Vec3 {
+        -(0..self.samples.len()).fold(Vec3::zeros(), |sum, s| sum + self.push(s, p))
+    }
+
+    /// How many samples the tool pushes.
+    pub fn touching(&self, p: &[Vec3]) -> usize {
+        (0..self.samples.len())
+            .filter(|&s| self.gap(s, p) < 0.0)
+            .count()
+    }
+
+    /// The deepest a sample is inside the tool (m): the penalties' give.
+    pub fn max_penetration(&self, p: &[Vec3]) -> f64 {
+        (0..self.samples.len())
+            .map(|s| self.punch.penetration(&self.samples.position(s, p)))
+            .fold(0.0, f64::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_sample() -> (ToolContact, Vec<Vec3>) {
+        let rest = vec![Vec3::zeros(), Vec3::new(0.0, 0.0, -0.01)];
+        let row = [(0u32, 0.8), (1u32, 0.2)];
+        let at = Vec3::new(0.0, 0.0, -0.002);
+        let samples = EmbeddedRows::new([(&row[..], at)].into_iter(), &rest);
+        let punch = Punch {
+            centre: Vec3::zeros(),
+            axis: -Vec3::z(),
+            radius: 0.005,
+            depth: 0.003,
+        };
+        (ToolContact::new(samples, vec![1000.0], punch), rest)
+    }
+
+    /// A sample 1 mm inside the face is pushed 1 mm × k along the axis; the tool gets the
+    /// opposite; the stiffness product is the forces' finite difference.
+    #[test]
+    fn the_punch_pushes_along_its_axis_and_gets_the_opposite() {
+        let (contact, rest) = one_sample();
+        let mut f = vec![Vec3::zeros(); 2];
+        let e = contact.forces(&rest, &mut f);
+        assert!((f[0] + f[1] - Vec3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
+        assert!((e - 0.5 * 1000.0 * 1e-6).abs() < 1e-15);
+        assert!((contact.on_tool(&rest) + f[0] + f[1]).norm() < 1e-15);
+        let dx = vec![Vec3::new(3e-7, 0.0, -1e-7), Vec3::new(0.0, 1e-7, 2e-7)];
+        let mut kx = vec![Vec3::zeros(); 2];
+        contact.add_stiffness_product(&rest, &dx, &mut kx);
+        let moved: Vec<Vec3> = rest.iter().zip(&dx).map(|(a, b)| a + b).collect();
+        let mut f2 = vec![Vec3::zeros(); 2];
+        contact.forces(&moved, &mut f2);
+        for k in 0..2 {
+            assert!((f[k] - f2[k] - kx[k]).norm() < 1e-12, "{k}");
+        }
+        // Outside the radius, nothing.
+        let aside: Vec<Vec3> = rest
+            .iter()
+            .map(|x| x + Vec3::new(0.006, 0.0, 0.0))
+            .collect();
+        assert_eq!(contact.touching(&aside), 0);
+        assert_eq!(contact.forces(&aside, &mut f), 0.0);
+    }
+}

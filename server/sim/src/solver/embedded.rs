@@ -1,0 +1,119 @@
+//! Material samples that follow the points through fixed rows of weights,
+//! `x_s = Σ_k c_sk p_k + (X_s − Σ_k c_sk X_k)`: linear in the points, so a force f on a
+//! sample reaches them as `c_sk f` and a spring k on it adds `k c cᵀ` to the stiffness.
+//! The held vertices (`held`) and the tool's contact samples (`contact`) are such samples.
+
+use crate::math::Vec3;
+
+/// Samples and their rows, compressed.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EmbeddedRows {
+    start: Vec<u32>,
+    points: Vec<u32>,
+    weights: Vec<f64>,
+    /// `X_s − Σ c X_k`.
+    offset: Vec<Vec3>,
+    /// The points any sample follows, each once, ascending.
+    reached: Vec<u32>,
+}
+
+impl EmbeddedRows {
+    /// Samples at rest positions `rest`, each following its row, over points at rest
+    /// positions `rest_points`.
+    pub fn new<'a>(
+        rows: impl Iterator<Item = (&'a [(u32, f64)], Vec3)>,
+        rest_points: &[Vec3],
+    ) -> Self {
+        let mut out = Self {
+            start: vec![0],
+            ..Self::default()
+        };
+        let mut seen = vec![false; rest_points.len()];
+        for (row, rest) in rows {
+            let mut followed = Vec3::zeros();
+            for &(k, w) in row {
+                out.points.push(k);
+                out.weights.push(w);
+                followed += rest_points[k as usize] * w;
+                if !std::mem::replace(&mut seen[k as usize], true) {
+                    out.reached.push(k);
+                }
+            }
+            out.start.push(out.points.len() as u32);
+            out.offset.push(rest - followed);
+        }
+        out.reached.sort_unstable();
+        out
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.offset.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.offset.is_empty()
+    }
+
+    /// The points any sample follows.
+    pub fn reached(&self) -> &[u32] {
+        &self.reached
+    }
+
+    /// The points sample s follows.
+    pub fn points_of(&self, s: usize) -> &[u32] {
+        &self.points[self.start[s] as usize..self.start[s + 1] as usize]
+    }
+
+    /// Sample s's row: (point, weight).
+    pub fn row(&self, s: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+        let (a, b) = (self.start[s] as usize, self.start[s + 1] as usize);
+        self.points[a..b]
+            .iter()
+            .zip(&self.weights[a..b])
+            .map(|(&k, &w)| (k as usize, w))
+    }
+
+    /// Sample s's position with the points at `p`.
+    pub fn position(&self, s: usize, p: &[Vec3]) -> Vec3 {
+        self.row(s).fold(self.offset[s], |x, (k, w)| x + p[k] * w)
+    }
+
+    /// How far sample s moves when the points move by `dx`.
+    pub fn moved(&self, s: usize, dx: &[Vec3]) -> Vec3 {
+        self.row(s).fold(Vec3::zeros(), |m, (k, w)| m + dx[k] * w)
+    }
+
+    /// Adds force `f` on sample s to the points it follows.
+    pub fn spread(&self, s: usize, f: Vec3, out: &mut [Vec3]) {
+        for (k, w) in self.row(s) {
+            out[k] += f * w;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sample follows its points exactly as far as its row says, and a force on it
+    /// reaches them in the same proportions (the transpose).
+    #[test]
+    fn a_sample_follows_and_spreads_by_its_row() {
+        let rest = [Vec3::zeros(), Vec3::new(0.01, 0.0, 0.0)];
+        let row = [(0u32, 0.25), (1u32, 0.75)];
+        let rows = EmbeddedRows::new(
+            [(&row[..], Vec3::new(0.0075, 0.001, 0.0))].into_iter(),
+            &rest,
+        );
+        assert_eq!(rows.reached(), &[0, 1]);
+        let shift = Vec3::new(1e-3, 0.0, 0.0);
+        let p = [rest[0], rest[1] + shift];
+        let x = rows.position(0, &p);
+        assert!((x - Vec3::new(0.0075 + 0.75e-3, 0.001, 0.0)).norm() < 1e-15);
+        let mut out = [Vec3::zeros(); 2];
+        rows.spread(0, Vec3::new(0.0, 2.0, 0.0), &mut out);
+        assert_eq!(out, [Vec3::new(0.0, 0.5, 0.0), Vec3::new(0.0, 1.5, 0.0)]);
+    }
+}

@@ -1,0 +1,88 @@
+//! `scalpel probe`: a flat punch pressed quasi-statically into the supported organ; the
+//! force the tissue puts back on it, its stiffness and the half-space's beside it.
+
+use anyhow::{Context, bail};
+use scalpel_sim::math::Vec3;
+use scalpel_sim::pipeline::probe::{ProbeSpec, probe};
+
+use crate::{TargetArgs, load};
+
+/// What to press and how, from the command line (mm and kPa).
+pub struct ProbeArgs {
+    /// `X,Y,Z` in mm, if given.
+    pub at: Option<String>,
+    pub radius_mm: f64,
+    pub depth_mm: f64,
+    pub steps: u32,
+    /// Young's modulus override (kPa).
+    pub youngs_kpa: Option<f64>,
+    pub json: bool,
+}
+
+/// `scalpel probe`.
+pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
+    let mut spec = load::resolve(target)?;
+    if let Some(kpa) = args.youngs_kpa {
+        if !(kpa.is_finite() && (0.1..=1000.0).contains(&kpa)) {
+            bail!("--youngs-kpa {kpa}: must be within 0.1 to 1000 kPa");
+        }
+        spec.material.youngs_modulus_pa = kpa * 1e3;
+    }
+    let at = args.at.as_deref().map(parse_point).transpose()?;
+    let built = load::build_with_progress(&spec)?;
+    let probe_spec = ProbeSpec {
+        at: at.map(|x| x * 1e-3),
+        axis: None,
+        radius_m: args.radius_mm * 1e-3,
+        depth_m: args.depth_mm * 1e-3,
+        steps: args.steps,
+    };
+    let report = probe(&built.scene, &probe_spec)
+        .with_context(|| format!("cannot probe scene '{}'", spec.name))?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    let [x, y, z] = report.at_mm;
+    println!(
+        "probe {}: a {:.1} mm flat punch at ({x:.1}, {y:.1}, {z:.1}) mm, pressed {:.2} mm (E = {:.1} kPa, ν = {:.3})",
+        spec.name,
+        report.radius_mm,
+        report.depth_mm,
+        spec.material.youngs_modulus_pa * 1e-3,
+        spec.material.poisson_ratio
+    );
+    println!(
+        "  force {:.4} N; stiffness {:.4} N/mm (secant {:.4}); half-space 2aE/(1−ν²) {:.4} N/mm",
+        report.force_n, report.stiffness_n_per_mm, report.secant_n_per_mm, report.analytic_n_per_mm
+    );
+    println!(
+        "  {} of {} surface samples touching, penalty give {:.4} mm, largest volume loss 1 − det F = {:.3}",
+        report.contact_points, report.samples, report.max_penetration_mm, report.max_det_f_loss
+    );
+    println!(
+        "  {} Newton / {} CG iterations, residual {:.2e} N{}",
+        report.newton_iterations,
+        report.cg_iterations,
+        report.residual_n,
+        if report.converged {
+            ""
+        } else {
+            " (NOT converged)"
+        }
+    );
+    Ok(())
+}
+
+/// `X,Y,Z` (mm).
+fn parse_point(text: &str) -> anyhow::Result<Vec3> {
+    let parts: Vec<f64> = text
+        .split(',')
+        .map(|s| s.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--at {text:?}: expected X,Y,Z in mm"))?;
+    match parts[..] {
+        [x, y, z] if parts.iter().all(|v| v.is_finite()) => Ok(Vec3::new(x, y, z)),
+        _ => bail!("--at {text:?}: expected three finite numbers X,Y,Z in mm"),
+    }
+}
