@@ -105,8 +105,9 @@ enum Command {
         json: bool,
     },
     /// Press a flat cylindrical punch quasi-statically into the supported organ (from
-    /// where it rests under the scene's gravity) and report the force the tissue puts
-    /// back, its stiffness and the half-space value 2aE/(1−ν²).
+    /// where it rests under the scene's gravity, or standard gravity when it has none)
+    /// and report the force the tissue puts back, its stiffness and the half-space value
+    /// 2aE/(1−ν²).
     Probe {
         #[command(flatten)]
         target: TargetArgs,

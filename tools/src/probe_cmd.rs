@@ -3,9 +3,24 @@
 
 use anyhow::{Context, bail};
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::probe::{ProbeSpec, probe};
+use scalpel_sim::pipeline::probe::{ProbeReport, ProbeSpec, probe};
+use scalpel_sim::scene::supports::STANDARD_GRAVITY;
+use serde::Serialize;
 
 use crate::{TargetArgs, load};
+
+/// What `scalpel probe --json` prints.
+#[derive(Serialize)]
+struct ProbeOutput {
+    scene: String,
+    youngs_kpa: f64,
+    poisson_ratio: f64,
+    gravity_m_s2: [f64; 3],
+    /// Whether the scene had gravity off and standard gravity was used.
+    gravity_added: bool,
+    #[serde(flatten)]
+    report: ProbeReport,
+}
 
 /// What to press and how, from the command line (mm and kPa).
 pub struct ProbeArgs {
@@ -28,6 +43,17 @@ pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
         }
         spec.material.youngs_modulus_pa = kpa * 1e3;
     }
+    // On its supports as it rests under gravity: standard gravity when the scene has none.
+    let gravity_added = spec.loads.gravity == Vec3::zeros();
+    if gravity_added {
+        spec.loads.gravity = STANDARD_GRAVITY;
+    }
+    if let Some(why) = spec.supports.unable_to_hold(&spec.loads.gravity) {
+        bail!(
+            "scene '{}': {why} (a probe presses a body resting on its supports, under standard gravity when the scene has none)",
+            spec.name
+        );
+    }
     let at = args.at.as_deref().map(parse_point).transpose()?;
     let built = load::build_with_progress(&spec)?;
     let probe_spec = ProbeSpec {
@@ -40,17 +66,30 @@ pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
     let report = probe(&built.scene, &probe_spec)
         .with_context(|| format!("cannot probe scene '{}'", spec.name))?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        let output = ProbeOutput {
+            scene: spec.name.clone(),
+            youngs_kpa: spec.material.youngs_modulus_pa * 1e-3,
+            poisson_ratio: spec.material.poisson_ratio,
+            gravity_m_s2: spec.loads.gravity.into(),
+            gravity_added,
+            report,
+        };
+        println!("{}", serde_json::to_string_pretty(&output)?);
         return Ok(());
     }
     let [x, y, z] = report.at_mm;
     println!(
-        "probe {}: a {:.1} mm flat punch at ({x:.1}, {y:.1}, {z:.1}) mm, pressed {:.2} mm (E = {:.1} kPa, ν = {:.3})",
+        "probe {}: a {:.1} mm flat punch at ({x:.1}, {y:.1}, {z:.1}) mm, pressed {:.2} mm (E = {:.1} kPa, ν = {:.3}; on its supports under {})",
         spec.name,
         report.radius_mm,
         report.depth_mm,
         spec.material.youngs_modulus_pa * 1e-3,
-        spec.material.poisson_ratio
+        spec.material.poisson_ratio,
+        if gravity_added {
+            "standard gravity (the scene has none)"
+        } else {
+            "the scene's gravity"
+        }
     );
     println!(
         "  force {:.4} N; stiffness {:.4} N/mm (secant {:.4}); half-space 2aE/(1−ν²) {:.4} N/mm",

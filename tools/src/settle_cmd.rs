@@ -28,7 +28,7 @@ struct SettleOutput {
     report: SettleReport,
     fixed_points: usize,
     attached_vertices: usize,
-    tray_vertices: usize,
+    tray_samples: usize,
 }
 
 /// `scalpel settle`.
@@ -68,7 +68,7 @@ pub fn run(target: &TargetArgs, out: &Path, json: bool) -> anyhow::Result<()> {
         report,
         fixed_points: counts.fixed_points,
         attached_vertices: counts.attached_vertices,
-        tray_vertices: counts.tray_vertices,
+        tray_samples: counts.tray_samples,
     };
     if json {
         println!("{}", serde_json::to_string_pretty(&output)?);
@@ -88,8 +88,8 @@ pub fn run(target: &TargetArgs, out: &Path, json: bool) -> anyhow::Result<()> {
         }
     );
     println!(
-        "  held by {} fixed points, {} attached vertices, {} vertices over the tray",
-        counts.fixed_points, counts.attached_vertices, counts.tray_vertices
+        "  held by {} fixed points, {} attached vertices, {} surface samples over the tray",
+        counts.fixed_points, counts.attached_vertices, counts.tray_samples
     );
     println!(
         "  {} in {:.2} s: sag {:.2} mm (mean along gravity), largest displacement {:.2} mm, {} vertices on the tray, residual {:.2e} N",

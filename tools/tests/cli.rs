@@ -71,6 +71,40 @@ fn settle_rests_the_liver_on_its_supports() {
     assert!(err.contains("nothing holds the body"), "{err}");
 }
 
+/// `scalpel probe` presses the liver on its supports and reads the force from the tissue;
+/// the block, held by nothing, is refused with the reason.
+#[test]
+fn probe_reads_the_force_from_the_tissue() {
+    let r = ok_json(&["probe", "liver", "--json", "--depth-mm", "2"]);
+    for key in [
+        "force_n",
+        "stiffness_n_per_mm",
+        "analytic_n_per_mm",
+        "contact_points",
+        "max_det_f_loss",
+        "curve",
+    ] {
+        assert!(r.get(key).is_some(), "missing {key}: {r}");
+    }
+    assert_eq!(r["converged"], true, "{r}");
+    assert_eq!(r["gravity_added"], true, "{r}");
+    let force = r["force_n"].as_f64().unwrap();
+    let secant = r["secant_n_per_mm"].as_f64().unwrap();
+    let half_space = r["analytic_n_per_mm"].as_f64().unwrap();
+    assert!(
+        force > 0.0 && (secant / half_space - 1.0).abs() < 0.5,
+        "{r}"
+    );
+    assert!(r["contact_points"].as_u64().unwrap() > 0, "{r}");
+    let refused = scalpel(&["probe", "block"]);
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(err.contains("nothing holds the body"), "{err}");
+    let bad = scalpel(&["probe", "liver", "--at", "1,2"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("X,Y,Z"));
+}
+
 #[test]
 fn scene_list_names_every_builtin() {
     let list = ok_json(&["scene", "list", "--json"]);

@@ -141,3 +141,31 @@ fn region_forms_read_in_millimetres_and_one_at_a_time() {
         "{e}"
     );
 }
+
+/// The probe's force is the tissue's: on the liver resting on its supports under gravity,
+/// a 5 mm punch pressed 3 mm pushes back in proportion to E (within 5 % from 5 to
+/// 20 kPa: the gravity's pre-strain, ∝ 1/E, is what breaks exact proportion), with
+/// every static solve converged and no point inverted.
+#[test]
+fn the_probe_force_scales_with_the_tissue_stiffness() {
+    use scalpel_sim::pipeline::probe::{ProbeSpec, probe};
+    let per_kpa: Vec<f64> = [5.0, 10.0, 20.0]
+        .iter()
+        .map(|&kpa| {
+            let spec = scene(&format!(
+                "extends = \"liver\"\n[material]\nyoungs_modulus_kpa = {kpa}\n\
+                 [loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n"
+            ));
+            let built = build_scene(&spec, None, &mut Silent).expect("builds");
+            let r = probe(&built, &ProbeSpec::default()).expect("over the liver");
+            println!("{kpa} kPa: {:.4} N, {r:?}", r.force_n);
+            assert!(r.converged && r.max_det_f_loss < 0.5, "{r:?}");
+            assert!(r.force_n > 0.0 && r.contact_points > 0, "{r:?}");
+            r.force_n / kpa
+        })
+        .collect();
+    let mean = per_kpa.iter().sum::<f64>() / per_kpa.len() as f64;
+    for f in &per_kpa {
+        assert!((f / mean - 1.0).abs() < 0.05, "{per_kpa:?} N/kPa");
+    }
+}

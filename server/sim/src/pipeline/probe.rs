@@ -400,4 +400,45 @@ mod tests {
             );
         }
     }
+
+    /// Pressed into a block on a fixed base, the tool gets exactly what the tissue gets,
+    /// reversed: the reaction on the punch plus the forces on the points sum to zero.
+    #[test]
+    fn the_tool_gets_what_the_tissue_gets_reversed() {
+        let size = Vec3::new(0.03, 0.03, 0.02);
+        let mut body = box_body(size, 7, &Material::LIVER, 2.0, SolverConfig::default());
+        for i in body.face(2, -1.0) {
+            body.solver.fix(i, [true; 3]);
+        }
+        let punch = Punch {
+            centre: Vec3::new(0.002, -0.001, 0.01),
+            axis: Vec3::new(0.3, 0.0, -1.0).normalize(),
+            radius: 0.006,
+            depth: 0.0,
+        };
+        let spacing = body.model.lattice.spacing;
+        let mut contact = face_samples(
+            &body.model,
+            &body.model.surface,
+            &body.solver,
+            &punch,
+            5e3,
+            spacing,
+        );
+        contact.touch_down(body.solver.positions());
+        contact.set_depth(0.002);
+        body.solver.press(Some(contact));
+        assert!(body.solver.solve_static().converged);
+        let contact = body.solver.contact().unwrap();
+        let p = body.solver.positions();
+        let mut on_points = vec![Vec3::zeros(); p.len()];
+        contact.forces(p, &mut on_points);
+        let tissue: Vec3 = on_points.iter().sum();
+        let tool = contact.on_tool(p);
+        assert!(tool.norm() > 0.01 && tool.x.abs() > 1e-4, "{tool}");
+        assert!(
+            (tissue + tool).norm() <= 1e-9 * tool.norm(),
+            "tissue {tissue}, tool {tool}"
+        );
+    }
 }

@@ -50,6 +50,10 @@ pub struct Held {
     touching: Vec<bool>,
     /// The vertices a static solve holds on the tray.
     set: ContactSet,
+    /// Each vertex's height above the tray at rest (m; infinity without a tray).
+    rest_gap: Vec<f64>,
+    /// Each point's rest height along the tray's normal (m; empty without a tray).
+    rest_height: Vec<f64>,
     /// The vertices following at least one integrated point ([`Held::wake`]): the only
     /// ones whose forces an explicit tick over a restricted active set reads.
     awake: Vec<u32>,
@@ -80,6 +84,13 @@ impl Held {
             anchor: vec![Vec3::zeros(); vertices.len()],
             touching: vec![false; vertices.len()],
             set: ContactSet::new(vertices.len()),
+            rest_gap: vertices
+                .iter()
+                .map(|v| tray.map_or(f64::INFINITY, |t| t.normal.dot(&v.rest) - t.offset))
+                .collect(),
+            rest_height: tray.map_or(Vec::new(), |t| {
+                rest_points.iter().map(|x| t.normal.dot(x)).collect()
+            }),
             awake: (0..vertices.len() as u32).collect(),
         }
     }
@@ -139,12 +150,23 @@ impl Held {
                 self.awake.len()
             }
         };
+        let sunk = self.deepest_sink(p);
         let mut energy = 0.0;
         for index in 0..count {
             let v = match which {
                 Vertices::All => index,
                 Vertices::Awake => self.awake[index] as usize,
             };
+            // A tray sample whose points have not come down as far as its height above
+            // the tray cannot touch it (its weights are a convex combination): no need to
+            // place it. Most of a body's samples, most of the time.
+            if self.spring[v] == 0.0
+                && self.rest_gap[v] > sunk
+                && !self.touching[v]
+                && !self.set.pressed(v, 1.0)
+            {
+                continue;
+            }
             let x = self.position(v, p);
             let mut f = Vec3::zeros();
             let k = self.spring[v];
@@ -165,6 +187,19 @@ impl Held {
             }
         }
         energy
+    }
+
+    /// How far any point a vertex follows has come down toward the tray since rest (m;
+    /// minus infinity without a tray).
+    fn deepest_sink(&self, p: &[Vec3]) -> f64 {
+        let Some(tray) = self.tray else {
+            return f64::NEG_INFINITY;
+        };
+        self.rows
+            .reached()
+            .iter()
+            .map(|&k| self.rest_height[k as usize] - tray.normal.dot(&p[k as usize]))
+            .fold(f64::NEG_INFINITY, f64::max)
     }
 
     /// The tray's force on vertex v at `x` and its stored energy: a penalty out of the
