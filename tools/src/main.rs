@@ -124,6 +124,10 @@ enum Command {
         /// Static solves on the way down.
         #[arg(long, default_value_t = 6)]
         steps: u32,
+        /// Press the scene's blade ([tool] sizes), edge first along the scene's x, instead
+        /// of the punch.
+        #[arg(long)]
+        blade: bool,
         /// Young's modulus in kPa (overrides the scene's material).
         #[arg(long)]
         youngs_kpa: Option<f64>,
@@ -547,6 +551,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             radius_mm,
             depth_mm,
             steps,
+            blade,
             youngs_kpa,
             json,
         } => probe_cmd::run(
@@ -556,6 +561,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
                 radius_mm,
                 depth_mm,
                 steps,
+                blade,
                 youngs_kpa,
                 json,
             },

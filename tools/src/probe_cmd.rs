@@ -5,6 +5,7 @@ use anyhow::{Context, bail};
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::probe::{ProbeReport, ProbeSpec, probe};
 use scalpel_sim::scene::supports::STANDARD_GRAVITY;
+use scalpel_sim::solver::contact::ToolShape;
 use serde::Serialize;
 
 use crate::{TargetArgs, load};
@@ -29,6 +30,8 @@ pub struct ProbeArgs {
     pub radius_mm: f64,
     pub depth_mm: f64,
     pub steps: u32,
+    /// Press the scene's blade, edge first, instead of the punch.
+    pub blade: bool,
     /// Young's modulus override (kPa).
     pub youngs_kpa: Option<f64>,
     pub json: bool,
@@ -60,6 +63,11 @@ pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
         at: at.map(|x| x * 1e-3),
         axis: None,
         radius_m: args.radius_mm * 1e-3,
+        blade: args.blade.then_some(ToolShape::Blade {
+            length: spec.tool.blade_length_m,
+            width: spec.tool.blade_width_m,
+            thickness: spec.tool.blade_thickness_m,
+        }),
         depth_m: args.depth_mm * 1e-3,
         steps: args.steps,
     };
@@ -78,10 +86,13 @@ pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let [x, y, z] = report.at_mm;
+    let tool = match report.radius_mm {
+        Some(r) => format!("a {r:.1} mm flat punch"),
+        None => "the blade, edge first,".to_string(),
+    };
     println!(
-        "probe {}: a {:.1} mm flat punch at ({x:.1}, {y:.1}, {z:.1}) mm, pressed {:.2} mm (E = {:.1} kPa, ν = {:.3}; on its supports under {})",
+        "probe {}: {tool} at ({x:.1}, {y:.1}, {z:.1}) mm, pressed {:.2} mm (E = {:.1} kPa, ν = {:.3}; on its supports under {})",
         spec.name,
-        report.radius_mm,
         report.depth_mm,
         spec.material.youngs_modulus_pa * 1e-3,
         spec.material.poisson_ratio,
@@ -92,8 +103,13 @@ pub fn run(target: &TargetArgs, args: &ProbeArgs) -> anyhow::Result<()> {
         }
     );
     println!(
-        "  force {:.4} N; stiffness {:.4} N/mm (secant {:.4}); half-space 2aE/(1−ν²) {:.4} N/mm",
-        report.force_n, report.stiffness_n_per_mm, report.secant_n_per_mm, report.analytic_n_per_mm
+        "  force {:.4} N; stiffness {:.4} N/mm (secant {:.4}){}",
+        report.force_n,
+        report.stiffness_n_per_mm,
+        report.secant_n_per_mm,
+        report.analytic_n_per_mm.map_or(String::new(), |k| format!(
+            "; half-space 2aE/(1−ν²) {k:.4} N/mm"
+        ))
     );
     println!(
         "  {} of {} surface samples touching, penalty give {:.4} mm, largest volume loss 1 − det F = {:.3}",

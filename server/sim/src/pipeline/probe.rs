@@ -12,7 +12,7 @@ use crate::math::Vec3;
 use crate::model::{CoupledModel, SurfaceEmbedding};
 use crate::scene::BuiltScene;
 use crate::solver::Solver;
-use crate::solver::contact::{Punch, ToolContact};
+use crate::solver::contact::{Punch, ToolContact, ToolShape};
 use crate::solver::embedded::EmbeddedRows;
 
 /// The penalty per area, as a multiple of E / spacing: a patch of the face is this many
@@ -37,6 +37,8 @@ pub struct ProbeSpec {
     pub axis: Option<Vec3>,
     /// Punch radius (m).
     pub radius_m: f64,
+    /// Press a blade of this shape, edge first, instead of the punch.
+    pub blade: Option<ToolShape>,
     /// Final depth past the surface (m).
     pub depth_m: f64,
     /// Static solves on the way down (the last two give the tangent stiffness; with one,
@@ -50,6 +52,7 @@ impl Default for ProbeSpec {
             at: None,
             axis: None,
             radius_m: 0.005,
+            blade: None,
             depth_m: 0.003,
             steps: 6,
         }
@@ -72,8 +75,8 @@ pub struct ProbeReport {
     pub at_mm: [f64; 3],
     /// Unit direction of the press (into the body).
     pub axis: [f64; 3],
-    /// Punch radius (mm).
-    pub radius_mm: f64,
+    /// Punch radius (mm; none for a blade).
+    pub radius_mm: Option<f64>,
     /// Final depth (mm).
     pub depth_mm: f64,
     /// The tissue's push back along the press at the final depth (N).
@@ -84,8 +87,10 @@ pub struct ProbeReport {
     pub stiffness_n_per_mm: f64,
     /// Force over depth (N/mm).
     pub secant_n_per_mm: f64,
-    /// A rigid flat punch on an elastic half-space, 2aE/(1 − ν²) (N/mm).
-    pub analytic_n_per_mm: f64,
+    /// A rigid flat punch on an elastic half-space, 2aE/(1 − ν²) (N/mm; none for a blade).
+    pub analytic_n_per_mm: Option<f64>,
+    /// The tool pressed (sizes in m).
+    pub tool: ToolShape,
     /// Samples touching the face at the final depth, and in all.
     pub contact_points: usize,
     /// Surface samples under the face.
@@ -112,9 +117,9 @@ pub enum ProbeError {
     /// The press line misses the body.
     #[error("the press at {0:?} mm misses the body: give --at a point on or near its surface")]
     MissesBody([f64; 3]),
-    /// Nothing of the surface is under the face.
-    #[error("no surface under a {0} mm punch there")]
-    NothingUnder(f64),
+    /// Nothing of the surface is under the tool.
+    #[error("no surface under the tool there")]
+    NothingUnder,
     /// A non-positive or non-finite size.
     #[error("{0} must be positive and finite, got {1}")]
     BadSize(&'static str, f64),
@@ -153,18 +158,29 @@ pub fn press(
         }
     }
     let (centre, axis) = aim(surface, spec)?;
-    let punch = Punch {
-        centre,
-        axis,
-        radius: spec.radius_m,
-        depth: 0.0,
+    let punch = match spec.blade {
+        None => Punch::flat(centre, axis, spec.radius_m),
+        Some(shape) => {
+            // The edge along the scene's x, as the default strokes run (y if pressing
+            // along x).
+            let x = if axis.x.abs() < 0.9 {
+                Vec3::x()
+            } else {
+                Vec3::y()
+            };
+            Punch {
+                along: (x - axis * axis.dot(&x)).normalize(),
+                shape,
+                ..Punch::flat(centre, axis, spec.radius_m)
+            }
+        }
     };
     let spacing = model.lattice.spacing;
     let mut contact = face_samples(model, surface, solver, &punch, plane_modulus, spacing);
     contact.touch_down(solver.positions());
     let centre = contact.punch().centre;
     if contact.is_empty() {
-        return Err(ProbeError::NothingUnder(spec.radius_m * 1e3));
+        return Err(ProbeError::NothingUnder);
     }
     let samples = contact.len();
     solver.press(Some(contact));
@@ -216,13 +232,17 @@ pub fn press(
     let report = ProbeReport {
         at_mm: (centre * 1e3).into(),
         axis: axis.into(),
-        radius_mm: spec.radius_m * 1e3,
+        radius_mm: spec.blade.is_none().then_some(spec.radius_m * 1e3),
         depth_mm: spec.depth_m * 1e3,
         force_n: last.force_n,
         force_vector_n: force.into(),
         stiffness_n_per_mm: (last.force_n - before.force_n) / (last.depth_mm - before.depth_mm),
         secant_n_per_mm: last.force_n / last.depth_mm,
-        analytic_n_per_mm: 2.0 * spec.radius_m * plane_modulus * 1e-3,
+        analytic_n_per_mm: spec
+            .blade
+            .is_none()
+            .then_some(2.0 * spec.radius_m * plane_modulus * 1e-3),
+        tool: contact.punch().shape,
         contact_points: contact.touching(p),
         samples,
         max_penetration_mm: contact.max_penetration(p) * 1e3,
@@ -298,10 +318,11 @@ fn first_hit(surface: &TriMesh, origin: &Vec3, dir: &Vec3) -> Option<(Vec3, usiz
         .map(|(s, t, b)| (origin + dir * s, t, b))
 }
 
-/// The surface under the face, sampled on a square grid of cells (their centres, so a
-/// quarter model gets exactly a quarter of them), each sample following the points by the
-/// surface's first-order map at its rest place, with a penalty of
-/// [`PENALTY_PER_E_OVER_SPACING`] × E/h per area.
+/// The surface under the tool, each sample following the points by the surface's
+/// first-order map at its rest place, with a penalty of [`PENALTY_PER_E_OVER_SPACING`] ×
+/// E/h times its area. Under a punch: the centres of a square grid's cells over the disc
+/// (so a quarter model gets exactly a quarter of them). Under a blade: rows along the
+/// edge, one under it and more beside it out to 3 mm, for the flats.
 fn face_samples(
     model: &CoupledModel,
     surface: &TriMesh,
@@ -310,54 +331,68 @@ fn face_samples(
     plane_modulus: f64,
     spacing: f64,
 ) -> ToolContact {
-    let cell = (punch.radius / 6.0).min(0.5 * spacing);
-    let across = (punch.radius / cell).ceil() as i64;
-    let a = punch.axis;
-    let u = a
-        .cross(&if a.x.abs() < 0.9 {
-            Vec3::x()
-        } else {
-            Vec3::y()
-        })
-        .normalize();
-    let w = a.cross(&u);
-    let reach = (Vec3::from(surface.bbox().max) - Vec3::from(surface.bbox().min)).norm();
-    let rest_points = &model.points.rest;
-    let (mut zero, mut row) = (Vec::new(), Vec::new());
-    let mut rows: Vec<(Vec<(u32, f64)>, Vec3)> = Vec::new();
-    for i in -across..across {
-        for j in -across..across {
-            let (s, t) = ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
-            if s * s + t * t > punch.radius * punch.radius {
-                continue;
+    let (u, w) = (punch.along, punch.axis.cross(&punch.along));
+    // (offset along u, offset along w, area) of each sample's column.
+    let mut grid: Vec<(f64, f64, f64)> = Vec::new();
+    match punch.shape {
+        ToolShape::Punch { radius } => {
+            let cell = (radius / 6.0).min(0.5 * spacing);
+            let across = (radius / cell).ceil() as i64;
+            for i in -across..across {
+                for j in -across..across {
+                    let (a, b) = ((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+                    if a * a + b * b <= radius * radius {
+                        grid.push((a, b, cell * cell));
+                    }
+                }
             }
-            let from = punch.centre + u * s + w * t - a * reach;
-            let Some((_, tri, b)) = first_hit(surface, &from, &a) else {
-                continue;
-            };
-            let [p, q, r] = model.surface.triangles[tri];
-            let rest = &model.surface.positions;
-            let x = rest[p as usize] * b[0] + rest[q as usize] * b[1] + rest[r as usize] * b[2];
-            zero.clear();
-            zero.extend(SurfaceEmbedding::row_for(
-                &x,
-                rest_points,
-                &model.grid,
-                &model.kernel,
-                &[],
-                &[],
-            ));
-            let total: f64 = zero.iter().map(|(_, w)| w).sum();
-            zero.iter_mut().for_each(|(_, w)| *w /= total);
-            solver
-                .operator()
-                .linear_row(&zero, &x, solver.rest(), &mut row);
-            rows.push((row.clone(), x));
+        }
+        ToolShape::Blade { length, .. } => {
+            let along = (length / 12.0).min(0.5 * spacing);
+            let beside = (0.25 * spacing).min(1e-3);
+            let rows = (3e-3 / beside).ceil() as i64;
+            let n = (length / along).round() as i64;
+            for i in 0..n {
+                for j in -rows..=rows {
+                    let a = (i as f64 + 0.5) * along - 0.5 * length;
+                    grid.push((a, j as f64 * beside, along * beside));
+                }
+            }
         }
     }
-    let per_sample = PENALTY_PER_E_OVER_SPACING * plane_modulus / spacing * cell * cell;
+    let reach = (Vec3::from(surface.bbox().max) - Vec3::from(surface.bbox().min)).norm();
+    let (mut zero, mut row) = (Vec::new(), Vec::new());
+    let mut rows: Vec<(Vec<(u32, f64)>, Vec3)> = Vec::new();
+    let mut stiffness = Vec::new();
+    let per_area = PENALTY_PER_E_OVER_SPACING * plane_modulus / spacing;
+    for (a, b, area) in grid {
+        let from = punch.centre + u * a + w * b - punch.axis * reach;
+        let Some((_, tri, bary)) = first_hit(surface, &from, &punch.axis) else {
+            continue;
+        };
+        let [p, q, r] = model.surface.triangles[tri];
+        let rest = &model.surface.positions;
+        let x =
+            rest[p as usize] * bary[0] + rest[q as usize] * bary[1] + rest[r as usize] * bary[2];
+        zero.clear();
+        zero.extend(SurfaceEmbedding::row_for(
+            &x,
+            &model.points.rest,
+            &model.grid,
+            &model.kernel,
+            &[],
+            &[],
+        ));
+        let total: f64 = zero.iter().map(|(_, w)| w).sum();
+        zero.iter_mut().for_each(|(_, w)| *w /= total);
+        solver
+            .operator()
+            .linear_row(&zero, &x, solver.rest(), &mut row);
+        rows.push((row.clone(), x));
+        stiffness.push(per_area * area);
+    }
     let samples = EmbeddedRows::new(rows.iter().map(|(r, x)| (&r[..], *x)), solver.rest());
-    ToolContact::new(samples, vec![per_sample; rows.len()], *punch)
+    ToolContact::new(samples, stiffness, *punch)
 }
 
 #[cfg(test)]
@@ -373,12 +408,7 @@ mod tests {
     fn samples_follow_a_linear_field() {
         let size = Vec3::new(0.02, 0.02, 0.02);
         let body = box_body(size, 5, &Material::LIVER, 2.0, SolverConfig::default());
-        let punch = Punch {
-            centre: Vec3::new(0.0, 0.0, 0.01),
-            axis: -Vec3::z(),
-            radius: 0.004,
-            depth: 0.0,
-        };
+        let punch = Punch::flat(Vec3::new(0.0, 0.0, 0.01), -Vec3::z(), 0.004);
         let contact = face_samples(
             &body.model,
             &body.model.surface,
@@ -410,12 +440,11 @@ mod tests {
         for i in body.face(2, -1.0) {
             body.solver.fix(i, [true; 3]);
         }
-        let punch = Punch {
-            centre: Vec3::new(0.002, -0.001, 0.01),
-            axis: Vec3::new(0.3, 0.0, -1.0).normalize(),
-            radius: 0.006,
-            depth: 0.0,
-        };
+        let punch = Punch::flat(
+            Vec3::new(0.002, -0.001, 0.01),
+            Vec3::new(0.3, 0.0, -1.0).normalize(),
+            0.006,
+        );
         let spacing = body.model.lattice.spacing;
         let mut contact = face_samples(
             &body.model,

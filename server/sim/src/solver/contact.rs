@@ -10,37 +10,117 @@ use super::contact_set::ContactSet;
 use super::embedded::EmbeddedRows;
 use crate::math::Vec3;
 
-/// A flat cylindrical punch: its face a disc of `radius` about `centre`, normal to `axis`
-/// (unit, pointing into the tissue), pressed `depth` along it.
+/// The tool's shape about its frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ToolShape {
+    /// A flat cylindrical punch: its face a disc of `radius` normal to the axis.
+    Punch {
+        /// Face radius (m).
+        radius: f64,
+    },
+    /// A scalpel blade pressed edge first: a slab `thickness` thick about the plane of the
+    /// axis and `along`, its straight edge `length` long across the axis, its flats
+    /// `width` from the edge to the spine.
+    Blade {
+        /// Edge length (m).
+        length: f64,
+        /// Edge to spine (m).
+        width: f64,
+        /// Between the flats (m).
+        thickness: f64,
+    },
+}
+
+/// A rigid tool pressed into the tissue along `axis`: its shape's leading face (the
+/// punch's disc, the blade's edge) starts at `centre` and has gone `depth` past it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Punch {
-    /// Where the face starts: a point of the undeformed surface (m).
+    /// Where the leading face starts: a point of the undeformed surface (m).
     pub centre: Vec3,
     /// Unit direction of the press, into the tissue.
     pub axis: Vec3,
-    /// Face radius (m).
-    pub radius: f64,
-    /// How far the face has been pressed past `centre` along `axis` (m).
+    /// Unit direction across the axis: the blade's edge (unused by a punch).
+    pub along: Vec3,
+    /// The shape.
+    pub shape: ToolShape,
+    /// How far the leading face has been pressed past `centre` along `axis` (m).
     pub depth: f64,
 }
 
 impl Punch {
-    /// How far a point at `x` is from the face along the axis (m, negative inside), or
-    /// infinity beside it (beyond the radius).
-    pub fn gap(&self, x: &Vec3) -> f64 {
-        let r = x - self.centre;
-        let along = r.dot(&self.axis);
-        let radial = (r - self.axis * along).norm_squared();
-        if radial > self.radius * self.radius {
-            f64::INFINITY
+    /// A flat punch of `radius` at `centre` pressing along `axis`.
+    pub fn flat(centre: Vec3, axis: Vec3, radius: f64) -> Self {
+        let along = axis.cross(&if axis.x.abs() < 0.9 {
+            Vec3::x()
         } else {
-            along - self.depth
+            Vec3::y()
+        });
+        Self {
+            centre,
+            axis,
+            along: along.normalize(),
+            shape: ToolShape::Punch { radius },
+            depth: 0.0,
         }
     }
 
-    /// How far a point at `x` is inside the punch (m, zero if outside).
+    /// Where a point at `x` is against the tool: its gap to the face it is held by (m,
+    /// negative inside) and that face's outward normal; an infinite gap where it cannot
+    /// touch. A point in line with the leading face (the disc, the edge) is held by it: a
+    /// surface pressed by a blade's edge wraps round the edge, it does not jump to the
+    /// nearer flat 0.2 mm away. One beside a blade is held by the flat or end it would
+    /// come in through, while it is within the blade's reach along the axis.
+    pub fn gap(&self, x: &Vec3) -> (f64, Vec3) {
+        let r = x - self.centre;
+        let ahead = r.dot(&self.axis) - self.depth;
+        if self.under_face(x) {
+            return (ahead, self.axis);
+        }
+        match self.shape {
+            ToolShape::Punch { .. } => (f64::INFINITY, self.axis),
+            ToolShape::Blade {
+                length,
+                width,
+                thickness,
+            } => {
+                if ahead > 0.0 || ahead < -width {
+                    return (f64::INFINITY, self.axis);
+                }
+                let side_dir = self.axis.cross(&self.along);
+                let (e, s) = (r.dot(&self.along), r.dot(&side_dir));
+                // Outside the footprint: the side it is on, by how far past it it is.
+                let beyond_flat = s.abs() - 0.5 * thickness;
+                let beyond_end = e.abs() - 0.5 * length;
+                if beyond_flat >= beyond_end {
+                    (beyond_flat, side_dir * s.signum())
+                } else {
+                    (beyond_end, self.along * e.signum())
+                }
+            }
+        }
+    }
+
+    /// Whether a point at `x` is in line with the leading face (the disc, the edge), so
+    /// that pressing on would meet it face first.
+    pub fn under_face(&self, x: &Vec3) -> bool {
+        let r = x - self.centre;
+        let across = r - self.axis * r.dot(&self.axis);
+        match self.shape {
+            ToolShape::Punch { radius } => across.norm() <= radius,
+            ToolShape::Blade {
+                length, thickness, ..
+            } => {
+                let side_dir = self.axis.cross(&self.along);
+                across.dot(&self.along).abs() <= 0.5 * length
+                    && across.dot(&side_dir).abs() <= 0.5 * thickness
+            }
+        }
+    }
+
+    /// How far a point at `x` is inside the tool (m, zero if outside).
     pub fn penetration(&self, x: &Vec3) -> f64 {
-        (-self.gap(x)).max(0.0)
+        (-self.gap(x).0).max(0.0)
     }
 }
 
@@ -81,6 +161,7 @@ impl ToolContact {
     /// highest point first), so that depth counts from first touch.
     pub fn touch_down(&mut self, p: &[Vec3]) {
         let first = (0..self.samples.len())
+            .filter(|&s| self.punch.under_face(&self.samples.position(s, p)))
             .map(|s| (self.samples.position(s, p) - self.punch.centre).dot(&self.punch.axis))
             .fold(f64::INFINITY, f64::min);
         if first.is_finite() {
@@ -111,9 +192,9 @@ impl ToolContact {
     /// The tool's force on sample s with the points at `p`: out of the face while it is
     /// pressed (with the set frozen, also pulling a pressed sample that lifted off).
     fn push(&self, s: usize, p: &[Vec3]) -> Vec3 {
-        let gap = self.gap(s, p);
+        let (gap, normal) = self.gap(s, p);
         if self.set.pressed(s, gap) {
-            self.punch.axis * (-self.stiffness[s] * gap)
+            normal * (-self.stiffness[s] * gap)
         } else {
             Vec3::zeros()
         }
@@ -122,14 +203,15 @@ impl ToolContact {
     /// Freezes the pressed samples to those inside the face with the points at `p`;
     /// returns how many changed (`contact_set`).
     pub fn freeze(&mut self, p: &[Vec3]) -> usize {
-        let gaps: Vec<(usize, f64)> = (0..self.len()).map(|s| (s, self.gap(s, p))).collect();
+        let gaps: Vec<(usize, f64)> = (0..self.len()).map(|s| (s, self.gap(s, p).0)).collect();
         self.set.freeze(gaps.into_iter())
     }
 
-    /// Sample s's gap to the face the penalty sees (m, negative inside): its geometric
-    /// gap less its multiplier.
-    fn gap(&self, s: usize, p: &[Vec3]) -> f64 {
-        self.punch.gap(&self.samples.position(s, p)) - self.extra[s]
+    /// Sample s's gap to the face the penalty sees (m, negative inside), its geometric
+    /// gap less its multiplier, and the face's normal.
+    fn gap(&self, s: usize, p: &[Vec3]) -> (f64, Vec3) {
+        let (gap, normal) = self.punch.gap(&self.samples.position(s, p));
+        (gap - self.extra[s], normal)
     }
 
     /// One augmented-Lagrangian (Uzawa) update: each sample's multiplier grows by how far
@@ -137,7 +219,7 @@ impl ToolContact {
     /// that the next static solve holds it closer to the face with the same force.
     pub fn absorb_give(&mut self, p: &[Vec3]) {
         for s in 0..self.samples.len() {
-            let gap = self.punch.gap(&self.samples.position(s, p));
+            let (gap, _) = self.punch.gap(&self.samples.position(s, p));
             self.extra[s] = if gap.is_finite() {
                 (self.extra[s] - gap).max(0.0)
             } else {
@@ -169,13 +251,13 @@ impl ToolContact {
     }
 
     /// `y += K x` with K = −∂f/∂p of the contacts as they stand (frictionless: a touching
-    /// sample is held along the axis only).
+    /// sample is held along its face's normal only).
     pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3]) {
-        let a = self.punch.axis;
         for s in 0..self.samples.len() {
-            if self.set.pressed(s, self.gap(s, p)) {
-                let along = a.dot(&self.samples.moved(s, x));
-                self.samples.spread(s, a * (self.stiffness[s] * along), y);
+            let (gap, n) = self.gap(s, p);
+            if self.set.pressed(s, gap) {
+                let along = n.dot(&self.samples.moved(s, x));
+                self.samples.spread(s, n * (self.stiffness[s] * along), y);
             }
         }
     }
@@ -188,7 +270,7 @@ impl ToolContact {
     /// How many samples the tool pushes.
     pub fn touching(&self, p: &[Vec3]) -> usize {
         (0..self.samples.len())
-            .filter(|&s| self.gap(s, p) < 0.0)
+            .filter(|&s| self.gap(s, p).0 < 0.0)
             .count()
     }
 
@@ -210,10 +292,8 @@ mod tests {
         let at = Vec3::new(0.0, 0.0, -0.002);
         let samples = EmbeddedRows::new([(&row[..], at)].into_iter(), &rest);
         let punch = Punch {
-            centre: Vec3::zeros(),
-            axis: -Vec3::z(),
-            radius: 0.005,
             depth: 0.003,
+            ..Punch::flat(Vec3::zeros(), -Vec3::z(), 0.005)
         };
         (ToolContact::new(samples, vec![1000.0], punch), rest)
     }
@@ -244,5 +324,34 @@ mod tests {
             .collect();
         assert_eq!(contact.touching(&aside), 0);
         assert_eq!(contact.forces(&aside, &mut f), 0.0);
+    }
+
+    /// A blade pressed 5 mm edge first holds what is under its edge along the axis (the
+    /// surface wraps round the edge, it does not slip to a flat 0.2 mm away), pushes what
+    /// comes in beside it out through the flat, and does not reach past its spine.
+    #[test]
+    fn a_blade_holds_under_its_edge_and_pushes_beside_it_sideways() {
+        let blade = Punch {
+            along: Vec3::x(),
+            shape: ToolShape::Blade {
+                length: 0.025,
+                width: 0.008,
+                thickness: 0.0004,
+            },
+            depth: 0.005,
+            ..Punch::flat(Vec3::zeros(), -Vec3::z(), 0.001)
+        };
+        let side = blade.axis.cross(&blade.along);
+        let (gap, n) = blade.gap(&Vec3::new(0.003, 0.0, -0.001));
+        assert!((gap + 0.004).abs() < 1e-12 && n == -Vec3::z(), "{gap} {n}");
+        let beside = side * 0.001 + Vec3::new(0.0, 0.0, -0.003);
+        let (gap, n) = blade.gap(&beside);
+        assert!((gap - 0.0008).abs() < 1e-12 && n == side, "{gap} {n}");
+        assert!(
+            blade
+                .gap(&(side * 0.001 + Vec3::new(0.0, 0.0, -0.02)))
+                .0
+                .is_infinite()
+        );
     }
 }
