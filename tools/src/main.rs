@@ -104,37 +104,15 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Press a flat cylindrical punch quasi-statically into the supported organ (from
-    /// where it rests under the scene's gravity, or standard gravity when it has none)
-    /// and report the force the tissue puts back, its stiffness and the half-space value
-    /// 2aE/(1−ν²).
+    /// Press a flat cylindrical punch (or the scene's blade) quasi-statically into the
+    /// supported organ (from where it rests under the scene's gravity, or standard gravity
+    /// when it has none) and report the force the tissue puts back, its stiffness and the
+    /// half-space value 2aE/(1−ν²).
     Probe {
         #[command(flatten)]
         target: TargetArgs,
-        /// Where to press: a point on or near the surface, X,Y,Z in mm (default: the top
-        /// of the organ above the middle of its bounding box).
-        #[arg(long, allow_hyphen_values = true)]
-        at: Option<String>,
-        /// Punch radius (mm).
-        #[arg(long, default_value_t = 5.0)]
-        radius_mm: f64,
-        /// Depth past first touch (mm).
-        #[arg(long, default_value_t = 3.0)]
-        depth_mm: f64,
-        /// Static solves on the way down.
-        #[arg(long, default_value_t = 6)]
-        steps: u32,
-        /// Press the scene's blade ([tool] sizes), edge first along the scene's x, instead
-        /// of the punch.
-        #[arg(long)]
-        blade: bool,
-        /// Young's modulus in kPa (overrides the scene's material).
-        #[arg(long)]
-        youngs_kpa: Option<f64>,
-        /// Print {force_n, stiffness_n_per_mm, analytic_n_per_mm, contact_points,
-        /// max_det_f_loss, curve, ...} as JSON.
-        #[arg(long)]
-        json: bool,
+        #[command(flatten)]
+        args: probe_cmd::ProbeArgs,
     },
     /// Whole-system benchmarks.
     #[command(subcommand)]
@@ -545,27 +523,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             json,
         ),
         Command::Settle { target, out, json } => settle_cmd::run(&target, &out, json),
-        Command::Probe {
-            target,
-            at,
-            radius_mm,
-            depth_mm,
-            steps,
-            blade,
-            youngs_kpa,
-            json,
-        } => probe_cmd::run(
-            &target,
-            &probe_cmd::ProbeArgs {
-                at,
-                radius_mm,
-                depth_mm,
-                steps,
-                blade,
-                youngs_kpa,
-                json,
-            },
-        ),
+        Command::Probe { target, args } => probe_cmd::run(&target, &args),
         Command::Bench(what) => run_bench(what),
         Command::Certs(what) => run_certs(what),
         Command::Observe {

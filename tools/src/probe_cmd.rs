@@ -1,5 +1,6 @@
-//! `scalpel probe`: a flat punch pressed quasi-statically into the supported organ; the
-//! force the tissue puts back on it, its stiffness and the half-space's beside it.
+//! `scalpel probe`: a flat punch (or the blade) pressed quasi-statically into the
+//! supported organ; the force the tissue puts back on it, its stiffness and the
+//! half-space's beside it.
 
 use anyhow::{Context, bail};
 use scalpel_sim::math::Vec3;
@@ -23,17 +24,32 @@ struct ProbeOutput {
     report: ProbeReport,
 }
 
-/// What to press and how, from the command line (mm and kPa).
+/// What to press and how (mm and kPa).
+#[derive(clap::Args)]
 pub struct ProbeArgs {
-    /// `X,Y,Z` in mm, if given.
+    /// Where to press: a point on or near the surface, X,Y,Z in mm (default: the top of
+    /// the organ above the middle of its bounding box).
+    #[arg(long, allow_hyphen_values = true)]
     pub at: Option<String>,
+    /// Punch radius (mm).
+    #[arg(long, default_value_t = 5.0)]
     pub radius_mm: f64,
+    /// Depth past first touch (mm).
+    #[arg(long, default_value_t = 3.0)]
     pub depth_mm: f64,
+    /// Static solves on the way down.
+    #[arg(long, default_value_t = 6)]
     pub steps: u32,
-    /// Press the scene's blade, edge first, instead of the punch.
+    /// Press the scene's blade ([tool] sizes), edge first along the scene's x, instead of
+    /// the punch.
+    #[arg(long)]
     pub blade: bool,
-    /// Young's modulus override (kPa).
+    /// Young's modulus in kPa (overrides the scene's material).
+    #[arg(long)]
     pub youngs_kpa: Option<f64>,
+    /// Print {force_n, stiffness_n_per_mm, analytic_n_per_mm, contact_points,
+    /// max_det_f_loss, curve, ...} as JSON.
+    #[arg(long)]
     pub json: bool,
 }
 

@@ -92,7 +92,7 @@ pub fn run(target: &TargetArgs, out: &Path, json: bool) -> anyhow::Result<()> {
         counts.fixed_points, counts.attached_vertices, counts.tray_samples
     );
     println!(
-        "  {} in {:.2} s: sag {:.2} mm (mean along gravity), largest displacement {:.2} mm, {} vertices on the tray, residual {:.2e} N",
+        "  {} in {:.2} s: sag {:.2} mm (mean along gravity), largest displacement {:.2} mm, {} tray samples on the tray, residual {:.2e} N",
         if report.settled {
             "at rest"
         } else {
@@ -121,7 +121,7 @@ fn render_settled(sim: &Simulation, path: &Path) -> anyhow::Result<()> {
     if let Some(tray) = sim.solver().held().and_then(|h| h.tray()) {
         // A square of the tray's plane, 1.4 times the body across, under it.
         let n = tray.normal;
-        let on_plane = centre - n * (n.dot(&centre) - tray.offset);
+        let on_plane = centre - n * tray.gap(&centre);
         let u = n.cross(&Vec3::x()).try_normalize(1e-9).unwrap_or(Vec3::y());
         let v = n.cross(&u);
         let half = 0.7 * extent;

@@ -11,11 +11,26 @@ fn scene(text: &str) -> SceneSpec {
     SceneSpec::from_toml(text, Path::new("test.toml")).expect("a valid scene")
 }
 
+/// Why the scene file `text` is refused.
+fn refused(text: &str) -> String {
+    SceneSpec::from_toml(text, Path::new("test.toml"))
+        .unwrap_err()
+        .to_string()
+}
+
+/// Standard gravity, as a scene file's table.
+const GRAVITY: &str = "[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n";
+
+/// The liver under standard gravity, with `more` of a scene file after it.
+fn liver_under_gravity(more: &str) -> SceneSpec {
+    scene(&format!("extends = \"liver\"\n{GRAVITY}{more}"))
+}
+
 /// Under gravity the liver settles on its tray before the first tick: it sags, comes to
 /// rest, rests on the tray, and its ligament side stays close to where it was.
 #[test]
 fn the_liver_settles_on_its_tray_under_gravity() {
-    let spec = scene("extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n");
+    let spec = liver_under_gravity("");
     let built = build_scene(&spec, None, &mut Silent).expect("builds");
     let sim = Simulation::new(&built);
     let r = *sim.settled().expect("settled under gravity");
@@ -67,12 +82,7 @@ fn a_fixed_face_holds_a_hanging_block() {
 /// a message that says which.
 #[test]
 fn an_unsupported_body_is_refused() {
-    let e = SceneSpec::from_toml(
-        "extends = \"block\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n",
-        Path::new("test.toml"),
-    )
-    .unwrap_err()
-    .to_string();
+    let e = refused("extends = \"block\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n");
     assert!(e.contains("supports") && e.contains("nothing holds"), "{e}");
     let spec = scene(
         "extends = \"block\"\n[supports]\n\
@@ -82,19 +92,11 @@ fn an_unsupported_body_is_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("supports.fixed[0] holds no point"), "{e}");
-    let e = SceneSpec::from_toml(
-        "extends = \"liver\"\n[supports]\ntray = { normal = [0.0, 0.0, 0.0] }\n",
-        Path::new("test.toml"),
-    )
-    .unwrap_err()
-    .to_string();
+    let e = refused("extends = \"liver\"\n[supports]\ntray = { normal = [0.0, 0.0, 0.0] }\n");
     assert!(e.contains("supports.tray.normal"), "{e}");
-    let e = SceneSpec::from_toml(
+    let e = refused(
         "extends = \"liver\"\n[supports]\nfixed = [ { box_fraction = { min = [0.5, 0.0, 0.0], max = [0.2, 1.0, 1.0] } } ]\n",
-        Path::new("test.toml"),
-    )
-    .unwrap_err()
-    .to_string();
+    );
     assert!(
         e.contains("supports.fixed[0].box_fraction") && e.contains("above"),
         "{e}"
@@ -129,13 +131,10 @@ fn region_forms_read_in_millimetres_and_one_at_a_time() {
             },
         ]
     );
-    let e = SceneSpec::from_toml(
+    let e = refused(
         "extends = \"block\"\n[supports]\nfixed = [ { box_mm = { min = [0.0, 0.0, 0.0], max = [1.0, 1.0, 1.0] }, \
          box_fraction = { min = [0.0, 0.0, 0.0], max = [1.0, 1.0, 1.0] } } ]\n",
-        Path::new("test.toml"),
-    )
-    .unwrap_err()
-    .to_string();
+    );
     assert!(
         e.contains("supports.fixed[0]") && e.contains("exactly one"),
         "{e}"
@@ -152,10 +151,7 @@ fn the_probe_force_scales_with_the_tissue_stiffness() {
     let per_kpa: Vec<f64> = [5.0, 10.0, 20.0]
         .iter()
         .map(|&kpa| {
-            let spec = scene(&format!(
-                "extends = \"liver\"\n[material]\nyoungs_modulus_kpa = {kpa}\n\
-                 [loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n"
-            ));
+            let spec = liver_under_gravity(&format!("[material]\nyoungs_modulus_kpa = {kpa}\n"));
             let built = build_scene(&spec, None, &mut Silent).expect("builds");
             let r = probe(&built, &ProbeSpec::default()).expect("over the liver");
             println!("{kpa} kPa: {:.4} N, {r:?}", r.force_n);
@@ -177,7 +173,7 @@ fn the_probe_force_scales_with_the_tissue_stiffness() {
 fn the_blade_pressed_5_mm_keeps_the_volume_under_it() {
     use scalpel_sim::pipeline::probe::{ProbeSpec, probe};
     use scalpel_sim::solver::contact::ToolShape;
-    let spec = scene("extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, -9.81]\n");
+    let spec = liver_under_gravity("");
     let built = build_scene(&spec, None, &mut Silent).expect("builds");
     let tool = &built.spec.tool;
     let r = probe(

@@ -215,6 +215,21 @@ impl SurfaceEmbedding {
         row
     }
 
+    /// The normalised kernel row (weights summing to 1) of a sample at rest position `x`
+    /// of an uncut body: what a new material sample of its surface follows (the tray's
+    /// samples, a probe's).
+    pub fn sample_row(
+        x: &Vec3,
+        positions: &[Vec3],
+        grid: &RestGrid,
+        kernel: &Kernel,
+    ) -> Vec<(u32, f64)> {
+        let mut row = Self::row_for(x, positions, grid, kernel, &[], &[]);
+        let total: f64 = row.iter().map(|(_, w)| w).sum();
+        row.iter_mut().for_each(|(_, w)| *w /= total);
+        row
+    }
+
     /// [`Self::row_for`] into `row`, with `within` as scratch: for the simulation thread,
     /// which keeps both.
     pub fn row_into(

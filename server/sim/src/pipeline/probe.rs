@@ -7,12 +7,12 @@
 use serde::Serialize;
 
 use crate::geometry::TriMesh;
-use crate::geometry::predicates::line_triangle;
+use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
 use crate::math::Vec3;
 use crate::model::{CoupledModel, SurfaceEmbedding};
 use crate::scene::BuiltScene;
 use crate::solver::Solver;
-use crate::solver::contact::{Punch, ToolContact, ToolShape};
+use crate::solver::contact::{Tool, ToolContact, ToolShape};
 use crate::solver::embedded::EmbeddedRows;
 
 /// The penalty per area, as a multiple of E / spacing: a patch of the face is this many
@@ -159,7 +159,7 @@ pub fn press(
     }
     let (centre, axis) = aim(surface, spec)?;
     let punch = match spec.blade {
-        None => Punch::flat(centre, axis, spec.radius_m),
+        None => Tool::flat_punch(centre, axis, spec.radius_m),
         Some(shape) => {
             // The edge along the scene's x, as the default strokes run (y if pressing
             // along x).
@@ -168,17 +168,17 @@ pub fn press(
             } else {
                 Vec3::y()
             };
-            Punch {
+            Tool {
                 along: (x - axis * axis.dot(&x)).normalize(),
                 shape,
-                ..Punch::flat(centre, axis, spec.radius_m)
+                ..Tool::flat_punch(centre, axis, spec.radius_m)
             }
         }
     };
     let spacing = model.lattice.spacing;
     let mut contact = face_samples(model, surface, solver, &punch, plane_modulus, spacing);
     contact.touch_down(solver.positions());
-    let centre = contact.punch().centre;
+    let centre = contact.tool().centre;
     if contact.is_empty() {
         return Err(ProbeError::NothingUnder);
     }
@@ -208,8 +208,7 @@ pub fn press(
             {
                 break;
             }
-            let p = solver.positions().to_vec();
-            solver.contact_mut().expect("pressed").absorb_give(&p);
+            solver.absorb_contact_give();
         }
         force = solver
             .contact()
@@ -242,7 +241,7 @@ pub fn press(
             .blade
             .is_none()
             .then_some(2.0 * spec.radius_m * plane_modulus * 1e-3),
-        tool: contact.punch().shape,
+        tool: contact.tool().shape,
         contact_points: contact.touching(p),
         samples,
         max_penetration_mm: contact.max_penetration(p) * 1e3,
@@ -263,20 +262,23 @@ fn aim(surface: &TriMesh, spec: &ProbeSpec) -> Result<(Vec3, Vec3), ProbeError> 
     let bbox = surface.bbox();
     let (lo, hi) = (Vec3::from(bbox.min), Vec3::from(bbox.max));
     let reach = (hi - lo).norm();
-    let centre = match spec.at {
+    // The point the face's centre meets, and the triangle it is on.
+    let (centre, on) = match spec.at {
         Some(at) => (0..surface.triangles.len())
-            .map(|t| {
-                crate::geometry::predicates::closest_point_on_triangle(&at, &surface.corners(t))
+            .map(|t| (closest_point_on_triangle(&at, &surface.corners(t)), t))
+            .min_by(|a, b| {
+                (a.0 - at)
+                    .norm_squared()
+                    .total_cmp(&(b.0 - at).norm_squared())
             })
-            .min_by(|a, b| (a - at).norm_squared().total_cmp(&(b - at).norm_squared()))
-            .filter(|x| (x - at).norm() <= reach)
+            .filter(|(x, _)| (x - at).norm() <= reach)
             .ok_or(ProbeError::MissesBody((at * 1e3).into()))?,
         None => {
             let mid = (lo + hi) * 0.5;
             let top = Vec3::new(mid.x, mid.y, hi.z + reach);
-            first_hit(surface, &top, &-Vec3::z())
-                .ok_or(ProbeError::MissesBody((mid * 1e3).into()))?
-                .0
+            let (x, t, _) = first_hit(surface, &top, &-Vec3::z())
+                .ok_or(ProbeError::MissesBody((mid * 1e3).into()))?;
+            (x, t)
         }
     };
     if let Some(axis) = spec.axis {
@@ -290,17 +292,8 @@ fn aim(surface: &TriMesh, spec: &ProbeSpec) -> Result<(Vec3, Vec3), ProbeError> 
         }
     }
     if normal == Vec3::zeros() {
-        // A face smaller than the triangles: the nearest one's normal.
-        let t = (0..surface.triangles.len())
-            .min_by(|&a, &b| {
-                let d = |t: usize| {
-                    let c = surface.corners(t);
-                    ((c[0] + c[1] + c[2]) / 3.0 - centre).norm_squared()
-                };
-                d(a).total_cmp(&d(b))
-            })
-            .expect("a surface has triangles");
-        normal = surface.doubled_area_normal(t);
+        // A face smaller than the triangles: the normal of the one it meets.
+        normal = surface.doubled_area_normal(on);
     }
     Ok((centre, -normal.normalize()))
 }
@@ -327,7 +320,7 @@ fn face_samples(
     model: &CoupledModel,
     surface: &TriMesh,
     solver: &Solver,
-    punch: &Punch,
+    punch: &Tool,
     plane_modulus: f64,
     spacing: f64,
 ) -> ToolContact {
@@ -361,7 +354,7 @@ fn face_samples(
         }
     }
     let reach = (Vec3::from(surface.bbox().max) - Vec3::from(surface.bbox().min)).norm();
-    let (mut zero, mut row) = (Vec::new(), Vec::new());
+    let mut row = Vec::new();
     let mut rows: Vec<(Vec<(u32, f64)>, Vec3)> = Vec::new();
     let mut stiffness = Vec::new();
     let per_area = PENALTY_PER_E_OVER_SPACING * plane_modulus / spacing;
@@ -374,17 +367,7 @@ fn face_samples(
         let rest = &model.surface.positions;
         let x =
             rest[p as usize] * bary[0] + rest[q as usize] * bary[1] + rest[r as usize] * bary[2];
-        zero.clear();
-        zero.extend(SurfaceEmbedding::row_for(
-            &x,
-            &model.points.rest,
-            &model.grid,
-            &model.kernel,
-            &[],
-            &[],
-        ));
-        let total: f64 = zero.iter().map(|(_, w)| w).sum();
-        zero.iter_mut().for_each(|(_, w)| *w /= total);
+        let zero = SurfaceEmbedding::sample_row(&x, &model.points.rest, &model.grid, &model.kernel);
         solver
             .operator()
             .linear_row(&zero, &x, solver.rest(), &mut row);
@@ -408,7 +391,7 @@ mod tests {
     fn samples_follow_a_linear_field() {
         let size = Vec3::new(0.02, 0.02, 0.02);
         let body = box_body(size, 5, &Material::LIVER, 2.0, SolverConfig::default());
-        let punch = Punch::flat(Vec3::new(0.0, 0.0, 0.01), -Vec3::z(), 0.004);
+        let punch = Tool::flat_punch(Vec3::new(0.0, 0.0, 0.01), -Vec3::z(), 0.004);
         let contact = face_samples(
             &body.model,
             &body.model.surface,
@@ -440,7 +423,7 @@ mod tests {
         for i in body.face(2, -1.0) {
             body.solver.fix(i, [true; 3]);
         }
-        let punch = Punch::flat(
+        let punch = Tool::flat_punch(
             Vec3::new(0.002, -0.001, 0.01),
             Vec3::new(0.3, 0.0, -1.0).normalize(),
             0.006,

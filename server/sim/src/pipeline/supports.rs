@@ -135,10 +135,7 @@ const REACH: f64 = 0.25;
 /// follow (det F < 0 at E = 2.5 kPa).
 fn tray_samples(model: &CoupledModel, plane: &TrayPlane, stiffness: f64) -> Vec<HeldVertex> {
     let surface = &model.surface;
-    let heights = surface
-        .positions
-        .iter()
-        .map(|x| plane.normal.dot(x) - plane.offset);
+    let heights = surface.positions.iter().map(|x| plane.gap(x));
     let thickness = heights.fold(0.0, f64::max);
     let cell = model.lattice.spacing;
     let mut samples = Vec::new();
@@ -147,7 +144,7 @@ fn tray_samples(model: &CoupledModel, plane: &TrayPlane, stiffness: f64) -> Vec<
         let doubled = surface.doubled_area_normal(t);
         let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
         let facing = doubled.normalize().dot(&plane.normal);
-        if plane.normal.dot(&centroid) - plane.offset > REACH * thickness || facing > 0.5 {
+        if plane.gap(&centroid) > REACH * thickness || facing > 0.5 {
             continue;
         }
         let longest = (0..3)
@@ -158,18 +155,13 @@ fn tray_samples(model: &CoupledModel, plane: &TrayPlane, stiffness: f64) -> Vec<
         // The centroids of the n² triangles of a regular subdivision.
         let mut at = |a: f64, b: f64| {
             let x = corners[0] * (1.0 - a - b) + corners[1] * a + corners[2] * b;
-            let mut row = SurfaceEmbedding::row_for(
-                &x,
-                &model.points.rest,
-                &model.grid,
-                &model.kernel,
-                &[],
-                &[],
-            );
-            let total: f64 = row.iter().map(|(_, w)| w).sum();
-            row.iter_mut().for_each(|(_, w)| *w /= total);
             samples.push(HeldVertex {
-                row,
+                row: SurfaceEmbedding::sample_row(
+                    &x,
+                    &model.points.rest,
+                    &model.grid,
+                    &model.kernel,
+                ),
                 rest: x,
                 spring_n_per_m: 0.0,
                 tray_n_per_m: stiffness * area,
@@ -195,7 +187,8 @@ const REST_SPEED: f64 = 1e-4;
 const CALM_TICKS: u32 = 100;
 
 /// The report of a settle that moved the body's `n` points from `start` to where `solver`
-/// has them: the mean move along `gravity` and the largest, and the vertices on the tray.
+/// has them: the mean move along `gravity` and the largest, and the tray samples on the
+/// tray.
 fn moved_by(solver: &Solver, start: &[Vec3], gravity: Vec3) -> SettleReport {
     let p = &solver.positions()[..start.len()];
     let down = gravity.try_normalize(0.0).unwrap_or(Vec3::zeros());

@@ -100,8 +100,8 @@ pub struct Attachment {
     pub stiffness_pa_per_m: f64,
 }
 
-/// A rigid plane the body rests on: unilateral contact with Coulomb friction on the
-/// surface vertices.
+/// A rigid plane the body rests on: unilateral contact with Coulomb friction on samples
+/// of the surface.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Tray {
     /// Unit normal, out of the tray toward the body.
@@ -111,7 +111,7 @@ pub struct Tray {
     pub point: Option<[f64; 3]>,
     /// Coulomb friction coefficient.
     pub friction: f64,
-    /// Penalty stiffness per area (Pa/m) holding the vertices out of the tray.
+    /// Penalty stiffness per area (Pa/m) holding the surface out of the tray.
     pub stiffness_pa_per_m: f64,
 }
 
@@ -209,7 +209,7 @@ pub struct SettleReport {
     pub residual_n: f64,
     /// Whether it came to rest within the time allowed.
     pub settled: bool,
-    /// Vertices on the tray at the end.
+    /// Tray samples on the tray at the end.
     pub on_tray: usize,
     /// Newton iterations of a static settle (0 for a dynamic one).
     pub newton_iterations: u32,

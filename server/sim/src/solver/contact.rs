@@ -35,7 +35,7 @@ pub enum ToolShape {
 /// A rigid tool pressed into the tissue along `axis`: its shape's leading face (the
 /// punch's disc, the blade's edge) starts at `centre` and has gone `depth` past it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Punch {
+pub struct Tool {
     /// Where the leading face starts: a point of the undeformed surface (m).
     pub centre: Vec3,
     /// Unit direction of the press, into the tissue.
@@ -48,9 +48,9 @@ pub struct Punch {
     pub depth: f64,
 }
 
-impl Punch {
+impl Tool {
     /// A flat punch of `radius` at `centre` pressing along `axis`.
-    pub fn flat(centre: Vec3, axis: Vec3, radius: f64) -> Self {
+    pub fn flat_punch(centre: Vec3, axis: Vec3, radius: f64) -> Self {
         let along = axis.cross(&if axis.x.abs() < 0.9 {
             Vec3::x()
         } else {
@@ -130,7 +130,7 @@ pub struct ToolContact {
     samples: EmbeddedRows,
     /// Penalty stiffness of each sample (N/m): a stiffness per area times its area.
     stiffness: Vec<f64>,
-    punch: Punch,
+    tool: Tool,
     /// The samples a static solve holds against the face.
     set: ContactSet,
     /// Each sample's multiplier over its stiffness (m): the face acts on it as if this much
@@ -139,21 +139,21 @@ pub struct ToolContact {
 }
 
 impl ToolContact {
-    /// `samples` with penalty stiffnesses `stiffness` (N/m each) against `punch`.
-    pub fn new(samples: EmbeddedRows, stiffness: Vec<f64>, punch: Punch) -> Self {
+    /// `samples` with penalty stiffnesses `stiffness` (N/m each) against `tool`.
+    pub fn new(samples: EmbeddedRows, stiffness: Vec<f64>, tool: Tool) -> Self {
         assert_eq!(samples.len(), stiffness.len(), "one stiffness per sample");
         Self {
             set: ContactSet::new(samples.len()),
             extra: vec![0.0; samples.len()],
             samples,
             stiffness,
-            punch,
+            tool,
         }
     }
 
     /// The tool.
-    pub fn punch(&self) -> &Punch {
-        &self.punch
+    pub fn tool(&self) -> &Tool {
+        &self.tool
     }
 
     /// Moves the face's starting place along the axis to where it first touches a sample
@@ -161,17 +161,18 @@ impl ToolContact {
     /// highest point first), so that depth counts from first touch.
     pub fn touch_down(&mut self, p: &[Vec3]) {
         let first = (0..self.samples.len())
-            .filter(|&s| self.punch.under_face(&self.samples.position(s, p)))
-            .map(|s| (self.samples.position(s, p) - self.punch.centre).dot(&self.punch.axis))
+            .map(|s| self.samples.position(s, p))
+            .filter(|x| self.tool.under_face(x))
+            .map(|x| (x - self.tool.centre).dot(&self.tool.axis))
             .fold(f64::INFINITY, f64::min);
         if first.is_finite() {
-            self.punch.centre += self.punch.axis * first;
+            self.tool.centre += self.tool.axis * first;
         }
     }
 
     /// Presses the tool to `depth` (m).
     pub fn set_depth(&mut self, depth: f64) {
-        self.punch.depth = depth;
+        self.tool.depth = depth;
     }
 
     /// Number of samples.
@@ -203,15 +204,20 @@ impl ToolContact {
     /// Freezes the pressed samples to those inside the face with the points at `p`;
     /// returns how many changed (`contact_set`).
     pub fn freeze(&mut self, p: &[Vec3]) -> usize {
-        let gaps: Vec<(usize, f64)> = (0..self.len()).map(|s| (s, self.gap(s, p).0)).collect();
-        self.set.freeze(gaps.into_iter())
+        let Self {
+            samples,
+            tool,
+            extra,
+            set,
+            ..
+        } = self;
+        set.freeze((0..samples.len()).map(|s| (s, sample_gap(samples, tool, extra, s, p).0)))
     }
 
-    /// Sample s's gap to the face the penalty sees (m, negative inside), its geometric
-    /// gap less its multiplier, and the face's normal.
+    /// Sample s's gap to the face the penalty sees (m, negative inside) and the face's
+    /// normal.
     fn gap(&self, s: usize, p: &[Vec3]) -> (f64, Vec3) {
-        let (gap, normal) = self.punch.gap(&self.samples.position(s, p));
-        (gap - self.extra[s], normal)
+        sample_gap(&self.samples, &self.tool, &self.extra, s, p)
     }
 
     /// One augmented-Lagrangian (Uzawa) update: each sample's multiplier grows by how far
@@ -219,7 +225,7 @@ impl ToolContact {
     /// that the next static solve holds it closer to the face with the same force.
     pub fn absorb_give(&mut self, p: &[Vec3]) {
         for s in 0..self.samples.len() {
-            let (gap, _) = self.punch.gap(&self.samples.position(s, p));
+            let (gap, _) = self.tool.gap(&self.samples.position(s, p));
             self.extra[s] = if gap.is_finite() {
                 (self.extra[s] - gap).max(0.0)
             } else {
@@ -277,9 +283,22 @@ impl ToolContact {
     /// The deepest a sample is inside the tool (m): the penalties' give.
     pub fn max_penetration(&self, p: &[Vec3]) -> f64 {
         (0..self.samples.len())
-            .map(|s| self.punch.penetration(&self.samples.position(s, p)))
+            .map(|s| self.tool.penetration(&self.samples.position(s, p)))
             .fold(0.0, f64::max)
     }
+}
+
+/// Sample s's geometric gap to `tool` less its multiplier `extra[s]`, and the face's
+/// normal (a free function so that `freeze` can borrow the set beside it).
+fn sample_gap(
+    samples: &EmbeddedRows,
+    tool: &Tool,
+    extra: &[f64],
+    s: usize,
+    p: &[Vec3],
+) -> (f64, Vec3) {
+    let (gap, normal) = tool.gap(&samples.position(s, p));
+    (gap - extra[s], normal)
 }
 
 #[cfg(test)]
@@ -291,9 +310,9 @@ mod tests {
         let row = [(0u32, 0.8), (1u32, 0.2)];
         let at = Vec3::new(0.0, 0.0, -0.002);
         let samples = EmbeddedRows::new([(&row[..], at)].into_iter(), &rest);
-        let punch = Punch {
+        let punch = Tool {
             depth: 0.003,
-            ..Punch::flat(Vec3::zeros(), -Vec3::z(), 0.005)
+            ..Tool::flat_punch(Vec3::zeros(), -Vec3::z(), 0.005)
         };
         (ToolContact::new(samples, vec![1000.0], punch), rest)
     }
@@ -331,7 +350,7 @@ mod tests {
     /// comes in beside it out through the flat, and does not reach past its spine.
     #[test]
     fn a_blade_holds_under_its_edge_and_pushes_beside_it_sideways() {
-        let blade = Punch {
+        let blade = Tool {
             along: Vec3::x(),
             shape: ToolShape::Blade {
                 length: 0.025,
@@ -339,7 +358,7 @@ mod tests {
                 thickness: 0.0004,
             },
             depth: 0.005,
-            ..Punch::flat(Vec3::zeros(), -Vec3::z(), 0.001)
+            ..Tool::flat_punch(Vec3::zeros(), -Vec3::z(), 0.001)
         };
         let side = blade.axis.cross(&blade.along);
         let (gap, n) = blade.gap(&Vec3::new(0.003, 0.0, -0.001));

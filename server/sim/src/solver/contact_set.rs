@@ -31,6 +31,12 @@ impl ContactSet {
         }
     }
 
+    /// Whether contact i is held pressed by a frozen set (whatever its gap).
+    #[inline]
+    pub fn frozen_pressed(&self, i: usize) -> bool {
+        self.frozen && self.pressed[i]
+    }
+
     /// Freezes the set to the contacts with a negative gap; returns how many changed
     /// since the last frozen set (all pressed ones, the first time).
     pub fn freeze(&mut self, gaps: impl Iterator<Item = (usize, f64)>) -> usize {

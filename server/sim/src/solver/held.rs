@@ -1,5 +1,7 @@
-//! Surface vertices that hold the body (cutting-physics.md §1): elastic attachments tie
-//! them to their rest places, a tray pushes them out of its plane with Coulomb friction.
+//! What holds the body through its surface (cutting-physics.md §1): elastic attachments
+//! tie surface vertices to their rest places; a tray pushes samples of the surface (one
+//! per lattice spacing, `pipeline::supports`) out of its plane, with Coulomb friction.
+//! Both are "held vertices" here.
 //!
 //! A held vertex follows the points as the surface does, linearised about the rest state:
 //! `x_v = Σ_k ŵ_vk p_k + (X_v − Σ_k ŵ_vk X_k)` (the F_k term's change is left out), so its
@@ -21,6 +23,13 @@ pub struct TrayPlane {
     pub offset: f64,
     /// Coulomb friction coefficient.
     pub friction: f64,
+}
+
+impl TrayPlane {
+    /// How far `x` is above the plane (m, negative inside the tray).
+    pub fn gap(&self, x: &Vec3) -> f64 {
+        self.normal.dot(x) - self.offset
+    }
 }
 
 /// One held vertex, as the caller describes it.
@@ -50,8 +59,6 @@ pub struct Held {
     touching: Vec<bool>,
     /// The vertices a static solve holds on the tray.
     set: ContactSet,
-    /// Each vertex's height above the tray at rest (m; infinity without a tray).
-    rest_gap: Vec<f64>,
     /// Each point's rest height along the tray's normal (m; empty without a tray).
     rest_height: Vec<f64>,
     /// The vertices following at least one integrated point ([`Held::wake`]): the only
@@ -84,10 +91,6 @@ impl Held {
             anchor: vec![Vec3::zeros(); vertices.len()],
             touching: vec![false; vertices.len()],
             set: ContactSet::new(vertices.len()),
-            rest_gap: vertices
-                .iter()
-                .map(|v| tray.map_or(f64::INFINITY, |t| t.normal.dot(&v.rest) - t.offset))
-                .collect(),
             rest_height: tray.map_or(Vec::new(), |t| {
                 rest_points.iter().map(|x| t.normal.dot(x)).collect()
             }),
@@ -161,9 +164,9 @@ impl Held {
             // the tray cannot touch it (its weights are a convex combination): no need to
             // place it. Most of a body's samples, most of the time.
             if self.spring[v] == 0.0
-                && self.rest_gap[v] > sunk
                 && !self.touching[v]
-                && !self.set.pressed(v, 1.0)
+                && !self.set.frozen_pressed(v)
+                && self.tray.is_some_and(|t| t.gap(&self.rest[v]) > sunk)
             {
                 continue;
             }
@@ -207,7 +210,7 @@ impl Held {
     fn tray_force(&mut self, v: usize, x: &Vec3, tray: &TrayPlane, slide: bool) -> (Vec3, f64) {
         let k = self.tray_stiffness[v];
         let n = tray.normal;
-        let gap = n.dot(x) - tray.offset;
+        let gap = tray.gap(x);
         if !self.set.pressed(v, gap) {
             if slide {
                 self.touching[v] = false;
@@ -246,9 +249,7 @@ impl Held {
             let mut f = moved * k;
             if let Some(tray) = self.tray
                 && self.tray_stiffness[v] > 0.0
-                && self
-                    .set
-                    .pressed(v, tray.normal.dot(&self.position(v, p)) - tray.offset)
+                && self.set.pressed(v, tray.gap(&self.position(v, p)))
             {
                 let kt = self.tray_stiffness[v];
                 f += if self.touching[v] {
@@ -273,7 +274,7 @@ impl Held {
         self.set.freeze(
             (0..rows.len())
                 .filter(|&v| stiffness[v] > 0.0)
-                .map(|v| (v, tray.normal.dot(&rows.position(v, p)) - tray.offset)),
+                .map(|v| (v, tray.gap(&rows.position(v, p)))),
         )
     }
 
@@ -288,9 +289,7 @@ impl Held {
             return 0;
         };
         (0..self.rest.len())
-            .filter(|&v| {
-                self.tray_stiffness[v] > 0.0 && tray.normal.dot(&self.position(v, p)) < tray.offset
-            })
+            .filter(|&v| self.tray_stiffness[v] > 0.0 && tray.gap(&self.position(v, p)) < 0.0)
             .count()
     }
 
@@ -373,38 +372,26 @@ mod tests {
     #[test]
     fn the_tray_pushes_out_and_holds_by_friction_up_to_mu() {
         let (mut held, rest) = one_vertex(0.0, 1000.0);
-        let at = |shift: Vec3| -> Vec<Vec3> { rest.iter().map(|x| x + shift).collect() };
         let mut f = vec![Vec3::zeros(); 2];
-        held.forces(&at(Vec3::new(0.0, 0.0, -1e-3)), &mut f, true, Vertices::All);
-        let total = f[0] + f[1];
+        // The total force on the points with them all moved by (x, 0, z) mm.
+        let mut push = |x_mm: f64, z_mm: f64| {
+            let p: Vec<Vec3> = rest
+                .iter()
+                .map(|r| r + Vec3::new(x_mm, 0.0, z_mm) * 1e-3)
+                .collect();
+            held.forces(&p, &mut f, true, Vertices::All);
+            f[0] + f[1]
+        };
+        let total = push(0.0, -1.0);
         assert!((total - Vec3::new(0.0, 0.0, 1.0)).norm() < 1e-12, "{total}");
         // 0.2 mm sideways: 0.2 N of friction, under μ N = 0.5 N: sticks.
-        held.forces(
-            &at(Vec3::new(2e-4, 0.0, -1e-3)),
-            &mut f,
-            true,
-            Vertices::All,
-        );
-        let total = f[0] + f[1];
+        let total = push(0.2, -1.0);
         assert!((total.x + 0.2).abs() < 1e-12, "{total}");
-        // 2 mm: capped at 0.5 N, and the anchor slides along.
-        held.forces(
-            &at(Vec3::new(2e-3, 0.0, -1e-3)),
-            &mut f,
-            true,
-            Vertices::All,
-        );
-        assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
-        held.forces(
-            &at(Vec3::new(2e-3, 0.0, -1e-3)),
-            &mut f,
-            true,
-            Vertices::All,
-        );
-        assert!(((f[0] + f[1]).x + 0.5).abs() < 1e-12);
+        // 2 mm: capped at 0.5 N, and the anchor slides along (twice: it stays capped).
+        assert!((push(2.0, -1.0).x + 0.5).abs() < 1e-12);
+        assert!((push(2.0, -1.0).x + 0.5).abs() < 1e-12);
         // Lifted off: nothing, and the contact lets go.
-        held.forces(&at(Vec3::new(2e-3, 0.0, 1e-3)), &mut f, true, Vertices::All);
-        assert_eq!(f[0] + f[1], Vec3::zeros());
+        assert_eq!(push(2.0, 1.0), Vec3::zeros());
         assert_eq!(held.touching(), 0);
     }
 }

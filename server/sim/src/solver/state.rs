@@ -119,6 +119,14 @@ impl Solver {
         self.contact.as_ref()
     }
 
+    /// One augmented-Lagrangian update of the pressed tool's contacts at the current
+    /// positions ([`contact::ToolContact::absorb_give`]); nothing without a tool.
+    pub fn absorb_contact_give(&mut self) {
+        if let Some(contact) = &mut self.contact {
+            contact.absorb_give(&self.p);
+        }
+    }
+
     /// The tool pressed into the body, to move it.
     pub fn contact_mut(&mut self) -> Option<&mut contact::ToolContact> {
         self.contact.as_mut()

@@ -161,20 +161,18 @@ impl Solver {
     fn newton(&mut self, report: &mut StaticReport) {
         let n = self.p.len();
         report.converged = false;
-        let mut reference = 0.0f64;
+        let loads: f64 = (0..n)
+            .map(|i| (self.external[i] + self.config.gravity * self.base_mass[i]).norm_squared())
+            .sum::<f64>()
+            .sqrt();
+        let mut reference = loads;
         for it in 0..MAX_NEWTON {
             let (residual, energy) = self.residual_into_scratch();
             report.residual_n = residual;
             report.elastic_energy = energy;
-            let loads: f64 = (0..n)
-                .map(|i| {
-                    (self.external[i] + self.config.gravity * self.base_mass[i]).norm_squared()
-                })
-                .sum::<f64>()
-                .sqrt();
-            reference = reference
-                .max(loads)
-                .max(if it == 0 { residual } else { 0.0 });
+            if it == 0 {
+                reference = reference.max(residual);
+            }
             if residual <= self.config.static_tolerance * reference || residual == 0.0 {
                 report.converged = true;
                 return;

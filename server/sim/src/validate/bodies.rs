@@ -29,6 +29,21 @@ impl BoxBody {
             .collect()
     }
 
+    /// Volume-weighted mean downward (−z) displacement of the face at `side` of `axis`
+    /// (m): a cantilever's tip, a column's top.
+    pub fn face_sag(&self, axis: usize, side: f64) -> f64 {
+        let face = self.face(axis, side);
+        let rest = &self.model.points.rest;
+        let p = self.solver.positions();
+        let vol = &self.model.points.volume_m3;
+        let total: f64 = face.iter().map(|&i| vol[i]).sum();
+        -face
+            .iter()
+            .map(|&i| (p[i].z - rest[i].z) * vol[i])
+            .sum::<f64>()
+            / total
+    }
+
     /// Number of lattice points along `axis`.
     pub fn points_along(&self, axis: usize) -> usize {
         self.model.lattice.dims[axis]

@@ -59,15 +59,7 @@ pub fn standing_column(points_across: usize, alpha_default: bool) -> BoxBody {
 
 /// Volume-weighted mean downward displacement of the column's top face (m).
 pub fn top_sag(body: &BoxBody) -> f64 {
-    let top = body.face(2, 1.0);
-    let rest = &body.model.points.rest;
-    let p = body.solver.positions();
-    let vol = &body.model.points.volume_m3;
-    let total: f64 = top.iter().map(|&i| vol[i]).sum();
-    -top.iter()
-        .map(|&i| (p[i].z - rest[i].z) * vol[i])
-        .sum::<f64>()
-        / total
+    body.face_sag(2, 1.0)
 }
 
 /// The top of a column in uniaxial stress σ_zz = ρ g (L − z): ρ g L² / (2E) (m).

@@ -142,7 +142,7 @@ pub(super) fn apply_supports(
     Ok(())
 }
 
-/// A stiffness per area in kPa/mm (default 5), in Pa/m.
+/// A stiffness per area in kPa/mm (default 1), in Pa/m.
 fn stiffness(value: Option<f64>, key: &str, check: &Checker<'_>) -> Result<f64, SceneError> {
     match value {
         None => Ok(DEFAULT_STIFFNESS_PA_PER_M),
@@ -176,7 +176,8 @@ fn tray(t: &RawTray, check: &Checker<'_>) -> Result<Tray, SceneError> {
     })
 }
 
-/// A region: exactly one of `box_mm`, `box_fraction` and `beyond_plane_mm`.
+/// A region: exactly one of `box_mm`, `box_fraction`, `beyond_plane_mm` and
+/// `inside_cylinder_mm`.
 fn region(r: &RawRegion, key: &str, check: &Checker<'_>) -> Result<Region, SceneError> {
     match (
         &r.box_mm,
