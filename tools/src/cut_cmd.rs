@@ -342,15 +342,26 @@ fn plot_force(run: &CutRun, name: &str, path: &Path) -> anyhow::Result<()> {
         .iter()
         .map(|r| (r.travel_m * 1e3, r.force_mag_n))
         .collect();
+    let formula: Vec<(f64, f64)> = run
+        .rows
+        .iter()
+        .filter_map(|r| r.formula_n.map(|f| (r.travel_m * 1e3, f)))
+        .collect();
     plot::lines(
         path,
         &format!("{name}: force on the blade"),
         "blade travel (mm)",
         "force (N)",
-        &[Series {
-            label: "|F| on the tool".into(),
-            points,
-        }],
+        &[
+            Series {
+                label: "|F| on the tool".into(),
+                points,
+            },
+            Series {
+                label: "eq. 19 loading curve it replaced (pressing)".into(),
+                points: formula,
+            },
+        ],
     )
 }
 

@@ -33,6 +33,9 @@ pub struct TickRow {
     pub force_n: [f64; 3],
     /// Its magnitude (N).
     pub force_mag_n: f64,
+    /// While pressing, what the eq. 19 loading curve the tissue's force replaced would
+    /// have been (N): kept for comparison (docs/BENCHMARKS.md).
+    pub formula_n: Option<f64>,
     /// The blade moves mostly across its edge (a stroke, not a plunge or pull-out).
     pub stroking: bool,
     /// Surface stage time (ms).
@@ -111,6 +114,9 @@ pub fn run_cut(
             depth_m: cut.map_or(0.0, |c| c.depth_m),
             force_n: report.tool_force_n.into(),
             force_mag_n: report.tool_force_n.norm(),
+            formula_n: cut
+                .filter(|c| c.force.phase == CutPhase::Loading)
+                .map(|c| c.force.magnitude_n),
             stroking: direction.norm() > 0.0
                 && direction.dot(&edge).abs() < 0.5
                 && !cut.is_some_and(|c| c.withdrawing),

@@ -532,13 +532,15 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert_eq!(m["incisions"].as_u64(), Some(1));
     assert_eq!(m["diverged_ticks"].as_u64(), Some(0), "{m}");
     assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
-    // The capsule ruptures at 3 N; about 13 mm deep the blade meets 0.19 N/mm + 0.3 N.
+    // About 13 mm deep the blade meets 0.19 N/mm + 0.3 N; the press before the capsule
+    // ruptures is the soft liver's push back, a tenth of a newton, not the 3 N peak of the
+    // loading curve it replaced: the peak is the cutting's.
     let peak = m["peak_force_n"].as_f64().unwrap();
-    assert!((peak - 3.0).abs() < 0.1, "{peak}");
     let steady = m["steady_force_n"].as_f64().unwrap();
     let depth_mm = m["steady_depth_mm"].as_f64().unwrap();
     let want = 0.19 * depth_mm + 0.3;
     assert!((steady - want).abs() < 0.1 * want, "{steady} vs {want}");
+    assert!(peak >= steady && peak < 1.15 * want, "{peak} vs {want}");
     // The drawn walls go as deep as the blade did.
     let walls_mm = m["wall_depth_mm"].as_f64().unwrap();
     assert!(
@@ -578,10 +580,12 @@ fn cut_takes_a_bare_mesh_file() {
     let (m, _) = short_cut(dir.path(), mesh.to_str().unwrap(), &["--units", "mm"]);
     assert_eq!(m["incisions"], 1, "{m}");
     assert!(m["closed"].as_bool().unwrap() && m["manifold"].as_bool().unwrap());
-    assert!(
-        (m["peak_force_n"].as_f64().unwrap() - 3.0).abs() < 0.1,
-        "{m}"
+    // The peak is the cutting's (the press before rupture is the tissue's, far under it).
+    let (peak, steady) = (
+        m["peak_force_n"].as_f64().unwrap(),
+        m["steady_force_n"].as_f64().unwrap(),
     );
+    assert!(peak >= steady && peak < 1.15 * steady, "{m}");
 }
 
 /// The real organ meshes of ../shared/meshes cut end to end with the default stroke: the
@@ -630,9 +634,11 @@ fn shared_meshes_cut_end_to_end() {
         // is now collapsed.)
         let min_angle = m["min_angle_deg"].as_f64().unwrap();
         assert!(min_angle >= 15.0, "{file}: {m}");
+        // The peak is the cutting's: the press before rupture is the tissue's push back,
+        // under the 3 N the loading curve drew.
         let peak = m["peak_force_n"].as_f64().unwrap();
-        let rupture = if file.starts_with("pig") { 2.9 } else { 2.5 };
-        assert!((rupture..3.1).contains(&peak), "{file}: {m}");
+        let steady = m["steady_force_n"].as_f64().unwrap();
+        assert!(peak >= steady && peak > 0.5 && peak < 3.1, "{file}: {m}");
         // The walls as deep as the cut (6 mm for a 3.4 mm cut on this liver before).
         let (walls, depth) = (
             m["wall_depth_mm"].as_f64().unwrap(),

@@ -65,7 +65,8 @@ fn terminal_observer_sees_the_demo_cut(addr: SocketAddr, dir: &Path) {
     let metrics = lines.iter().filter(|l| l.get("metrics").is_some()).count();
     assert!(metrics >= 20, "{metrics} metrics in 5 s (10 Hz)");
     // The demo cut ruptures the liver about 2 s in: the event gives the force the tissue
-    // gave way at (issue 45: it always said 0.0 N, the force after the drop).
+    // gave way at (issue 45: it always said 0.0 N, the force after the drop) — the soft
+    // liver's push back on the pressing blade, a tenth of a newton or more.
     let rupture = lines
         .iter()
         .find_map(|l| {
@@ -78,7 +79,7 @@ fn terminal_observer_sees_the_demo_cut(addr: SocketAddr, dir: &Path) {
         .and_then(|r| r.split(' ').next())
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{rupture}"));
-    assert!(newtons > 0.5, "{rupture}");
+    assert!(newtons > 0.05, "{rupture}");
     let frames: Vec<&serde_json::Value> = lines.iter().filter_map(|l| l.get("frame")).collect();
     assert!(frames.len() >= 30, "{} frames in 3 s", frames.len());
     assert!(frames.iter().all(|f| f["vertices"].as_u64().unwrap() > 200));

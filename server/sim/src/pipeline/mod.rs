@@ -34,6 +34,7 @@ pub mod steady_motion;
 pub mod stroke_tracker;
 pub mod supports;
 pub mod surface;
+pub mod tissue_force;
 pub mod virtual_points;
 
 use crate::cut::{Blade, IncisionParams, ToolPose};
@@ -42,6 +43,7 @@ use crate::geometry::TriMesh;
 use crate::math::Vec3;
 use crate::model::{Neighbourhoods, RestGrid};
 use crate::scene::{BuiltScene, SceneSpec};
+use crate::solver::blade::BladeBody;
 use crate::solver::{Solver, SolverEvent, StepReport};
 
 pub use cutting::{Classification, CutTick, CuttingStage};
@@ -247,6 +249,7 @@ pub struct Simulation {
     all_points: Vec<u32>,
     settled: Option<supports::SettleReport>,
     support_counts: supports::SupportCounts,
+    tissue_force: tissue_force::TissueForce,
 }
 
 impl Simulation {
@@ -273,7 +276,7 @@ impl Simulation {
         });
         let virtual_points = (spare > 0)
             .then(|| VirtualPoints::new(n, spare, model.lattice.spacing, model.kernel.support_m));
-        let cutting = spec.features.cutting.then(|| {
+        let mut cutting = spec.features.cutting.then(|| {
             CuttingStage::new(
                 n + spare,
                 n,
@@ -287,6 +290,25 @@ impl Simulation {
         if cutting.is_some() {
             // Nothing moves until the tool touches: no point is integrated.
             solver.set_active(&[]);
+            // The blade is a body the tissue cannot enter (cutting/touch.rs).
+            let upright = ToolPose {
+                tip_m: Vec3::zeros(),
+                orientation: nalgebra::UnitQuaternion::identity(),
+            };
+            let at = Blade::at(&upright, &spec.tool);
+            let room = || {
+                BladeBody::with_room(
+                    n + spare,
+                    cutting::MAX_BLADE_SAMPLES,
+                    cutting::MAX_BLADE_ENTRIES,
+                    cutting::slab_of(&at, &spec.tool),
+                )
+            };
+            if let Some(stage) = &mut cutting {
+                // A clone would have no room: its vectors are only as long as they are.
+                stage.give_blade_room(room());
+            }
+            solver.set_blade(Some(room()));
         }
         let incisions = spec.features.cutting.then(|| {
             StrokeTracker::new(
@@ -296,6 +318,7 @@ impl Simulation {
             )
         });
         let mut sim = Self {
+            tissue_force: tissue_force::TissueForce::default(),
             settled,
             support_counts,
             incisions,
@@ -568,7 +591,12 @@ impl Simulation {
         match (cut, blade) {
             (Some(t), Some(b)) => {
                 // Free, the force's direction is zero and so is the model's stiffness.
-                let force = bounded(&t.force, self.spec.force.max_force_n);
+                let tissue = self
+                    .solver
+                    .blade()
+                    .map_or(Vec3::zeros(), |body| body.force_on_blade());
+                let force = self.tissue_force.combine(&t.force, tissue, b.tip);
+                let force = bounded(&force, self.spec.force.max_force_n);
                 self.local_model = force.local_model(b.tip);
                 force.force_n
             }

@@ -171,7 +171,7 @@ const STALE: Vec3 = Vec3::new(f64::NAN, f64::NAN, f64::NAN);
 
 /// Where a segment passes through a surface triangle.
 #[derive(Debug, Clone, Copy)]
-struct Crossing {
+pub struct Crossing {
     /// Parameter along the segment, 0 at its start.
     s: f64,
     triangle: usize,
@@ -443,6 +443,24 @@ impl CurrentSurface {
                 exit: None,
             },
         }
+    }
+
+    /// Where the segment p→q first goes into the envelope (skin and lids): the triangle,
+    /// its barycentrics and the point; `scratch` is the caller's (no allocation while it
+    /// has room).
+    pub fn first_entry(
+        &self,
+        p: &Vec3,
+        q: &Vec3,
+        scratch: &mut Vec<Crossing>,
+    ) -> Option<(usize, [f64; 3], Vec3)> {
+        Self::collect_crossings(&self.bvh, &self.mesh, &self.kinds, p, q, scratch);
+        let hit = scratch
+            .iter()
+            .find(|c| c.entering)
+            .map(|c| (c.triangle, c.bary, p + (q - p) * c.s));
+        scratch.clear();
+        hit
     }
 
     /// The crossings of the segment p→q with the envelope (skin and lids; wound walls are

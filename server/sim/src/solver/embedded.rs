@@ -30,20 +30,71 @@ impl EmbeddedRows {
         };
         let mut seen = vec![false; rest_points.len()];
         for (row, rest) in rows {
-            let mut followed = Vec3::zeros();
-            for &(k, w) in row {
-                out.points.push(k);
-                out.weights.push(w);
-                followed += rest_points[k as usize] * w;
-                if !std::mem::replace(&mut seen[k as usize], true) {
-                    out.reached.push(k);
-                }
-            }
-            out.start.push(out.points.len() as u32);
-            out.offset.push(rest - followed);
+            out.push(row, rest, rest_points, &mut seen);
         }
-        out.reached.sort_unstable();
+        out.finish(&mut seen);
         out
+    }
+
+    /// No samples, with room for `samples` of them following `entries` points in all,
+    /// over `points` points: [`Self::clear`] and [`Self::push`] then refill it without
+    /// allocating while they fit (the blade's samples, rebuilt on the simulation thread).
+    pub fn with_room(points: usize, samples: usize, entries: usize) -> Self {
+        let mut start = Vec::with_capacity(samples + 1);
+        start.push(0);
+        Self {
+            start,
+            points: Vec::with_capacity(entries),
+            weights: Vec::with_capacity(entries),
+            offset: Vec::with_capacity(samples),
+            reached: Vec::with_capacity(points),
+        }
+    }
+
+    /// Removes every sample (keeps the room).
+    pub fn clear(&mut self) {
+        self.start.truncate(1);
+        self.points.clear();
+        self.weights.clear();
+        self.offset.clear();
+        self.reached.clear();
+    }
+
+    /// Whether a sample of `entries` more points still fits the room (`with_room`).
+    pub fn fits(&self, entries: usize) -> bool {
+        self.offset.len() < self.offset.capacity()
+            && self.points.len() + entries <= self.points.capacity()
+    }
+
+    /// Adds a sample at rest position `rest` following `row` over points at
+    /// `rest_points`; `seen` (one flag per point, all false between builds) marks the
+    /// points already reached. Call [`Self::finish`] after the last.
+    pub fn push(
+        &mut self,
+        row: &[(u32, f64)],
+        rest: Vec3,
+        rest_points: &[Vec3],
+        seen: &mut [bool],
+    ) {
+        let mut followed = Vec3::zeros();
+        for &(k, w) in row {
+            self.points.push(k);
+            self.weights.push(w);
+            followed += rest_points[k as usize] * w;
+            if !std::mem::replace(&mut seen[k as usize], true) {
+                self.reached.push(k);
+            }
+        }
+        self.start.push(self.points.len() as u32);
+        self.offset.push(rest - followed);
+    }
+
+    /// Sorts the points reached and clears their flags in `seen`.
+    pub fn finish(&mut self, seen: &mut [bool]) {
+        self.reached.sort_unstable();
+        for &k in &self.reached {
+            seen[k as usize] = false;
+        }
     }
 
     /// Number of samples.

@@ -27,10 +27,19 @@ impl Solver {
             self.snap_p[i] = self.p[i];
             self.snap_v[i] = self.v[i];
         }
+        if let Some(blade) = &mut self.blade {
+            blade.begin_tick();
+        }
         let mut rollbacks = 0;
         loop {
+            if let Some(blade) = &mut self.blade {
+                blade.begin_attempt();
+            }
             match self.run_substeps(dt) {
                 Ok((stats, work, kinetic)) => {
+                    if let Some(blade) = &mut self.blade {
+                        blade.end_tick();
+                    }
                     // Slaved nodes where the tick's last positions put them.
                     self.slaves.interpolate(&mut self.p);
                     self.note_clamping(&stats);
@@ -192,6 +201,9 @@ impl Solver {
         // order as `active_kinetic_energy`, without a second pass over the points).
         let mut kinetic = self.active_kinetic_energy();
         for s in 0..n {
+            if let Some(blade) = &mut self.blade {
+                blade.begin_substep(s as f64 / n as f64, (s + 1) as f64 / n as f64, &self.p);
+            }
             let st = self.evaluate_elastic(ForceBuffer::Force);
             if let Some(held) = &mut self.held {
                 // Their work is counted with the applied loads' below.
@@ -264,6 +276,19 @@ impl Solver {
                         (DivergenceReason::NonFinite, s)
                     });
                 }
+            }
+            if let Some(blade) = &mut self.blade {
+                let (is_active, fixed, mass) = (&self.is_active, &self.fixed, &self.mass);
+                let body = self.material_points;
+                let (gained, done) = blade.project(&mut self.p, &mut self.v, mass, h, |k| {
+                    if k < body && is_active[k] && fixed[k] == [false; 3] {
+                        1.0 / mass[k]
+                    } else {
+                        0.0
+                    }
+                });
+                kinetic += gained;
+                *work += done;
             }
             *stats = Some(st);
         }

@@ -17,6 +17,7 @@
 //! Call order: `new` → (`fix`, `set_external_force`, `set_target`)* → `step(dt)` per tick →
 //! `poll_event` until `None`. `step` does not allocate after the first call.
 
+pub mod blade;
 pub mod contact;
 mod contact_set;
 pub mod embedded;
@@ -205,6 +206,8 @@ pub struct Solver {
     contact: Option<contact::ToolContact>,
     /// The tool's forces on the points (zero where no sample reaches).
     contact_force: Vec<Vec3>,
+    /// The blade as a kinematic body in the explicit tick, for scenes that cut.
+    blade: Option<blade::BladeBody>,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
@@ -401,6 +404,7 @@ impl Solver {
             held_force: zeros.clone(),
             contact: None,
             contact_force: zeros.clone(),
+            blade: None,
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n).with_threads(Threads::One),
             #[cfg(feature = "parallel")]

@@ -114,6 +114,32 @@ impl Solver {
         self.contact = contact;
     }
 
+    /// Gives the body a blade to keep out of it in the explicit tick (`None` takes it
+    /// away); see [`blade::BladeBody`].
+    pub fn set_blade(&mut self, body: Option<blade::BladeBody>) {
+        self.blade = body;
+    }
+
+    /// The blade, if the body has one.
+    pub fn blade(&self) -> Option<&blade::BladeBody> {
+        self.blade.as_ref()
+    }
+
+    /// The blade, to move it and rebuild its samples.
+    pub fn blade_mut(&mut self) -> Option<&mut blade::BladeBody> {
+        self.blade.as_mut()
+    }
+
+    /// The blade with the operator and rest positions its samples' rows are built from,
+    /// and the points' positions.
+    #[allow(clippy::type_complexity)]
+    pub fn blade_with_rows(
+        &mut self,
+    ) -> Option<(&mut blade::BladeBody, &MlsOperator, &[Vec3], &[Vec3])> {
+        let (op, rest, p) = (&self.op, &self.rest[..], &self.p[..]);
+        self.blade.as_mut().map(|b| (b, op, rest, p))
+    }
+
     /// The tool pressed into the body, if any.
     pub fn contact(&self) -> Option<&contact::ToolContact> {
         self.contact.as_ref()

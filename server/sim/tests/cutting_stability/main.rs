@@ -13,6 +13,7 @@ use scalpel_sim::pipeline::{CutScript, Keyframe, NoClock, Simulation};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{BuiltScene, ForceSpec, SceneSpec, build_scene, builtin};
 
+mod blade_body;
 mod blade_paths;
 mod depth_and_angle;
 mod extremes;

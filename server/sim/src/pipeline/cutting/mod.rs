@@ -12,11 +12,11 @@
 //!    wake up and are integrated; points away from the tool that have come to rest fall
 //!    asleep and are frozen where they are, so they hold the active region like a halo.
 //!    Everything else costs nothing per tick.
-//! 5. Before rupture the blade dents the capsule (a patch under it follows the blade, and
-//!    relaxes after rupture);
-//!    while cutting, the friction is felt at the tool only. (Dragging the tissue with it was
-//!    tried: a force spread over the few cells along the edge shears them inside out on
-//!    fine lattices of soft organs, and the surface sinks with the blade.)
+//! 5. The blade is a body the tissue cannot enter (`touch`, `solver::blade`): surface
+//!    samples around it are kept out of its slab in every sub-step, with friction. Before
+//!    rupture its tip's end dents the capsule; once cutting, its flats and spine push the
+//!    lips aside, and what meets the tip or the edge is the crack's. The force on the tool
+//!    is the tissue's reaction, plus the fracture term while cutting.
 
 use std::ops::Range;
 
@@ -31,12 +31,13 @@ use crate::solver::Solver;
 use super::steady_motion::SteadyMotion;
 use super::surface::{CurrentSurface, SurfaceContact};
 
-mod press;
 mod region;
 mod sigma;
+mod touch;
 
-use press::{DENT_RADIUS_PER_RUPTURE_DISPLACEMENT, MAX_DENT_POINTS, Pressed};
 use sigma::TransparentPair;
+use touch::TouchScratch;
+pub(crate) use touch::{MAX_BLADE_ENTRIES, MAX_BLADE_SAMPLES, slab_of};
 
 /// How far outside the surface a cutting blade must be to count as out of the tissue (m),
 /// at least; a tenth of the support radius on coarse models.
@@ -126,15 +127,8 @@ pub struct CuttingStage {
     /// where the edge came out again if it went right through.
     last_entry: Option<(Vec3, Vec3, Option<Vec3>)>,
     last_now_s: Option<f64>,
-    /// Tip position when the dent began, and the dented points.
-    press_start: Option<Vec3>,
-    /// The tip's travel since the press began, and when the release began.
-    press_travel: Vec3,
-    release_start_s: Option<f64>,
-    pressed: Vec<Pressed>,
-    dent_radius_m: f64,
-    /// Rest centre and radius of the dent patch being held.
-    dent_patch: (Vec3, f64),
+    /// The blade's samples' build scratch (`touch`).
+    touch: TouchScratch,
     /// The tip as far as cutting is concerned: a device's noise and a tremor held still
     /// move it not at all.
     steady: SteadyMotion,
@@ -201,13 +195,7 @@ impl CuttingStage {
             last_depth_m: 0.0,
             last_entry: None,
             last_now_s: None,
-            press_start: None,
-            press_travel: Vec3::zeros(),
-            release_start_s: None,
-            pressed: Vec::with_capacity(MAX_DENT_POINTS),
-            dent_patch: (Vec3::zeros(), 0.0),
-            dent_radius_m: (DENT_RADIUS_PER_RUPTURE_DISPLACEMENT * force.rupture_displacement_m)
-                .max(kernel.support_m),
+            touch: TouchScratch::new(),
             steady: SteadyMotion::new(force.motion_deadband_m),
             last_sweep_at: None,
             recent_motion: Vec3::zeros(),
@@ -308,8 +296,8 @@ impl CuttingStage {
         );
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
+        self.touch_tissue(&force, blade, surface, solver, grid);
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
-        self.press_tissue(now_s, &force, blade, edge_rest, solver, grid);
         CutTick {
             force,
             in_tissue,

@@ -1,0 +1,207 @@
+//! The blade against the tissue: surface samples around it, which the solver keeps out of
+//! the blade's slab in every sub-step (`solver::blade`). Built when the blade touches the
+//! surface, rebuilt around it as it moves across its flats, taken away when the capsule
+//! fails or the blade leaves. Every face holds the tissue: the dent is the tissue pressed
+//! by the tip's end, and a blade slid sideways drags it by friction.
+
+use super::*;
+use crate::model::SurfaceEmbedding;
+use crate::model::embedding::Blockers;
+use crate::solver::blade::{BladeBody, Slab};
+
+/// Samples across the blade's flats on each side of its mid-plane ...
+const ROWS_EACH_SIDE: i64 = 3;
+/// ... and beyond its edge and its spine, along it.
+const COLUMNS_BEYOND: i64 = 2;
+/// The samples' pitch: a quarter of the lattice spacing, within [1.5 × the blade's
+/// thickness, 1 mm] (the field is smooth at the spacing: finer samples only add cost).
+const PITCH_PER_SPACING: f64 = 0.25;
+const MOST_PITCH_M: f64 = 0.001;
+/// Columns along the blade from its edge to its spine, at least.
+const COLUMNS_ACROSS_WIDTH: f64 = 8.0;
+/// Most samples, and row terms over all of them (room made once: no allocation after).
+pub(crate) const MAX_BLADE_SAMPLES: usize = 160;
+pub(crate) const MAX_BLADE_ENTRIES: usize = MAX_BLADE_SAMPLES * 768;
+/// Scratch for one sample's row before its terms are merged.
+pub(super) const MAX_ROW_TERMS: usize = 1 << 15;
+/// A sample built deeper than this many pitches inside the blade is the crack's.
+const BUILT_INSIDE_PITCHES: f64 = 0.1;
+/// The samples are rebuilt around the blade once its tip has moved this many pitches
+/// across its edge from where they were built.
+const REBUILD_PITCHES: f64 = 0.25;
+
+/// The blade's slab for `blade` with the scene's tool.
+pub(crate) fn slab_of(blade: &Blade, tool: &ToolSpec) -> Slab {
+    Slab {
+        tip: blade.tip,
+        edge: blade.edge,
+        back: blade.toward_back,
+        length: tool.blade_length_m,
+        width: tool.blade_width_m,
+        thickness: tool.blade_thickness_m,
+    }
+}
+
+/// The scratch a build uses (room made once).
+pub(super) struct TouchScratch {
+    crossings: Vec<crate::pipeline::surface::Crossing>,
+    within: Vec<u32>,
+    zero: Vec<(u32, f64)>,
+    row: Vec<(u32, f64)>,
+    /// Where the tip was when the samples were last built.
+    built_at: Option<Vec3>,
+    /// The next build goes here, and is swapped with the solver's (room made once).
+    spare: Option<BladeBody>,
+}
+
+impl TouchScratch {
+    pub(super) fn new() -> Self {
+        Self {
+            crossings: Vec::with_capacity(64),
+            within: Vec::with_capacity(4096),
+            zero: Vec::with_capacity(4096),
+            row: Vec::with_capacity(MAX_ROW_TERMS),
+            built_at: None,
+            spare: None,
+        }
+    }
+}
+
+impl CuttingStage {
+    /// Room for rebuilding the blade's samples: a body like the solver's (made once, before
+    /// the first tick).
+    pub(crate) fn give_blade_room(&mut self, spare: BladeBody) {
+        self.touch.spare = Some(spare);
+    }
+
+    /// The blade's pitch of samples (m).
+    fn pitch(&self) -> f64 {
+        (PITCH_PER_SPACING * self.spacing_m)
+            .min(MOST_PITCH_M)
+            .max(1.5 * self.tool.blade_thickness_m)
+    }
+
+    /// The blade against the tissue this tick: samples built when it touches (and rebuilt
+    /// as it travels while cutting), the faces that hold for the phase, the blade moved to
+    /// where it is, the points the samples follow woken; all taken away when it leaves.
+    pub(super) fn touch_tissue(
+        &mut self,
+        force: &CutForce,
+        blade: Option<&Blade>,
+        surface: &CurrentSurface,
+        solver: &mut Solver,
+        grid: &RestGrid,
+    ) {
+        // Pressing only, for now: the flats against the lips while cutting were tried and
+        // are not on yet (docs/CUTTING-DECISIONS.md, "The blade in the tick").
+        let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
+            self.touch.built_at = None;
+            if let Some(body) = solver.blade_mut() {
+                body.clear();
+            }
+            return;
+        };
+        let slab = slab_of(b, &self.tool);
+        let rebuild = self.touch.built_at.is_none_or(|at| {
+            // A grid a pitch apart would let the tip's end (a blade's thickness wide) slip
+            // between its rows as it moves across its flats.
+            let moved = b.tip - at;
+            let across = moved - b.edge * moved.dot(&b.edge);
+            across.norm() > REBUILD_PITCHES * self.pitch()
+        });
+        if rebuild {
+            self.build_samples(&slab, surface, solver, grid);
+            self.touch.built_at = Some(b.tip);
+        } else if let Some(body) = solver.blade_mut() {
+            body.move_to(slab);
+        }
+        // What the samples follow moves, and so does what holds it: asleep, a neighbour
+        // would take the dent's whole strain at the rim of the moving patch. (Sleep is
+        // checked every SLEEP_CHECK_EVERY ticks, and waking keeps a point awake for
+        // SLEEP_AFTER_TICKS: the neighbours need waking only that often.)
+        let neighbours_too = rebuild || self.tick.is_multiple_of(SLEEP_CHECK_EVERY);
+        let (Some(body), op) = (solver.blade(), solver.operator()) else {
+            return;
+        };
+        for &k in body.reached() {
+            if (k as usize) >= self.material_points {
+                continue;
+            }
+            self.wake(k);
+            if neighbours_too {
+                for &j in op.neighbours(k as usize) {
+                    if (j as usize) < self.material_points {
+                        self.wake(j);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Samples of the surface around the blade at `slab`: a grid in the blade's frame,
+    /// columns from beyond its edge to beyond its spine, rows across its flats, each
+    /// dropped along the edge onto the skin below and following the points by the
+    /// surface's first-order map there (not seeing across the cut).
+    fn build_samples(
+        &mut self,
+        slab: &Slab,
+        surface: &CurrentSurface,
+        solver: &mut Solver,
+        grid: &RestGrid,
+    ) {
+        let pitch = self.pitch();
+        let along_pitch = pitch.max(slab.width / COLUMNS_ACROSS_WIDTH);
+        let columns = (slab.width / along_pitch).round() as i64 + 2 * COLUMNS_BEYOND - 1;
+        let reach = slab.length.max(2.0 * self.kernel.support_m);
+        let side = slab.side();
+        let kernel = surface.kernel();
+        let blockers = Blockers {
+            triangles: &self.sigma.triangles,
+            boxes: &self.sigma.boxes,
+        };
+        let TouchScratch {
+            crossings,
+            within,
+            zero,
+            row,
+            spare,
+            ..
+        } = &mut self.touch;
+        let Some((body, op, rest, solver_positions)) = solver.blade_with_rows() else {
+            return;
+        };
+        // The samples the blade holds now go on (their force and friction with them); the
+        // grid fills in around them.
+        let Some(next) = spare.as_mut() else {
+            return;
+        };
+        body.carry_held_into(next, rest, row);
+        let kept = next.len();
+        std::mem::swap(body, next);
+        body.place(*slab);
+        for c in 0..=columns {
+            // Half a pitch off the edge and the spine: a sample on a face's plane would
+            // be held by whichever face rounding picks.
+            let back = ((c - COLUMNS_BEYOND) as f64 + 0.5) * along_pitch;
+            for r in -ROWS_EACH_SIDE..=ROWS_EACH_SIDE {
+                let foot = slab.tip + slab.back * back + side * (r as f64 * pitch);
+                let (from, to) = (foot + slab.edge * reach, foot - slab.edge * reach);
+                let Some((t, bary, _)) = surface.first_entry(&from, &to, crossings) else {
+                    continue;
+                };
+                let x = surface.rest_point(t, bary);
+                if (0..kept).any(|s| (body.rest_position(s, rest) - x).norm() < 0.5 * pitch) {
+                    continue;
+                }
+                SurfaceEmbedding::row_into(&x, rest, grid, &kernel, blockers, within, zero);
+                let total: f64 = zero.iter().map(|(_, w)| w).sum();
+                zero.iter_mut().for_each(|(_, w)| *w /= total);
+                op.linear_row(zero, &x, rest, row);
+                if body.fits(row.len()) {
+                    body.push(row, x, rest);
+                }
+            }
+        }
+        body.finish(solver_positions, BUILT_INSIDE_PITCHES * pitch);
+    }
+}

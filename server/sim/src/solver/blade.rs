@@ -1,0 +1,631 @@
+//! The blade as a kinematic body in the running tick (cutting-physics.md §2): material
+//! samples of the surface around it follow the points (`embedded`) and are kept out of the
+//! blade's slab — its tip end, edge, spine and both flats — by one-sided constraints with
+//! Coulomb friction, solved in every explicit sub-step after the points move.
+//!
+//! Why constraints and not the probe's penalties: a penalty stiff enough to hold the
+//! tissue within a few % of the press (100 E/h per area) raises ω_max of the points it
+//! reaches about tenfold, and the explicit sub-step with it; a constraint costs nothing
+//! in the step (docs/CUTTING-DECISIONS.md, "The blade in the tick"). Each sub-step's
+//! correction is the impulse the blade gives the tissue; the force on the blade is minus
+//! its mean over the tick, so the tool and the tissue balance exactly.
+
+use super::embedded::EmbeddedRows;
+use crate::math::Vec3;
+
+/// Coulomb friction between the blade's steel and wet tissue: 0.1–0.4 is what needle and
+/// blade insertion studies fit for soft organs; the middle of it.
+pub const BLADE_FRICTION: f64 = 0.2;
+
+/// Gauss–Seidel passes over the samples per sub-step (samples share points: a second pass
+/// settles what the first one's neighbours pushed back in).
+const PASSES: usize = 2;
+
+/// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
+/// to its spine (`width`), `thickness` between its flats.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Slab {
+    /// The tip (m).
+    pub tip: Vec3,
+    /// Unit direction along the edge, tip to the far end.
+    pub edge: Vec3,
+    /// Unit direction from the edge to the spine, across the flats.
+    pub back: Vec3,
+    /// Along the edge (m).
+    pub length: f64,
+    /// Edge to spine (m).
+    pub width: f64,
+    /// Between the flats (m).
+    pub thickness: f64,
+}
+
+impl Slab {
+    /// Normal of the flats (edge × back).
+    pub fn side(&self) -> Vec3 {
+        self.edge.cross(&self.back)
+    }
+
+    /// `x` in the blade's frame: (along the edge, toward the spine, across the flats).
+    pub fn local(&self, x: &Vec3) -> Vec3 {
+        let r = x - self.tip;
+        Vec3::new(r.dot(&self.edge), r.dot(&self.back), r.dot(&self.side()))
+    }
+
+    /// A direction given in the blade's frame, in the world's.
+    fn world(&self, l: &Vec3) -> Vec3 {
+        self.edge * l.x + self.back * l.y + self.side() * l.z
+    }
+
+    /// Whether a point at local `l` is inside the steel.
+    fn inside(&self, l: &Vec3) -> bool {
+        l.x > 0.0
+            && l.x < self.length
+            && l.y > 0.0
+            && l.y < self.width
+            && l.z.abs() < 0.5 * self.thickness
+    }
+
+    /// The slab a fraction `frac` of the way from `a` to `b` (positions and axes blended,
+    /// the axes made orthonormal again; sizes from `b`).
+    pub fn between(a: &Slab, b: &Slab, frac: f64) -> Slab {
+        let edge = (a.edge + (b.edge - a.edge) * frac)
+            .try_normalize(1e-12)
+            .unwrap_or(b.edge);
+        let back = a.back + (b.back - a.back) * frac;
+        let back = (back - edge * back.dot(&edge))
+            .try_normalize(1e-12)
+            .unwrap_or(b.back);
+        Slab {
+            tip: a.tip + (b.tip - a.tip) * frac,
+            edge,
+            back,
+            ..*b
+        }
+    }
+
+    /// The gap of a point at local `l` to `face` (m, negative inside) and the face's
+    /// outward normal in the blade's frame.
+    fn gap(&self, l: &Vec3, face: Face) -> (f64, Vec3) {
+        let half = 0.5 * self.thickness;
+        match face {
+            Face::Tip => (-l.x, -Vec3::x()),
+            Face::Edge => (-l.y, -Vec3::y()),
+            Face::Spine => (l.y - self.width, Vec3::y()),
+            Face::FlatPlus => (l.z - half, Vec3::z()),
+            Face::FlatMinus => (-l.z - half, -Vec3::z()),
+        }
+    }
+
+    /// The face a point now at local `l` came in through: of those it was outside of at
+    /// local `before`, the one it is least deep behind (any face if it was inside already).
+    fn entry_face(&self, l: &Vec3, before: &Vec3) -> Face {
+        let outside = |f: Face| self.gap(before, f).0 >= 0.0;
+        let any = Face::ALL.iter().any(|&f| outside(f));
+        Face::ALL
+            .into_iter()
+            .filter(|&f| !any || outside(f))
+            .max_by(|&a, &b| self.gap(l, a).0.total_cmp(&self.gap(l, b).0))
+            .unwrap_or(Face::Tip)
+    }
+}
+
+/// A face of the blade that holds a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Face {
+    /// The tip's end, facing away from the edge's far end.
+    Tip,
+    /// The cutting edge, facing away from the spine.
+    Edge,
+    /// The spine.
+    Spine,
+    /// The flat on the +side (edge × back).
+    FlatPlus,
+    /// The other flat.
+    FlatMinus,
+}
+
+impl Face {
+    const ALL: [Face; 5] = [
+        Face::Tip,
+        Face::Edge,
+        Face::Spine,
+        Face::FlatPlus,
+        Face::FlatMinus,
+    ];
+
+    fn bit(self) -> u8 {
+        1 << self as u8
+    }
+}
+
+/// Every face holds tissue.
+pub const ALL_FACES: u8 = 0b11111;
+/// The surface samples around the blade, what holds each, and what the blade gave them.
+#[derive(Debug, Clone)]
+pub struct BladeBody {
+    samples: EmbeddedRows,
+    /// The face holding each sample, at the tick's start for a retry.
+    face: Vec<Option<Face>>,
+    face_at_tick: Vec<Option<Face>>,
+    /// Where each held sample stuck to its face (blade frame): friction pulls it back.
+    anchor: Vec<Vec3>,
+    anchor_at_tick: Vec<Vec3>,
+    /// Samples the crack has taken (they came in through a face that no longer holds).
+    cut: Vec<bool>,
+    /// Each sample at the sub-step's start: in the blade's frame then, and in the world.
+    start_local: Vec<Vec3>,
+    start_world: Vec<Vec3>,
+    /// The impulse each sample got this sub-step: normal (kg m), and all of it.
+    normal_impulse: Vec<f64>,
+    impulse: Vec<Vec3>,
+    /// The slab at the tick's start and end, and in the sub-step.
+    from: Slab,
+    to: Slab,
+    at: Slab,
+    faces: u8,
+    friction: f64,
+    /// Per point, for building (all false between builds).
+    seen: Vec<bool>,
+    /// The sum over the tick's sub-steps of the force on the tissue, and how many.
+    force_sum: Vec3,
+    substeps: u32,
+    /// Mean force on the blade over the last tick (N).
+    on_blade: Vec3,
+}
+
+impl BladeBody {
+    /// No samples yet, with room for `samples` of them over `points` points (`entries`
+    /// row terms in all); the blade at `slab`.
+    pub fn with_room(points: usize, samples: usize, entries: usize, slab: Slab) -> Self {
+        Self {
+            samples: EmbeddedRows::with_room(points, samples, entries),
+            face: Vec::with_capacity(samples),
+            face_at_tick: Vec::with_capacity(samples),
+            anchor: Vec::with_capacity(samples),
+            anchor_at_tick: Vec::with_capacity(samples),
+            cut: Vec::with_capacity(samples),
+            start_local: Vec::with_capacity(samples),
+            start_world: Vec::with_capacity(samples),
+            normal_impulse: Vec::with_capacity(samples),
+            impulse: Vec::with_capacity(samples),
+            from: slab,
+            to: slab,
+            at: slab,
+            faces: ALL_FACES,
+            friction: BLADE_FRICTION,
+            seen: vec![false; points],
+            force_sum: Vec3::zeros(),
+            substeps: 0,
+            on_blade: Vec3::zeros(),
+        }
+    }
+
+    /// Takes every sample away (the blade left the tissue).
+    pub fn clear(&mut self) {
+        self.samples.clear();
+        for v in [
+            &mut self.start_local,
+            &mut self.start_world,
+            &mut self.impulse,
+        ] {
+            v.clear();
+        }
+        self.face.clear();
+        self.face_at_tick.clear();
+        self.anchor.clear();
+        self.anchor_at_tick.clear();
+        self.cut.clear();
+        self.normal_impulse.clear();
+        self.on_blade = Vec3::zeros();
+    }
+
+    /// Whether a sample following `entries` points still fits.
+    pub fn fits(&self, entries: usize) -> bool {
+        self.samples.fits(entries) && self.face.len() < self.face.capacity()
+    }
+
+    /// Adds a sample at rest position `rest` following `row` over points at `rest_points`
+    /// (`finish` after the last).
+    pub fn push(&mut self, row: &[(u32, f64)], rest: Vec3, rest_points: &[Vec3]) {
+        self.samples.push(row, rest, rest_points, &mut self.seen);
+        self.face.push(None);
+        self.face_at_tick.push(None);
+        self.anchor.push(Vec3::zeros());
+        self.anchor_at_tick.push(Vec3::zeros());
+        self.cut.push(false);
+        self.start_local.push(Vec3::zeros());
+        self.start_world.push(Vec3::zeros());
+        self.normal_impulse.push(0.0);
+        self.impulse.push(Vec3::zeros());
+    }
+
+    /// Copies into `into` (cleared first, placed at this blade's slab) every sample a face
+    /// holds now, with its face and where it stuck, so that a rebuild around a moving blade
+    /// does not drop the tissue it is pushing; `row` is scratch. Returns how many.
+    pub fn carry_held_into(
+        &self,
+        into: &mut BladeBody,
+        rest_points: &[Vec3],
+        row: &mut Vec<(u32, f64)>,
+    ) -> usize {
+        into.clear();
+        into.place(self.to);
+        into.faces = self.faces;
+        into.friction = self.friction;
+        for s in 0..self.len() {
+            let Some(face) = self.face[s] else { continue };
+            row.clear();
+            row.extend(self.samples.row(s).map(|(k, w)| (k as u32, w)));
+            if !into.fits(row.len()) {
+                break;
+            }
+            let rest = self.samples.position(s, rest_points);
+            into.push(row, rest, rest_points);
+            let t = into.len() - 1;
+            into.face[t] = Some(face);
+            into.anchor[t] = self.anchor[s];
+        }
+        into.len()
+    }
+
+    /// Sample s's rest position.
+    pub fn rest_position(&self, s: usize, rest_points: &[Vec3]) -> Vec3 {
+        self.samples.position(s, rest_points)
+    }
+
+    /// Ends a build with the points at `p`: a sample already deeper than `tolerance`
+    /// inside the blade is not the blade's to push out (the blade is in a cut there, or
+    /// appeared in the tissue): the crack's, as if cut.
+    pub fn finish(&mut self, p: &[Vec3], tolerance: f64) {
+        self.samples.finish(&mut self.seen);
+        let at = self.to;
+        for s in 0..self.len() {
+            if self.face[s].is_some() {
+                continue;
+            }
+            let l = at.local(&self.samples.position(s, p));
+            self.cut[s] = at.inside(&l) && Face::ALL.iter().all(|&f| at.gap(&l, f).0 < -tolerance);
+        }
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.face.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.face.is_empty()
+    }
+
+    /// The points the samples follow.
+    pub fn reached(&self) -> &[u32] {
+        self.samples.reached()
+    }
+
+    /// Sample s's position with the points at `p`.
+    pub fn sample_position(&self, s: usize, p: &[Vec3]) -> Vec3 {
+        self.samples.position(s, p)
+    }
+
+    /// The blade moves to `slab` over the next tick.
+    pub fn move_to(&mut self, slab: Slab) {
+        self.from = self.to;
+        self.to = slab;
+        self.at = self.from;
+    }
+
+    /// Puts the blade at `slab` without moving it there (it appeared, or the samples were
+    /// rebuilt around it).
+    pub fn place(&mut self, slab: Slab) {
+        self.from = slab;
+        self.to = slab;
+        self.at = slab;
+    }
+
+    /// The blade at the end of the tick.
+    pub fn slab(&self) -> &Slab {
+        &self.to
+    }
+
+    /// The faces that hold tissue from now on (bits by [`Face`]; [`ALL_FACES`]); a sample
+    /// held by one that no longer does is the crack's from now on.
+    pub fn set_faces(&mut self, faces: u8) {
+        self.faces = faces;
+        for s in 0..self.face.len() {
+            if let Some(f) = self.face[s]
+                && faces & f.bit() == 0
+            {
+                self.face[s] = None;
+                self.cut[s] = true;
+            }
+        }
+    }
+
+    /// The friction coefficient along the faces.
+    pub fn set_friction(&mut self, mu: f64) {
+        self.friction = mu;
+    }
+
+    /// Samples the blade holds now.
+    pub fn touching(&self) -> usize {
+        self.face.iter().filter(|f| f.is_some()).count()
+    }
+
+    /// Samples each face holds now (tip, edge, spine, +flat, −flat).
+    pub fn held_by(&self) -> [usize; 5] {
+        let mut n = [0; 5];
+        for f in self.face.iter().flatten() {
+            n[*f as usize] += 1;
+        }
+        n
+    }
+
+    /// Samples the crack has taken.
+    pub fn cut_samples(&self) -> usize {
+        self.cut.iter().filter(|&&c| c).count()
+    }
+
+    /// The mean force the tissue put on the blade over the last tick (N).
+    pub fn force_on_blade(&self) -> Vec3 {
+        self.on_blade
+    }
+
+    /// Keeps the contact state for a retry of the tick.
+    pub(super) fn begin_tick(&mut self) {
+        self.face_at_tick.copy_from_slice(&self.face);
+        self.anchor_at_tick.copy_from_slice(&self.anchor);
+    }
+
+    /// A (re)try of the tick starts from its start's contacts.
+    pub(super) fn begin_attempt(&mut self) {
+        self.face.copy_from_slice(&self.face_at_tick);
+        self.anchor.copy_from_slice(&self.anchor_at_tick);
+        self.force_sum = Vec3::zeros();
+        self.substeps = 0;
+    }
+
+    /// Where the samples are at the start of a sub-step that ends a fraction `frac` of the
+    /// way through the tick, against the blade where it was then.
+    pub(super) fn begin_substep(&mut self, frac_before: f64, frac: f64, p: &[Vec3]) {
+        let before = Slab::between(&self.from, &self.to, frac_before);
+        for s in 0..self.len() {
+            let x = self.samples.position(s, p);
+            self.start_world[s] = x;
+            self.start_local[s] = before.local(&x);
+            self.normal_impulse[s] = 0.0;
+            self.impulse[s] = Vec3::zeros();
+        }
+        self.at = Slab::between(&self.from, &self.to, frac);
+    }
+
+    /// Pushes the samples out of the blade after the points moved in a sub-step of `h`:
+    /// positions `p` and velocities `v` change by the correction of each point whose
+    /// inverse mass `inv_mass` gives is not zero (`mass` for the kinetic energy, which
+    /// changes by the returned amount). Returns (the change in kinetic energy, the work
+    /// the blade did on the tissue).
+    pub(super) fn project(
+        &mut self,
+        p: &mut [Vec3],
+        v: &mut [Vec3],
+        mass: &[f64],
+        h: f64,
+        inv_mass: impl Fn(usize) -> f64,
+    ) -> (f64, f64) {
+        let mut kinetic = 0.0;
+        let at = self.at;
+        for pass in 0..PASSES {
+            for s in 0..self.len() {
+                if self.cut[s] {
+                    continue;
+                }
+                let l = at.local(&self.samples.position(s, p));
+                if !at.inside(&l) {
+                    if pass == 0 {
+                        self.face[s] = None;
+                    }
+                    continue;
+                }
+                let face = match self.face[s] {
+                    Some(f) => f,
+                    None => {
+                        let f = at.entry_face(&l, &self.start_local[s]);
+                        if self.faces & f.bit() == 0 {
+                            self.cut[s] = true;
+                            continue;
+                        }
+                        self.face[s] = Some(f);
+                        self.anchor[s] = l;
+                        f
+                    }
+                };
+                let (gap, normal_local) = at.gap(&l, face);
+                let weight: f64 = self.samples.row(s).map(|(k, w)| w * w * inv_mass(k)).sum();
+                if gap >= 0.0 || weight <= 0.0 {
+                    continue;
+                }
+                let normal = at.world(&normal_local);
+                let dl = -gap / weight;
+                self.normal_impulse[s] += dl;
+                // Friction: back toward where it stuck, at most μ × the normal impulse;
+                // past that it slides, and sticks again where it got to.
+                let on_face = l - normal_local * gap;
+                let mut slip = self.anchor[s] - on_face;
+                slip -= normal_local * slip.dot(&normal_local);
+                let stick = at.world(&slip) / weight;
+                let most = self.friction * self.normal_impulse[s];
+                let size = stick.norm();
+                let tangent = if size > most {
+                    let kept = most / size.max(1e-300);
+                    self.anchor[s] = on_face + slip * kept;
+                    stick * kept
+                } else {
+                    stick
+                };
+                let push = normal * dl + tangent;
+                self.impulse[s] += push;
+                for (k, w) in self.samples.row(s) {
+                    let im = inv_mass(k);
+                    if im > 0.0 {
+                        let dp = push * (w * im);
+                        let before = v[k].norm_squared();
+                        p[k] += dp;
+                        v[k] += dp / h;
+                        kinetic += 0.5 * mass[k] * (v[k].norm_squared() - before);
+                    }
+                }
+            }
+        }
+        // The work of the sub-step's force on the tissue over the samples' moves, and the
+        // force itself for the tick's mean.
+        let mut work = 0.0;
+        let mut force = Vec3::zeros();
+        for s in 0..self.len() {
+            if self.impulse[s] != Vec3::zeros() {
+                let f = self.impulse[s] / (h * h);
+                force += f;
+                work += f.dot(&(self.samples.position(s, p) - self.start_world[s]));
+            }
+        }
+        self.force_sum += force;
+        self.substeps += 1;
+        (kinetic, work)
+    }
+
+    /// The tick is done: its mean force on the blade.
+    pub(super) fn end_tick(&mut self) {
+        self.on_blade = if self.substeps > 0 {
+            -self.force_sum / f64::from(self.substeps)
+        } else {
+            Vec3::zeros()
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn upright() -> Slab {
+        Slab {
+            tip: Vec3::zeros(),
+            edge: Vec3::z(),
+            back: -Vec3::x(),
+            length: 0.025,
+            width: 0.008,
+            thickness: 0.0004,
+        }
+    }
+
+    /// A point pressed from below the tip is held by the tip's end, one coming in from the
+    /// side by the flat it came through, one ahead of the edge by the edge.
+    #[test]
+    fn a_sample_is_held_by_the_face_it_came_in_through() {
+        let b = upright();
+        let inside = Vec3::new(-0.003, 0.0001, 0.0005);
+        let l = b.local(&inside);
+        assert!(b.inside(&l));
+        let below = b.local(&Vec3::new(-0.003, 0.0001, -0.001));
+        assert_eq!(b.entry_face(&l, &below), Face::Tip);
+        let beside = b.local(&Vec3::new(-0.003, 0.001, 0.0005));
+        let side = b.side();
+        let expected = if side.y > 0.0 {
+            Face::FlatPlus
+        } else {
+            Face::FlatMinus
+        };
+        assert_eq!(b.entry_face(&l, &beside), expected);
+        let ahead = b.local(&Vec3::new(0.001, 0.0001, 0.0005));
+        assert_eq!(b.entry_face(&l, &ahead), Face::Edge);
+        let (gap, n) = b.gap(&l, Face::Tip);
+        assert!((gap + 0.0005).abs() < 1e-15 && n == -Vec3::x());
+    }
+
+    /// A free-floating block (no supports, no gravity, no damping) with the blade pressed
+    /// into its top tick after tick: the momentum the block gains each tick is exactly
+    /// the impulse of the force the blade reports, reversed (to 1e-9 of it).
+    #[test]
+    fn the_blade_gets_what_the_tissue_gets_reversed() {
+        use crate::model::SurfaceEmbedding;
+        use crate::scene::Material;
+        use crate::solver::SolverConfig;
+        use crate::validate::box_body;
+        let undamped = Material {
+            damping_per_s: 0.0,
+            ..Material::LIVER
+        };
+        let size = Vec3::new(0.02, 0.02, 0.02);
+        let mut body = box_body(size, 5, &undamped, 2.0, SolverConfig::default());
+        let start = Slab {
+            tip: Vec3::new(0.0045, 0.0, 0.01),
+            ..upright()
+        };
+        let n = body.solver.rest().len();
+        let mut blade = BladeBody::with_room(n, 128, 128 * 512, start);
+        let mut row = Vec::new();
+        for i in -6..=4 {
+            for j in -2..=2 {
+                let x = Vec3::new(i as f64 * 1e-3, j as f64 * 1e-3, 0.01);
+                let model = &body.model;
+                let zero = SurfaceEmbedding::sample_row(
+                    &x,
+                    &model.points.rest,
+                    &model.grid,
+                    &model.kernel,
+                );
+                body.solver
+                    .operator()
+                    .linear_row(&zero, &x, body.solver.rest(), &mut row);
+                blade.push(&row, x, body.solver.rest());
+            }
+        }
+        blade.finish(body.solver.positions(), 0.0);
+        body.solver.set_blade(Some(blade));
+        let dt = 1e-3;
+        let momentum = |s: &crate::solver::Solver| -> Vec3 {
+            s.masses()
+                .iter()
+                .zip(s.velocities())
+                .map(|(m, v)| v * *m)
+                .sum()
+        };
+        let mut pressed = 0;
+        for k in 1..=30 {
+            let slab = Slab {
+                tip: start.tip - Vec3::z() * (1e-4 * f64::from(k)),
+                ..start
+            };
+            body.solver.blade_mut().unwrap().move_to(slab);
+            let before = momentum(&body.solver);
+            let report = body.solver.step(dt);
+            assert!(!report.diverged && report.rollbacks == 0, "{report:?}");
+            let gained = momentum(&body.solver) - before;
+            let blade = body.solver.blade().unwrap();
+            let impulse = blade.force_on_blade() * dt;
+            if impulse.norm() > 0.0 {
+                pressed += 1;
+                assert!(
+                    (gained + impulse).norm() <= 1e-9 * impulse.norm(),
+                    "tick {k}: gained {gained}, blade impulse {impulse}"
+                );
+            }
+        }
+        assert!(pressed > 20, "{pressed} ticks pressed");
+        let blade = body.solver.blade().unwrap();
+        assert!(blade.force_on_blade().z > 0.0 && blade.touching() > 0);
+    }
+
+    /// Halfway between two slabs: halfway along, axes still orthonormal.
+    #[test]
+    fn a_slab_between_two_is_orthonormal() {
+        let a = upright();
+        let b = Slab {
+            tip: Vec3::new(0.01, 0.0, 0.0),
+            edge: Vec3::new(0.0, 0.6, 0.8),
+            ..a
+        };
+        let m = Slab::between(&a, &b, 0.5);
+        assert!((m.tip - Vec3::new(0.005, 0.0, 0.0)).norm() < 1e-15);
+        assert!((m.edge.norm() - 1.0).abs() < 1e-12 && m.edge.dot(&m.back).abs() < 1e-12);
+    }
+}
