@@ -273,13 +273,13 @@ impl BladeBody {
         self.samples.position(s, rest_points)
     }
 
-    /// Ends a build with the points at `p`: a sample already deeper than `tolerance`
-    /// inside the blade is not the blade's to push out (the blade is in a cut there, or
+    /// Ends a batch of a build (the samples from `from` on) with the points at `p`: a
+    /// sample already deeper than `tolerance` inside the blade is not the blade's to push out (the blade is in a cut there, or
     /// appeared in the tissue): the crack's, as if cut.
-    pub fn finish(&mut self, p: &[Vec3], tolerance: f64) {
+    pub fn finish(&mut self, p: &[Vec3], tolerance: f64, from: usize) {
         self.samples.finish(&mut self.seen);
         let at = self.to;
-        for s in 0..self.len() {
+        for s in from..self.len() {
             if self.face[s].is_some() {
                 continue;
             }
@@ -579,7 +579,7 @@ mod tests {
                 blade.push(&row, x, body.solver.rest());
             }
         }
-        blade.finish(body.solver.positions(), 0.0);
+        blade.finish(body.solver.positions(), 0.0, 0);
         body.solver.set_blade(Some(blade));
         let dt = 1e-3;
         let momentum = |s: &crate::solver::Solver| -> Vec3 {

@@ -17,6 +17,8 @@ const COLUMNS_BEYOND: i64 = 2;
 /// thickness, 1 mm] (the field is smooth at the spacing: finer samples only add cost).
 const PITCH_PER_SPACING: f64 = 0.25;
 const MOST_PITCH_M: f64 = 0.001;
+/// Grid cells a build lays samples on per tick.
+const CELLS_PER_TICK: usize = 16;
 /// Columns along the blade from its edge to its spine, at least.
 const COLUMNS_ACROSS_WIDTH: f64 = 8.0;
 /// Most samples, and row terms over all of them (room made once: no allocation after).
@@ -52,6 +54,9 @@ pub(super) struct TouchScratch {
     built_at: Option<Vec3>,
     /// The next build goes here, and is swapped with the solver's (room made once).
     spare: Option<BladeBody>,
+    /// The build under way: the blade it is laid out around, the next cell of its grid,
+    /// and how many samples it carried over.
+    pending: Option<(Slab, usize, usize)>,
 }
 
 impl TouchScratch {
@@ -63,6 +68,7 @@ impl TouchScratch {
             row: Vec::with_capacity(MAX_ROW_TERMS),
             built_at: None,
             spare: None,
+            pending: None,
         }
     }
 }
@@ -96,6 +102,7 @@ impl CuttingStage {
         // are not on yet (docs/CUTTING-DECISIONS.md, "The blade in the tick").
         let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
             self.touch.built_at = None;
+            self.touch.pending = None;
             if let Some(body) = solver.blade_mut() {
                 body.clear();
             }
@@ -110,16 +117,17 @@ impl CuttingStage {
             across.norm() > REBUILD_PITCHES * self.pitch()
         });
         if rebuild {
-            self.build_samples(&slab, surface, solver, grid);
+            self.start_build(&slab, solver);
             self.touch.built_at = Some(b.tip);
         } else if let Some(body) = solver.blade_mut() {
             body.move_to(slab);
         }
+        let grew = self.build_some(surface, solver, grid);
         // What the samples follow moves, and so does what holds it: asleep, a neighbour
         // would take the dent's whole strain at the rim of the moving patch. (Sleep is
         // checked every SLEEP_CHECK_EVERY ticks, and waking keeps a point awake for
         // SLEEP_AFTER_TICKS: the neighbours need waking only that often.)
-        let neighbours_too = rebuild || self.tick.is_multiple_of(SLEEP_CHECK_EVERY);
+        let neighbours_too = grew || self.tick.is_multiple_of(SLEEP_CHECK_EVERY);
         let (Some(body), op) = (solver.blade(), solver.operator()) else {
             return;
         };
@@ -138,20 +146,43 @@ impl CuttingStage {
         }
     }
 
-    /// Samples of the surface around the blade at `slab`: a grid in the blade's frame,
-    /// columns from beyond its edge to beyond its spine, rows across its flats, each
-    /// dropped along the edge onto the skin below and following the points by the
-    /// surface's first-order map there (not seeing across the cut).
-    fn build_samples(
+    /// Starts a build of the samples around the blade at `slab`: those a face holds now go
+    /// on (their force and friction with them), the grid fills in around them over the
+    /// next ticks ([`Self::build_some`]).
+    fn start_build(&mut self, slab: &Slab, solver: &mut Solver) {
+        let TouchScratch { row, spare, .. } = &mut self.touch;
+        let Some((body, _, rest, _)) = solver.blade_with_rows() else {
+            return;
+        };
+        let Some(next) = spare.as_mut() else {
+            return;
+        };
+        body.carry_held_into(next, rest, row);
+        std::mem::swap(body, next);
+        body.place(*slab);
+        self.touch.pending = Some((*slab, 0, body.len()));
+    }
+
+    /// Adds up to [`CELLS_PER_TICK`] samples of the build under way: a grid in the blade's
+    /// frame, columns from beyond its edge to beyond its spine, rows across its flats (the
+    /// mid-plane's first, where the tip's end presses), each dropped along the edge onto
+    /// the skin below and following the points by the surface's first-order map there
+    /// (not seeing across the cut). A build takes a few ticks: at once it was up to 0.9 ms
+    /// of one tick on the liver.
+    /// Returns whether it added any.
+    fn build_some(
         &mut self,
-        slab: &Slab,
         surface: &CurrentSurface,
         solver: &mut Solver,
         grid: &RestGrid,
-    ) {
+    ) -> bool {
+        let Some((slab, first, kept)) = self.touch.pending else {
+            return false;
+        };
         let pitch = self.pitch();
         let along_pitch = pitch.max(slab.width / COLUMNS_ACROSS_WIDTH);
-        let columns = (slab.width / along_pitch).round() as i64 + 2 * COLUMNS_BEYOND - 1;
+        let columns = (slab.width / along_pitch).round() as usize + 2 * COLUMNS_BEYOND as usize;
+        let rows = 2 * ROWS_EACH_SIDE as usize + 1;
         let reach = slab.length.max(2.0 * self.kernel.support_m);
         let side = slab.side();
         let kernel = surface.kernel();
@@ -164,44 +195,39 @@ impl CuttingStage {
             within,
             zero,
             row,
-            spare,
             ..
         } = &mut self.touch;
-        let Some((body, op, rest, solver_positions)) = solver.blade_with_rows() else {
-            return;
+        let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
+            return false;
         };
-        // The samples the blade holds now go on (their force and friction with them); the
-        // grid fills in around them.
-        let Some(next) = spare.as_mut() else {
-            return;
-        };
-        body.carry_held_into(next, rest, row);
-        let kept = next.len();
-        std::mem::swap(body, next);
-        body.place(*slab);
-        for c in 0..=columns {
-            // Half a pitch off the edge and the spine: a sample on a face's plane would
-            // be held by whichever face rounding picks.
+        let from = body.len();
+        let last = (first + CELLS_PER_TICK).min(rows * columns);
+        for cell in first..last {
+            // Rows 0, −1, 1, −2, 2, …; half a pitch off the edge and the spine, where a
+            // sample on a face's plane would be held by whichever face rounding picks.
+            let k = (cell / columns) as i64;
+            let r = if k % 2 == 0 { k / 2 } else { -(k + 1) / 2 };
+            let c = (cell % columns) as i64;
             let back = ((c - COLUMNS_BEYOND) as f64 + 0.5) * along_pitch;
-            for r in -ROWS_EACH_SIDE..=ROWS_EACH_SIDE {
-                let foot = slab.tip + slab.back * back + side * (r as f64 * pitch);
-                let (from, to) = (foot + slab.edge * reach, foot - slab.edge * reach);
-                let Some((t, bary, _)) = surface.first_entry(&from, &to, crossings) else {
-                    continue;
-                };
-                let x = surface.rest_point(t, bary);
-                if (0..kept).any(|s| (body.rest_position(s, rest) - x).norm() < 0.5 * pitch) {
-                    continue;
-                }
-                SurfaceEmbedding::row_into(&x, rest, grid, &kernel, blockers, within, zero);
-                let total: f64 = zero.iter().map(|(_, w)| w).sum();
-                zero.iter_mut().for_each(|(_, w)| *w /= total);
-                op.linear_row(zero, &x, rest, row);
-                if body.fits(row.len()) {
-                    body.push(row, x, rest);
-                }
+            let foot = slab.tip + slab.back * back + side * (r as f64 * pitch);
+            let (from_x, to_x) = (foot + slab.edge * reach, foot - slab.edge * reach);
+            let Some((t, bary, _)) = surface.first_entry(&from_x, &to_x, crossings) else {
+                continue;
+            };
+            let x = surface.rest_point(t, bary);
+            if (0..kept).any(|s| (body.rest_position(s, rest) - x).norm() < 0.5 * pitch) {
+                continue;
+            }
+            SurfaceEmbedding::row_into(&x, rest, grid, &kernel, blockers, within, zero);
+            let total: f64 = zero.iter().map(|(_, w)| w).sum();
+            zero.iter_mut().for_each(|(_, w)| *w /= total);
+            op.linear_row(zero, &x, rest, row);
+            if body.fits(row.len()) {
+                body.push(row, x, rest);
             }
         }
-        body.finish(solver_positions, BUILT_INSIDE_PITCHES * pitch);
+        body.finish(positions, BUILT_INSIDE_PITCHES * pitch, from);
+        self.touch.pending = (last < rows * columns).then_some((slab, last, kept));
+        body.len() > from
     }
 }
