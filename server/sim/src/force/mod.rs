@@ -82,7 +82,16 @@ pub struct BladeContact {
     /// depth (0–1): the fracture term is J_c × that share of the depth (a second pass along
     /// a cut opens only what lies below the first; a raked blade, its vertical depth).
     pub crack_share: f64,
+    /// The tissue the blade presses is crushed (its volume under the blade down past
+    /// [`CRUSHED_DET_F`]): the capsule fails there, whatever the indentation.
+    pub crushed: bool,
 }
+
+/// The capsule fails where the tissue under the blade has lost this much of its volume
+/// (det F below it), before the rupture displacement if need be: on a lattice fine
+/// enough to draw the blade's dent, the tissue under a 0.4 mm tip end is crushed to
+/// det F ≈ 0.1 well before it has been pressed 3 mm, and springs out at rupture.
+pub const CRUSHED_DET_F: f64 = 0.5;
 
 /// The force on the tool and its local linear model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -338,7 +347,7 @@ impl CuttingForceModel {
                         + 0.5 * (f_before + f_after) * (self.loading_m - before))
                         .max(0.0);
                     let x_r = self.spec.rupture_displacement_m;
-                    if self.loading_m >= x_r || self.slide_m.norm() >= x_r {
+                    if self.loading_m >= x_r || self.slide_m.norm() >= x_r || contact.crushed {
                         self.start_cutting(now_s);
                         ruptured = true;
                     }
@@ -424,6 +433,7 @@ mod tests {
             in_existing_cut: false,
             withdrawing: false,
             crack_share: 1.0,
+            crushed: false,
         }
     }
 

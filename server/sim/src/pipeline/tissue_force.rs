@@ -1,6 +1,6 @@
 //! The force on the tool read from the tissue (cutting-physics.md §2, §6): the blade's
-//! contact reaction (`solver::blade`), plus the fracture term of the force model while
-//! cutting. Also what the haptic loop's local model needs from it: the tissue's stiffness
+//! contact reaction (`solver::blade`) while it presses; while cutting, the fracture term of
+//! the force model (the flats against the lips are not on yet). Also what the haptic loop's local model needs from it: the tissue's stiffness
 //! along the press, measured as the blade moves, and the energy the press stored.
 
 use crate::force::{CutForce, CutPhase};
@@ -28,8 +28,8 @@ pub struct TissueForce {
 
 impl TissueForce {
     /// The tool's force for `cut` (the force model's tick) with the tissue's reaction
-    /// `tissue` on the blade whose tip is at `tip`: the reaction alone while pressing, the
-    /// reaction plus the fracture term while cutting.
+    /// `tissue` on the blade whose tip is at `tip`: the reaction while pressing, the
+    /// fracture term while cutting.
     pub fn combine(&mut self, cut: &CutForce, tissue: Vec3, tip: Vec3) -> CutForce {
         let mut f = *cut;
         match cut.phase {
@@ -41,11 +41,11 @@ impl TissueForce {
                 f.stored_energy_j = self.store(tissue, tip);
             }
             CutPhase::Cutting => {
+                // The blade's faces hold nothing while cutting (what they held is being let
+                // go by faces backing out, not by the blade): the fracture term alone.
                 self.reading = None;
                 self.last = None;
                 self.stored_j = 0.0;
-                f.force_n += tissue;
-                f.magnitude_n = f.force_n.norm();
             }
         }
         f

@@ -17,6 +17,10 @@ use crate::math::Vec3;
 /// blade insertion studies fit for soft organs; the middle of it.
 pub const BLADE_FRICTION: f64 = 0.2;
 
+/// A sample is pushed only if at least this share of its row (by squared weight) is on
+/// points that can move.
+const FREE_SHARE: f64 = 0.5;
+
 /// Gauss–Seidel passes over the samples per sub-step (samples share points: a second pass
 /// settles what the first one's neighbours pushed back in).
 const PASSES: usize = 2;
@@ -171,6 +175,8 @@ pub struct BladeBody {
     substeps: u32,
     /// Mean force on the blade over the last tick (N).
     on_blade: Vec3,
+    /// 1 while the faces hold, down to 0 while the tissue they held is let go (`release`).
+    hold: f64,
 }
 
 impl BladeBody {
@@ -197,11 +203,35 @@ impl BladeBody {
             force_sum: Vec3::zeros(),
             substeps: 0,
             on_blade: Vec3::zeros(),
+            hold: 1.0,
         }
+    }
+
+    /// Lets the tissue go over ticks: no face takes hold of anything new, and `step` of
+    /// the way is done each tick (the caller backs the blade's faces out as it goes); at
+    /// the end the samples are taken away. Returns how much of the way is left (0: none,
+    /// the samples gone). (Let go at once, the dent a soft organ stored springs back
+    /// within a sub-step: on the tumour scan it moved points over the guard's 0.3 spacings
+    /// in one, a rollback.)
+    pub fn release(&mut self, step: f64) -> f64 {
+        self.faces = 0;
+        self.hold -= step;
+        if self.hold <= 0.0 {
+            self.clear();
+            return 0.0;
+        }
+        self.hold
+    }
+
+    /// Whether the tissue is being let go.
+    pub fn releasing(&self) -> bool {
+        self.hold < 1.0
     }
 
     /// Takes every sample away (the blade left the tissue).
     pub fn clear(&mut self) {
+        self.hold = 1.0;
+        self.faces = ALL_FACES;
         self.samples.clear();
         for v in [
             &mut self.start_local,
@@ -250,7 +280,6 @@ impl BladeBody {
     ) -> usize {
         into.clear();
         into.place(self.to);
-        into.faces = self.faces;
         into.friction = self.friction;
         for s in 0..self.len() {
             let Some(face) = self.face[s] else { continue };
@@ -440,8 +469,22 @@ impl BladeBody {
                     }
                 };
                 let (gap, normal_local) = at.gap(&l, face);
-                let weight: f64 = self.samples.row(s).map(|(k, w)| w * w * inv_mass(k)).sum();
-                if gap >= 0.0 || weight <= 0.0 {
+                if gap >= 0.0 {
+                    continue;
+                }
+                // A sample that mostly follows points that cannot move (asleep, fixed,
+                // virtual) is not pushed: its few free points would take the whole
+                // correction, many times its gap.
+                let (mut weight, mut free, mut all) = (0.0, 0.0, 0.0);
+                for (k, w) in self.samples.row(s) {
+                    let im = inv_mass(k);
+                    weight += w * w * im;
+                    all += w * w;
+                    if im > 0.0 {
+                        free += w * w;
+                    }
+                }
+                if weight <= 0.0 || free < FREE_SHARE * all {
                     continue;
                 }
                 let normal = at.world(&normal_local);

@@ -28,17 +28,6 @@ fn press_then_move(scene: &BuiltScene, factor: f64, depth_mm: f64, then: [f64; 3
             cut.force
         );
         assert!(!r.solver.diverged && r.solver.rollbacks == 0, "tick {k}");
-        if std::env::var("DEBUG_BLADE").is_ok() && k % 10 == 0 {
-            let b = sim.solver().blade().unwrap();
-            println!(
-                "{k} {:?} held {:?} n {} cut {} f {:?}",
-                cut.force.phase,
-                b.held_by(),
-                b.len(),
-                b.cut_samples(),
-                r.tool_force_n.as_slice()
-            );
-        }
         if k == (t_down / TICK_S).round() as usize {
             at_press = r.tool_force_n;
         }

@@ -21,7 +21,7 @@
 use std::ops::Range;
 
 use crate::cut::{Blade, SweptSurface, visit_crossing_pairs};
-use crate::force::{BladeContact, CutForce, CutPhase, CuttingForceModel};
+use crate::force::{BladeContact, CRUSHED_DET_F, CutForce, CutPhase, CuttingForceModel};
 use crate::geometry::predicates::{closest_point_on_triangle, distance_sq_to_segment};
 use crate::math::{Aabb, Vec3};
 use crate::model::{Kernel, Neighbourhoods, RestGrid};
@@ -292,11 +292,13 @@ impl CuttingStage {
                 in_existing_cut,
                 withdrawing,
                 crack_share: crack,
+                crushed: phase_before == CutPhase::Loading
+                    && solver.last_report().min_det_f < CRUSHED_DET_F,
             },
         );
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
-        self.touch_tissue(&force, blade, surface, solver, grid);
+        self.touch_tissue(dt, &force, blade, surface, solver, grid);
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
         CutTick {
             force,

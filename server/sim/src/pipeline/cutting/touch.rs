@@ -9,14 +9,17 @@ use crate::model::SurfaceEmbedding;
 use crate::model::embedding::Blockers;
 use crate::solver::blade::{BladeBody, Slab};
 
-/// Samples across the blade's flats on each side of its mid-plane ...
-const ROWS_EACH_SIDE: i64 = 3;
+/// Rows of samples beyond each flat ...
+const ROWS_BEYOND: usize = 2;
 /// ... and beyond its edge and its spine, along it.
 const COLUMNS_BEYOND: i64 = 2;
 /// The samples' pitch: a quarter of the lattice spacing, within [1.5 × the blade's
 /// thickness, 1 mm] (the field is smooth at the spacing: finer samples only add cost).
 const PITCH_PER_SPACING: f64 = 0.25;
 const MOST_PITCH_M: f64 = 0.001;
+/// Once the capsule fails or the blade is gone, the tissue it held is let go over this
+/// time (s): the crack opening under the blade, at a tissue's pace.
+const RELEASE_S: f64 = 0.1;
 /// Grid cells a build lays samples on per tick.
 const CELLS_PER_TICK: usize = 16;
 /// Columns along the blade from its edge to its spine, at least.
@@ -57,6 +60,10 @@ pub(super) struct TouchScratch {
     /// The build under way: the blade it is laid out around, the next cell of its grid,
     /// and how many samples it carried over.
     pending: Option<(Slab, usize, usize)>,
+    /// Where the tip touched the surface, and where the blade let go of the tissue and
+    /// how far it had pressed.
+    touched_at: Option<Vec3>,
+    letting_go: Option<(Slab, f64)>,
 }
 
 impl TouchScratch {
@@ -69,6 +76,8 @@ impl TouchScratch {
             built_at: None,
             spare: None,
             pending: None,
+            touched_at: None,
+            letting_go: None,
         }
     }
 }
@@ -92,6 +101,7 @@ impl CuttingStage {
     /// where it is, the points the samples follow woken; all taken away when it leaves.
     pub(super) fn touch_tissue(
         &mut self,
+        dt: f64,
         force: &CutForce,
         blade: Option<&Blade>,
         surface: &CurrentSurface,
@@ -99,15 +109,41 @@ impl CuttingStage {
         grid: &RestGrid,
     ) {
         // Pressing only, for now: the flats against the lips while cutting were tried and
-        // are not on yet (docs/CUTTING-DECISIONS.md, "The blade in the tick").
+        // are not on yet (docs/CUTTING-DECISIONS.md, "The blade in the tick"). Once the
+        // capsule fails, or the blade is gone, the tissue is let go over RELEASE_S.
         let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
             self.touch.built_at = None;
             self.touch.pending = None;
-            if let Some(body) = solver.blade_mut() {
-                body.clear();
+            let Some(body) = solver.blade_mut() else {
+                return;
+            };
+            if body.is_empty() {
+                self.touch.letting_go = None;
+                return;
+            }
+            // Let go where it ruptured (or was lost), the faces backing out along the edge
+            // to where it touched: the dent relaxes as the crack opens under the blade.
+            let (at, depth) = *self.touch.letting_go.get_or_insert_with(|| {
+                let at = *body.slab();
+                let depth = self
+                    .touch
+                    .touched_at
+                    .map_or(0.0, |t| (t - at.tip).dot(&at.edge));
+                (at, depth.max(0.0))
+            });
+            let left = body.release(dt / RELEASE_S);
+            body.move_to(Slab {
+                tip: at.tip + at.edge * (depth * (1.0 - left)),
+                ..at
+            });
+            if left > 0.0 {
+                self.wake_under_blade(solver, false);
+            } else {
+                self.touch.letting_go = None;
             }
             return;
         };
+        self.touch.letting_go = None;
         let slab = slab_of(b, &self.tool);
         let rebuild = self.touch.built_at.is_none_or(|at| {
             // A grid a pitch apart would let the tip's end (a blade's thickness wide) slip
@@ -117,6 +153,9 @@ impl CuttingStage {
             across.norm() > REBUILD_PITCHES * self.pitch()
         });
         if rebuild {
+            if self.touch.built_at.is_none() {
+                self.touch.touched_at = Some(b.tip);
+            }
             self.start_build(&slab, solver);
             self.touch.built_at = Some(b.tip);
         } else if let Some(body) = solver.blade_mut() {
@@ -127,6 +166,12 @@ impl CuttingStage {
         // would take the dent's whole strain at the rim of the moving patch. (Sleep is
         // checked every SLEEP_CHECK_EVERY ticks, and waking keeps a point awake for
         // SLEEP_AFTER_TICKS: the neighbours need waking only that often.)
+        self.wake_under_blade(solver, grew);
+    }
+
+    /// Wakes the points the blade's samples follow, and their neighbours when `grew` (new
+    /// samples) or every SLEEP_CHECK_EVERY ticks.
+    fn wake_under_blade(&mut self, solver: &Solver, grew: bool) {
         let neighbours_too = grew || self.tick.is_multiple_of(SLEEP_CHECK_EVERY);
         let (Some(body), op) = (solver.blade(), solver.operator()) else {
             return;
@@ -182,7 +227,10 @@ impl CuttingStage {
         let pitch = self.pitch();
         let along_pitch = pitch.max(slab.width / COLUMNS_ACROSS_WIDTH);
         let columns = (slab.width / along_pitch).round() as usize + 2 * COLUMNS_BEYOND as usize;
-        let rows = 2 * ROWS_EACH_SIDE as usize + 1;
+        // Rows across: under the tip's end and ROWS_BEYOND beyond each flat.
+        let across_pitch = pitch.max(slab.thickness / 4.0);
+        let each_side = (0.5 * slab.thickness / across_pitch).ceil() as usize + ROWS_BEYOND;
+        let rows = 2 * each_side + 1;
         let reach = slab.length.max(2.0 * self.kernel.support_m);
         let side = slab.side();
         let kernel = surface.kernel();
@@ -209,7 +257,7 @@ impl CuttingStage {
             let r = if k % 2 == 0 { k / 2 } else { -(k + 1) / 2 };
             let c = (cell % columns) as i64;
             let back = ((c - COLUMNS_BEYOND) as f64 + 0.5) * along_pitch;
-            let foot = slab.tip + slab.back * back + side * (r as f64 * pitch);
+            let foot = slab.tip + slab.back * back + side * (r as f64 * across_pitch);
             let (from_x, to_x) = (foot + slab.edge * reach, foot - slab.edge * reach);
             let Some((t, bary, _)) = surface.first_entry(&from_x, &to_x, crossings) else {
                 continue;
