@@ -74,9 +74,27 @@ impl Solver {
         for &i in self.slaves.list() {
             self.target[i as usize] = self.p[i as usize];
         }
+        if let Some(blade) = &mut self.blade {
+            blade.begin_tick();
+            blade.begin_attempt();
+            blade.begin_substep(0.0, 1.0, &self.p);
+        }
         let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
         self.projective = Some(pd);
+        // The blade's faces push the tissue out after the step (a projection with the
+        // step's velocities updated): the global solve has no place for one-sided contacts.
+        if let Some(blade) = &mut self.blade {
+            let (fixed, mass, body) = (&self.fixed, &self.mass, self.material_points);
+            blade.project(&mut self.p, &mut self.v, mass, dt, |k| {
+                if k < body && fixed[k] == [false; 3] {
+                    1.0 / mass[k]
+                } else {
+                    0.0
+                }
+            });
+            blade.end_tick();
+        }
         report
     }
 }
