@@ -156,9 +156,11 @@ pub struct BladeBody {
     anchor_at_tick: Vec<Vec3>,
     /// Samples the crack has taken (they came in through a face that no longer holds).
     cut: Vec<bool>,
-    /// Each sample at the sub-step's start: in the blade's frame then, and in the world.
+    /// Each sample at the sub-step's start: in the blade's frame then, and in the world;
+    /// and whether it can reach the blade within the sub-step (the others are skipped).
     start_local: Vec<Vec3>,
     start_world: Vec<Vec3>,
+    near: Vec<bool>,
     /// The impulse each sample got this sub-step: normal (kg m), and all of it.
     normal_impulse: Vec<f64>,
     impulse: Vec<Vec3>,
@@ -192,6 +194,7 @@ impl BladeBody {
             cut: Vec::with_capacity(samples),
             start_local: Vec::with_capacity(samples),
             start_world: Vec::with_capacity(samples),
+            near: Vec::with_capacity(samples),
             normal_impulse: Vec::with_capacity(samples),
             impulse: Vec::with_capacity(samples),
             from: slab,
@@ -265,6 +268,7 @@ impl BladeBody {
         self.cut.push(false);
         self.start_local.push(Vec3::zeros());
         self.start_world.push(Vec3::zeros());
+        self.near.push(false);
         self.normal_impulse.push(0.0);
         self.impulse.push(Vec3::zeros());
     }
@@ -415,17 +419,36 @@ impl BladeBody {
     }
 
     /// Where the samples are at the start of a sub-step that ends a fraction `frac` of the
-    /// way through the tick, against the blade where it was then.
-    pub(super) fn begin_substep(&mut self, frac_before: f64, frac: f64, p: &[Vec3]) {
+    /// way through the tick, against the blade where it was then; a sample farther outside
+    /// it than the blade moves in the sub-step plus `tissue_reach` (the most a point may
+    /// move in one) cannot touch it and is skipped.
+    pub(super) fn begin_substep(
+        &mut self,
+        frac_before: f64,
+        frac: f64,
+        p: &[Vec3],
+        tissue_reach: f64,
+    ) {
         let before = Slab::between(&self.from, &self.to, frac_before);
+        self.at = Slab::between(&self.from, &self.to, frac);
+        let reach = (self.at.tip - before.tip).norm()
+            + 0.5 * self.at.length * (self.at.edge - before.edge).norm()
+            + 0.5 * self.at.width * (self.at.back - before.back).norm()
+            + tissue_reach;
         for s in 0..self.len() {
             let x = self.samples.position(s, p);
+            let l = before.local(&x);
             self.start_world[s] = x;
-            self.start_local[s] = before.local(&x);
+            self.start_local[s] = l;
             self.normal_impulse[s] = 0.0;
             self.impulse[s] = Vec3::zeros();
+            let outside = Face::ALL
+                .iter()
+                .map(|&f| before.gap(&l, f).0)
+                .fold(f64::NEG_INFINITY, f64::max)
+                .max(l.x - before.length);
+            self.near[s] = !self.cut[s] && (self.face[s].is_some() || outside <= reach);
         }
-        self.at = Slab::between(&self.from, &self.to, frac);
     }
 
     /// Pushes the samples out of the blade after the points moved in a sub-step of `h`:
@@ -445,7 +468,7 @@ impl BladeBody {
         let at = self.at;
         for pass in 0..PASSES {
             for s in 0..self.len() {
-                if self.cut[s] {
+                if !self.near[s] {
                     continue;
                 }
                 let l = at.local(&self.samples.position(s, p));

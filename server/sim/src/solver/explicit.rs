@@ -202,7 +202,12 @@ impl Solver {
         let mut kinetic = self.active_kinetic_energy();
         for s in 0..n {
             if let Some(blade) = &mut self.blade {
-                blade.begin_substep(s as f64 / n as f64, (s + 1) as f64 / n as f64, &self.p);
+                blade.begin_substep(
+                    s as f64 / n as f64,
+                    (s + 1) as f64 / n as f64,
+                    &self.p,
+                    max_move,
+                );
             }
             let st = self.evaluate_elastic(ForceBuffer::Force);
             if let Some(held) = &mut self.held {

@@ -77,7 +77,8 @@ impl Solver {
         if let Some(blade) = &mut self.blade {
             blade.begin_tick();
             blade.begin_attempt();
-            blade.begin_substep(0.0, 1.0, &self.p);
+            // The projective step has no speed bound: every sample is a candidate.
+            blade.begin_substep(0.0, 1.0, &self.p, f64::INFINITY);
         }
         let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
