@@ -243,6 +243,7 @@ impl BladeBody {
         ] {
             v.clear();
         }
+        self.near.clear();
         self.face.clear();
         self.face_at_tick.clear();
         self.anchor.clear();
