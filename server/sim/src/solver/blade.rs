@@ -4,8 +4,9 @@
 //! Coulomb friction, solved in every explicit sub-step after the points move.
 //!
 //! Why constraints and not the probe's penalties: a penalty stiff enough to hold the
-//! tissue within a few % of the press (100 E/h per area) raises ω_max of the points it
-//! reaches about tenfold, and the explicit sub-step with it; a constraint costs nothing
+//! tissue within a few % of the press (100 E/h per area) is about a hundred times stiffer
+//! than the points it reaches, and ω_max (∝ √k) and the explicit sub-step go with it (an
+//! estimate, not measured); a constraint costs nothing
 //! in the step (docs/CUTTING-DECISIONS.md, "The blade in the tick"). Each sub-step's
 //! correction is the impulse the blade gives the tissue; the force on the blade is minus
 //! its mean over the tick, so the tool and the tissue balance exactly.
@@ -13,8 +14,8 @@
 use super::embedded::EmbeddedRows;
 use crate::math::Vec3;
 
-/// Coulomb friction between the blade's steel and wet tissue: 0.1–0.4 is what needle and
-/// blade insertion studies fit for soft organs; the middle of it.
+/// Coulomb friction between the blade's steel and wet tissue: a chosen value, not fitted
+/// to a measurement here (a scene key once one is).
 pub const BLADE_FRICTION: f64 = 0.2;
 
 /// A sample is pushed only if at least this share of its row (by squared weight) is on
@@ -136,14 +137,8 @@ impl Face {
         Face::FlatPlus,
         Face::FlatMinus,
     ];
-
-    fn bit(self) -> u8 {
-        1 << self as u8
-    }
 }
 
-/// Every face holds tissue.
-pub const ALL_FACES: u8 = 0b11111;
 /// The surface samples around the blade, what holds each, and what the blade gave them.
 #[derive(Debug, Clone)]
 pub struct BladeBody {
@@ -154,7 +149,8 @@ pub struct BladeBody {
     /// Where each held sample stuck to its face (blade frame): friction pulls it back.
     anchor: Vec<Vec3>,
     anchor_at_tick: Vec<Vec3>,
-    /// Samples the crack has taken (they came in through a face that no longer holds).
+    /// Samples that are not the blade's to push: built inside it, or coming in while it
+    /// lets go.
     cut: Vec<bool>,
     /// Each sample at the sub-step's start: in the blade's frame then, and in the world;
     /// and whether it can reach the blade within the sub-step (the others are skipped).
@@ -168,8 +164,6 @@ pub struct BladeBody {
     from: Slab,
     to: Slab,
     at: Slab,
-    faces: u8,
-    friction: f64,
     /// Per point, for building (all false between builds).
     seen: Vec<bool>,
     /// The sum over the tick's sub-steps of the force on the tissue, and how many.
@@ -200,8 +194,6 @@ impl BladeBody {
             from: slab,
             to: slab,
             at: slab,
-            faces: ALL_FACES,
-            friction: BLADE_FRICTION,
             seen: vec![false; points],
             force_sum: Vec3::zeros(),
             substeps: 0,
@@ -217,7 +209,6 @@ impl BladeBody {
     /// within a sub-step: on the tumour scan it moved points over the guard's 0.3 spacings
     /// in one, a rollback.)
     pub fn release(&mut self, step: f64) -> f64 {
-        self.faces = 0;
         self.hold -= step;
         if self.hold <= 0.0 {
             self.clear();
@@ -226,15 +217,9 @@ impl BladeBody {
         self.hold
     }
 
-    /// Whether the tissue is being let go.
-    pub fn releasing(&self) -> bool {
-        self.hold < 1.0
-    }
-
     /// Takes every sample away (the blade left the tissue).
     pub fn clear(&mut self) {
         self.hold = 1.0;
-        self.faces = ALL_FACES;
         self.samples.clear();
         for v in [
             &mut self.start_local,
@@ -285,7 +270,6 @@ impl BladeBody {
     ) -> usize {
         into.clear();
         into.place(self.to);
-        into.friction = self.friction;
         for s in 0..self.len() {
             let Some(face) = self.face[s] else { continue };
             row.clear();
@@ -337,11 +321,6 @@ impl BladeBody {
         self.samples.reached()
     }
 
-    /// Sample s's position with the points at `p`.
-    pub fn sample_position(&self, s: usize, p: &[Vec3]) -> Vec3 {
-        self.samples.position(s, p)
-    }
-
     /// The blade moves to `slab` over the next tick.
     pub fn move_to(&mut self, slab: Slab) {
         self.from = self.to;
@@ -362,42 +341,9 @@ impl BladeBody {
         &self.to
     }
 
-    /// The faces that hold tissue from now on (bits by [`Face`]; [`ALL_FACES`]); a sample
-    /// held by one that no longer does is the crack's from now on.
-    pub fn set_faces(&mut self, faces: u8) {
-        self.faces = faces;
-        for s in 0..self.face.len() {
-            if let Some(f) = self.face[s]
-                && faces & f.bit() == 0
-            {
-                self.face[s] = None;
-                self.cut[s] = true;
-            }
-        }
-    }
-
-    /// The friction coefficient along the faces.
-    pub fn set_friction(&mut self, mu: f64) {
-        self.friction = mu;
-    }
-
     /// Samples the blade holds now.
     pub fn touching(&self) -> usize {
         self.face.iter().filter(|f| f.is_some()).count()
-    }
-
-    /// Samples each face holds now (tip, edge, spine, +flat, −flat).
-    pub fn held_by(&self) -> [usize; 5] {
-        let mut n = [0; 5];
-        for f in self.face.iter().flatten() {
-            n[*f as usize] += 1;
-        }
-        n
-    }
-
-    /// Samples the crack has taken.
-    pub fn cut_samples(&self) -> usize {
-        self.cut.iter().filter(|&&c| c).count()
     }
 
     /// The mean force the tissue put on the blade over the last tick (N).
@@ -483,7 +429,8 @@ impl BladeBody {
                     Some(f) => f,
                     None => {
                         let f = at.entry_face(&l, &self.start_local[s]);
-                        if self.faces & f.bit() == 0 {
+                        // Letting go, no face takes hold of anything new.
+                        if self.hold < 1.0 {
                             self.cut[s] = true;
                             continue;
                         }
@@ -520,7 +467,7 @@ impl BladeBody {
                 let mut slip = self.anchor[s] - on_face;
                 slip -= normal_local * slip.dot(&normal_local);
                 let stick = at.world(&slip) / weight;
-                let most = self.friction * self.normal_impulse[s];
+                let most = BLADE_FRICTION * self.normal_impulse[s];
                 let size = stick.norm();
                 let tangent = if size > most {
                     let kept = most / size.max(1e-300);

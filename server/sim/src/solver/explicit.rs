@@ -282,19 +282,9 @@ impl Solver {
                     });
                 }
             }
-            if let Some(blade) = &mut self.blade {
-                let (is_active, fixed, mass) = (&self.is_active, &self.fixed, &self.mass);
-                let body = self.material_points;
-                let (gained, done) = blade.project(&mut self.p, &mut self.v, mass, h, |k| {
-                    if k < body && is_active[k] && fixed[k] == [false; 3] {
-                        1.0 / mass[k]
-                    } else {
-                        0.0
-                    }
-                });
-                kinetic += gained;
-                *work += done;
-            }
+            let (gained, done) = self.project_blade(h, true);
+            kinetic += gained;
+            *work += done;
             *stats = Some(st);
         }
         *kinetic_out = kinetic;

@@ -85,15 +85,8 @@ impl Solver {
         self.projective = Some(pd);
         // The blade's faces push the tissue out after the step (a projection with the
         // step's velocities updated): the global solve has no place for one-sided contacts.
+        self.project_blade(dt, false);
         if let Some(blade) = &mut self.blade {
-            let (fixed, mass, body) = (&self.fixed, &self.mass, self.material_points);
-            blade.project(&mut self.p, &mut self.v, mass, dt, |k| {
-                if k < body && fixed[k] == [false; 3] {
-                    1.0 / mass[k]
-                } else {
-                    0.0
-                }
-            });
             blade.end_tick();
         }
         report

@@ -130,6 +130,26 @@ impl Solver {
         self.blade.as_mut()
     }
 
+    /// The blade's faces push the samples out after the points moved in a step of `h`
+    /// ([`blade::BladeBody::project`]): only points of the body with no fixed dof move, and
+    /// of those only the active ones when `active_only` (the explicit mode integrates the
+    /// active set; the projective one, every point). Returns (kinetic energy gained, work
+    /// the blade did).
+    pub(super) fn project_blade(&mut self, h: f64, active_only: bool) -> (f64, f64) {
+        let Some(blade) = &mut self.blade else {
+            return (0.0, 0.0);
+        };
+        let (is_active, fixed, mass) = (&self.is_active, &self.fixed, &self.mass);
+        let body = self.material_points;
+        blade.project(&mut self.p, &mut self.v, mass, h, |k| {
+            if k < body && (!active_only || is_active[k]) && fixed[k] == [false; 3] {
+                1.0 / mass[k]
+            } else {
+                0.0
+            }
+        })
+    }
+
     /// The blade with the operator and rest positions its samples' rows are built from,
     /// and the points' positions.
     #[allow(clippy::type_complexity)]
