@@ -110,6 +110,11 @@ pub struct CutForce {
     /// Stiffness of the resistance along `direction` (N/m): dF/dx, for the haptic loop's
     /// local model.
     pub stiffness_n_per_m: f64,
+    /// The tissue's stiffness seen at the blade (N/m, symmetric positive semi-definite)
+    /// when the force is read from the tissue (pressing, `pipeline::tissue_force`); zero
+    /// when it is the fracture term's, whose stiffness is `stiffness_n_per_m` along
+    /// `direction`.
+    pub tissue_stiffness_n_per_m: Mat3,
     /// Energy the contact would give back if the blade backed out (J): the loading curve's
     /// work over the current indentation; zero once cutting (fracture and friction give
     /// nothing back). The haptic output stage's passivity observer keeps at least this.
@@ -120,8 +125,9 @@ pub struct CutForce {
 
 impl CutForce {
     /// The local linear model for the haptic loop at tool position `x0`: the loop renders
-    /// `f = f0 + K (x − x0)` with `K = −k |d| d̂ d̂ᵀ`, d = `direction` (the resistance
-    /// grows as the tool advances along d, pushing back; scaled by |d| like the force).
+    /// `f = f0 + K (x − x0)` with `K` minus the tissue's stiffness where the force is read
+    /// from the tissue, else `K = −k |d| d̂ d̂ᵀ`, d = `direction` (the resistance grows as
+    /// the tool advances along d, pushing back; scaled by |d| like the force).
     pub fn local_model(&self, x0: Vec3) -> LocalForceModel {
         let d = self.direction;
         let len = d.norm();
@@ -130,10 +136,15 @@ impl CutForce {
         } else {
             0.0
         };
+        let stiffness = if self.tissue_stiffness_n_per_m == Mat3::zeros() {
+            -(d * d.transpose()) * k
+        } else {
+            -self.tissue_stiffness_n_per_m
+        };
         LocalForceModel {
             f0_n: self.force_n,
             x0_m: x0,
-            stiffness_n_per_m: -(d * d.transpose()) * k,
+            stiffness_n_per_m: stiffness,
             stored_energy_j: self.stored_energy_j,
         }
     }
@@ -403,6 +414,7 @@ impl CuttingForceModel {
             force_n: -along * magnitude,
             direction: along,
             stiffness_n_per_m: stiffness,
+            tissue_stiffness_n_per_m: Mat3::zeros(),
             stored_energy_j: stored,
             ruptured,
         }

@@ -1,28 +1,37 @@
 //! The force on the tool read from the tissue (cutting-physics.md §2, §6): the blade's
 //! contact reaction (`solver::blade`) while it presses; while cutting, the fracture term of
-//! the force model (the flats against the lips are not on yet). Also what the haptic loop's local model needs from it: the tissue's stiffness
-//! along the press, measured as the blade moves, and the energy the press stored.
+//! the force model (the flats against the lips are not on yet). Also what the haptic loop's
+//! local model needs from it: the tissue's 3 × 3 stiffness seen at the blade, measured as
+//! the blade moves, and the energy the press stored.
+
+use nalgebra::SymmetricEigen;
 
 use crate::force::{CutForce, CutPhase};
-use crate::math::Vec3;
+use crate::math::{Mat3, Vec3};
 
 /// The local model's stiffness is at most this (N/m): about what an impedance device of
 /// the Phantom/Touch class renders stably at 1 kHz.
 pub const MAX_LOCAL_STIFFNESS_N_PER_M: f64 = 1000.0;
-/// A stiffness reading needs the blade to have moved this far along the press (m) since
-/// the last one: closer, the difference is the solver's tick-to-tick ripple.
+/// A stiffness reading needs the blade to have moved this far (m) since the last one:
+/// closer, the difference is the solver's tick-to-tick ripple.
 const STIFFNESS_BASE_M: f64 = 2e-5;
-/// Each reading moves the estimate this fraction of the way.
-const STIFFNESS_BLEND: f64 = 0.25;
+/// The stiffness is fitted over this many readings (about 0.3–0.4 mm of travel).
+const READINGS: usize = 16;
+/// What the last estimate weighs in each fit, as this many readings' worth of spread
+/// (m²): in directions the recent readings do not span, the estimate stays what it was.
+const PRIOR_WEIGHT_M2: f64 = 4.0 * STIFFNESS_BASE_M * STIFFNESS_BASE_M;
 
 /// What the force model keeps of the tissue's reaction between ticks.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct TissueForce {
-    /// Where the tip and the force along the press were at the last stiffness reading.
-    reading: Option<(f64, f64)>,
+    /// The last readings (tip, the tissue's push on it), oldest overwritten first.
+    readings: [(Vec3, Vec3); READINGS],
+    /// Readings taken since the blade touched (the ring holds the last [`READINGS`]).
+    taken: usize,
     /// The tip and the force on it last tick, for the stored energy.
     last: Option<(Vec3, Vec3)>,
-    stiffness_n_per_m: f64,
+    /// The tissue's stiffness seen at the blade (N/m): symmetric, positive semi-definite.
+    stiffness: Mat3,
     stored_j: f64,
 }
 
@@ -37,13 +46,15 @@ impl TissueForce {
             CutPhase::Loading => {
                 f.force_n = tissue;
                 f.magnitude_n = tissue.norm();
-                f.stiffness_n_per_m = self.read_stiffness(&f, tip);
+                let k = self.read_stiffness(tissue, tip);
+                f.tissue_stiffness_n_per_m = k;
+                f.stiffness_n_per_m = f.direction.dot(&(k * f.direction));
                 f.stored_energy_j = self.store(tissue, tip);
             }
             CutPhase::Cutting => {
                 // The blade's faces hold nothing while cutting (what they held is being let
                 // go by faces backing out, not by the blade): the fracture term alone.
-                self.reading = None;
+                self.taken = 0;
                 self.last = None;
                 self.stored_j = 0.0;
             }
@@ -51,25 +62,46 @@ impl TissueForce {
         f
     }
 
-    /// The tissue's stiffness along the press: the change of its push back over the
-    /// blade's travel, read once the blade has moved [`STIFFNESS_BASE_M`], blended, never
-    /// negative and at most [`MAX_LOCAL_STIFFNESS_N_PER_M`].
-    fn read_stiffness(&mut self, f: &CutForce, tip: Vec3) -> f64 {
-        let d = f.direction;
-        if d == Vec3::zeros() {
-            return self.stiffness_n_per_m;
+    /// The tissue's stiffness seen at the blade: each time the blade has moved
+    /// [`STIFFNESS_BASE_M`] since the last reading, the least-squares slope of the tissue's
+    /// push against the tip's place over the last [`READINGS`] readings, pulled toward the
+    /// last estimate by [`PRIOR_WEIGHT_M2`]. A press teaches the stiffness along the press,
+    /// a sideways push the stiffness across (and how the press force changes with it); a
+    /// single jump of the contact (a sample slipping) is one reading among sixteen. Kept
+    /// symmetric with its eigenvalues within [0, [`MAX_LOCAL_STIFFNESS_N_PER_M`]]: a
+    /// stiffness the device renders stably, never one that pulls the hand in.
+    fn read_stiffness(&mut self, force: Vec3, tip: Vec3) -> Mat3 {
+        let push = -force;
+        let moved = match self.taken {
+            0 => true,
+            n => (tip - self.readings[(n - 1) % READINGS].0).norm() >= STIFFNESS_BASE_M,
+        };
+        if !moved {
+            return self.stiffness;
         }
-        let (x, push) = (tip.dot(&d), -f.force_n.dot(&d));
-        match self.reading {
-            None => self.reading = Some((x, push)),
-            Some((x0, push0)) if (x - x0).abs() >= STIFFNESS_BASE_M => {
-                let k = ((push - push0) / (x - x0)).clamp(0.0, MAX_LOCAL_STIFFNESS_N_PER_M);
-                self.stiffness_n_per_m += (k - self.stiffness_n_per_m) * STIFFNESS_BLEND;
-                self.reading = Some((x, push));
-            }
-            Some(_) => {}
+        self.readings[self.taken % READINGS] = (tip, push);
+        self.taken += 1;
+        let held = &self.readings[..self.taken.min(READINGS)];
+        if held.len() < 2 {
+            return self.stiffness;
         }
-        self.stiffness_n_per_m
+        let n = held.len() as f64;
+        let x_mean = held.iter().map(|r| r.0).sum::<Vec3>() / n;
+        let p_mean = held.iter().map(|r| r.1).sum::<Vec3>() / n;
+        let (mut spread, mut covary) = (Mat3::zeros(), Mat3::zeros());
+        for (x, p) in held {
+            let dx = x - x_mean;
+            spread += dx * dx.transpose();
+            covary += (p - p_mean) * dx.transpose();
+        }
+        // K (D + αI) = C + α K_last: the regression where the readings span, the last
+        // estimate where they do not. D + αI is positive definite, so the inverse exists.
+        let regular = spread + Mat3::identity() * PRIOR_WEIGHT_M2;
+        if let Some(inverse) = regular.try_inverse() {
+            let fitted = (covary + self.stiffness * PRIOR_WEIGHT_M2) * inverse;
+            self.stiffness = bounded_stiffness(fitted);
+        }
+        self.stiffness
     }
 
     /// The work the hand has put into the press (J), never below zero: what backing out
@@ -81,4 +113,18 @@ impl TissueForce {
         self.last = Some((tip, force));
         self.stored_j
     }
+}
+
+/// `k` symmetrised with its eigenvalues clamped to [0, [`MAX_LOCAL_STIFFNESS_N_PER_M`]];
+/// zero if it is not finite.
+fn bounded_stiffness(k: Mat3) -> Mat3 {
+    let sym = (k + k.transpose()) * 0.5;
+    if !sym.iter().all(|v| v.is_finite()) {
+        return Mat3::zeros();
+    }
+    let mut eig = SymmetricEigen::new(sym);
+    for l in eig.eigenvalues.iter_mut() {
+        *l = l.clamp(0.0, MAX_LOCAL_STIFFNESS_N_PER_M);
+    }
+    eig.recompose()
 }

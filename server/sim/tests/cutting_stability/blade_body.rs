@@ -3,11 +3,25 @@
 //! stiffness and turns with the blade's motion.
 
 use super::*;
+use scalpel_sim::math::Mat3;
+use scalpel_sim::pipeline::tissue_force::MAX_LOCAL_STIFFNESS_N_PER_M;
 
 /// Presses the blade `depth_mm` into the liver's top at x = −30 mm at 5 mm/s, edge up,
 /// then moves it by `then` (mm) over 0.2 s; returns the force on the tool at the end of
-/// the press and at the end of the move, and whether it stayed before rupture.
+/// the press and at the end of the move (it stays before rupture).
 fn press_then_move(scene: &BuiltScene, factor: f64, depth_mm: f64, then: [f64; 3]) -> [Vec3; 2] {
+    let [(press, _), (moved, _)] = press_then_move_model(scene, factor, depth_mm, then);
+    [press, moved]
+}
+
+/// [`press_then_move`], with the stiffness of the haptic loop's local model (∂f/∂x, N/m)
+/// beside each force.
+fn press_then_move_model(
+    scene: &BuiltScene,
+    factor: f64,
+    depth_mm: f64,
+    then: [f64; 3],
+) -> [(Vec3, Mat3); 2] {
     let top = top_mm(scene, -30.0, 0.0);
     let (start, down) = ([-30.0, 0.0, top + 1.0], [-30.0, 0.0, top - depth_mm]);
     let t_down = (1.0 + depth_mm) / 5.0;
@@ -16,7 +30,7 @@ fn press_then_move(scene: &BuiltScene, factor: f64, depth_mm: f64, then: [f64; 3
     let mut sim = Simulation::new(scene);
     sim.handle_stiffness_factor(factor);
     let ticks = (s.duration_s() / TICK_S).round() as usize;
-    let mut at_press = Vec3::zeros();
+    let mut at_press = (Vec3::zeros(), Mat3::zeros());
     for k in 0..=ticks {
         sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
         let r = sim.tick(TICK_S, &mut NoClock);
@@ -28,11 +42,12 @@ fn press_then_move(scene: &BuiltScene, factor: f64, depth_mm: f64, then: [f64; 3
             cut.force
         );
         assert!(!r.solver.diverged && r.solver.rollbacks == 0, "tick {k}");
+        let model = sim.local_force_model().stiffness_n_per_m;
         if k == (t_down / TICK_S).round() as usize {
-            at_press = r.tool_force_n;
+            at_press = (r.tool_force_n, model);
         }
         if k == ticks {
-            return [at_press, r.tool_force_n];
+            return [at_press, (r.tool_force_n, model)];
         }
     }
     unreachable!()
@@ -85,4 +100,35 @@ fn a_stiff_mode_press_is_felt() {
         stiff.z > 0.25 * explicit && stiff.z < 1.5 * explicit,
         "{stiff:?} {explicit}"
     );
+}
+
+/// The haptic loop's local model is the tissue's stiffness seen at the blade: a press
+/// teaches it the stiffness along the press (in proportion to E), a sideways push the
+/// stiffness across; it stays symmetric, pushes back (negative semi-definite ∂f/∂x) and
+/// within what the device renders stably.
+#[test]
+fn the_local_model_is_the_tissue_stiffness() {
+    let scene = scene("liver");
+    let bounded = |k: &Mat3| {
+        let eig = k.symmetric_eigen().eigenvalues;
+        (k - k.transpose()).norm() < 1e-9 * k.norm().max(1.0)
+            && eig
+                .iter()
+                .all(|&l| (-MAX_LOCAL_STIFFNESS_N_PER_M - 1e-6..=1e-6).contains(&l))
+    };
+    let [(f1, k1), (_, k1_held)] = press_then_move_model(&scene, 1.0, 2.0, [0.0; 3]);
+    let [(_, k4), _] = press_then_move_model(&scene, 4.0, 2.0, [0.0; 3]);
+    let [_, (moved, k_side)] = press_then_move_model(&scene, 1.0, 2.0, [0.0, 1.0, 0.0]);
+    println!("2 mm press: f {f1:?} N, K {k1:?}; held 0.2 s: {k1_held:?}");
+    println!("4 × E: K {k4:?}");
+    println!("then 1 mm along +y: f {moved:?} N, K {k_side:?}");
+    for k in [&k1, &k1_held, &k4, &k_side] {
+        assert!(bounded(k), "{k:?}");
+    }
+    // Along the press (z), the secant of a press whose force grows with depth.
+    assert!(-k1[(2, 2)] > 0.5 * f1.z / 0.002, "{k1:?} {f1:?}");
+    let ratio = k4[(2, 2)] / k1[(2, 2)];
+    assert!((2.5..6.0).contains(&ratio), "4 × E gives {ratio:.2} × K");
+    // Only a sideways move teaches the sideways stiffness.
+    assert!(-k_side[(1, 1)] > 5.0 * (-k1[(1, 1)]).max(1.0), "{k_side:?}");
 }
