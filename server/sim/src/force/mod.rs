@@ -82,13 +82,12 @@ pub struct BladeContact {
     /// depth (0–1): the fracture term is J_c × that share of the depth (a second pass along
     /// a cut opens only what lies below the first; a raked blade, its vertical depth).
     pub crack_share: f64,
-    /// The tissue the blade presses is crushed (the smallest det F of the points
-    /// integrated — while pressing, the region around the blade — below
-    /// [`CRUSHED_DET_F`]): the capsule fails, whatever the indentation.
+    /// The tissue the blade presses is crushed (det F of a point a sample the blade holds
+    /// follows below [`CRUSHED_DET_F`]): the capsule fails, whatever the indentation.
     pub crushed: bool,
 }
 
-/// The capsule fails where the tissue around the pressing blade has lost this much of its
+/// The capsule fails where the tissue the pressing blade holds has lost this much of its
 /// volume (det F below it), before the rupture displacement if need be: on a lattice fine
 /// enough to draw the blade's dent, the tissue under a 0.4 mm tip end is crushed to
 /// det F ≈ 0.1 well before it has been pressed 3 mm, and springs out at rupture.

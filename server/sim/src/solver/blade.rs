@@ -341,6 +341,13 @@ impl BladeBody {
         &self.to
     }
 
+    /// The points the samples a face holds now follow (a point may come more than once).
+    pub fn held_points(&self) -> impl Iterator<Item = u32> + '_ {
+        (0..self.len())
+            .filter(|&s| self.face[s].is_some())
+            .flat_map(move |s| self.samples.points_of(s).iter().copied())
+    }
+
     /// Samples the blade holds now.
     pub fn touching(&self) -> usize {
         self.face.iter().filter(|f| f.is_some()).count()

@@ -292,8 +292,7 @@ impl CuttingStage {
                 in_existing_cut,
                 withdrawing,
                 crack_share: crack,
-                crushed: phase_before == CutPhase::Loading
-                    && solver.last_report().min_det_f < CRUSHED_DET_F,
+                crushed: phase_before == CutPhase::Loading && crushed_under_blade(solver),
             },
         );
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing);
@@ -505,4 +504,14 @@ impl CuttingStage {
     pub fn awake_points(&self) -> &[u32] {
         &self.awake_list
     }
+}
+
+/// Whether a point the blade's held samples follow has lost more than [`CRUSHED_DET_F`] of
+/// its volume. Only those: an earlier wound still awake elsewhere (a lab session's strokes)
+/// is not the capsule this blade presses.
+fn crushed_under_blade(solver: &Solver) -> bool {
+    solver.blade().is_some_and(|b| {
+        b.held_points()
+            .any(|i| solver.deformation_gradient(i as usize).determinant() < CRUSHED_DET_F)
+    })
 }
