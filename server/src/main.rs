@@ -316,18 +316,32 @@ fn print_summary(
         return Ok(());
     }
     say!(
-        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, longest {:.2} ms, at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
+        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, {} of them over a tick of CPU time; longest {:.2} ms, {:.2} ms of CPU; at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
         summary.haptic_ticks,
         summary.deadline_misses,
         summary.poses_dropped,
         summary.sim.ticks,
         summary.sim.late_ticks,
+        summary.sim.late_ticks_cpu,
         summary.sim.max_tick_ms,
+        summary.sim.max_tick_cpu_ms,
         summary.sim.most_substeps,
         summary.sim.cut_length_mm,
         summary.state_hash,
         summary.fifo_priority,
         summary.memory_locked
+    );
+    let slowest = &summary.sim.slowest_tick;
+    let stages: Vec<String> = (slowest.stages_ms.iter())
+        .filter(|(_, ms)| *ms >= 0.01)
+        .map(|(name, ms)| format!("{name} {ms:.2}"))
+        .collect();
+    say!(
+        "slowest simulation tick: {} ({:.2} ms, {:.2} ms of CPU; stages in ms: {})",
+        slowest.tick,
+        slowest.wall_ms,
+        slowest.cpu_ms,
+        stages.join(", ")
     );
     if let Some(shm) = shm {
         say!(

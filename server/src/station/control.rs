@@ -251,7 +251,7 @@ impl Station<'_> {
                 if let Some(h) = &line.haptic {
                     remote.window = Some(*h);
                 }
-                report(&StationReport::Status(line));
+                report(&StationReport::Status(Box::new(line)));
                 window_start = now;
                 next += params.status_interval_s;
             }

@@ -22,6 +22,13 @@ pub struct SimStatus {
     pub max_tick_ms: f64,
     /// Ticks that took longer than the simulated time they advance.
     pub late_ticks: u64,
+    /// Of the late ticks, those whose own CPU time was longer than the simulated time: the
+    /// simulation's cost. The others were kept off the CPU (another thread, the host).
+    pub late_ticks_cpu: u64,
+    /// Longest tick so far in the thread's own CPU time (ms).
+    pub max_tick_cpu_ms: f64,
+    /// The longest tick so far (by wall time), stage by stage: where a late tick went.
+    pub slowest_tick: SlowestTick,
     /// Render frames sent over shared memory.
     pub frames_sent: u64,
     /// Render frames that could not be sent (no shared memory free: renderers hold
@@ -37,6 +44,23 @@ pub struct SimStatus {
     pub stiffness_factor: f64,
 }
 
+/// One simulation tick's cost, stage by stage (`scalpel_sim::pipeline::Stage`, in tick
+/// order), for the status line: the slowest tick of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SlowestTick {
+    /// The tick's number (the journal's).
+    pub tick: u64,
+    /// Its wall time (ms): the whole tick, its frame and journal record included.
+    pub wall_ms: f64,
+    /// The thread's CPU time over it (ms).
+    pub cpu_ms: f64,
+    /// Wall time of each of the core's stages (ms), by name.
+    pub stages_ms: [(&'static str, f64); STAGES],
+}
+
+/// The core's stages.
+const STAGES: usize = scalpel_sim::pipeline::Stage::ALL.len();
+
 impl Default for SimStatus {
     fn default() -> Self {
         Self {
@@ -48,6 +72,9 @@ impl Default for SimStatus {
             most_substeps: 0,
             max_tick_ms: 0.0,
             late_ticks: 0,
+            late_ticks_cpu: 0,
+            max_tick_cpu_ms: 0.0,
+            slowest_tick: SlowestTick::default(),
             frames_sent: 0,
             frames_failed: 0,
             entries: 0,
@@ -87,7 +114,7 @@ pub struct StationEvent {
 #[serde(untagged)]
 pub enum StationReport {
     /// The periodic status line.
-    Status(StatusLine),
+    Status(Box<StatusLine>),
     /// An event.
     Event(StationEvent),
 }

@@ -68,7 +68,7 @@ use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
 /// dozen points it joins (instrumented on the cerebroma: 2.4 ms for the 19 a mid-stroke
 /// re-mesh added, 7 ms for the 82 of the stroke's end), so they are spread over the ticks
 /// that follow.
-pub const NODES_PER_TICK: usize = 8;
+pub const NODES_PER_TICK: usize = 4;
 
 /// The stages of a tick, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
