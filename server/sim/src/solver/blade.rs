@@ -513,6 +513,72 @@ impl BladeBody {
         (kinetic, work)
     }
 
+    /// For the projective step's global solve: sample `s`'s one-sided constraint at the
+    /// points `p`, against the blade where the tick ends — its face's outward normal (world)
+    /// and the offset with gap = n · x − offset at the sample's place x — if the blade holds
+    /// it (inside the steel, taking a face as [`Self::project`] does; none while letting
+    /// go); `None` if outside, not the blade's, or mostly on points `free` says cannot move.
+    pub(super) fn constraint(
+        &mut self,
+        s: usize,
+        p: &[Vec3],
+        free: impl Fn(usize) -> bool,
+    ) -> Option<(Vec3, f64)> {
+        if self.cut[s] {
+            return None;
+        }
+        let at = self.at;
+        let x = self.samples.position(s, p);
+        let l = at.local(&x);
+        if !at.inside(&l) {
+            self.face[s] = None;
+            return None;
+        }
+        let face = match self.face[s] {
+            Some(f) => f,
+            None if self.hold < 1.0 => {
+                self.cut[s] = true;
+                return None;
+            }
+            None => {
+                let f = at.entry_face(&l, &self.start_local[s]);
+                self.face[s] = Some(f);
+                self.anchor[s] = l;
+                f
+            }
+        };
+        let (mut on_free, mut all) = (0.0, 0.0);
+        for (k, w) in self.samples.row(s) {
+            all += w * w;
+            if free(k) {
+                on_free += w * w;
+            }
+        }
+        if on_free < FREE_SHARE * all || all <= 0.0 {
+            return None;
+        }
+        let (gap, normal_local) = at.gap(&l, face);
+        let n = at.world(&normal_local);
+        Some((n, n.dot(&x) - gap))
+    }
+
+    /// Sample `s`'s row: (point, weight).
+    pub(super) fn row(&self, s: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.samples.row(s)
+    }
+
+    /// Sample `s`'s place with the points at `p`.
+    pub(super) fn position(&self, s: usize, p: &[Vec3]) -> Vec3 {
+        self.samples.position(s, p)
+    }
+
+    /// The force the tissue got from the blade over a whole step (N): a projective step's
+    /// contact forces, counted as the tick's one sub-step.
+    pub(super) fn add_step_force(&mut self, on_tissue: Vec3) {
+        self.force_sum += on_tissue;
+        self.substeps += 1;
+    }
+
     /// The tick is done: its mean force on the blade.
     pub(super) fn end_tick(&mut self) {
         self.on_blade = if self.substeps > 0 {

@@ -26,6 +26,7 @@ mod explicit;
 pub mod held;
 mod kept_substeps;
 mod projective;
+mod projective_contact;
 mod slaves;
 mod state;
 mod statics;

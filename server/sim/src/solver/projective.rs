@@ -18,6 +18,7 @@ use nalgebra::UnitQuaternion;
 
 use super::Solver;
 use super::events::{SolverEvent, StepReport};
+use super::projective_contact::FaceContacts;
 use crate::math::{Mat3, Vec3};
 use crate::mls::forces::hourglass_stiffness;
 use crate::mls::operator::{MlsOperator, PointRank, complete};
@@ -47,6 +48,9 @@ pub(super) struct Projective {
     rotations: Vec<UnitQuaternion<f64>>,
     rhs: Vec<Vec3>,
     start: Vec<Vec3>,
+    /// The blade's faces in the global solve; `None` when the components do not share one
+    /// system (rollers), where the faces are projected after the step instead.
+    contacts: Option<FaceContacts>,
 }
 
 impl Solver {
@@ -82,10 +86,13 @@ impl Solver {
         }
         let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
+        let in_solve = pd.contacts.is_some();
         self.projective = Some(pd);
-        // The blade's faces push the tissue out after the step (a projection with the
-        // step's velocities updated): the global solve has no place for one-sided contacts.
-        self.project_blade(dt, false);
+        if !in_solve {
+            // The faces push the tissue out after the step (a projection with the step's
+            // velocities updated): weak, the rest of the body does not take part.
+            self.project_blade(dt, false);
+        }
         if let Some(blade) = &mut self.blade {
             blade.end_tick();
         }
@@ -123,7 +130,12 @@ impl Projective {
             }
             systems.push(ComponentSystem::factor(&columns, &pattern, c)?);
         }
+        let contacts = match systems.as_slice() {
+            [one] => Some(FaceContacts::with_room(one.point_of.len())),
+            _ => None,
+        };
         Ok(Self {
+            contacts,
             dt,
             systems,
             strain_weight,
@@ -164,6 +176,23 @@ impl Projective {
             for sys in &mut self.systems {
                 sys.solve(&self.rhs, &mut s.p);
             }
+            if let (Some(contacts), Some(blade), [sys]) = (
+                &mut self.contacts,
+                &mut s.blade,
+                self.systems.as_mut_slice(),
+            ) {
+                contacts.resolve(
+                    blade,
+                    &mut s.p,
+                    &s.rest,
+                    &mut sys.llt,
+                    &sys.row_of,
+                    &sys.point_of,
+                );
+            }
+        }
+        if let (Some(contacts), Some(blade)) = (&self.contacts, &mut s.blade) {
+            blade.add_step_force(contacts.on_tissue);
         }
         let decay = (-s.config.damping_per_s * dt).exp();
         // Work of the applied loads over the step (moving constraints are not tracked here).

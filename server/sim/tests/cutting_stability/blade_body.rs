@@ -82,11 +82,10 @@ fn a_blade_pushed_sideways_is_pushed_back_sideways() {
     assert!(moved.y < -0.2 * press.z, "{moved:?}");
 }
 
-/// In stiff mode (projective dynamics, the global solve without the contacts, the blade's
-/// faces projected after it) the press is felt too — but weaker than the explicit
-/// integrator's and not in proportion to E (0.034 against 0.072 N at 2 mm; ×1.6 for ×4 E:
-/// docs/CUTTING-DECISIONS.md, "The blade in the tick"): the contacts belong in the
-/// local/global iteration, which is the next step.
+/// In stiff mode (projective dynamics, the blade's faces in its global solve) the press is
+/// felt too — but weaker than the explicit integrator's and not in proportion to E (0.034
+/// against 0.072 N at 2 mm; ×1.6 for ×4 E: docs/CUTTING-DECISIONS.md, "The blade in the
+/// tick").
 #[test]
 fn a_stiff_mode_press_is_felt() {
     let mut spec = builtin("liver").unwrap();
