@@ -54,7 +54,10 @@ fn press_then_move_model(
 }
 
 /// The liver at 2.5, 5, 10 and 20 kPa, pressed 2 mm: the tissue's push back is in
-/// proportion to its stiffness, to 5 %. (The formula's was the same at any stiffness.)
+/// proportion to its stiffness, to 5 %. (The formula's was the same at any stiffness.) In
+/// proportion because the points the cutting stage keeps asleep hold the awake region
+/// around the blade as if clamped; the whole liver awake gives way as a body on its
+/// supports (docs/CUTTING-DECISIONS.md, "The sleeping region clamps the press").
 #[test]
 fn the_press_force_scales_with_the_tissue_stiffness() {
     let scene = scene("liver");
@@ -82,10 +85,10 @@ fn a_blade_pushed_sideways_is_pushed_back_sideways() {
     assert!(moved.y < -0.2 * press.z, "{moved:?}");
 }
 
-/// In stiff mode (projective dynamics, the blade's faces in its global solve) the press is
-/// felt too — but weaker than the explicit integrator's and not in proportion to E (0.034
-/// against 0.072 N at 2 mm; ×1.6 for ×4 E: docs/CUTTING-DECISIONS.md, "The blade in the
-/// tick").
+/// In stiff mode (projective dynamics, the whole body, the blade's faces in its global
+/// solve) the press is felt too: 0.034 N at 2 mm, what the explicit integrator gives with
+/// every point awake (0.034), against 0.072 N with the far points asleep
+/// (docs/CUTTING-DECISIONS.md, "The sleeping region clamps the press").
 #[test]
 fn a_stiff_mode_press_is_felt() {
     let mut spec = builtin("liver").unwrap();
