@@ -199,6 +199,9 @@ pub struct OutputConfig {
     /// Time constant over which the passivity observer forgets absorbed energy (ms);
     /// 0 = never (the classic observer).
     pub passivity_memory_ms: f64,
+    /// The stiffest local model rendered (N/m): the device's stable stiffness at the
+    /// loop's rate; each eigenvalue of the model's K is bounded by it.
+    pub max_stiffness_n_per_m: f64,
 }
 
 impl Default for ServerConfig {
@@ -258,6 +261,7 @@ impl Default for OutputConfig {
             fade_in_ms: 50.0,
             passivity: true,
             passivity_memory_ms: 1000.0,
+            max_stiffness_n_per_m: 1000.0,
         }
     }
 }
@@ -378,6 +382,12 @@ impl ServerConfig {
             o.rate_limit_n_per_ms,
             o.rate_limit_n_per_ms > 0.0 && o.rate_limit_n_per_ms <= 50.0,
             "above 0 and at most 50 N/ms",
+        )?;
+        range(
+            "output.max_stiffness_n_per_m",
+            o.max_stiffness_n_per_m,
+            (0.0..=20_000.0).contains(&o.max_stiffness_n_per_m),
+            "between 0 (no local model: the force holds between simulation ticks) and 20000 N/m",
         )?;
         // A timeout shorter than two of the loop's periods would fade the force in and out
         // between samples.
@@ -595,6 +605,15 @@ mod tests {
         for good in ["0", "10", "1000.0"] {
             let text = format!("[output]\npassivity_memory_ms = {good}\n");
             assert!(ServerConfig::from_toml(&text, Path::new("s.toml")).is_ok());
+        }
+        for bad in ["-1", "30000", "nan"] {
+            let e = ServerConfig::from_toml(
+                &format!("[output]\nmax_stiffness_n_per_m = {bad}\n"),
+                Path::new("s.toml"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("output.max_stiffness_n_per_m"), "{e}");
         }
     }
 

@@ -183,6 +183,7 @@ fn station_params(
                 f64::INFINITY
             },
             period_s: 1.0 / config.rates.haptic_hz,
+            max_stiffness_n_per_m: o.max_stiffness_n_per_m,
         },
         status_interval_s: config.rates.status_interval_s,
         station: config.station.clone(),

@@ -40,6 +40,9 @@ pub struct OutputLimits {
     /// The haptic loop's period (s): the rate limit and the fade advance by at most one
     /// period per tick, however late the tick woke.
     pub period_s: f64,
+    /// The stiffest local model rendered (N/m, each eigenvalue of K bounded): what the
+    /// device renders stably at the loop's rate.
+    pub max_stiffness_n_per_m: f64,
 }
 
 impl Default for OutputLimits {
@@ -55,6 +58,7 @@ impl Default for OutputLimits {
             passivity: true,
             passivity_memory_s: 1.0,
             period_s: 0.001,
+            max_stiffness_n_per_m: 1000.0,
         }
     }
 }

@@ -174,6 +174,27 @@ pub struct LocalForceModel {
 pub const LOCAL_MODEL_REACH_M: f64 = 0.004;
 
 impl LocalForceModel {
+    /// The model with its stiffness made symmetric and each of its eigenvalues within
+    /// ±`most` (N/m): what the device renders stably (`[output] max_stiffness_n_per_m`).
+    /// Force and stored energy unchanged; a non-finite stiffness becomes zero.
+    pub fn with_stiffness_at_most(&self, most: f64) -> Self {
+        let k = self.stiffness_n_per_m;
+        let sym = (k + k.transpose()) * 0.5;
+        let stiffness = if sym.iter().all(|v| v.is_finite()) {
+            let mut eig = nalgebra::SymmetricEigen::new(sym);
+            for l in eig.eigenvalues.iter_mut() {
+                *l = l.clamp(-most, most);
+            }
+            eig.recompose()
+        } else {
+            Mat3::zeros()
+        };
+        Self {
+            stiffness_n_per_m: stiffness,
+            ..*self
+        }
+    }
+
     /// The force the model predicts at `x` (N): `f0 + K (x − x0)`, the change `K (x − x0)`
     /// bounded by ‖K‖ · [`LOCAL_MODEL_REACH_M`] (Frobenius norm: the largest stiffness for the
     /// rank-one models the cutting force gives). The bound is on the change, not on the
@@ -433,6 +454,37 @@ impl CuttingForceModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The device's bound keeps the model symmetric, each eigenvalue within it, and the
+    /// force at the model's origin; a stiffness that is not finite renders as none.
+    #[test]
+    fn a_local_model_is_bounded_by_the_device_stiffness() {
+        let k = Mat3::new(-3000.0, 200.0, 0.0, 100.0, -40.0, 0.0, 0.0, 0.0, -500.0);
+        let model = LocalForceModel {
+            f0_n: Vec3::new(0.1, 0.2, 0.3),
+            x0_m: Vec3::new(0.01, 0.0, 0.0),
+            stiffness_n_per_m: k,
+            stored_energy_j: 1e-4,
+        };
+        let bounded = model.with_stiffness_at_most(1000.0);
+        let b = bounded.stiffness_n_per_m;
+        assert!((b - b.transpose()).norm() < 1e-9, "{b}");
+        let eig = b.symmetric_eigen().eigenvalues;
+        assert!(eig.iter().all(|l| l.abs() <= 1000.0 + 1e-9), "{eig}");
+        // What was within the bound stays: the soft directions are the model's own.
+        assert!((eig.iter().cloned().fold(f64::INFINITY, f64::min) + 1000.0).abs() < 1e-9);
+        assert!(eig.iter().any(|l| (l + 500.0).abs() < 1e-9), "{eig}");
+        assert_eq!(bounded.force_at(model.x0_m), model.f0_n);
+        assert_eq!(bounded.stored_energy_j, model.stored_energy_j);
+        let broken = LocalForceModel {
+            stiffness_n_per_m: k * f64::NAN,
+            ..model
+        };
+        assert_eq!(
+            broken.with_stiffness_at_most(1000.0).stiffness_n_per_m,
+            Mat3::zeros()
+        );
+    }
 
     /// In the tissue, moving `advance_m` along +x.
     fn contact(advance_m: f64, depth_m: f64) -> BladeContact {

@@ -9,9 +9,10 @@ use nalgebra::SymmetricEigen;
 use crate::force::{CutForce, CutPhase};
 use crate::math::{Mat3, Vec3};
 
-/// The local model's stiffness is at most this (N/m): about what an impedance device of
-/// the Phantom/Touch class renders stably at 1 kHz.
-pub const MAX_LOCAL_STIFFNESS_N_PER_M: f64 = 1000.0;
+/// The tissue's stiffness read at the blade is at most this (N/m): a bound on what a
+/// reading can be, the stiffest device a station may be configured for (`[output]
+/// max_stiffness_n_per_m`, up to 20000 N/m; the station bounds it by its device's).
+pub const MAX_LOCAL_STIFFNESS_N_PER_M: f64 = 20_000.0;
 /// A stiffness reading needs the blade to have moved this far (m) since the last one:
 /// closer, the difference is the solver's tick-to-tick ripple.
 const STIFFNESS_BASE_M: f64 = 2e-5;
@@ -68,8 +69,8 @@ impl TissueForce {
     /// last estimate by [`PRIOR_WEIGHT_M2`]. A press teaches the stiffness along the press,
     /// a sideways push the stiffness across (and how the press force changes with it); a
     /// single jump of the contact (a sample slipping) is one reading among sixteen. Kept
-    /// symmetric with its eigenvalues within [0, [`MAX_LOCAL_STIFFNESS_N_PER_M`]]: a
-    /// stiffness the device renders stably, never one that pulls the hand in.
+    /// symmetric with its eigenvalues within [0, [`MAX_LOCAL_STIFFNESS_N_PER_M`]]: never a
+    /// stiffness that pulls the hand in.
     fn read_stiffness(&mut self, force: Vec3, tip: Vec3) -> Mat3 {
         let push = -force;
         let moved = match self.taken {
