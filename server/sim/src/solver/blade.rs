@@ -150,8 +150,9 @@ pub struct BladeBody {
     anchor: Vec<Vec3>,
     anchor_at_tick: Vec<Vec3>,
     /// Samples that are not the blade's to push: built inside it, or coming in while it
-    /// lets go.
+    /// lets go; at the tick's start for a retry.
     cut: Vec<bool>,
+    cut_at_tick: Vec<bool>,
     /// Each sample at the sub-step's start: in the blade's frame then, and in the world;
     /// and whether it can reach the blade within the sub-step (the others are skipped).
     start_local: Vec<Vec3>,
@@ -186,6 +187,7 @@ impl BladeBody {
             anchor: Vec::with_capacity(samples),
             anchor_at_tick: Vec::with_capacity(samples),
             cut: Vec::with_capacity(samples),
+            cut_at_tick: Vec::with_capacity(samples),
             start_local: Vec::with_capacity(samples),
             start_world: Vec::with_capacity(samples),
             near: Vec::with_capacity(samples),
@@ -234,6 +236,7 @@ impl BladeBody {
         self.anchor.clear();
         self.anchor_at_tick.clear();
         self.cut.clear();
+        self.cut_at_tick.clear();
         self.normal_impulse.clear();
         self.on_blade = Vec3::zeros();
     }
@@ -252,6 +255,7 @@ impl BladeBody {
         self.anchor.push(Vec3::zeros());
         self.anchor_at_tick.push(Vec3::zeros());
         self.cut.push(false);
+        self.cut_at_tick.push(false);
         self.start_local.push(Vec3::zeros());
         self.start_world.push(Vec3::zeros());
         self.near.push(false);
@@ -362,12 +366,14 @@ impl BladeBody {
     pub(super) fn begin_tick(&mut self) {
         self.face_at_tick.copy_from_slice(&self.face);
         self.anchor_at_tick.copy_from_slice(&self.anchor);
+        self.cut_at_tick.copy_from_slice(&self.cut);
     }
 
     /// A (re)try of the tick starts from its start's contacts.
     pub(super) fn begin_attempt(&mut self) {
         self.face.copy_from_slice(&self.face_at_tick);
         self.anchor.copy_from_slice(&self.anchor_at_tick);
+        self.cut.copy_from_slice(&self.cut_at_tick);
         self.force_sum = Vec3::zeros();
         self.substeps = 0;
     }
@@ -633,16 +639,29 @@ mod tests {
     /// the impulse of the force the blade reports, reversed (to 1e-9 of it).
     #[test]
     fn the_blade_gets_what_the_tissue_gets_reversed() {
+        momentum_balance(crate::solver::SolverConfig::default());
+    }
+
+    /// The same in stiff mode, the faces in the projective global solve: the momentum the
+    /// block gains is the contacts' Σ n λ over the step.
+    #[test]
+    fn the_blade_gets_what_the_tissue_gets_reversed_in_stiff_mode() {
+        momentum_balance(crate::solver::SolverConfig {
+            mode: crate::solver::SolverMode::Projective,
+            ..Default::default()
+        });
+    }
+
+    fn momentum_balance(config: crate::solver::SolverConfig) {
         use crate::model::SurfaceEmbedding;
         use crate::scene::Material;
-        use crate::solver::SolverConfig;
         use crate::validate::box_body;
         let undamped = Material {
             damping_per_s: 0.0,
             ..Material::LIVER
         };
         let size = Vec3::new(0.02, 0.02, 0.02);
-        let mut body = box_body(size, 5, &undamped, 2.0, SolverConfig::default());
+        let mut body = box_body(size, 5, &undamped, 2.0, config);
         let start = Slab {
             tip: Vec3::new(0.0045, 0.0, 0.01),
             ..upright()
@@ -700,6 +719,28 @@ mod tests {
         assert!(pressed > 20, "{pressed} ticks pressed");
         let blade = body.solver.blade().unwrap();
         assert!(blade.force_on_blade().z > 0.0 && blade.touching() > 0);
+    }
+
+    /// A sample that came in while the blade lets go is the crack's for the rest of the
+    /// attempt, but a retried tick starts from what the tick started with.
+    #[test]
+    fn a_retried_tick_starts_from_the_samples_it_started_with() {
+        let b = upright();
+        let mut blade = BladeBody::with_room(1, 4, 4, b);
+        let rest = [Vec3::new(-0.003, 0.0001, 0.0005)];
+        blade.push(&[(0, 1.0)], rest[0], &rest);
+        blade.finish(&[Vec3::new(-0.003, 0.0001, -0.001)], 0.0, 0);
+        assert_eq!(blade.release(0.5), 0.5);
+        blade.begin_tick();
+        blade.begin_attempt();
+        let mut p = [Vec3::new(-0.003, 0.0001, -0.001)];
+        blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+        p[0] = rest[0];
+        let mut v = [Vec3::zeros()];
+        blade.project(&mut p, &mut v, &[1e-3], 1e-3, |_| 1e3);
+        assert!(blade.cut[0], "came in while letting go");
+        blade.begin_attempt();
+        assert!(!blade.cut[0], "restored for the retry");
     }
 
     /// Halfway between two slabs: halfway along, axes still orthonormal.
