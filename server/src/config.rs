@@ -592,29 +592,23 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("station"), "{e}");
+        // Each `[output]` value refused names its key.
+        let refused = |key: &str, bad: &[&str]| {
+            for value in bad {
+                let text = format!("[output]\n{key} = {value}\n");
+                let e = ServerConfig::from_toml(&text, Path::new("s.toml"))
+                    .unwrap_err()
+                    .to_string();
+                assert!(e.contains(&format!("output.{key}")), "{e}");
+            }
+        };
         // A memory of a few ticks would let the controller damp ordinary contact.
-        for bad in ["1", "-5", "nan"] {
-            let e = ServerConfig::from_toml(
-                &format!("[output]\npassivity_memory_ms = {bad}\n"),
-                Path::new("s.toml"),
-            )
-            .unwrap_err()
-            .to_string();
-            assert!(e.contains("output.passivity_memory_ms"), "{e}");
-        }
+        refused("passivity_memory_ms", &["1", "-5", "nan"]);
         for good in ["0", "10", "1000.0"] {
             let text = format!("[output]\npassivity_memory_ms = {good}\n");
             assert!(ServerConfig::from_toml(&text, Path::new("s.toml")).is_ok());
         }
-        for bad in ["-1", "30000", "nan"] {
-            let e = ServerConfig::from_toml(
-                &format!("[output]\nmax_stiffness_n_per_m = {bad}\n"),
-                Path::new("s.toml"),
-            )
-            .unwrap_err()
-            .to_string();
-            assert!(e.contains("output.max_stiffness_n_per_m"), "{e}");
-        }
+        refused("max_stiffness_n_per_m", &["-1", "30000", "nan"]);
     }
 
     #[test]

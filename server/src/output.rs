@@ -40,8 +40,9 @@ pub struct OutputLimits {
     /// The haptic loop's period (s): the rate limit and the fade advance by at most one
     /// period per tick, however late the tick woke.
     pub period_s: f64,
-    /// The stiffest local model rendered (N/m, each eigenvalue of K bounded): what the
-    /// device renders stably at the loop's rate.
+    /// The stiffest local model rendered (N/m, each eigenvalue of K bounded, by the
+    /// simulation thread as it hands the model over): what the device renders stably at
+    /// the loop's rate.
     pub max_stiffness_n_per_m: f64,
 }
 

@@ -8,6 +8,20 @@ pub type Vec3 = Vector3<f64>;
 /// A 3×3 matrix in double precision.
 pub type Mat3 = Matrix3<f64>;
 
+/// `k` made symmetric with each eigenvalue clamped to `[lo, hi]`; zero if `k` is not
+/// finite. (A stiffness bounded to what may be rendered or trusted.)
+pub fn clamp_eigenvalues(k: &Mat3, lo: f64, hi: f64) -> Mat3 {
+    let sym = (k + k.transpose()) * 0.5;
+    if !sym.iter().all(|v| v.is_finite()) {
+        return Mat3::zeros();
+    }
+    let mut eig = nalgebra::SymmetricEigen::new(sym);
+    for l in eig.eigenvalues.iter_mut() {
+        *l = l.clamp(lo, hi);
+    }
+    eig.recompose()
+}
+
 /// Axis-aligned bounding box.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Aabb {

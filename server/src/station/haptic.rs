@@ -290,8 +290,6 @@ pub struct HapticState {
     device_seen: Option<f64>,
     sim_seen: Option<f64>,
     last_model_tick: u64,
-    /// The simulation's latest local model, its stiffness bounded by the device's.
-    model: LocalForceModel,
     /// Device samples held back by a latency fault, with the time each arrived (capacity
     /// reserved up front: pushing never allocates).
     delay: std::collections::VecDeque<(f64, DeviceSample)>,
@@ -312,12 +310,6 @@ impl HapticState {
             device_seen: None,
             sim_seen: None,
             last_model_tick: 0,
-            model: LocalForceModel {
-                f0_n: Vec3::zeros(),
-                x0_m: Vec3::zeros(),
-                stiffness_n_per_m: scalpel_sim::math::Mat3::zeros(),
-                stored_energy_j: 0.0,
-            },
             delay: std::collections::VecDeque::with_capacity(DELAY_LINE),
             used_seq: 0,
             rng: rand_pcg::Pcg32::new(0x05ca_19e1, 0x0da7_a5e7),
@@ -427,11 +419,8 @@ impl HapticState {
         if update.tick != self.last_model_tick {
             self.last_model_tick = update.tick;
             self.sim_seen = Some(now);
-            // Once a model (a 3 × 3 eigen-decomposition, no allocation).
-            let most = self.stage.limits().max_stiffness_n_per_m;
-            self.model = update.model.with_stiffness_at_most(most);
         }
-        let mut requested = self.model.force_at(x);
+        let mut requested = update.model.force_at(x);
         if effects.spike_n != 0.0 {
             // Along the force there is (or up, out of the tissue): the output stage limits
             // it like any other request.
@@ -445,7 +434,7 @@ impl HapticState {
             device_seen_s: self.device_seen,
             sim_seen_s: self.sim_seen,
             cap_n: effects.cap_n,
-            stored_energy_j: self.model.stored_energy_j,
+            stored_energy_j: update.model.stored_energy_j,
         });
         device.send_force(
             report.force_n,

@@ -133,6 +133,9 @@ pub(super) struct SimThread {
     pub(super) cpus: Vec<usize>,
     /// Where it says whether pinning to `cpus` worked (for the start report).
     pub(super) pinned: std::sync::mpsc::SyncSender<Result<(), String>>,
+    /// The device's stable stiffness (N/m): each local model's K is bounded by it here,
+    /// off the haptic thread.
+    pub(super) max_stiffness_n_per_m: f64,
 }
 
 /// [`SimThread::fifo_gate`]: waiting for the haptic thread's scheduling.
@@ -286,7 +289,9 @@ pub(super) fn spawn_sim(
                 counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms, cpu_ms);
                 let figures = counted.figures;
                 models.write(ModelUpdate {
-                    model: sim.local_force_model(),
+                    model: sim
+                        .local_force_model()
+                        .with_stiffness_at_most(thread.max_stiffness_n_per_m),
                     tick: figures.ticks,
                 });
                 status.write(figures);

@@ -307,6 +307,7 @@ impl Threads {
                 fifo_gate: sim_fifo_gate.clone(),
                 cpus: other_cpus.to_vec(),
                 pinned: sim_pinned_tx,
+                max_stiffness_n_per_m: params.limits.max_stiffness_n_per_m,
             },
             sim_wake.clone(),
         )?;

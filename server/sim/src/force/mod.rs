@@ -24,7 +24,7 @@
 
 use serde::Serialize;
 
-use crate::math::{Mat3, Vec3};
+use crate::math::{Mat3, Vec3, clamp_eigenvalues};
 use crate::scene::ForceSpec;
 
 /// Coefficients of eq. 19 (x in mm, f in the paper's units): two Gaussians.
@@ -109,11 +109,11 @@ pub struct CutForce {
     /// Stiffness of the resistance along `direction` (N/m): dF/dx, for the haptic loop's
     /// local model.
     pub stiffness_n_per_m: f64,
-    /// The tissue's stiffness seen at the blade (N/m, symmetric positive semi-definite)
-    /// when the force is read from the tissue (pressing, `pipeline::tissue_force`); zero
-    /// when it is the fracture term's, whose stiffness is `stiffness_n_per_m` along
-    /// `direction`.
-    pub tissue_stiffness_n_per_m: Mat3,
+    /// The resistance's stiffness as a matrix (N/m): how the push back grows with the
+    /// tool's displacement. The tissue's, seen at the blade, when the force is read from
+    /// the tissue (pressing, `pipeline::tissue_force`); the fracture term's
+    /// `stiffness_n_per_m` along `direction` (`k |d| d̂ d̂ᵀ`) otherwise.
+    pub stiffness_matrix_n_per_m: Mat3,
     /// Energy the contact would give back if the blade backed out (J): the loading curve's
     /// work over the current indentation; zero once cutting (fracture and friction give
     /// nothing back). The haptic output stage's passivity observer keeps at least this.
@@ -124,26 +124,13 @@ pub struct CutForce {
 
 impl CutForce {
     /// The local linear model for the haptic loop at tool position `x0`: the loop renders
-    /// `f = f0 + K (x − x0)` with `K` minus the tissue's stiffness where the force is read
-    /// from the tissue, else `K = −k |d| d̂ d̂ᵀ`, d = `direction` (the resistance grows as
-    /// the tool advances along d, pushing back; scaled by |d| like the force).
+    /// `f = f0 + K (x − x0)` with `K` minus [`Self::stiffness_matrix_n_per_m`] (the
+    /// resistance grows as the tool advances, pushing back).
     pub fn local_model(&self, x0: Vec3) -> LocalForceModel {
-        let d = self.direction;
-        let len = d.norm();
-        let k = if len > 1e-12 {
-            self.stiffness_n_per_m / len
-        } else {
-            0.0
-        };
-        let stiffness = if self.tissue_stiffness_n_per_m == Mat3::zeros() {
-            -(d * d.transpose()) * k
-        } else {
-            -self.tissue_stiffness_n_per_m
-        };
         LocalForceModel {
             f0_n: self.force_n,
             x0_m: x0,
-            stiffness_n_per_m: stiffness,
+            stiffness_n_per_m: -self.stiffness_matrix_n_per_m,
             stored_energy_j: self.stored_energy_j,
         }
     }
@@ -178,19 +165,8 @@ impl LocalForceModel {
     /// ±`most` (N/m): what the device renders stably (`[output] max_stiffness_n_per_m`).
     /// Force and stored energy unchanged; a non-finite stiffness becomes zero.
     pub fn with_stiffness_at_most(&self, most: f64) -> Self {
-        let k = self.stiffness_n_per_m;
-        let sym = (k + k.transpose()) * 0.5;
-        let stiffness = if sym.iter().all(|v| v.is_finite()) {
-            let mut eig = nalgebra::SymmetricEigen::new(sym);
-            for l in eig.eigenvalues.iter_mut() {
-                *l = l.clamp(-most, most);
-            }
-            eig.recompose()
-        } else {
-            Mat3::zeros()
-        };
         Self {
-            stiffness_n_per_m: stiffness,
+            stiffness_n_per_m: clamp_eigenvalues(&self.stiffness_n_per_m, -most, most),
             ..*self
         }
     }
@@ -428,13 +404,16 @@ impl CuttingForceModel {
             CutPhase::Loading => (self.press_direction, self.stored_j),
             CutPhase::Cutting => (direction, 0.0),
         };
+        // Scaled by |d| like the force: k |d| d̂ d̂ᵀ.
+        let len = along.norm();
+        let per_len = if len > 1e-12 { stiffness / len } else { 0.0 };
         CutForce {
             phase: self.phase,
             magnitude_n: magnitude,
             force_n: -along * magnitude,
             direction: along,
             stiffness_n_per_m: stiffness,
-            tissue_stiffness_n_per_m: Mat3::zeros(),
+            stiffness_matrix_n_per_m: (along * along.transpose()) * per_len,
             stored_energy_j: stored,
             ruptured,
         }

@@ -4,10 +4,8 @@
 //! local model needs from it: the tissue's 3 × 3 stiffness seen at the blade, measured as
 //! the blade moves, and the energy the press stored.
 
-use nalgebra::SymmetricEigen;
-
 use crate::force::{CutForce, CutPhase};
-use crate::math::{Mat3, Vec3};
+use crate::math::{Mat3, Vec3, clamp_eigenvalues};
 
 /// The tissue's stiffness read at the blade is at most this (N/m): a bound on what a
 /// reading can be, the stiffest device a station may be configured for (`[output]
@@ -48,7 +46,7 @@ impl TissueForce {
                 f.force_n = tissue;
                 f.magnitude_n = tissue.norm();
                 let k = self.read_stiffness(tissue, tip);
-                f.tissue_stiffness_n_per_m = k;
+                f.stiffness_matrix_n_per_m = k;
                 f.stiffness_n_per_m = f.direction.dot(&(k * f.direction));
                 f.stored_energy_j = self.store(tissue, tip);
             }
@@ -100,7 +98,7 @@ impl TissueForce {
         let regular = spread + Mat3::identity() * PRIOR_WEIGHT_M2;
         if let Some(inverse) = regular.try_inverse() {
             let fitted = (covary + self.stiffness * PRIOR_WEIGHT_M2) * inverse;
-            self.stiffness = bounded_stiffness(fitted);
+            self.stiffness = clamp_eigenvalues(&fitted, 0.0, MAX_LOCAL_STIFFNESS_N_PER_M);
         }
         self.stiffness
     }
@@ -114,18 +112,4 @@ impl TissueForce {
         self.last = Some((tip, force));
         self.stored_j
     }
-}
-
-/// `k` symmetrised with its eigenvalues clamped to [0, [`MAX_LOCAL_STIFFNESS_N_PER_M`]];
-/// zero if it is not finite.
-fn bounded_stiffness(k: Mat3) -> Mat3 {
-    let sym = (k + k.transpose()) * 0.5;
-    if !sym.iter().all(|v| v.is_finite()) {
-        return Mat3::zeros();
-    }
-    let mut eig = SymmetricEigen::new(sym);
-    for l in eig.eigenvalues.iter_mut() {
-        *l = l.clamp(0.0, MAX_LOCAL_STIFFNESS_N_PER_M);
-    }
-    eig.recompose()
 }

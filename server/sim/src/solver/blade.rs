@@ -438,39 +438,14 @@ impl BladeBody {
                     }
                     continue;
                 }
-                let face = match self.face[s] {
-                    Some(f) => f,
-                    None => {
-                        let f = at.entry_face(&l, &self.start_local[s]);
-                        // Letting go, no face takes hold of anything new.
-                        if self.hold < 1.0 {
-                            self.cut[s] = true;
-                            continue;
-                        }
-                        self.face[s] = Some(f);
-                        self.anchor[s] = l;
-                        f
-                    }
+                let Some(face) = self.take_face(s, &l) else {
+                    continue;
                 };
                 let (gap, normal_local) = at.gap(&l, face);
-                if gap >= 0.0 {
+                if gap >= 0.0 || !self.mostly_free(s, |k| inv_mass(k) > 0.0) {
                     continue;
                 }
-                // A sample that mostly follows points that cannot move (asleep, fixed,
-                // virtual) is not pushed: its few free points would take the whole
-                // correction, many times its gap.
-                let (mut weight, mut free, mut all) = (0.0, 0.0, 0.0);
-                for (k, w) in self.samples.row(s) {
-                    let im = inv_mass(k);
-                    weight += w * w * im;
-                    all += w * w;
-                    if im > 0.0 {
-                        free += w * w;
-                    }
-                }
-                if weight <= 0.0 || free < FREE_SHARE * all {
-                    continue;
-                }
+                let weight: f64 = self.samples.row(s).map(|(k, w)| w * w * inv_mass(k)).sum();
                 let normal = at.world(&normal_local);
                 let dl = -gap / weight;
                 self.normal_impulse[s] += dl;
@@ -540,19 +515,37 @@ impl BladeBody {
             self.face[s] = None;
             return None;
         }
-        let face = match self.face[s] {
-            Some(f) => f,
-            None if self.hold < 1.0 => {
-                self.cut[s] = true;
-                return None;
-            }
-            None => {
-                let f = at.entry_face(&l, &self.start_local[s]);
-                self.face[s] = Some(f);
-                self.anchor[s] = l;
-                f
-            }
-        };
+        let face = self.take_face(s, &l)?;
+        if !self.mostly_free(s, free) {
+            return None;
+        }
+        let (gap, normal_local) = at.gap(&l, face);
+        let n = at.world(&normal_local);
+        Some((n, n.dot(&x) - gap))
+    }
+
+    /// The face holding sample `s`, now at local `l` inside the steel: the one that held
+    /// it, else the one it came in through (it sticks there). While letting go no face
+    /// takes hold of anything new: the sample is the crack's from then on.
+    fn take_face(&mut self, s: usize, l: &Vec3) -> Option<Face> {
+        if let Some(f) = self.face[s] {
+            return Some(f);
+        }
+        if self.hold < 1.0 {
+            self.cut[s] = true;
+            return None;
+        }
+        let f = self.at.entry_face(l, &self.start_local[s]);
+        self.face[s] = Some(f);
+        self.anchor[s] = *l;
+        Some(f)
+    }
+
+    /// Whether at least [`FREE_SHARE`] of sample `s`'s row (by squared weight) is on
+    /// points `free` says can move. One that mostly follows points that cannot (asleep,
+    /// fixed, virtual) is not pushed: its few free points would take the whole correction,
+    /// many times its gap.
+    fn mostly_free(&self, s: usize, free: impl Fn(usize) -> bool) -> bool {
         let (mut on_free, mut all) = (0.0, 0.0);
         for (k, w) in self.samples.row(s) {
             all += w * w;
@@ -560,12 +553,7 @@ impl BladeBody {
                 on_free += w * w;
             }
         }
-        if on_free < FREE_SHARE * all || all <= 0.0 {
-            return None;
-        }
-        let (gap, normal_local) = at.gap(&l, face);
-        let n = at.world(&normal_local);
-        Some((n, n.dot(&x) - gap))
+        all > 0.0 && on_free >= FREE_SHARE * all
     }
 
     /// Sample `s`'s row: (point, weight).

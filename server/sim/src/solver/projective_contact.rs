@@ -85,11 +85,16 @@ impl FaceContacts {
             let slot = self.slot_for(s, blade, rest, llt, row_of);
             self.held.push((s, slot, n, offset));
         }
-        for _ in 0..ACTIVE_SET_ROUNDS {
+        for round in 1..=ACTIVE_SET_ROUNDS {
             if self.held.is_empty() {
                 return;
             }
             self.solve_held(blade, p, row_of);
+            if round == ACTIVE_SET_ROUNDS {
+                // Out of rounds: what would still pull pushes nothing.
+                self.lambda.iter_mut().for_each(|l| *l = l.max(0.0));
+                break;
+            }
             let before = self.held.len();
             let mut k = 0;
             while k < self.held.len() {
@@ -104,10 +109,8 @@ impl FaceContacts {
                 break;
             }
         }
-        if self.held.is_empty() {
-            return;
-        }
-        // Within the set that pushes, the last λ are the answer: apply them.
+        // The λ solved for the set that pushes: apply them. (A round that drops samples
+        // is solved again, so these are never a larger set's.)
         let rows = self.rows;
         for (k, &(_, slot, n, _)) in self.held.iter().enumerate() {
             let push = n * self.lambda[k];
