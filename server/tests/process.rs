@@ -229,7 +229,8 @@ fn a_scene_with_cutting_off_is_cut_and_the_station_says_so() {
     .unwrap();
     let out = server()
         .arg(&config)
-        .args(["--duration", "0.5"])
+        // The liver settles on its tray under gravity before its first tick (about 1 s).
+        .args(["--duration", "3"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);

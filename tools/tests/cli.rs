@@ -56,7 +56,9 @@ fn settle_rests_the_liver_on_its_supports() {
         assert!(r.get(key).is_some(), "missing {key}: {r}");
     }
     assert_eq!(r["settled"], true, "{r}");
-    assert_eq!(r["gravity_added"], true, "{r}");
+    // The liver has standard gravity of its own.
+    assert_eq!(r["gravity_added"], false, "{r}");
+    assert_eq!(r["gravity_m_s2"][2], -9.81, "{r}");
     assert!(r["sag_mm"].as_f64().unwrap() > 0.1, "{r}");
     assert!(r["on_tray"].as_u64().unwrap() > 0, "{r}");
     for file in ["settled.vtk", "settled.png"] {
@@ -87,7 +89,9 @@ fn probe_reads_the_force_from_the_tissue() {
         assert!(r.get(key).is_some(), "missing {key}: {r}");
     }
     assert_eq!(r["converged"], true, "{r}");
-    assert_eq!(r["gravity_added"], true, "{r}");
+    // The liver has standard gravity of its own.
+    assert_eq!(r["gravity_added"], false, "{r}");
+    assert_eq!(r["gravity_m_s2"][2], -9.81, "{r}");
     let force = r["force_n"].as_f64().unwrap();
     let secant = r["secant_n_per_mm"].as_f64().unwrap();
     let half_space = r["analytic_n_per_mm"].as_f64().unwrap();
@@ -532,15 +536,29 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert_eq!(m["incisions"].as_u64(), Some(1));
     assert_eq!(m["diverged_ticks"].as_u64(), Some(0), "{m}");
     assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
-    // About 13 mm deep the blade meets 0.19 N/mm + 0.3 N; the press before the capsule
-    // ruptures is the soft liver's push back, a tenth of a newton, not the 3 N peak of the
-    // loading curve it replaced: the peak is the cutting's.
+    // At a depth d the blade meets 0.19 N/mm × d and friction growing to 0.3 N at 10 mm
+    // (the liver resting on its tray has sagged some 10 mm under the script's fixed path:
+    // it cuts about 4.5 mm deep); the press before the capsule ruptures is the soft
+    // liver's push back, a tenth of a newton, not the 3 N peak of the loading curve it
+    // replaced: the peak is the cutting's.
     let peak = m["peak_force_n"].as_f64().unwrap();
     let steady = m["steady_force_n"].as_f64().unwrap();
     let depth_mm = m["steady_depth_mm"].as_f64().unwrap();
-    let want = 0.19 * depth_mm + 0.3;
+    let cutting_force = |d: f64| 0.19 * d + 0.3 * (d / 10.0).min(1.0);
+    let want = cutting_force(depth_mm);
     assert!((steady - want).abs() < 0.1 * want, "{steady} vs {want}");
-    assert!(peak >= steady && peak < 1.15 * want, "{peak} vs {want}");
+    // The peak is where it went deepest (the path rises 1 mm, the settled top more).
+    let csv = std::fs::read_to_string(out.join("force.csv")).unwrap();
+    let deepest = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(7).unwrap().parse::<f64>().unwrap())
+        .fold(0.0, f64::max);
+    let at_deepest = cutting_force(deepest);
+    assert!(
+        peak >= steady && peak < 1.15 * at_deepest,
+        "{peak} vs {at_deepest} at {deepest} mm"
+    );
     // The drawn walls go as deep as the blade did.
     let walls_mm = m["wall_depth_mm"].as_f64().unwrap();
     assert!(
@@ -548,7 +566,6 @@ fn cut_writes_forces_mesh_render_and_metrics() {
         "{walls_mm} vs {depth_mm}"
     );
     // Every file is there and readable.
-    let csv = std::fs::read_to_string(out.join("force.csv")).unwrap();
     assert!(csv.starts_with("t_s,tip_x_mm"));
     assert_eq!(csv.lines().count(), 4902);
     for png in ["force.png", "incision.png"] {

@@ -204,6 +204,7 @@ fn check_that_virtual_points_sit_on_their_own_walls(sim: &Simulation, scene: &Bu
     let all_rest = sim.solver().rest();
     let spacing = scene.model.lattice.spacing;
     let drawn = &sim.surface().positions;
+    let wall_rest = sim.current_surface().rest_positions();
     for k in 0..vp.stats.placed {
         let (node, vertex, inset) = vp.site(k);
         for &i in after.of(node as usize) {
@@ -224,11 +225,23 @@ fn check_that_virtual_points_sit_on_their_own_walls(sim: &Simulation, scene: &Bu
                 "virtual point {node} joined to {i} across the cut"
             );
         }
+        // At rest, exactly its inset inside its wall vertex; in the world, carried with the
+        // tissue as its wall vertex is: the node by the points' field, the vertex by the
+        // surface's own map of it, which agree to a few per cent of how far the organ's
+        // weight has moved them.
+        let at_rest = wall_rest[vertex as usize] + inset;
+        assert!(
+            (all_rest[node as usize] - at_rest).norm() < 0.01 * spacing,
+            "node {node} is off its wall at rest"
+        );
         let now = sim.solver().positions()[node as usize];
+        let moved = (now - all_rest[node as usize]).norm();
         let wall = drawn[vertex as usize] + inset;
         assert!(
-            (now - wall).norm() < 0.01 * spacing,
-            "node {node} is off its wall"
+            (now - wall).norm() < 0.01 * spacing + 0.1 * moved,
+            "node {node} is {} mm off its wall, moved {} mm",
+            (now - wall).norm() * 1e3,
+            moved * 1e3
         );
     }
 }

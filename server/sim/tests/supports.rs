@@ -46,7 +46,12 @@ fn the_liver_settles_on_its_tray_under_gravity() {
 /// Without gravity nothing settles and nothing moves.
 #[test]
 fn without_gravity_the_body_starts_at_rest() {
-    let built = build_scene(&scene("extends = \"liver\"\n"), None, &mut Silent).expect("builds");
+    let built = build_scene(
+        &scene("extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n"),
+        None,
+        &mut Silent,
+    )
+    .expect("builds");
     let sim = Simulation::new(&built);
     assert!(sim.settled().is_none());
     assert_eq!(sim.solver().positions(), sim.solver().rest());

@@ -398,6 +398,15 @@ impl Simulation {
             .set_youngs_modulus(self.spec.material.youngs_modulus_pa * factor);
         if let Some(stage) = &mut self.cutting {
             stage.set_stiffness_factor(factor);
+            if self.settled.is_some() {
+                // Under its weight the organ rests elsewhere at another stiffness: every
+                // point is woken to find it (each falls asleep again once at rest). Asleep,
+                // they held the old sag against the region the blade woke, which sprang
+                // into or away from the blade.
+                for i in 0..self.solver.material_points() as u32 {
+                    stage.wake_point(i);
+                }
+            }
         }
     }
 

@@ -448,7 +448,14 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
         tool: ToolSpec::default(),
         force: ForceSpec::default(),
         solver: SolverSpec::default(),
-        loads: Loads::default(),
+        // The organs rest on their supports under standard gravity; the validation bodies
+        // keep their analytic conditions.
+        loads: match shape {
+            BuiltinMesh::Block | BuiltinMesh::Beam => Loads::default(),
+            _ => Loads {
+                gravity: supports::STANDARD_GRAVITY,
+            },
+        },
         supports: match shape {
             BuiltinMesh::Liver => supports::anatomical::liver(),
             BuiltinMesh::Shoulder => supports::anatomical::shoulder(),

@@ -40,23 +40,64 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
     }
     // The drawn walls go down with it: as deep as the second pass along the middle of the
     // cut (they used to keep the first pass's 5 mm).
-    assert_walls_reach(&sim, &scene, top - 10.0);
+    assert_walls_reach(&sim, &trace);
     assert_sound_surface(&sim);
 }
 
-/// The drawn wound walls reach the blade's height `tip_z_mm` (±1 mm) at x = −20 and −10 mm
-/// along y = 0.
-fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, tip_z_mm: f64) {
+/// The drawn wound walls reach as deep as the blade's edge went (±1 mm) at x = −20 and
+/// −10 mm along y = 0, both in the tissue's own frame (rest space): under gravity the organ
+/// sags on into the wound after it is cut.
+fn assert_walls_reach(sim: &Simulation, trace: &Trace) {
     let corners = wall_corners_mm(sim);
     for x in [-20.0, -10.0] {
-        let top = top_mm(scene, x, 0.0);
-        let deepest = deepest_near(&corners, x).map_or(0.0, |p| top - p.z);
-        let expected = top - tip_z_mm;
+        let floor = blade_floor_near(trace, x).expect("the blade passed");
+        let deepest = deepest_near(&corners, x).map_or(f64::INFINITY, |p| p.z);
         assert!(
-            (deepest - expected).abs() < 1.0,
-            "walls at x = {x} mm reach {deepest} mm, the blade went {expected} mm deep"
+            (deepest - floor.z).abs() < 1.0,
+            "walls at x = {x} mm reach z = {deepest:.2} mm at rest, the edge went to z = \
+             {:.2} mm",
+            floor.z
         );
     }
+}
+
+/// The rest-space x (mm) of the tissue the tip was in as it passed world x `x_mm`: read on
+/// the in-tissue tick whose tip came nearest. The organ resting under gravity is not where
+/// its rest shape is (the liver is carried 3–4 mm along x as it settles on its tray).
+fn rest_x_mm(trace: &Trace, x_mm: f64) -> f64 {
+    let ticks = &trace.ticks;
+    let (tip, edge) = ticks
+        .tip
+        .iter()
+        .zip(&ticks.edge_rest)
+        .filter_map(|(t, e)| Some(((*t)?, (*e)?)))
+        .min_by(|a, b| {
+            (a.0.x * 1e3 - x_mm)
+                .abs()
+                .total_cmp(&(b.0.x * 1e3 - x_mm).abs())
+        })
+        .expect("the blade was in the tissue");
+    x_mm + (edge[0].x - tip.x) * 1e3
+}
+
+/// The lowest point (rest space, mm) the blade's edge reached within 2 mm of rest x `x`.
+fn blade_floor_near(trace: &Trace, x: f64) -> Option<Vec3> {
+    trace
+        .ticks
+        .edge_rest
+        .iter()
+        .flatten()
+        .map(|e| e[0] * 1e3)
+        .filter(|p| (p.x - x).abs() < 2.0)
+        .min_by(|a, b| a.z.total_cmp(&b.z))
+}
+
+/// Top of the organ's rest shape at (x, y) in mm.
+fn rest_top_mm(scene: &BuiltScene, x: f64, y: f64) -> f64 {
+    scalpel_sim::pipeline::vertical_extent(&scene.model.surface, x * 1e-3, y * 1e-3)
+        .expect("inside the organ")
+        .0
+        * 1e3
 }
 
 #[test]
@@ -76,7 +117,7 @@ fn sawing_deeper_in_one_stroke() {
     let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert_one_incision(&sim);
-    assert_walls_reach(&sim, &scene, top - 10.0);
+    assert_walls_reach(&sim, &trace);
     assert_sound_surface(&sim);
 }
 
@@ -161,28 +202,32 @@ fn a_stab_slits_as_wide_as_the_blade() {
     );
     assert_one_incision(&sim);
     // The slit runs from the edge back one blade width, as deep as the blade went at the
-    // edge and shallower behind it (the point narrows at 45°).
+    // edge and shallower behind it (the point narrows at 45°); in rest space, where the
+    // muscle hanging on its bone has carried it.
     let walls = wall_corners_mm(&sim);
     let span = x_span(&walls);
+    let at = rest_x_mm(&trace, x);
     assert!(
-        (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - x).abs() < 2.0,
-        "walls from x = {:.1} to {:.1} mm",
+        (span.0 - (at - width_mm)).abs() < 2.0 && (span.1 - at).abs() < 2.0,
+        "walls from x = {:.1} to {:.1} mm, the edge went in at x = {at:.1} mm at rest",
         span.0,
         span.1
     );
+    let top_at_rest = rest_top_mm(&scene, at, 0.0);
+    let floor = top_at_rest - blade_floor_near(&trace, at).expect("the blade went in").z;
     let deepest = walls
         .iter()
-        .filter(|p| (p.x - x).abs() < 2.0)
-        .map(|p| top - p.z)
+        .filter(|p| (p.x - at).abs() < 2.0)
+        .map(|p| top_at_rest - p.z)
         .fold(0.0, f64::max);
     assert!(
-        (deepest - 10.0).abs() < 1.5,
-        "walls {deepest} mm deep at the edge"
+        (deepest - floor).abs() < 1.5,
+        "walls {deepest} mm deep at the edge, which went {floor} mm deep"
     );
     let shallow = walls
         .iter()
-        .filter(|p| p.x < x - width_mm + 2.0)
-        .map(|p| top_mm(&scene, p.x, p.y) - p.z)
+        .filter(|p| p.x < at - width_mm + 2.0)
+        .map(|p| rest_top_mm(&scene, p.x, p.y) - p.z)
         .fold(0.0, f64::max);
     assert!(
         shallow < deepest - 4.0,
@@ -209,9 +254,10 @@ fn a_stab_then_a_slide_is_one_incision() {
     assert_one_incision(&sim);
     let walls = wall_corners_mm(&sim);
     let span = x_span(&walls);
+    let (start, end) = (rest_x_mm(&trace, x), rest_x_mm(&trace, x + 25.0));
     assert!(
-        (span.0 - (x - width_mm)).abs() < 2.0 && (span.1 - (x + 25.0)).abs() < 2.5,
-        "walls from x = {:.1} to {:.1} mm",
+        (span.0 - (start - width_mm)).abs() < 2.0 && (span.1 - end).abs() < 2.5,
+        "walls from x = {:.1} to {:.1} mm, the path from {start:.1} to {end:.1} at rest",
         span.0,
         span.1
     );
@@ -273,9 +319,10 @@ fn sawing_to_and_fro_in_a_cut() {
     // forward to: nothing drawn beyond (a slit kept from the first entry used to be drawn
     // behind the path's new start).
     let span = x_span(&wall_corners_mm(&sim));
+    let (back, forward) = (rest_x_mm(&trace, -30.0), rest_x_mm(&trace, -10.0));
     assert!(
-        (span.0 + 30.0).abs() < 2.5 && (span.1 + 10.0).abs() < 2.5,
-        "walls from x = {:.1} to {:.1} mm",
+        (span.0 - back).abs() < 2.5 && (span.1 - forward).abs() < 2.5,
+        "walls from x = {:.1} to {:.1} mm, the path from {back:.1} to {forward:.1} at rest",
         span.0,
         span.1
     );
@@ -334,7 +381,7 @@ fn a_raked_blade_cuts_by_its_vertical_depth() {
     }
     // The drawn walls reach the blade's vertical depth, not the length of edge in the
     // tissue (they went √2 × as deep, along the surface normal).
-    assert_walls_reach(&sim, &scene, z);
+    assert_walls_reach(&sim, &trace);
     assert_sound_surface(&sim);
 }
 
@@ -354,18 +401,21 @@ fn a_blade_tilted_sideways_cuts_leaning_walls() {
     assert_one_incision(&sim);
     let corners = wall_corners_mm(&sim);
     for x in [-20.0, -10.0] {
-        let near: Vec<&Vec3> = corners.iter().filter(|p| (p.x - x).abs() < 2.0).collect();
-        let deepest = deepest_near(&corners, x).expect("walls");
+        // In rest space, where the tip was in the tissue as it passed x.
+        let at = rest_x_mm(&trace, x);
+        let tip = blade_floor_near(&trace, at).expect("the blade passed");
+        let near: Vec<&Vec3> = corners.iter().filter(|p| (p.x - at).abs() < 2.0).collect();
+        let deepest = deepest_near(&corners, at).expect("walls");
         assert!(
-            (deepest.z - z).abs() < 1.0 && deepest.y.abs() < 1.0,
-            "at x = {x} mm the walls' deepest corner is {deepest:?}, the tip ran at y = 0, \
-             z = {z} mm"
+            (deepest.z - tip.z).abs() < 1.0 && (deepest.y - tip.y).abs() < 1.0,
+            "where the tip passed x = {x} mm the walls' deepest corner is {deepest:?} at \
+             rest, the tip's {tip:?}"
         );
         // Every wall corner lies in Σ, within the opening of it.
         let normal = Vec3::new(0.0, lean.cos(), lean.sin());
         let opening = sim.incisions().expect("cutting scene").opening_m * 1e3;
         for p in &near {
-            let off = (*p - Vec3::new(x, 0.0, z)).dot(&normal).abs();
+            let off = (*p - tip).dot(&normal).abs();
             assert!(off < opening + 0.5, "wall corner {p:?} is {off} mm off Σ");
         }
     }

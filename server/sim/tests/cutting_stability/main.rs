@@ -91,6 +91,12 @@ struct PerTick {
     sigma: Vec<usize>,
     /// Depth of the edge in the tissue, along it (m).
     depth: Vec<f64>,
+    /// The edge in the tissue's own frame (rest space, m: tip, entry), while in the tissue.
+    /// Under gravity the organ sags on into a wound after it is cut, so a wall is compared
+    /// with where the blade went in this frame, not in the world.
+    edge_rest: Vec<Option<[Vec3; 2]>>,
+    /// The tip's world position (m), while there is a tool.
+    tip: Vec<Option<Vec3>>,
 }
 
 impl std::fmt::Debug for PerTick {
@@ -175,6 +181,11 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
         trace.ticks.depth.push(depth);
         trace
             .ticks
+            .edge_rest
+            .push(r.cut.as_ref().and_then(|c| c.edge_rest));
+        trace.ticks.tip.push(tip);
+        trace
+            .ticks
             .sigma
             .push(sim.cutting().map_or(0, |c| c.sigma.triangles.len()));
         if k + 1 == ticks {
@@ -247,9 +258,10 @@ fn assert_dent_released(sim: &Simulation) {
     );
 }
 
-/// Top of the organ at (x, y) in mm.
+/// Top of the organ at (x, y) in mm, where it rests on its supports when the tool arrives.
 fn top_mm(scene: &BuiltScene, x: f64, y: f64) -> f64 {
-    scalpel_sim::pipeline::vertical_extent(&scene.model.surface, x * 1e-3, y * 1e-3)
+    let surface = scalpel_sim::pipeline::start_surface(scene);
+    scalpel_sim::pipeline::vertical_extent(&surface, x * 1e-3, y * 1e-3)
         .unwrap()
         .0
         * 1e3
