@@ -84,10 +84,11 @@ fn liver_at(factor: f64) -> BuiltScene {
 }
 
 /// The liver at 2.5, 5, 10 and 20 kPa, resting on its tray, pressed 2 mm: the tissue's
-/// push back grows in proportion to its stiffness (0.092, 0.179, 0.341, 0.655 N). (The formula's was the same at any stiffness.) In
-/// proportion because the points the cutting stage keeps asleep hold the awake region
-/// around the blade as if clamped; the whole liver awake gives way as a body on its
-/// supports (docs/CUTTING-DECISIONS.md, "The sleeping region clamps the press").
+/// push back grows in proportion to its stiffness (0.092, 0.179, 0.341, 0.655 N). (The
+/// formula's was the same at any stiffness.) The points the cutting stage keeps asleep hold
+/// the awake region around the blade; resting on its tray the whole liver presses alike
+/// (`a_stiff_mode_press_is_felt`; docs/CUTTING-DECISIONS.md, "The sleeping region clamps
+/// the press").
 #[test]
 fn the_press_force_scales_with_the_tissue_stiffness() {
     let forces: Vec<f64> = [1.0, 2.0, 4.0, 8.0]
@@ -141,9 +142,9 @@ fn a_blade_pushed_sideways_is_pushed_back_sideways() {
 }
 
 /// In stiff mode (projective dynamics, the whole body, the blade's faces in its global
-/// solve) the press is felt too: 0.106 N at 2 mm on the liver resting on its tray, against
-/// 0.092 N in the explicit integrator with the far points asleep
-/// (docs/CUTTING-DECISIONS.md, "The sleeping region clamps the press").
+/// solve) the press is felt too, and as the explicit tick feels it: 0.106 N at 2 mm on the
+/// liver resting on its tray, against 0.092 N in the explicit integrator with the far
+/// points asleep (docs/CUTTING-DECISIONS.md, "The sleeping region clamps the press").
 #[test]
 fn a_stiff_mode_press_is_felt() {
     let mut spec = builtin("liver").unwrap();
@@ -153,8 +154,10 @@ fn a_stiff_mode_press_is_felt() {
     let stiff = press_then_move(&scene, 2.0, [0.0; 3])[0];
     println!("2 mm press, stiff mode: {stiff:?} N (explicit {explicit:.4} N)");
     assert!(stiff.iter().all(|c| c.is_finite()));
+    // The organ resting on its tray, the explicit tick's clamped region and stiff mode's
+    // whole body press alike (13 % apart); floating, the clamp made it 2.1 × as stiff.
     assert!(
-        stiff.z > 0.25 * explicit && stiff.z < 1.5 * explicit,
+        (explicit / stiff.z - 1.0).abs() < 0.25,
         "{stiff:?} {explicit}"
     );
 }
