@@ -30,7 +30,7 @@ use anyhow::{Context, bail};
 use nalgebra::{Quaternion, UnitQuaternion};
 use scalpel_sim::cut::ToolPose;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{NoClock, Simulation};
+use scalpel_sim::pipeline::{NoClock, Simulation, StageClock, TickReport};
 use scalpel_sim::scene::BuiltScene;
 
 /// Format version written on the first line.
@@ -349,13 +349,25 @@ fn pose_of(rest: &[&str], tick: u64, at: &dyn Fn() -> String) -> anyhow::Result<
 /// Plays the journal's inputs through a fresh simulation of `scene`; returns the state hash
 /// at the end.
 pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
+    replay_with(scene, journal, &mut NoClock, |_, _| {})
+}
+
+/// [`replay`], timing the stages on `clock` and handing each tick's report (with the
+/// journal's index of the tick) to `on_tick`.
+pub fn replay_with(
+    scene: &BuiltScene,
+    journal: &Journal,
+    clock: &mut dyn StageClock,
+    mut on_tick: impl FnMut(usize, &TickReport),
+) -> u64 {
     let mut sim = Simulation::new(scene);
     // As the station does before its threads start (the masses it plans depend on the
     // material then, before any stiffness fault).
     sim.prepare(crate::station::SIM_TICK_S);
-    for r in &journal.ticks {
+    for (k, r) in journal.ticks.iter().enumerate() {
         r.apply_to(&mut sim);
-        sim.tick(crate::station::SIM_TICK_S, &mut NoClock);
+        let report = sim.tick(crate::station::SIM_TICK_S, clock);
+        on_tick(k, &report);
     }
     sim.state_hash()
 }

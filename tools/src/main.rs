@@ -205,6 +205,11 @@ enum Command {
         /// Print {scene, ticks, state_hash, live_state_hash, identical} as JSON.
         #[arg(long)]
         json: bool,
+        /// Also time each tick's stages and report the N slowest ticks and how many took
+        /// over a tick of work: the simulation's own work for the session's inputs, which a
+        /// station's late ticks can be compared with.
+        #[arg(long, value_name = "N")]
+        slowest: Option<usize>,
     },
 }
 
@@ -573,7 +578,11 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             Some(out) => view_cmd::snapshot(&station, &out, after, timeout),
             None => view_cmd::window(&station, exit_after),
         },
-        Command::Replay { file, json } => replay_cmd::run(&file, json),
+        Command::Replay {
+            file,
+            json,
+            slowest,
+        } => replay_cmd::run(&file, json, slowest),
     }
 }
 

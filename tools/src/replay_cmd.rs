@@ -1,5 +1,6 @@
-//! `scalpel replay FILE [--json]`: plays a station journal through a fresh simulation and
-//! compares the final state hash with the live run's, bit for bit. Instructor commands in
+//! `scalpel replay FILE [--json] [--slowest N]`: plays a station journal through a fresh
+//! simulation and compares the final state hash with the live run's, bit for bit; with
+//! `--slowest`, the N ticks whose work took longest, stage by stage. Instructor commands in
 //! the journal are listed with who sent them; their effects on the simulation (the poses it
 //! got, the stiffness changes) are in the tick records, so the replay reproduces them.
 
@@ -8,9 +9,12 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use scalpel_server::scene_budget::SceneBudget;
 use scalpel_server::{journal, scene_file};
+use scalpel_sim::pipeline::{
+    SIMULATION_TICK_S as SIM_TICK_S, Stage, StageClock, StageTimes, TickReport,
+};
 
 /// Replays `file`.
-pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
+pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()> {
     let recorded = journal::read(file)?;
     // The memory budget the station had (a replay runs at its own pace: no tick budget).
     let (scene, _) = scene_file::load_station_scene_within(
@@ -18,7 +22,10 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
         &SceneBudget::memory_only(&recorded.limits()),
     )
     .with_context(|| format!("{}: the scene it names", file.display()))?;
-    let hash = journal::replay(&scene, &recorded);
+    let mut timing = Timing::new(slowest.unwrap_or(0));
+    let hash = journal::replay_with(&scene, &recorded, &mut WallClock, |k, report| {
+        timing.add(k, report);
+    });
     if let Some((ticks, _)) = recorded.end
         && ticks != recorded.ticks.len() as u64
     {
@@ -42,6 +49,7 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
                 "state_hash": format!("{hash:016x}"),
                 "live_state_hash": live.map(|h| format!("{h:016x}")),
                 "identical": identical,
+                "slowest": slowest.map(|_| timing.json()),
             })
         );
     } else {
@@ -58,11 +66,98 @@ pub fn run(file: &Path, json: bool) -> anyhow::Result<()> {
             Some(h) => println!("DIFFERENT from the live run ({h:016x})"),
             None => println!("the journal was not closed (no live hash to compare)"),
         }
+        if slowest.is_some() {
+            timing.print();
+        }
     }
     if live.is_some() && !identical {
         bail!("the replay's state differs from the live run's");
     }
     Ok(())
+}
+
+/// Wall time for the replay's stage counters.
+struct WallClock;
+
+impl StageClock for WallClock {
+    fn now_s(&mut self) -> f64 {
+        scalpel_server::realtime::monotonic_s()
+    }
+}
+
+/// The replay's slowest ticks: the simulation's own work for each input, with nothing
+/// else on the machine's cores that the station has (its haptic thread, its re-cut worker,
+/// its writers). A re-cut runs inline here, in the tick that lands it.
+struct Timing {
+    keep: usize,
+    /// (tick time s, journal index, each stage's time s), slowest first.
+    slowest: Vec<(f64, usize, StageTimes)>,
+    over_budget: usize,
+}
+
+impl Timing {
+    fn new(keep: usize) -> Self {
+        Self {
+            keep,
+            slowest: Vec::with_capacity(keep + 1),
+            over_budget: 0,
+        }
+    }
+
+    fn add(&mut self, k: usize, report: &TickReport) {
+        let total: f64 = Stage::ALL.iter().map(|&s| report.stages.of(s)).sum();
+        self.over_budget += usize::from(total > SIM_TICK_S);
+        if self.keep == 0 {
+            return;
+        }
+        let at = self.slowest.partition_point(|e| e.0 >= total);
+        if at < self.keep {
+            self.slowest.insert(at, (total, k, report.stages));
+            self.slowest.truncate(self.keep);
+        }
+    }
+
+    fn stages_ms(stages: &StageTimes) -> Vec<(&'static str, f64)> {
+        Stage::ALL
+            .iter()
+            .map(|&s| (s.name(), stages.of(s) * 1e3))
+            .filter(|&(_, ms)| ms >= 0.005)
+            .collect()
+    }
+
+    fn print(&self) {
+        println!(
+            "ticks over {} ms of work: {}; the slowest (re-cuts run inline in a replay):",
+            SIM_TICK_S * 1e3,
+            self.over_budget
+        );
+        for (total, k, stages) in &self.slowest {
+            let parts: Vec<String> = Self::stages_ms(stages)
+                .iter()
+                .map(|(name, ms)| format!("{name} {ms:.2}"))
+                .collect();
+            println!(
+                "  tick {}: {:.3} ms ({})",
+                k + 1,
+                total * 1e3,
+                parts.join(", ")
+            );
+        }
+    }
+
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "ticks_over_budget": self.over_budget,
+            "ticks": self.slowest.iter().map(|(total, k, stages)| serde_json::json!({
+                "tick": k + 1,
+                "ms": total * 1e3,
+                "stages_ms": Self::stages_ms(stages)
+                    .into_iter()
+                    .map(|(name, ms)| (name.to_string(), serde_json::json!(ms)))
+                    .collect::<serde_json::Map<String, serde_json::Value>>(),
+            })).collect::<Vec<_>>(),
+        })
+    }
 }
 
 /// A journaled command as `scalpel replay` lists it.

@@ -137,13 +137,30 @@ fn stop_a_cutting_station_with(name: &str) {
             "SIG{name}: the force dropped from {f0} to {f1} N between ticks {t0} and {t1}"
         );
     }
-    // The journal is closed and replays bit for bit.
+    // The journal is closed and replays bit for bit; timed, it names its slowest ticks.
     let replay = scalpel().arg("replay").arg(&journal).output().unwrap();
     let text = String::from_utf8_lossy(&replay.stdout);
     assert!(
         replay.status.success() && text.contains("\nidentical to the live run"),
         "SIG{name}: {text}{}",
         String::from_utf8_lossy(&replay.stderr)
+    );
+    let timed = scalpel()
+        .args(["replay", "--json", "--slowest", "3"])
+        .arg(&journal)
+        .output()
+        .unwrap();
+    let r: serde_json::Value = serde_json::from_slice(&timed.stdout).unwrap();
+    assert_eq!(r["identical"], true, "SIG{name}: {r}");
+    let ticks = r["slowest"]["ticks"].as_array().unwrap();
+    assert_eq!(ticks.len(), 3, "SIG{name}: {r}");
+    assert!(
+        ticks
+            .windows(2)
+            .all(|w| w[0]["ms"].as_f64() >= w[1]["ms"].as_f64())
+            && ticks.iter().all(|t| t["ms"].as_f64().unwrap() > 0.0
+                && t["stages_ms"].as_object().is_some_and(|s| !s.is_empty())),
+        "SIG{name}: {r}"
     );
     std::fs::remove_dir_all(&dir).ok();
 }
