@@ -524,6 +524,35 @@ impl BladeBody {
         Some((n, n.dot(&x) - gap))
     }
 
+    /// For stiff mode's friction: the world displacement along its face that takes held
+    /// sample `s` (at the points `p`) back to where it stuck, and the share of it to keep
+    /// when friction cannot hold all of it (it slides, and sticks again where it got to).
+    pub(super) fn back_to_anchor(&self, s: usize, p: &[Vec3]) -> Option<Vec3> {
+        let face = self.face[s]?;
+        let at = self.at;
+        let l = at.local(&self.samples.position(s, p));
+        let (gap, normal_local) = at.gap(&l, face);
+        let on_face = l - normal_local * gap;
+        let mut slip = self.anchor[s] - on_face;
+        slip -= normal_local * slip.dot(&normal_local);
+        Some(at.world(&slip))
+    }
+
+    /// Held sample `s` slid: its anchor moves to `kept` of the way back to it from where
+    /// the sample is on its face (at the points `p`).
+    pub(super) fn slide_anchor(&mut self, s: usize, p: &[Vec3], kept: f64) {
+        let Some(face) = self.face[s] else {
+            return;
+        };
+        let at = self.at;
+        let l = at.local(&self.samples.position(s, p));
+        let (gap, normal_local) = at.gap(&l, face);
+        let on_face = l - normal_local * gap;
+        let mut slip = self.anchor[s] - on_face;
+        slip -= normal_local * slip.dot(&normal_local);
+        self.anchor[s] = on_face + slip * kept;
+    }
+
     /// The face holding sample `s`, now at local `l` inside the steel: the one that held
     /// it, else the one it came in through (it sticks there). While letting go no face
     /// takes hold of anything new: the sample is the crack's from then on.

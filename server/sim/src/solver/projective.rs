@@ -171,7 +171,8 @@ impl Projective {
                 }
             }
         }
-        for _ in 0..s.config.projective_iterations {
+        let iterations = s.config.projective_iterations;
+        for iteration in 0..iterations {
             self.local_step(&s.op, &s.p, &s.scratch[0], &s.mass, h2);
             for sys in &mut self.systems {
                 sys.solve(&self.rhs, &mut s.p);
@@ -188,6 +189,7 @@ impl Projective {
                     &mut sys.llt,
                     &sys.row_of,
                     &sys.point_of,
+                    iteration + 1 == iterations,
                 );
             }
         }

@@ -7,10 +7,14 @@
 //!
 //! `A⁻¹ S_sᵀ` is one scalar solve per sample (the matrix is `L ⊗ I₃`), kept in a slot
 //! while the sample keeps its place in the blade's list and the matrix is the same: a
-//! press asks for it when a sample first touches. Frictionless: the faces' friction is the
-//! explicit integrator's (docs/CUTTING-DECISIONS.md, "Stiff mode").
+//! press asks for it when a sample first touches. Coulomb friction follows the normal
+//! solve through the same matrix: each pushing sample is taken back along its face toward
+//! where it stuck (`S A⁻¹ Sᵀ` per component, the matrix being `L ⊗ I₃`), at most μ × its
+//! normal push; past that it slides, and on the global solve's last iteration sticks again
+//! where it got to, as the explicit projection does (docs/CUTTING-DECISIONS.md, "Stiff
+//! mode").
 
-use super::blade::BladeBody;
+use super::blade::{BLADE_FRICTION, BladeBody};
 use crate::math::Vec3;
 use crate::sparse_llt::SparseLlt;
 
@@ -35,6 +39,11 @@ pub(super) struct FaceContacts {
     gap: Vec<f64>,
     lambda: Vec<f64>,
     schur: Vec<f64>,
+    /// Friction's scratch: each held sample's way back to its anchor, the push that takes
+    /// it there, one component's right-hand side.
+    slip: Vec<Vec3>,
+    tangent: Vec<Vec3>,
+    rhs: Vec<f64>,
     /// The force the contacts put on the tissue at the last iteration (N).
     pub(super) on_tissue: Vec3,
 }
@@ -51,13 +60,17 @@ impl FaceContacts {
             gap: Vec::with_capacity(MAX_HELD),
             lambda: Vec::with_capacity(MAX_HELD),
             schur: vec![0.0; MAX_HELD * MAX_HELD],
+            slip: Vec::with_capacity(MAX_HELD),
+            tangent: Vec::with_capacity(MAX_HELD),
+            rhs: Vec::with_capacity(MAX_HELD),
             on_tissue: Vec3::zeros(),
         }
     }
 
     /// Puts the samples `blade` holds at `p` back on its faces through the system
     /// (`llt`, free rows `row_of` / `point_of`); `rest` are the points' rest places (the
-    /// samples' identity for the kept solves).
+    /// samples' identity for the kept solves). On the `last` iteration of the global solve
+    /// the samples that slid stick again where they got to.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn resolve(
         &mut self,
@@ -67,6 +80,7 @@ impl FaceContacts {
         llt: &mut SparseLlt,
         row_of: &[u32],
         point_of: &[u32],
+        last: bool,
     ) {
         self.on_tissue = Vec3::zeros();
         self.clock += 1;
@@ -111,15 +125,87 @@ impl FaceContacts {
         }
         // The λ solved for the set that pushes: apply them. (A round that drops samples
         // is solved again, so these are never a larger set's.)
+        for k in 0..self.held.len() {
+            let (_, slot, n, _) = self.held[k];
+            self.push(slot, n * self.lambda[k], p, point_of);
+        }
+        self.friction(blade, p, row_of, point_of, last);
+    }
+
+    /// Moves the points by `push` through slot `slot`'s solve, and books it on the tissue.
+    fn push(&mut self, slot: usize, push: Vec3, p: &mut [Vec3], point_of: &[u32]) {
+        self.on_tissue += push;
         let rows = self.rows;
-        for (k, &(_, slot, n, _)) in self.held.iter().enumerate() {
-            let push = n * self.lambda[k];
-            self.on_tissue += push;
-            let z = &self.z[slot * rows..(slot + 1) * rows];
-            for (row, &i) in point_of.iter().enumerate() {
-                if z[row] != 0.0 {
-                    p[i as usize] += push * z[row];
+        let z = &self.z[slot * rows..(slot + 1) * rows];
+        for (row, &i) in point_of.iter().enumerate() {
+            if z[row] != 0.0 {
+                p[i as usize] += push * z[row];
+            }
+        }
+    }
+
+    /// Coulomb friction on the held samples after their normal push: `C_t λ_t = slip` for
+    /// the pushes that take each back to its anchor (`C_t` = `S A⁻¹ Sᵀ`, the same for the
+    /// three components), each bounded by μ × its normal λ.
+    fn friction(
+        &mut self,
+        blade: &mut BladeBody,
+        p: &mut [Vec3],
+        row_of: &[u32],
+        point_of: &[u32],
+        last: bool,
+    ) {
+        let k = self.held.len();
+        if k == 0 {
+            return;
+        }
+        let rows = self.rows;
+        self.slip.clear();
+        for &(s, ..) in &self.held {
+            self.slip
+                .push(blade.back_to_anchor(s, p).unwrap_or_else(Vec3::zeros));
+        }
+        for a in 0..k {
+            let sa = self.held[a].0;
+            for b in 0..=a {
+                let slot_b = self.held[b].1;
+                let zb = &self.z[slot_b * rows..(slot_b + 1) * rows];
+                let mut s_z = 0.0;
+                for (point, w) in blade.row(sa) {
+                    let r = row_of[point];
+                    if r != u32::MAX {
+                        s_z += w * zb[r as usize];
+                    }
                 }
+                self.schur[a * k + b] = s_z;
+                self.schur[b * k + a] = s_z;
+            }
+        }
+        factor_spd(&mut self.schur[..k * k], k);
+        self.tangent.clear();
+        self.tangent.resize(k, Vec3::zeros());
+        for d in 0..3 {
+            self.rhs.clear();
+            self.rhs.extend(self.slip.iter().map(|v| v[d]));
+            solve_factored(&self.schur[..k * k], &mut self.rhs, k);
+            for (t, r) in self.tangent.iter_mut().zip(&self.rhs) {
+                t[d] = *r;
+            }
+        }
+        for a in 0..k {
+            let (s, slot, ..) = self.held[a];
+            let most = BLADE_FRICTION * self.lambda[a].max(0.0);
+            let size = self.tangent[a].norm();
+            let mut tangent = self.tangent[a];
+            if size > most {
+                let kept = most / size.max(1e-300);
+                tangent *= kept;
+                if last {
+                    blade.slide_anchor(s, p, kept);
+                }
+            }
+            if tangent != Vec3::zeros() {
+                self.push(slot, tangent, p, point_of);
             }
         }
     }
@@ -192,6 +278,13 @@ impl FaceContacts {
 /// overwritten by its Cholesky factor): pivots at or below a relative floor (two samples
 /// on the same points and face) are taken as that floor.
 fn solve_spd(c: &mut [f64], b: &mut [f64], k: usize) {
+    factor_spd(c, k);
+    solve_factored(c, b, k);
+}
+
+/// The Cholesky factor of a symmetric positive semi-definite `k × k` C, in place (lower
+/// triangle), pivots floored as [`solve_spd`] says.
+fn factor_spd(c: &mut [f64], k: usize) {
     let scale = (0..k).map(|i| c[i * k + i]).fold(0.0, f64::max);
     let floor = scale * 1e-10 + f64::MIN_POSITIVE;
     for j in 0..k {
@@ -209,6 +302,10 @@ fn solve_spd(c: &mut [f64], b: &mut [f64], k: usize) {
             c[i * k + j] = v / d;
         }
     }
+}
+
+/// Solves `C x = b` in place with C's factor from [`factor_spd`].
+fn solve_factored(c: &[f64], b: &mut [f64], k: usize) {
     for i in 0..k {
         let mut v = b[i];
         for m in 0..i {

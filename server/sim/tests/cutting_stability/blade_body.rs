@@ -162,6 +162,23 @@ fn a_stiff_mode_press_is_felt() {
     );
 }
 
+/// In stiff mode the faces hold the tissue with friction too: pressed 2 mm and then drawn
+/// 0.4 mm back along its length (its spine first, −x), the blade drags the tissue under
+/// its tip with it, and the tissue holds it back — at most μ = 0.2 × the press, beside
+/// what the spine pushes.
+#[test]
+fn stiff_mode_faces_hold_with_friction() {
+    let mut spec = builtin("liver").unwrap();
+    spec.features.stiff_mode = true;
+    let scene = cutting_scene(spec);
+    let [press, drawn] = press_then_move(&scene, 2.0, [-0.4, 0.0, 0.0]);
+    println!("stiff mode: pressed {press:?} N, drawn back 0.4 mm: {drawn:?} N");
+    assert!(
+        drawn.x > 0.05 * drawn.z && drawn.x < 0.25 * drawn.z,
+        "{drawn:?}"
+    );
+}
+
 /// The haptic loop's local model is the tissue's stiffness seen at the blade: a press
 /// teaches it the stiffness along the press (in proportion to E), a sideways push the
 /// stiffness across; it stays symmetric, pushes back (negative semi-definite ∂f/∂x) and
