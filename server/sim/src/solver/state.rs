@@ -220,11 +220,6 @@ impl Solver {
         self.invalidate_projective();
     }
 
-    /// The material's Young's modulus now (Pa).
-    pub fn youngs_modulus(&self) -> f64 {
-        self.params.youngs_modulus_pa
-    }
-
     pub(super) fn poisson_ratio(&self) -> f64 {
         let Lame { lambda, mu } = self.params.lame;
         lambda / (2.0 * (lambda + mu))
