@@ -23,7 +23,14 @@ pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()
     )
     .with_context(|| format!("{}: the scene it names", file.display()))?;
     let mut timing = Timing::new(slowest.unwrap_or(0));
-    let hash = journal::replay_with(&scene, &recorded, &mut WallClock, |k, report| {
+    // Unless asked, no clock: a plain replay reads none.
+    let mut no_clock = scalpel_sim::pipeline::NoClock;
+    let clock: &mut dyn StageClock = if slowest.is_some() {
+        &mut WallClock
+    } else {
+        &mut no_clock
+    };
+    let hash = journal::replay_with(&scene, &recorded, clock, |k, report| {
         timing.add(k, report);
     });
     if let Some((ticks, _)) = recorded.end

@@ -525,32 +525,27 @@ impl BladeBody {
     }
 
     /// For stiff mode's friction: the world displacement along its face that takes held
-    /// sample `s` (at the points `p`) back to where it stuck, and the share of it to keep
-    /// when friction cannot hold all of it (it slides, and sticks again where it got to).
+    /// sample `s` (at the points `p`) back to where it stuck.
     pub(super) fn back_to_anchor(&self, s: usize, p: &[Vec3]) -> Option<Vec3> {
         let face = self.face[s]?;
-        let at = self.at;
-        let l = at.local(&self.samples.position(s, p));
-        let (gap, normal_local) = at.gap(&l, face);
-        let on_face = l - normal_local * gap;
+        let (on_face, normal_local) = self.on_face(s, face, p);
         let mut slip = self.anchor[s] - on_face;
         slip -= normal_local * slip.dot(&normal_local);
-        Some(at.world(&slip))
+        Some(self.at.world(&slip))
     }
 
-    /// Held sample `s` slid: its anchor moves to `kept` of the way back to it from where
-    /// the sample is on its face (at the points `p`).
-    pub(super) fn slide_anchor(&mut self, s: usize, p: &[Vec3], kept: f64) {
-        let Some(face) = self.face[s] else {
-            return;
-        };
-        let at = self.at;
-        let l = at.local(&self.samples.position(s, p));
-        let (gap, normal_local) = at.gap(&l, face);
-        let on_face = l - normal_local * gap;
-        let mut slip = self.anchor[s] - on_face;
-        slip -= normal_local * slip.dot(&normal_local);
-        self.anchor[s] = on_face + slip * kept;
+    /// Held sample `s` slid: it sticks again where it is on its face (at the points `p`).
+    pub(super) fn stick_here(&mut self, s: usize, p: &[Vec3]) {
+        if let Some(face) = self.face[s] {
+            self.anchor[s] = self.on_face(s, face, p).0;
+        }
+    }
+
+    /// Sample `s`'s place (blade frame) projected onto `face`, and the face's normal.
+    fn on_face(&self, s: usize, face: Face, p: &[Vec3]) -> (Vec3, Vec3) {
+        let l = self.at.local(&self.samples.position(s, p));
+        let (gap, normal_local) = self.at.gap(&l, face);
+        (l - normal_local * gap, normal_local)
     }
 
     /// The face holding sample `s`, now at local `l` inside the steel: the one that held
@@ -660,7 +655,7 @@ mod tests {
     }
 
     /// The same in stiff mode, the faces in the projective global solve: the momentum the
-    /// block gains is the contacts' Σ n λ over the step.
+    /// block gains is the contacts' pushes over the step, normal (Σ n λ) and friction.
     #[test]
     fn the_blade_gets_what_the_tissue_gets_reversed_in_stiff_mode() {
         momentum_balance(crate::solver::SolverConfig {

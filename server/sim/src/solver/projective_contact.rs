@@ -44,6 +44,7 @@ pub(super) struct FaceContacts {
     slip: Vec<Vec3>,
     tangent: Vec<Vec3>,
     rhs: Vec<f64>,
+    sliding: Vec<bool>,
     /// The force the contacts put on the tissue at the last iteration (N).
     pub(super) on_tissue: Vec3,
 }
@@ -63,6 +64,7 @@ impl FaceContacts {
             slip: Vec::with_capacity(MAX_HELD),
             tangent: Vec::with_capacity(MAX_HELD),
             rhs: Vec::with_capacity(MAX_HELD),
+            sliding: vec![false; MAX_HELD],
             on_tissue: Vec3::zeros(),
         }
     }
@@ -192,20 +194,34 @@ impl FaceContacts {
                 t[d] = *r;
             }
         }
+        // Bounded per sample by μ × its normal λ. (Through the coupling a push may have a
+        // part along another sample's normal; the next iteration's normal solve takes it
+        // out, all but the last iteration's.)
+        let mut slid = false;
         for a in 0..k {
-            let (s, slot, ..) = self.held[a];
             let most = BLADE_FRICTION * self.lambda[a].max(0.0);
             let size = self.tangent[a].norm();
-            let mut tangent = self.tangent[a];
             if size > most {
-                let kept = most / size.max(1e-300);
-                tangent *= kept;
-                if last {
-                    blade.slide_anchor(s, p, kept);
-                }
+                self.tangent[a] *= most / size.max(1e-300);
+                self.sliding[a] = true;
+                slid = true;
+            } else {
+                self.sliding[a] = false;
             }
+        }
+        for a in 0..k {
+            let (_, slot, ..) = self.held[a];
+            let tangent = self.tangent[a];
             if tangent != Vec3::zeros() {
                 self.push(slot, tangent, p, point_of);
+            }
+        }
+        // A sample that slid sticks again where all the pushes left it.
+        if last && slid {
+            for a in 0..k {
+                if self.sliding[a] {
+                    blade.stick_here(self.held[a].0, p);
+                }
             }
         }
     }

@@ -98,14 +98,15 @@ fn the_press_force_scales_with_the_tissue_stiffness() {
     println!("2 mm press at 1, 2, 4, 8 × E: {forces:?} N");
     assert!(forces[0] > 0.01, "{forces:?}");
     // Each doubling of E doubles the push within 5 %; over the eightfold range within
-    // 12 %: the organ's own weight pre-strains it in proportion to 1/E, which no stiffness
-    // scales away (the probe's table in docs/BENCHMARKS.md shows the same at 2.5 kPa).
+    // 15 % (0.89 of proportional at 8 × E): the organ's own weight pre-strains it in
+    // proportion to 1/E, which no stiffness scales away (the probe's table in
+    // docs/BENCHMARKS.md shows the same at 2.5 kPa).
     for pair in forces.windows(2) {
         assert!((pair[1] / (2.0 * pair[0]) - 1.0).abs() < 0.05, "{forces:?}");
     }
     for (i, f) in forces.iter().enumerate() {
         let per_factor = f / (forces[0] * f64::from(1 << i));
-        assert!((per_factor - 1.0).abs() < 0.12, "{forces:?}");
+        assert!((per_factor - 1.0).abs() < 0.15, "{forces:?}");
     }
 }
 
@@ -121,7 +122,7 @@ fn a_stiffness_fault_presses_like_that_stiffness() {
         let built = press_then_move(&stiffer, 2.0, [0.0; 3])[0];
         println!("{factor} × E: fault {faulted:?} N, built {built:?} N");
         assert!(
-            (faulted.z / built.z - 1.0).abs() < 0.15,
+            (faulted.z / built.z - 1.0).abs() < 0.05,
             "{factor} × E: {faulted:?} against {built:?}"
         );
     }
@@ -164,8 +165,8 @@ fn a_stiff_mode_press_is_felt() {
 
 /// In stiff mode the faces hold the tissue with friction too: pressed 2 mm and then drawn
 /// 0.4 mm back along its length (its spine first, −x), the blade drags the tissue under
-/// its tip with it, and the tissue holds it back — at most μ = 0.2 × the press, beside
-/// what the spine pushes.
+/// its tip with it, and the tissue holds it back — by friction at most μ = 0.2 × the press
+/// (0.098 × it measured; the spine's push on what lies behind it would add to that).
 #[test]
 fn stiff_mode_faces_hold_with_friction() {
     let mut spec = builtin("liver").unwrap();
@@ -174,7 +175,7 @@ fn stiff_mode_faces_hold_with_friction() {
     let [press, drawn] = press_then_move(&scene, 2.0, [-0.4, 0.0, 0.0]);
     println!("stiff mode: pressed {press:?} N, drawn back 0.4 mm: {drawn:?} N");
     assert!(
-        drawn.x > 0.05 * drawn.z && drawn.x < 0.25 * drawn.z,
+        drawn.x > 0.05 * drawn.z && drawn.x < 0.2 * drawn.z,
         "{drawn:?}"
     );
 }

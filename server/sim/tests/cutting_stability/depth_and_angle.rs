@@ -40,17 +40,18 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
     }
     // The drawn walls go down with it: as deep as the second pass along the middle of the
     // cut (they used to keep the first pass's 5 mm).
-    assert_walls_reach(&sim, &trace);
+    assert_walls_reach(&sim, &scene, &trace);
     assert_sound_surface(&sim);
 }
 
 /// The drawn wound walls reach as deep as the blade's edge went (±1 mm) at x = −20 and
 /// −10 mm along y = 0, both in the tissue's own frame (rest space): under gravity the organ
 /// sags on into the wound after it is cut.
-fn assert_walls_reach(sim: &Simulation, trace: &Trace) {
+fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, trace: &Trace) {
     let corners = wall_corners_mm(sim);
     for x in [-20.0, -10.0] {
         let floor = blade_floor_near(trace, x).expect("the blade passed");
+        assert_edge_mapped(scene, trace, x);
         let deepest = deepest_near(&corners, x).map_or(f64::INFINITY, |p| p.z);
         assert!(
             (deepest - floor.z).abs() < 1.0,
@@ -59,6 +60,30 @@ fn assert_walls_reach(sim: &Simulation, trace: &Trace) {
             floor.z
         );
     }
+}
+
+/// Where the edge went lowest within 2 mm of rest x `x`, it was as deep below the organ's
+/// rest top as the tip was below the top of the organ as it rested, within 1 mm (the
+/// weight's strain, a few per cent of the depth): the edge the walls are compared with is
+/// where the blade went.
+fn assert_edge_mapped(scene: &BuiltScene, trace: &Trace, x: f64) {
+    let ticks = &trace.ticks;
+    let (tip, edge) = ticks
+        .tip
+        .iter()
+        .zip(&ticks.edge_rest)
+        .filter_map(|(t, e)| Some(((*t)? * 1e3, (*e)?[0] * 1e3)))
+        .filter(|(_, e)| (e.x - x).abs() < 2.0)
+        .min_by(|a, b| a.1.z.total_cmp(&b.1.z))
+        .expect("the blade passed");
+    let in_world = top_mm(scene, tip.x, tip.y) - tip.z;
+    let at_rest = rest_top_mm(scene, edge.x, edge.y) - edge.z;
+    println!("edge near x = {x} mm: {in_world:.2} mm deep in the world, {at_rest:.2} at rest");
+    assert!(
+        (in_world - at_rest).abs() < 1.0,
+        "near x = {x} mm the tip went {in_world:.2} mm below the resting top, its edge \
+         {at_rest:.2} mm below the rest top"
+    );
 }
 
 /// The rest-space x (mm) of the tissue the tip was in as it passed world x `x_mm`: read on
@@ -117,7 +142,7 @@ fn sawing_deeper_in_one_stroke() {
     let (sim, trace) = calm_run(&scene, &s, 0);
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert_one_incision(&sim);
-    assert_walls_reach(&sim, &trace);
+    assert_walls_reach(&sim, &scene, &trace);
     assert_sound_surface(&sim);
 }
 
@@ -381,7 +406,7 @@ fn a_raked_blade_cuts_by_its_vertical_depth() {
     }
     // The drawn walls reach the blade's vertical depth, not the length of edge in the
     // tissue (they went √2 × as deep, along the surface normal).
-    assert_walls_reach(&sim, &trace);
+    assert_walls_reach(&sim, &scene, &trace);
     assert_sound_surface(&sim);
 }
 
