@@ -38,6 +38,9 @@ pub(super) struct FaceContacts {
     held: Vec<(usize, usize, Vec3, f64)>,
     gap: Vec<f64>,
     lambda: Vec<f64>,
+    /// `S_a A⁻¹ S_bᵀ` of the held samples (k × k, row-major), from the last normal solve:
+    /// the normal Schur complement weighs it by `n_a·n_b`, friction solves with it as is.
+    coupling: Vec<f64>,
     schur: Vec<f64>,
     /// Friction's scratch: each held sample's way back to its anchor, the push that takes
     /// it there, one component's right-hand side.
@@ -60,6 +63,7 @@ impl FaceContacts {
             held: Vec::with_capacity(MAX_HELD),
             gap: Vec::with_capacity(MAX_HELD),
             lambda: Vec::with_capacity(MAX_HELD),
+            coupling: vec![0.0; MAX_HELD * MAX_HELD],
             schur: vec![0.0; MAX_HELD * MAX_HELD],
             slip: Vec::with_capacity(MAX_HELD),
             tangent: Vec::with_capacity(MAX_HELD),
@@ -131,7 +135,7 @@ impl FaceContacts {
             let (_, slot, n, _) = self.held[k];
             self.push(slot, n * self.lambda[k], p, point_of);
         }
-        self.friction(blade, p, row_of, point_of, last);
+        self.friction(blade, p, point_of, last);
     }
 
     /// Moves the points by `push` through slot `slot`'s solve, and books it on the tissue.
@@ -149,40 +153,18 @@ impl FaceContacts {
     /// Coulomb friction on the held samples after their normal push: `C_t λ_t = slip` for
     /// the pushes that take each back to its anchor (`C_t` = `S A⁻¹ Sᵀ`, the same for the
     /// three components), each bounded by μ × its normal λ.
-    fn friction(
-        &mut self,
-        blade: &mut BladeBody,
-        p: &mut [Vec3],
-        row_of: &[u32],
-        point_of: &[u32],
-        last: bool,
-    ) {
+    fn friction(&mut self, blade: &mut BladeBody, p: &mut [Vec3], point_of: &[u32], last: bool) {
         let k = self.held.len();
         if k == 0 {
             return;
         }
-        let rows = self.rows;
         self.slip.clear();
         for &(s, ..) in &self.held {
             self.slip
                 .push(blade.back_to_anchor(s, p).unwrap_or_else(Vec3::zeros));
         }
-        for a in 0..k {
-            let sa = self.held[a].0;
-            for b in 0..=a {
-                let slot_b = self.held[b].1;
-                let zb = &self.z[slot_b * rows..(slot_b + 1) * rows];
-                let mut s_z = 0.0;
-                for (point, w) in blade.row(sa) {
-                    let r = row_of[point];
-                    if r != u32::MAX {
-                        s_z += w * zb[r as usize];
-                    }
-                }
-                self.schur[a * k + b] = s_z;
-                self.schur[b * k + a] = s_z;
-            }
-        }
+        // The held set is the last normal solve's: its coupling is the friction's matrix.
+        self.schur[..k * k].copy_from_slice(&self.coupling[..k * k]);
         factor_spd(&mut self.schur[..k * k], k);
         self.tangent.clear();
         self.tangent.resize(k, Vec3::zeros());
@@ -197,16 +179,12 @@ impl FaceContacts {
         // Bounded per sample by μ × its normal λ. (Through the coupling a push may have a
         // part along another sample's normal; the next iteration's normal solve takes it
         // out, all but the last iteration's.)
-        let mut slid = false;
         for a in 0..k {
             let most = BLADE_FRICTION * self.lambda[a].max(0.0);
             let size = self.tangent[a].norm();
-            if size > most {
+            self.sliding[a] = size > most;
+            if self.sliding[a] {
                 self.tangent[a] *= most / size.max(1e-300);
-                self.sliding[a] = true;
-                slid = true;
-            } else {
-                self.sliding[a] = false;
             }
         }
         for a in 0..k {
@@ -217,7 +195,7 @@ impl FaceContacts {
             }
         }
         // A sample that slid sticks again where all the pushes left it.
-        if last && slid {
+        if last {
             for a in 0..k {
                 if self.sliding[a] {
                     blade.stick_here(self.held[a].0, p);
@@ -279,6 +257,8 @@ impl FaceContacts {
                         s_z += w * zb[r as usize];
                     }
                 }
+                self.coupling[a * k + b] = s_z;
+                self.coupling[b * k + a] = s_z;
                 let c = na.dot(&nb) * s_z;
                 self.schur[a * k + b] = c;
                 self.schur[b * k + a] = c;
