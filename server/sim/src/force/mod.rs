@@ -106,13 +106,10 @@ pub struct CutForce {
     /// while loading; while cutting its averaged motion, at most unit length and shorter
     /// while it turns round; zero when free.
     pub direction: Vec3,
-    /// Stiffness of the resistance along `direction` (N/m): dF/dx, for the haptic loop's
-    /// local model.
-    pub stiffness_n_per_m: f64,
     /// The resistance's stiffness as a matrix (N/m): how the push back grows with the
-    /// tool's displacement. The tissue's, seen at the blade, when the force is read from
-    /// the tissue (pressing, `pipeline::tissue_force`); the fracture term's
-    /// `stiffness_n_per_m` along `direction` (`k |d| d̂ d̂ᵀ`) otherwise.
+    /// tool's displacement, for the haptic loop's local model. The tissue's, seen at the
+    /// blade, when the force is read from the tissue (pressing, `pipeline::tissue_force`);
+    /// the fracture term's dF/dx along `direction` otherwise (`k |d| d̂ d̂ᵀ`).
     pub stiffness_matrix_n_per_m: Mat3,
     /// Energy the contact would give back if the blade backed out (J): the loading curve's
     /// work over the current indentation; zero once cutting (fracture and friction give
@@ -412,7 +409,6 @@ impl CuttingForceModel {
             magnitude_n: magnitude,
             force_n: -along * magnitude,
             direction: along,
-            stiffness_n_per_m: stiffness,
             stiffness_matrix_n_per_m: (along * along.transpose()) * per_len,
             stored_energy_j: stored,
             ruptured,

@@ -769,14 +769,12 @@ fn bounded(force: &CutForce, max_n: f64) -> CutForce {
     if !m.is_finite() {
         f.force_n = Vec3::zeros();
         f.magnitude_n = 0.0;
-        f.stiffness_n_per_m = 0.0;
         f.stiffness_matrix_n_per_m = crate::math::Mat3::zeros();
         f.stored_energy_j = 0.0;
     } else if m > max_n {
         let s = max_n / m;
         f.force_n *= s;
         f.magnitude_n *= s;
-        f.stiffness_n_per_m *= s;
         f.stiffness_matrix_n_per_m *= s;
         f.stored_energy_j *= s;
     }

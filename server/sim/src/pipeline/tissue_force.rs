@@ -45,9 +45,7 @@ impl TissueForce {
             CutPhase::Loading => {
                 f.force_n = tissue;
                 f.magnitude_n = tissue.norm();
-                let k = self.read_stiffness(tissue, tip);
-                f.stiffness_matrix_n_per_m = k;
-                f.stiffness_n_per_m = f.direction.dot(&(k * f.direction));
+                f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
                 f.stored_energy_j = self.store(tissue, tip);
             }
             CutPhase::Cutting => {
