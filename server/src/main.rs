@@ -333,16 +333,12 @@ fn print_summary(
         summary.memory_locked
     );
     let slowest = &summary.sim.slowest_tick;
-    let stages: Vec<String> = (slowest.stages_ms.iter())
-        .filter(|(_, ms)| *ms >= 0.01)
-        .map(|(name, ms)| format!("{name} {ms:.2}"))
-        .collect();
     say!(
         "slowest simulation tick: {} ({:.2} ms, {:.2} ms of CPU; stages in ms: {})",
         slowest.tick,
         slowest.wall_ms,
         slowest.cpu_ms,
-        stages.join(", ")
+        station::stages_text(&slowest.stages_ms)
     );
     if let Some(shm) = shm {
         say!(

@@ -8,10 +8,13 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use scalpel_server::scene_budget::SceneBudget;
+use scalpel_server::station::stages_text;
 use scalpel_server::{journal, scene_file};
 use scalpel_sim::pipeline::{
-    SIMULATION_TICK_S as SIM_TICK_S, Stage, StageClock, StageTimes, TickReport,
+    NoClock, SIMULATION_TICK_S as SIM_TICK_S, StageClock, StageTimes, TickReport,
 };
+
+use crate::cutrun::WallClock;
 
 /// Replays `file`.
 pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()> {
@@ -24,9 +27,9 @@ pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()
     .with_context(|| format!("{}: the scene it names", file.display()))?;
     let mut timing = Timing::new(slowest.unwrap_or(0));
     // Unless asked, no clock: a plain replay reads none.
-    let mut no_clock = scalpel_sim::pipeline::NoClock;
+    let (mut wall, mut no_clock) = (WallClock::default(), NoClock);
     let clock: &mut dyn StageClock = if slowest.is_some() {
-        &mut WallClock
+        &mut wall
     } else {
         &mut no_clock
     };
@@ -83,22 +86,13 @@ pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()
     Ok(())
 }
 
-/// Wall time for the replay's stage counters.
-struct WallClock;
-
-impl StageClock for WallClock {
-    fn now_s(&mut self) -> f64 {
-        scalpel_server::realtime::monotonic_s()
-    }
-}
-
 /// The replay's slowest ticks: the simulation's own work for each input, with nothing
 /// else on the machine's cores that the station has (its haptic thread, its re-cut worker,
 /// its writers). A re-cut runs inline here, in the tick that lands it.
 struct Timing {
     keep: usize,
-    /// (tick time s, journal index, each stage's time s), slowest first.
-    slowest: Vec<(f64, usize, StageTimes)>,
+    /// (journal index, the tick's stage times), slowest first.
+    slowest: Vec<(usize, StageTimes)>,
     over_budget: usize,
 }
 
@@ -112,24 +106,13 @@ impl Timing {
     }
 
     fn add(&mut self, k: usize, report: &TickReport) {
-        let total: f64 = Stage::ALL.iter().map(|&s| report.stages.of(s)).sum();
+        let total = report.stages.total();
         self.over_budget += usize::from(total > SIM_TICK_S);
-        if self.keep == 0 {
-            return;
-        }
-        let at = self.slowest.partition_point(|e| e.0 >= total);
+        let at = self.slowest.partition_point(|e| e.1.total() >= total);
         if at < self.keep {
-            self.slowest.insert(at, (total, k, report.stages));
+            self.slowest.insert(at, (k, report.stages));
             self.slowest.truncate(self.keep);
         }
-    }
-
-    fn stages_ms(stages: &StageTimes) -> Vec<(&'static str, f64)> {
-        Stage::ALL
-            .iter()
-            .map(|&s| (s.name(), stages.of(s) * 1e3))
-            .filter(|&(_, ms)| ms >= 0.005)
-            .collect()
     }
 
     fn print(&self) {
@@ -138,16 +121,12 @@ impl Timing {
             SIM_TICK_S * 1e3,
             self.over_budget
         );
-        for (total, k, stages) in &self.slowest {
-            let parts: Vec<String> = Self::stages_ms(stages)
-                .iter()
-                .map(|(name, ms)| format!("{name} {ms:.2}"))
-                .collect();
+        for (k, stages) in &self.slowest {
             println!(
                 "  tick {}: {:.3} ms ({})",
                 k + 1,
-                total * 1e3,
-                parts.join(", ")
+                stages.total() * 1e3,
+                stages_text(&stages.ms_by_stage())
             );
         }
     }
@@ -155,11 +134,13 @@ impl Timing {
     fn json(&self) -> serde_json::Value {
         serde_json::json!({
             "ticks_over_budget": self.over_budget,
-            "ticks": self.slowest.iter().map(|(total, k, stages)| serde_json::json!({
+            "ticks": self.slowest.iter().map(|(k, stages)| serde_json::json!({
                 "tick": k + 1,
-                "ms": total * 1e3,
-                "stages_ms": Self::stages_ms(stages)
+                "ms": stages.total() * 1e3,
+                "stages_ms": stages
+                    .ms_by_stage()
                     .into_iter()
+                    .filter(|(_, ms)| *ms > 0.0)
                     .map(|(name, ms)| (name.to_string(), serde_json::json!(ms)))
                     .collect::<serde_json::Map<String, serde_json::Value>>(),
             })).collect::<Vec<_>>(),

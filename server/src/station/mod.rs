@@ -24,7 +24,7 @@ mod sim_thread;
 mod startup;
 
 pub use haptic::{HapticCounters, HapticState, HapticWindow, drive_haptic_ticks};
-pub use report::{RunSummary, SimStatus, StationEvent, StationReport, StatusLine};
+pub use report::{RunSummary, SimStatus, StationEvent, StationReport, StatusLine, stages_text};
 pub use startup::prepare_simulation;
 
 use std::sync::Arc;

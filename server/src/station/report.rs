@@ -58,6 +58,16 @@ pub struct SlowestTick {
     pub stages_ms: [(&'static str, f64); STAGES],
 }
 
+/// `stages_ms` as "name ms, …", leaving out the stages under 0.01 ms (a tick's line).
+pub fn stages_text(stages_ms: &[(&'static str, f64)]) -> String {
+    let parts: Vec<String> = stages_ms
+        .iter()
+        .filter(|(_, ms)| *ms >= 0.01)
+        .map(|(name, ms)| format!("{name} {ms:.2}"))
+        .collect();
+    parts.join(", ")
+}
+
 /// The core's stages.
 const STAGES: usize = scalpel_sim::pipeline::Stage::ALL.len();
 

@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::math::Vec3;
-use scalpel_sim::pipeline::{Simulation, Stage, StageClock, TickReport};
+use scalpel_sim::pipeline::{Simulation, StageClock, TickReport};
 
 use crate::faults::FaultTable;
 use crate::grid_clock::GridClock;
@@ -87,9 +87,7 @@ impl Counted {
             slowest.tick = figures.ticks;
             slowest.wall_ms = took_ms;
             slowest.cpu_ms = cpu_ms;
-            for (slot, stage) in slowest.stages_ms.iter_mut().zip(Stage::ALL) {
-                *slot = (stage.name(), report.stages.of(stage) * 1e3);
-            }
+            slowest.stages_ms = report.stages.ms_by_stage();
         }
     }
 }

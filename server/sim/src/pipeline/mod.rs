@@ -170,6 +170,16 @@ impl StageTimes {
         self.seconds[stage as usize]
     }
 
+    /// The whole tick's time (s): every stage's.
+    pub fn total(&self) -> f64 {
+        self.seconds.iter().sum()
+    }
+
+    /// Each stage's name and time (ms), in tick order.
+    pub fn ms_by_stage(&self) -> [(&'static str, f64); Stage::ALL.len()] {
+        Stage::ALL.map(|s| (s.name(), self.of(s) * 1e3))
+    }
+
     /// The time of the stages in `half` (s).
     pub fn half(&self, half: Half) -> f64 {
         Stage::ALL
