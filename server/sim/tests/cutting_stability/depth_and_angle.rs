@@ -50,8 +50,8 @@ fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
 fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, trace: &Trace) {
     let corners = wall_corners_mm(sim);
     for x in [-20.0, -10.0] {
-        let floor = blade_floor_near(trace, x).expect("the blade passed");
-        assert_edge_mapped(scene, trace, x);
+        let (tip, floor) = blade_floor_near(trace, x).expect("the blade passed");
+        assert_edge_mapped(scene, tip, floor);
         let deepest = deepest_near(&corners, x).map_or(f64::INFINITY, |p| p.z);
         assert!(
             (deepest - floor.z).abs() < 1.0,
@@ -62,59 +62,51 @@ fn assert_walls_reach(sim: &Simulation, scene: &BuiltScene, trace: &Trace) {
     }
 }
 
-/// Where the edge went lowest within 2 mm of rest x `x`, it was as deep below the organ's
-/// rest top as the tip was below the top of the organ as it rested, within 1 mm (the
+/// The edge's tip at rest, `floor`, is as deep below the organ's rest top as the tip was
+/// below the top of the organ as it rested (`tip`, world; both mm), within 1 mm (the
 /// weight's strain, a few per cent of the depth): the edge the walls are compared with is
 /// where the blade went.
-fn assert_edge_mapped(scene: &BuiltScene, trace: &Trace, x: f64) {
+fn assert_edge_mapped(scene: &BuiltScene, tip: Vec3, floor: Vec3) {
+    let in_world = top_mm(scene, tip.x, tip.y) - tip.z;
+    let at_rest = rest_top_mm(scene, floor.x, floor.y) - floor.z;
+    println!(
+        "edge at x = {:.1} mm: {in_world:.2} mm deep in the world, {at_rest:.2} at rest",
+        floor.x
+    );
+    assert!(
+        (in_world - at_rest).abs() < 1.0,
+        "at x = {:.1} mm the tip went {in_world:.2} mm below the resting top, its edge \
+         {at_rest:.2} mm below the rest top",
+        floor.x
+    );
+}
+
+/// Each in-tissue tick's tip (world) and the edge's tip in rest space (mm).
+fn edge_ticks(trace: &Trace) -> impl Iterator<Item = (Vec3, Vec3)> + '_ {
     let ticks = &trace.ticks;
-    let (tip, edge) = ticks
+    ticks
         .tip
         .iter()
         .zip(&ticks.edge_rest)
         .filter_map(|(t, e)| Some(((*t)? * 1e3, (*e)?[0] * 1e3)))
-        .filter(|(_, e)| (e.x - x).abs() < 2.0)
-        .min_by(|a, b| a.1.z.total_cmp(&b.1.z))
-        .expect("the blade passed");
-    let in_world = top_mm(scene, tip.x, tip.y) - tip.z;
-    let at_rest = rest_top_mm(scene, edge.x, edge.y) - edge.z;
-    println!("edge near x = {x} mm: {in_world:.2} mm deep in the world, {at_rest:.2} at rest");
-    assert!(
-        (in_world - at_rest).abs() < 1.0,
-        "near x = {x} mm the tip went {in_world:.2} mm below the resting top, its edge \
-         {at_rest:.2} mm below the rest top"
-    );
 }
 
 /// The rest-space x (mm) of the tissue the tip was in as it passed world x `x_mm`: read on
 /// the in-tissue tick whose tip came nearest. The organ resting under gravity is not where
 /// its rest shape is (the liver is carried 3–4 mm along x as it settles on its tray).
 fn rest_x_mm(trace: &Trace, x_mm: f64) -> f64 {
-    let ticks = &trace.ticks;
-    let (tip, edge) = ticks
-        .tip
-        .iter()
-        .zip(&ticks.edge_rest)
-        .filter_map(|(t, e)| Some(((*t)?, (*e)?)))
-        .min_by(|a, b| {
-            (a.0.x * 1e3 - x_mm)
-                .abs()
-                .total_cmp(&(b.0.x * 1e3 - x_mm).abs())
-        })
+    let (tip, edge) = edge_ticks(trace)
+        .min_by(|a, b| (a.0.x - x_mm).abs().total_cmp(&(b.0.x - x_mm).abs()))
         .expect("the blade was in the tissue");
-    x_mm + (edge[0].x - tip.x) * 1e3
+    x_mm + edge.x - tip.x
 }
 
-/// The lowest point (rest space, mm) the blade's edge reached within 2 mm of rest x `x`.
-fn blade_floor_near(trace: &Trace, x: f64) -> Option<Vec3> {
-    trace
-        .ticks
-        .edge_rest
-        .iter()
-        .flatten()
-        .map(|e| e[0] * 1e3)
-        .filter(|p| (p.x - x).abs() < 2.0)
-        .min_by(|a, b| a.z.total_cmp(&b.z))
+/// Where the blade's edge went lowest within 2 mm of rest x `x`: the tip then (world) and
+/// the edge's tip (rest space), in mm.
+fn blade_floor_near(trace: &Trace, x: f64) -> Option<(Vec3, Vec3)> {
+    edge_ticks(trace)
+        .filter(|(_, e)| (e.x - x).abs() < 2.0)
+        .min_by(|a, b| a.1.z.total_cmp(&b.1.z))
 }
 
 /// Top of the organ's rest shape at (x, y) in mm.
@@ -239,7 +231,7 @@ fn a_stab_slits_as_wide_as_the_blade() {
         span.1
     );
     let top_at_rest = rest_top_mm(&scene, at, 0.0);
-    let floor = top_at_rest - blade_floor_near(&trace, at).expect("the blade went in").z;
+    let floor = top_at_rest - blade_floor_near(&trace, at).expect("the blade went in").1.z;
     let deepest = walls
         .iter()
         .filter(|p| (p.x - at).abs() < 2.0)
@@ -428,7 +420,7 @@ fn a_blade_tilted_sideways_cuts_leaning_walls() {
     for x in [-20.0, -10.0] {
         // In rest space, where the tip was in the tissue as it passed x.
         let at = rest_x_mm(&trace, x);
-        let tip = blade_floor_near(&trace, at).expect("the blade passed");
+        let (_, tip) = blade_floor_near(&trace, at).expect("the blade passed");
         let near: Vec<&Vec3> = corners.iter().filter(|p| (p.x - at).abs() < 2.0).collect();
         let deepest = deepest_near(&corners, at).expect("walls");
         assert!(
