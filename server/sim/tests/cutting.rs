@@ -383,7 +383,7 @@ fn re_cuts_land_a_fixed_number_of_ticks_after_they_are_asked_for() {
 #[test]
 fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
     use scalpel_sim::geometry::predicates::distance_sq_to_segment;
-    use scalpel_sim::pipeline::NODES_PER_TICK;
+    use scalpel_sim::pipeline::PLACE_PER_TICK;
     let scene = build_scene(&builtin("cerebroma").unwrap(), None, &mut Silent).unwrap();
     let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene)).unwrap();
     let spacing = scene.model.lattice.spacing;
@@ -416,7 +416,7 @@ fn a_re_mesh_keeps_the_virtual_points_it_did_not_move() {
             "landing {landings}: nodes of the last still waiting"
         );
         let after = nodes_of(&sim);
-        assert!(after.len() - sim.virtual_points().unwrap().stats.kept <= NODES_PER_TICK);
+        assert!(after.len() - sim.virtual_points().unwrap().stats.kept <= PLACE_PER_TICK.nodes);
         let edge = cut.edge_rest.expect("the blade is in");
         let r_aff = sim.cutting().unwrap().affected_radius();
         let surface = sim.current_surface();

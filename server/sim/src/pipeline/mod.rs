@@ -62,13 +62,14 @@ pub const SIMULATION_TICK_S: f64 = 1e-3;
 pub const SETTLE_MAX_S: f64 = 10.0;
 
 use stroke_tracker::TrackerInputs;
-use virtual_points::{PlacementInputs, VIRTUAL_NODE_CAPACITY};
+use virtual_points::{PlaceBudget, PlacementInputs, VIRTUAL_NODE_CAPACITY};
 
-/// Virtual points placed at most per tick after a re-mesh: each changes the MLS rows of the
-/// dozen points it joins (instrumented on the cerebroma: 2.4 ms for the 19 a mid-stroke
-/// re-mesh added, 7 ms for the 82 of the stroke's end), so they are spread over the ticks
-/// that follow.
-pub const NODES_PER_TICK: usize = 4;
+/// Virtual points placed per tick after a re-mesh: each changes the MLS rows of the points
+/// it joins (a dozen on the cerebroma, 35 on the liver), so they are spread over the ticks
+/// that follow — at most 4 nodes, and none more once 64 points have new rows (instrumented:
+/// the cerebroma's 19 nodes of a mid-stroke re-mesh 2.4 ms at once; the liver's 4 nodes,
+/// 139 rows, 0.62 ms in one tick).
+pub const PLACE_PER_TICK: PlaceBudget = PlaceBudget { nodes: 4, rows: 64 };
 
 /// The stages of a tick, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -471,7 +472,7 @@ impl Simulation {
         let remeshed = self.surface_incision(&cut);
         laps.lap(Stage::SurfaceIncision);
         if let Some(tick) = &cut {
-            self.place_virtual_points(remeshed, tick.edge_rest, NODES_PER_TICK);
+            self.place_virtual_points(remeshed, tick.edge_rest, PLACE_PER_TICK);
         }
         laps.lap(Stage::PlaceVirtualPoints);
         let vertices_moved = self.surface_follow();
@@ -536,19 +537,15 @@ impl Simulation {
         ))
     }
 
-    /// Stage release virtual points: those within the affected radius of the blade's edge.
+    /// Stage release virtual points: those a pair of which this tick's Σ cut.
     fn release_virtual_points(&mut self, cut: &Option<CutTick>) {
-        let (Some(vp), Some(stage), Some(edge)) = (
-            &mut self.virtual_points,
-            &mut self.cutting,
-            cut.as_ref().and_then(|t| t.edge_rest),
-        ) else {
+        let (Some(vp), Some(stage), Some(_)) = (&mut self.virtual_points, &mut self.cutting, cut)
+        else {
             return;
         };
         self.vp_changed.clear();
-        vp.release_near(
-            &edge,
-            stage.affected_radius(),
+        vp.release_cut(
+            stage.nodes_cut(),
             &mut self.solver,
             &mut self.neighbours,
             &mut self.vp_changed,
@@ -635,7 +632,12 @@ impl Simulation {
     /// of the blade's `edge`: after a re-mesh (`remeshed`) it first keeps, releases and
     /// chooses sites ([`VirtualPoints::remeshed`]), and either way places at most `limit`
     /// of the nodes still waiting ([`VirtualPoints::place_pending`]).
-    fn place_virtual_points(&mut self, remeshed: bool, edge: Option<[Vec3; 2]>, limit: usize) {
+    fn place_virtual_points(
+        &mut self,
+        remeshed: bool,
+        edge: Option<[Vec3; 2]>,
+        budget: PlaceBudget,
+    ) {
         let (Some(vp), Some(stage)) = (&mut self.virtual_points, &mut self.cutting) else {
             return;
         };
@@ -653,7 +655,7 @@ impl Simulation {
                 &mut self.solver,
                 &mut self.neighbours,
                 changed,
-                limit,
+                budget,
             );
         } else {
             vp.place_pending(
@@ -661,7 +663,7 @@ impl Simulation {
                 &mut self.solver,
                 &mut self.neighbours,
                 changed,
-                limit,
+                budget,
             );
         }
         refit_changed(changed, &mut self.solver, &self.neighbours, stage);
@@ -679,7 +681,7 @@ impl Simulation {
             &mut self.surface,
             &TrackerInputs::of(&self.solver, &self.grid, &stage.sigma),
         );
-        self.place_virtual_points(remeshed, None, usize::MAX);
+        self.place_virtual_points(remeshed, None, PlaceBudget::ALL);
         remeshed
     }
 

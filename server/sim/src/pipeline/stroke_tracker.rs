@@ -53,6 +53,8 @@ pub struct IncisionStats {
     pub depth_m: f64,
     /// Re-cut results not ready when due: the tick waited for the runner.
     pub late_recuts: usize,
+    /// Ticks of a new stroke held until the last stroke's final re-cut was due.
+    pub held_ticks: usize,
 }
 
 /// The surface at the start of the current stroke, and what its re-cuts have made of it.
@@ -71,6 +73,15 @@ struct InFlight {
     due: u64,
     /// The stroke it finishes, when it is the last re-cut of a stroke that has ended.
     ended: Option<Base>,
+}
+
+/// One tick's inputs to [`StrokeTracker::update`], held back.
+#[derive(Debug, Clone, Copy)]
+struct HeldTick {
+    edge: [Vec3; 2],
+    direction: Vec3,
+    withdrawing: bool,
+    slit: Option<Vec3>,
 }
 
 /// Follows the blade along the surface and keeps the drawn incision up to date.
@@ -98,6 +109,9 @@ pub struct StrokeTracker {
     /// Where re-cuts run (the caller's: `recut`), and the one out there.
     runner: Box<dyn RecutRunner>,
     in_flight: Option<InFlight>,
+    /// A new stroke's first ticks, held until the last stroke's final re-cut is due
+    /// ([`Self::update`]).
+    held: Vec<HeldTick>,
     /// Results the runner gives before the one in flight, of re-cuts a stroke's last one
     /// superseded: read and dropped.
     superseded: u32,
@@ -167,6 +181,7 @@ impl StrokeTracker {
             tick: 0,
             runner: Box::new(InlineRecuts::new()),
             in_flight: None,
+            held: Vec::with_capacity(RECUT_HANDOVER_TICKS as usize),
             superseded: 0,
             space: Arc::new(RestSpace::of(model)),
             // Buffers for the jobs a stroke's end may have in flight at once (the one
@@ -207,13 +222,53 @@ impl StrokeTracker {
         inputs: &TrackerInputs<'_>,
     ) -> bool {
         self.tick += 1;
-        // Due, or a new stroke starting: it starts from the last one's finished surface.
+        let due = (self.in_flight.as_ref()).is_some_and(|f| self.tick >= f.due);
+        // A new stroke starts from the last one's finished surface. Begun before that
+        // stroke's final re-cut is due, its ticks are held until then, not the re-cut
+        // waited for (up to a re-cut's time in one tick); their path samples are the same
+        // either way. A stroke that ends while held, or more held ticks than there is room
+        // for, lands the re-cut at once.
         let starting = edge.is_some() && self.base.is_none();
+        let holding = starting || !self.held.is_empty();
+        if let Some(edge) = edge
+            && holding
+            && self.in_flight.is_some()
+            && !due
+            && self.held.len() < self.held.capacity()
+        {
+            self.held.push(HeldTick {
+                edge,
+                direction,
+                withdrawing,
+                slit,
+            });
+            self.stats.held_ticks += 1;
+            return false;
+        }
         let landed = match &self.in_flight {
-            Some(f) if self.tick >= f.due || starting => self.land(surface, inputs),
+            Some(_) if due || holding => self.land(surface, inputs),
             _ => false,
         };
-        self.follow_blade(edge, direction, withdrawing, slit, surface, inputs) || landed
+        let replayed = self.follow_held(surface, inputs);
+        self.follow_blade(edge, direction, withdrawing, slit, surface, inputs) || landed || replayed
+    }
+
+    /// The held ticks, in order, now that the re-cut they waited for has landed.
+    fn follow_held(&mut self, surface: &mut CurrentSurface, inputs: &TrackerInputs<'_>) -> bool {
+        let mut changed = false;
+        for k in 0..self.held.len() {
+            let h = self.held[k];
+            changed |= self.follow_blade(
+                Some(h.edge),
+                h.direction,
+                h.withdrawing,
+                h.slit,
+                surface,
+                inputs,
+            );
+        }
+        self.held.clear();
+        changed
     }
 
     /// [`Self::update`] after any re-cut due has landed.
@@ -431,11 +486,17 @@ impl StrokeTracker {
         false
     }
 
-    /// Applies the re-cut in flight now, if there is one (waiting for it if need be):
-    /// before a new stroke, and at the end of an offline run. Returns whether the surface
-    /// changed.
+    /// Applies the re-cut in flight now, if there is one (waiting for it if need be), and
+    /// follows the ticks held for it: at the end of an offline run. Returns whether the
+    /// surface changed.
     pub fn settle(&mut self, surface: &mut CurrentSurface, inputs: &TrackerInputs<'_>) -> bool {
-        self.in_flight.is_some() && self.land(surface, inputs)
+        let mut changed = false;
+        // Held ticks followed may ask for a re-cut again: landed too.
+        while self.in_flight.is_some() || !self.held.is_empty() {
+            changed |= self.in_flight.is_some() && self.land(surface, inputs);
+            changed |= self.follow_held(surface, inputs);
+        }
+        changed
     }
 
     /// The re-cut of the stroke's path so far, with the embedding of its new vertices

@@ -22,7 +22,7 @@
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
 //! the surface; the nodes that still stand on the new walls are kept, the others released,
 //! and new ones placed where the wound grew (a topology change, off the per-tick path).
-//! Between re-meshes a tick releases the nodes the blade comes within R_aff of.
+//! Between re-meshes a tick releases the nodes a pair of which the new Σ cut.
 
 use serde::Serialize;
 
@@ -33,6 +33,24 @@ use crate::model::{Neighbourhoods, RestGrid};
 use crate::solver::Solver;
 
 use super::surface::CurrentSurface;
+
+/// How many nodes one call may place: at most `nodes`, and no more once they have changed
+/// the lists of `rows` points (each changed point takes a new MLS row in the same tick).
+#[derive(Debug, Clone, Copy)]
+pub struct PlaceBudget {
+    /// Nodes at most.
+    pub nodes: usize,
+    /// Points with changed lists after which no node more is placed.
+    pub rows: usize,
+}
+
+impl PlaceBudget {
+    /// Every node waiting (the end of an offline run).
+    pub const ALL: Self = Self {
+        nodes: usize::MAX,
+        rows: usize::MAX,
+    };
+}
 
 /// Nodes available to a simulation (placed ones are re-used at every re-mesh).
 pub const VIRTUAL_NODE_CAPACITY: usize = 1024;
@@ -155,21 +173,22 @@ impl VirtualPoints {
         (n.node, n.vertex, n.inset)
     }
 
-    /// Releases the nodes within `radius` of the blade's rest `edge`: the blade cuts and
-    /// dents the tissue there, and the new Σ would split a node's masters on a wall the
-    /// blade is re-cutting (its pairs are cut, its interpolation is not). The next
-    /// placement puts nodes back once the blade has gone. Changed lists are appended to
-    /// `changed`.
-    pub fn release_near(
+    /// Releases the nodes in `cut` (sorted or not; others are ignored): a pair of each was
+    /// cut by the new Σ, so its masters are split (its pairs are cut, its interpolation is
+    /// not). The next placement puts nodes back once the blade has gone. Changed lists are
+    /// appended to `changed`.
+    pub fn release_cut(
         &mut self,
-        edge: &[Vec3; 2],
-        radius: f64,
+        cut: impl Iterator<Item = u32> + Clone,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
     ) {
-        self.retain(solver, neighbours, changed, |_, at| {
-            distance_sq_to_segment(at, &edge[0], &edge[1]) >= radius * radius
+        if cut.clone().next().is_none() {
+            return;
+        }
+        self.retain(solver, neighbours, changed, |node, _| {
+            !cut.clone().any(|c| c == node.node)
         });
     }
 
@@ -198,7 +217,7 @@ impl VirtualPoints {
 
     /// After a re-mesh: keeps the nodes that still stand on the walls of the surface,
     /// releases the others, and chooses where new ones go: wall sites outside the blade's
-    /// clearance. At most `limit` of those are placed now, the rest by
+    /// clearance. As many of those as `budget` allows are placed now, the rest by
     /// [`Self::place_pending`] in the ticks that follow. A node stays, untouched, while the
     /// new walls still have a vertex within [`KEEP_SPACINGS`] of it (and the blade does not
     /// clear that vertex); new ones go to the walls' sites left at least
@@ -209,15 +228,15 @@ impl VirtualPoints {
     /// re-cut moves the lips along the whole path by a few hundredths of a spacing, and
     /// placing every node again made the cerebroma's landing ticks grow with the wound
     /// (docs/CUTTING-DECISIONS.md, "Virtual points kept across re-meshes"). A kept node's pairs are
-    /// still valid: Σ grows only where the blade is, and nodes within R_aff of it are
-    /// released every tick ([`Self::release_near`]).
+    /// still valid: a node a pair of which the growing Σ cuts is released in that tick
+    /// ([`Self::release_cut`]).
     pub fn remeshed(
         &mut self,
         inputs: &PlacementInputs<'_>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
-        limit: usize,
+        budget: PlaceBudget,
     ) {
         // (Out of `self` while `retain` borrows it; put back below.)
         let mut walls = self
@@ -258,7 +277,7 @@ impl VirtualPoints {
         self.walls = Some(walls);
         // Placed from the end of the list: keep the vertex order.
         self.pending.reverse();
-        self.place_pending(inputs, solver, neighbours, changed, limit);
+        self.place_pending(inputs, solver, neighbours, changed, budget);
     }
 
     /// Whether sites chosen at the last re-mesh still wait for their nodes.
@@ -266,7 +285,7 @@ impl VirtualPoints {
         !self.pending.is_empty()
     }
 
-    /// Places up to `limit` of the nodes the last re-mesh chose sites for, skipping sites
+    /// Places as many as `budget` allows of the nodes the last re-mesh chose sites for, skipping sites
     /// the blade has come near since; changed lists are appended to `changed`. Spread over
     /// ticks because each node changes the MLS rows of the dozen points it joins: the end
     /// of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in one tick.
@@ -277,7 +296,7 @@ impl VirtualPoints {
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
-        limit: usize,
+        budget: PlaceBudget,
     ) {
         if self.pending.is_empty() {
             return;
@@ -304,7 +323,11 @@ impl VirtualPoints {
             .filter(|&slot| !used[slot])
             .map(|slot| (first + slot) as u32);
         let h = self.support_m;
-        for _ in 0..limit {
+        let rows_before = changed.len();
+        for _ in 0..budget.nodes {
+            if changed.len() - rows_before >= budget.rows {
+                break;
+            }
             let Some((vertex, outward)) = self.pending.pop() else {
                 break;
             };

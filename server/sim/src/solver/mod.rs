@@ -307,6 +307,11 @@ impl Solver {
         solver
     }
 
+    /// The body points spare node `i` is slaved to (none when it is free).
+    pub fn masters_of(&self, i: usize) -> impl Iterator<Item = u32> + '_ {
+        self.slaves.masters_of(i).iter().map(|&(k, _)| k)
+    }
+
     /// Puts spare node `i` at `rest` and ties it to the body points `masters` (its
     /// neighbours, which are the caller's: then [`Solver::topology_changed`]): in every
     /// sub-step its displacement is the MLS interpolation of theirs at `rest` (linear

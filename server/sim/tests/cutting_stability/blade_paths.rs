@@ -303,3 +303,85 @@ fn cut_through_a_thin_part() {
     );
     assert_sound_surface(&sim);
 }
+
+/// A re-cut runner that runs each job on the calling thread (as `InlineRecuts`) and notes
+/// the tick of every start and finish.
+struct NotingRunner {
+    inline: scalpel_sim::pipeline::InlineRecuts,
+    tick: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    noted: std::sync::Arc<std::sync::Mutex<Vec<(&'static str, u64)>>>,
+}
+
+impl scalpel_sim::pipeline::RecutRunner for NotingRunner {
+    fn start(&mut self, job: scalpel_sim::pipeline::RecutJob) {
+        let t = self.tick.load(std::sync::atomic::Ordering::Relaxed);
+        self.noted.lock().unwrap().push(("start", t));
+        self.inline.start(job);
+    }
+
+    fn finish(&mut self, waited: &mut bool) -> Option<scalpel_sim::pipeline::RecutResult> {
+        let t = self.tick.load(std::sync::atomic::Ordering::Relaxed);
+        self.noted.lock().unwrap().push(("finish", t));
+        self.inline.finish(waited)
+    }
+}
+
+/// Out of its cut and straight back in, the blade starts a stroke while the last one's
+/// final re-cut is still out: the new stroke's ticks are held until that re-cut is due,
+/// not the re-cut waited for (every result is taken exactly the hand-over after it was
+/// asked for), and both strokes are still drawn.
+#[test]
+fn a_quick_re_entry_takes_no_re_cut_early() {
+    use scalpel_sim::pipeline::RECUT_HANDOVER_TICKS;
+    use std::sync::atomic::Ordering;
+    let scene = scene("liver");
+    let top = top_mm(&scene, 0.0, 0.0);
+    let (down, out) = (top - 8.0, top + 1.0);
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 10.0]),
+        (3.6, [-30.0, 0.0, down]),
+        (6.6, [-15.0, 0.0, down]),
+        (6.65, [-15.0, 0.0, out]),
+        (6.66, [-14.0, 0.0, out]),
+        (6.71, [-14.0, 0.0, down]),
+        (9.0, [0.0, 0.0, down]),
+        (12.0, [0.0, 0.0, top + 10.0]),
+    ]);
+    let mut sim = Simulation::new(&scene);
+    let tick = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let noted = std::sync::Arc::default();
+    sim.set_recut_runner(Box::new(NotingRunner {
+        inline: scalpel_sim::pipeline::InlineRecuts::new(),
+        tick: tick.clone(),
+        noted: std::sync::Arc::clone(&noted),
+    }));
+    for k in 0..s.tick_count(TICK_S) {
+        tick.store(k as u64, Ordering::Relaxed);
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        let r = sim.tick(TICK_S, &mut NoClock);
+        assert!(r.tool_force_n.iter().all(|f| f.is_finite()));
+        assert_nodes_joined(&sim, k);
+    }
+    let stats = sim.incisions().unwrap().clone();
+    println!("{stats:?}");
+    assert_eq!(stats.strokes, 2, "out and back in is a second stroke");
+    assert!(
+        stats.held_ticks > 0,
+        "the second stroke began with a re-cut out"
+    );
+    assert!(stats.incisions >= 2);
+    let noted = noted.lock().unwrap();
+    let mut last_start = None;
+    for &(what, t) in noted.iter() {
+        match what {
+            "start" => last_start = Some(t),
+            _ => assert_eq!(
+                Some(t),
+                last_start.map(|s| s + RECUT_HANDOVER_TICKS),
+                "a result taken early: {noted:?}"
+            ),
+        }
+    }
+    sim.settle_incision();
+    assert_sound_surface(&sim);
+}

@@ -127,6 +127,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
         last_tip = tip;
         sim.handle_tool_pose(pose);
         let r = sim.tick(TICK_S, &mut NoClock);
+        assert_nodes_joined(sim, k);
         let f = r.tool_force_n;
         assert!(f.iter().all(|c| c.is_finite()), "tick {k}: force {f:?}");
         assert!(
@@ -216,6 +217,21 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
     // As `scalpel cut` ends a run: a re-cut still on its worker thread lands now.
     sim.settle_incision();
     trace
+}
+
+/// Every virtual point still joins all the points it is slaved to: a node a pair of which
+/// the growing Σ cut (its masters split across the cut) was released in that tick.
+fn assert_nodes_joined(sim: &Simulation, tick: usize) {
+    let Some(vp) = sim.virtual_points() else {
+        return;
+    };
+    for node in vp.nodes() {
+        let joined = sim.neighbours().of(node as usize);
+        assert!(
+            (sim.solver().masters_of(node as usize)).all(|m| joined.contains(&m)),
+            "tick {tick}: node {node} is slaved to a point across the cut"
+        );
+    }
 }
 
 fn assert_sound_surface(sim: &Simulation) {

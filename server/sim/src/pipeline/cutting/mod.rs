@@ -227,6 +227,13 @@ impl CuttingStage {
         self.r_aff
     }
 
+    /// The virtual nodes (indices past the body's points) a pair of which this tick's Σ
+    /// cut: their masters are split, so they must be released before the step.
+    pub fn nodes_cut(&self) -> impl Iterator<Item = u32> + Clone + '_ {
+        let material = self.material_points as u32;
+        self.changed.iter().copied().filter(move |&i| i >= material)
+    }
+
     /// Advances the stage by one tick at time `now_s`. The solver's active set, topology
     /// and external loads are updated; the solver itself is stepped by the caller. In order:
     /// is the blade in the tissue, how it moved, its edge in rest space, the force, Σ grown
