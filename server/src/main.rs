@@ -317,7 +317,7 @@ fn print_summary(
         return Ok(());
     }
     say!(
-        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, {} of them over a tick of CPU time; longest {:.2} ms, {:.2} ms of CPU; at most {} sub-step(s)), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
+        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, {} of them over a tick of CPU time; longest {:.2} ms, {:.2} ms of CPU; at most {} sub-step(s); {} re-cut(s) waited for), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
         summary.haptic_ticks,
         summary.deadline_misses,
         summary.poses_dropped,
@@ -327,6 +327,7 @@ fn print_summary(
         summary.sim.max_tick_ms,
         summary.sim.max_tick_cpu_ms,
         summary.sim.most_substeps,
+        summary.sim.recuts_waited,
         summary.sim.cut_length_mm,
         summary.state_hash,
         summary.fifo_priority,

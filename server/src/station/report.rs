@@ -27,6 +27,9 @@ pub struct SimStatus {
     pub late_ticks_cpu: u64,
     /// Longest tick so far in the thread's own CPU time (ms).
     pub max_tick_cpu_ms: f64,
+    /// Re-cuts of the incision whose result the simulation waited for at its tick (the
+    /// re-cut worker had not finished it within the hand-over).
+    pub recuts_waited: u64,
     /// The longest tick so far (by wall time), stage by stage: where a late tick went.
     pub slowest_tick: SlowestTick,
     /// Render frames sent over shared memory.
@@ -84,6 +87,7 @@ impl Default for SimStatus {
             late_ticks: 0,
             late_ticks_cpu: 0,
             max_tick_cpu_ms: 0.0,
+            recuts_waited: 0,
             slowest_tick: SlowestTick::default(),
             frames_sent: 0,
             frames_failed: 0,

@@ -285,6 +285,7 @@ pub(super) fn spawn_sim(
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
                 let cpu_ms = (realtime::thread_cpu_s() - started_cpu) * 1e3;
                 counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms, cpu_ms);
+                counted.figures.recuts_waited = sim.incisions().map_or(0, |s| s.late_recuts as u64);
                 let figures = counted.figures;
                 models.write(ModelUpdate {
                     model: sim

@@ -66,10 +66,10 @@ use virtual_points::{PlaceBudget, PlacementInputs, VIRTUAL_NODE_CAPACITY};
 
 /// Virtual points placed per tick after a re-mesh: each changes the MLS rows of the points
 /// it joins (a dozen on the cerebroma, 35 on the liver), so they are spread over the ticks
-/// that follow — at most 4 nodes, and none more once 64 points have new rows (instrumented:
+/// that follow — at most 4 nodes, and none more once 32 points have new rows (instrumented:
 /// the cerebroma's 19 nodes of a mid-stroke re-mesh 2.4 ms at once; the liver's 4 nodes,
 /// 139 rows, 0.62 ms in one tick).
-pub const PLACE_PER_TICK: PlaceBudget = PlaceBudget { nodes: 4, rows: 64 };
+pub const PLACE_PER_TICK: PlaceBudget = PlaceBudget { nodes: 4, rows: 32 };
 
 /// The stages of a tick, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -537,14 +537,17 @@ impl Simulation {
         ))
     }
 
-    /// Stage release virtual points: those a pair of which this tick's Σ cut.
+    /// Stage release virtual points: those a pair of which this tick's Σ cut, and those
+    /// within a support of the blade's edge.
     fn release_virtual_points(&mut self, cut: &Option<CutTick>) {
-        let (Some(vp), Some(stage), Some(_)) = (&mut self.virtual_points, &mut self.cutting, cut)
+        let (Some(vp), Some(stage), Some(tick)) =
+            (&mut self.virtual_points, &mut self.cutting, cut)
         else {
             return;
         };
         self.vp_changed.clear();
-        vp.release_cut(
+        vp.release_at_blade(
+            tick.edge_rest.map(|e| (e, stage.support_m())),
             stage.nodes_cut(),
             &mut self.solver,
             &mut self.neighbours,

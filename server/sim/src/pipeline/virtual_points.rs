@@ -22,7 +22,8 @@
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
 //! the surface; the nodes that still stand on the new walls are kept, the others released,
 //! and new ones placed where the wound grew (a topology change, off the per-tick path).
-//! Between re-meshes a tick releases the nodes a pair of which the new Σ cut.
+//! Between re-meshes a tick releases the nodes a pair of which the new Σ cut, and those
+//! within a support of the blade's edge.
 
 use serde::Serialize;
 
@@ -173,22 +174,26 @@ impl VirtualPoints {
         (n.node, n.vertex, n.inset)
     }
 
-    /// Releases the nodes in `cut` (sorted or not; others are ignored): a pair of each was
-    /// cut by the new Σ, so its masters are split (its pairs are cut, its interpolation is
-    /// not). The next placement puts nodes back once the blade has gone. Changed lists are
-    /// appended to `changed`.
-    pub fn release_cut(
+    /// Releases the nodes in `cut` (any order; others are ignored) and those within
+    /// `near.1` of the blade's rest edge `near.0`. A pair of a node in `cut` was cut by the
+    /// new Σ: its masters are split (its pairs are cut, its interpolation is not). Near
+    /// the edge the blade dents and cuts the tissue a node interpolates; kept there, the
+    /// tumour scan's session rolled a tick back (docs/CUTTING-DECISIONS.md, "The liver
+    /// station's own late ticks"). The next placement puts nodes back once the blade has
+    /// gone. Changed lists are appended to `changed`.
+    pub fn release_at_blade(
         &mut self,
+        near: Option<([Vec3; 2], f64)>,
         cut: impl Iterator<Item = u32> + Clone,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
     ) {
-        if cut.clone().next().is_none() {
-            return;
-        }
-        self.retain(solver, neighbours, changed, |node, _| {
-            !cut.clone().any(|c| c == node.node)
+        self.retain(solver, neighbours, changed, |node, at| {
+            let close = near.is_some_and(|(edge, radius)| {
+                distance_sq_to_segment(at, &edge[0], &edge[1]) < radius * radius
+            });
+            !close && !cut.clone().any(|c| c == node.node)
         });
     }
 
@@ -229,7 +234,7 @@ impl VirtualPoints {
     /// placing every node again made the cerebroma's landing ticks grow with the wound
     /// (docs/CUTTING-DECISIONS.md, "Virtual points kept across re-meshes"). A kept node's pairs are
     /// still valid: a node a pair of which the growing Σ cuts is released in that tick
-    /// ([`Self::release_cut`]).
+    /// ([`Self::release_at_blade`]).
     pub fn remeshed(
         &mut self,
         inputs: &PlacementInputs<'_>,
