@@ -130,8 +130,9 @@ pub struct VirtualPoints {
     pub stats: VirtualPointStats,
 }
 
-/// What placing a node works in: which node slots are taken, the triangles of Σ near the
-/// node (indices) and the points it sees.
+/// What placing a node works in: which node slots are taken (releasing borrows these flags
+/// for the nodes the new Σ cut), the triangles of Σ near the node (indices) and the points
+/// it sees.
 #[derive(Debug, Default)]
 struct PlacementScratch {
     used: Vec<bool>,
@@ -184,17 +185,30 @@ impl VirtualPoints {
     pub fn release_at_blade(
         &mut self,
         near: Option<([Vec3; 2], f64)>,
-        cut: impl Iterator<Item = u32> + Clone,
+        cut: impl Iterator<Item = u32>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
         changed: &mut Vec<u32>,
     ) {
+        // The cut nodes flagged in the placement's slot flags (refilled when it runs).
+        let mut flagged = std::mem::take(&mut self.scratch.used);
+        flagged.fill(false);
+        let first = self.first;
+        for c in cut {
+            if let Some(f) = (c as usize)
+                .checked_sub(first)
+                .and_then(|k| flagged.get_mut(k))
+            {
+                *f = true;
+            }
+        }
         self.retain(solver, neighbours, changed, |node, at| {
             let close = near.is_some_and(|(edge, radius)| {
                 distance_sq_to_segment(at, &edge[0], &edge[1]) < radius * radius
             });
-            !close && !cut.clone().any(|c| c == node.node)
+            !close && !flagged[node.node as usize - first]
         });
+        self.scratch.used = flagged;
     }
 
     /// Keeps the nodes `keep(node, rest position)` says to (it may move the node's record

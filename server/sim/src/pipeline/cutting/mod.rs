@@ -234,7 +234,7 @@ impl CuttingStage {
 
     /// The virtual nodes (indices past the body's points) a pair of which this tick's Σ
     /// cut: their masters are split, so they must be released before the step.
-    pub fn nodes_cut(&self) -> impl Iterator<Item = u32> + Clone + '_ {
+    pub fn nodes_cut(&self) -> impl Iterator<Item = u32> + '_ {
         let material = self.material_points as u32;
         self.changed.iter().copied().filter(move |&i| i >= material)
     }
