@@ -547,7 +547,7 @@ impl Simulation {
         };
         self.vp_changed.clear();
         vp.release_at_blade(
-            tick.edge_rest.map(|e| (e, stage.support_m())),
+            tick.edge_rest,
             stage.nodes_cut(),
             &mut self.solver,
             &mut self.neighbours,
@@ -633,8 +633,8 @@ impl Simulation {
 
     /// Places virtual points on the walls of the surface, none within the affected radius
     /// of the blade's `edge`: after a re-mesh (`remeshed`) it first keeps, releases and
-    /// chooses sites ([`VirtualPoints::remeshed`]), and either way places at most `limit`
-    /// of the nodes still waiting ([`VirtualPoints::place_pending`]).
+    /// chooses sites ([`VirtualPoints::remeshed`]), and either way places as many of the
+    /// nodes still waiting as `budget` allows ([`VirtualPoints::place_pending`]).
     fn place_virtual_points(
         &mut self,
         remeshed: bool,

@@ -175,8 +175,8 @@ impl VirtualPoints {
         (n.node, n.vertex, n.inset)
     }
 
-    /// Releases the nodes in `cut` (any order; others are ignored) and those within
-    /// `near.1` of the blade's rest edge `near.0`. A pair of a node in `cut` was cut by the
+    /// Releases the nodes in `cut` (any order; others are ignored) and those within a
+    /// support of the blade's rest `edge`, if it is in the tissue. A pair of a node in `cut` was cut by the
     /// new Σ: its masters are split (its pairs are cut, its interpolation is not). Near
     /// the edge the blade dents and cuts the tissue a node interpolates; kept there, the
     /// tumour scan's session rolled a tick back (docs/CUTTING-DECISIONS.md, "The liver
@@ -184,7 +184,7 @@ impl VirtualPoints {
     /// gone. Changed lists are appended to `changed`.
     pub fn release_at_blade(
         &mut self,
-        near: Option<([Vec3; 2], f64)>,
+        edge: Option<[Vec3; 2]>,
         cut: impl Iterator<Item = u32>,
         solver: &mut Solver,
         neighbours: &mut Neighbourhoods,
@@ -193,7 +193,7 @@ impl VirtualPoints {
         // The cut nodes flagged in the placement's slot flags (refilled when it runs).
         let mut flagged = std::mem::take(&mut self.scratch.used);
         flagged.fill(false);
-        let first = self.first;
+        let (first, radius) = (self.first, self.support_m);
         for c in cut {
             if let Some(f) = (c as usize)
                 .checked_sub(first)
@@ -203,9 +203,8 @@ impl VirtualPoints {
             }
         }
         self.retain(solver, neighbours, changed, |node, at| {
-            let close = near.is_some_and(|(edge, radius)| {
-                distance_sq_to_segment(at, &edge[0], &edge[1]) < radius * radius
-            });
+            let close =
+                edge.is_some_and(|[a, b]| distance_sq_to_segment(at, &a, &b) < radius * radius);
             !close && !flagged[node.node as usize - first]
         });
         self.scratch.used = flagged;
@@ -304,10 +303,11 @@ impl VirtualPoints {
         !self.pending.is_empty()
     }
 
-    /// Places as many as `budget` allows of the nodes the last re-mesh chose sites for, skipping sites
-    /// the blade has come near since; changed lists are appended to `changed`. Spread over
-    /// ticks because each node changes the MLS rows of the dozen points it joins: the end
-    /// of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in one tick.
+    /// Places as many as `budget` allows of the nodes the last re-mesh chose sites for,
+    /// skipping sites the blade has come near since; changed lists are appended to
+    /// `changed`. Spread over ticks because each node changes the MLS rows of the points it
+    /// joins: the end of the cerebroma's stroke placed 80 at once, 7 ms with their rows, in
+    /// one tick.
     /// Nothing waiting, it returns at once (it is called every tick).
     pub fn place_pending(
         &mut self,

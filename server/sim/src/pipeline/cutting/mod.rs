@@ -227,11 +227,6 @@ impl CuttingStage {
         self.r_aff
     }
 
-    /// The MLS support radius h (m).
-    pub fn support_m(&self) -> f64 {
-        self.kernel.support_m
-    }
-
     /// The virtual nodes (indices past the body's points) a pair of which this tick's Σ
     /// cut: their masters are split, so they must be released before the step.
     pub fn nodes_cut(&self) -> impl Iterator<Item = u32> + '_ {
