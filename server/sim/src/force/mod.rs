@@ -256,6 +256,26 @@ impl CuttingForceModel {
         self.phase
     }
 
+    /// J_c per unit of crack width (N/m).
+    pub fn toughness_n_per_m(&self) -> f64 {
+        self.spec.toughness_n_per_m
+    }
+
+    /// The crack tip's stiffening over E (`ForceSpec::crack_tip_stiffening`).
+    pub fn crack_tip_stiffening(&self) -> f64 {
+        self.spec.crack_tip_stiffening
+    }
+
+    /// The factor on the tissue's stiffness (1: the scene's).
+    pub fn stiffness_factor(&self) -> f64 {
+        self.stiffness
+    }
+
+    /// The crack advances by energy at its front (`ForceSpec::fracture_by_energy`).
+    pub fn fracture_by_energy(&self) -> bool {
+        self.spec.fracture_by_energy
+    }
+
     /// The loading curve F_pre at indentation `x` (m) and its slope (N/m).
     pub fn loading_force(&self, x: f64) -> (f64, f64) {
         let scale = EQ19_PEAK_X / (self.spec.rupture_displacement_m * 1e3);
@@ -376,6 +396,9 @@ impl CuttingForceModel {
             // without pressing (eq. 19's offset f(0) applies from the first touch on).
             CutPhase::Loading if self.loading_m > 1e-12 => self.loading_force(self.loading_m),
             CutPhase::Loading => (0.0, 0.0),
+            // By energy, the fracture force is the tissue's (`pipeline::tissue_force`):
+            // here, the friction on the blade's faces.
+            CutPhase::Cutting if self.spec.fracture_by_energy => (self.friction(depth), 0.0),
             CutPhase::Cutting => {
                 let mean = self.mean_cutting_force(depth);
                 if self.ripple {

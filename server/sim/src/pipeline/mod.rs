@@ -614,7 +614,15 @@ impl Simulation {
                     .solver
                     .blade()
                     .map_or(Vec3::zeros(), |body| body.force_on_blade());
-                let force = self.tissue_force.combine(&t.force, tissue, b.tip);
+                let by_energy = self.spec.force.fracture_by_energy;
+                let force = self
+                    .tissue_force
+                    .combine(&t.force, tissue, b.tip, by_energy);
+                if let Some(stage) = &mut self.cutting {
+                    // The loading slope along the blade's facing, for the fracture criterion.
+                    let k = &force.stiffness_matrix_n_per_m;
+                    stage.note_tissue_stiffness(b.toward_back.dot(&(k * b.toward_back)));
+                }
                 let force = bounded(&force, self.spec.force.max_force_n);
                 self.local_model = force.local_model(b.tip);
                 force.force_n

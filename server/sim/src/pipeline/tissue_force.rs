@@ -38,7 +38,13 @@ impl TissueForce {
     /// The tool's force for `cut` (the force model's tick) with the tissue's reaction
     /// `tissue` on the blade whose tip is at `tip`: the reaction while pressing, the
     /// fracture term while cutting.
-    pub fn combine(&mut self, cut: &CutForce, tissue: Vec3, tip: Vec3) -> CutForce {
+    pub fn combine(
+        &mut self,
+        cut: &CutForce,
+        tissue: Vec3,
+        tip: Vec3,
+        by_energy: bool,
+    ) -> CutForce {
         let mut f = *cut;
         match cut.phase {
             CutPhase::Free => *self = Self::default(),
@@ -47,6 +53,23 @@ impl TissueForce {
                 f.magnitude_n = tissue.norm();
                 f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
                 f.stored_energy_j = self.store(tissue, tip);
+            }
+            CutPhase::Cutting if by_energy => {
+                // The crack front's push (the tissue's) and the friction on the faces.
+                f.force_n = tissue + cut.force_n;
+                f.magnitude_n = f.force_n.norm();
+                f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
+                let stored = self.store(tissue, tip);
+                // A fracture dissipates what the jump released: what is left to give back
+                // is at most the tissue's push's own elastic energy, ½ f²/k.
+                let k = self.stiffness.trace() / 3.0;
+                let elastic = if k > 0.0 {
+                    0.5 * tissue.norm_squared() / k
+                } else {
+                    0.0
+                };
+                self.stored_j = stored.min(elastic);
+                f.stored_energy_j = self.stored_j;
             }
             CutPhase::Cutting => {
                 // The blade's faces hold nothing while cutting (what they held is being let

@@ -345,6 +345,15 @@ pub struct ForceSpec {
     pub rupture_displacement_m: f64,
     /// Fracture toughness J_c per unit depth (N/m); 190 J/m² = 0.19 N/mm for liver.
     pub toughness_n_per_m: f64,
+    /// The crack advances by energy at its front and the cutting force is the tissue's
+    /// (cutting-physics.md §3): experimental, off by default until the blade's flats hold
+    /// the lips (docs/CUTTING-DECISIONS.md, "Fracture by energy, first trial"). Off, the
+    /// crack follows the blade and the force is J_c·w + friction + ripple.
+    pub fracture_by_energy: bool,
+    /// How much stiffer than E the tissue at the crack tip is (its strain-stiffening, ≥ 1):
+    /// the crack advances in jumps of the process zone's length J_c / (c·E), the period of
+    /// the cutting force's sawtooth (cutting-physics.md §3; docs/CUTTING.md, "The force").
+    pub crack_tip_stiffening: f64,
     /// Friction on the blade while cutting (N), reached at `friction_depth_m`.
     pub friction_n: f64,
     /// Cut depth at which the friction reaches `friction_n` (m); a shallower blade rubs on
@@ -377,6 +386,9 @@ impl Default for ForceSpec {
             rupture_force_n: 3.0,
             rupture_displacement_m: 0.00317,
             toughness_n_per_m: 190.0,
+            fracture_by_energy: false,
+            // 2 mm jumps on the liver (E = 5 kPa, J_c = 190 J/m²).
+            crack_tip_stiffening: 19.0,
             friction_n: 0.3,
             friction_depth_m: 0.010,
             ripple_amplitude: 0.15,

@@ -174,6 +174,9 @@ pub struct BladeBody {
     on_blade: Vec3,
     /// 1 while the faces hold, down to 0 while the tissue they held is let go (`release`).
     hold: f64,
+    /// Per sample: 0 for a surface sample; for a crack-front sample (`push_front`), how far
+    /// across the flats (m) the edge catches it.
+    capture: Vec<f64>,
 }
 
 impl BladeBody {
@@ -201,6 +204,7 @@ impl BladeBody {
             substeps: 0,
             on_blade: Vec3::zeros(),
             hold: 1.0,
+            capture: Vec::with_capacity(samples),
         }
     }
 
@@ -238,6 +242,7 @@ impl BladeBody {
         self.cut.clear();
         self.cut_at_tick.clear();
         self.normal_impulse.clear();
+        self.capture.clear();
         self.on_blade = Vec3::zeros();
     }
 
@@ -261,6 +266,35 @@ impl BladeBody {
         self.near.push(false);
         self.normal_impulse.push(0.0);
         self.impulse.push(Vec3::zeros());
+        self.capture.push(0.0);
+    }
+
+    /// Adds a crack-front sample: material just ahead of the crack front (rest `rest`,
+    /// `row` its embedding), which only the edge holds, wherever it is across the flats
+    /// within `capture` (m): the wedge of a real blade pushes what lies ahead of its edge,
+    /// and a sample a hair off the 0.4 mm steel must not slip past it.
+    pub fn push_front(
+        &mut self,
+        row: &[(u32, f64)],
+        rest: Vec3,
+        rest_points: &[Vec3],
+        capture: f64,
+    ) {
+        self.push(row, rest, rest_points);
+        if let Some(c) = self.capture.last_mut() {
+            *c = capture;
+        }
+    }
+
+    /// Whether sample `s`, at local `l`, is inside what holds it: the steel, or for a
+    /// crack-front sample the edge's capture band.
+    fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
+        let capture = self.capture[s];
+        if capture > 0.0 {
+            l.x > 0.0 && l.x < at.length && l.y > 0.0 && l.y < at.width && l.z.abs() < capture
+        } else {
+            at.inside(l)
+        }
     }
 
     /// Copies into `into` (cleared first, placed at this blade's slab) every sample a face
@@ -286,6 +320,7 @@ impl BladeBody {
             let t = into.len() - 1;
             into.face[t] = Some(face);
             into.anchor[t] = self.anchor[s];
+            into.capture[t] = self.capture[s];
         }
         into.len()
     }
@@ -302,7 +337,7 @@ impl BladeBody {
         self.samples.finish(&mut self.seen);
         let at = self.to;
         for s in from..self.len() {
-            if self.face[s].is_some() {
+            if self.face[s].is_some() || self.capture[s] > 0.0 {
                 continue;
             }
             let l = at.local(&self.samples.position(s, p));
@@ -407,7 +442,8 @@ impl BladeBody {
                 .map(|&f| before.gap(&l, f).0)
                 .fold(f64::NEG_INFINITY, f64::max)
                 .max(l.x - before.length);
-            self.near[s] = !self.cut[s] && (self.face[s].is_some() || outside <= reach);
+            self.near[s] = !self.cut[s]
+                && (self.face[s].is_some() || self.capture[s] > 0.0 || outside <= reach);
         }
     }
 
@@ -432,7 +468,7 @@ impl BladeBody {
                     continue;
                 }
                 let l = at.local(&self.samples.position(s, p));
-                if !at.inside(&l) {
+                if !self.contains(&at, s, &l) {
                     if pass == 0 {
                         self.face[s] = None;
                     }
@@ -511,7 +547,7 @@ impl BladeBody {
         let at = self.at;
         let x = self.samples.position(s, p);
         let l = at.local(&x);
-        if !at.inside(&l) {
+        if !self.contains(&at, s, &l) {
             self.face[s] = None;
             return None;
         }
@@ -559,7 +595,11 @@ impl BladeBody {
             self.cut[s] = true;
             return None;
         }
-        let f = self.at.entry_face(l, &self.start_local[s]);
+        let f = if self.capture[s] > 0.0 {
+            Face::Edge
+        } else {
+            self.at.entry_face(l, &self.start_local[s])
+        };
         self.face[s] = Some(f);
         self.anchor[s] = *l;
         Some(f)

@@ -31,10 +31,12 @@ use crate::solver::Solver;
 use super::steady_motion::SteadyMotion;
 use super::surface::{CurrentSurface, SurfaceContact};
 
+mod fracture;
 mod region;
 mod sigma;
 mod touch;
 
+use fracture::CrackFront;
 use sigma::TransparentPair;
 use touch::TouchScratch;
 pub(crate) use touch::{MAX_BLADE_ENTRIES, MAX_BLADE_SAMPLES, slab_of};
@@ -102,6 +104,9 @@ pub struct CutTick {
     /// Pushed in point first, the slit its flat opened at the surface (rest space, from the
     /// edge's entry to the blade's back), when Σ grew by it this tick.
     pub slit_rest: Option<Vec3>,
+    /// The crack front jumped this tick (a fracture event: the energy the blade stored in
+    /// the tissue ahead paid for the new crack).
+    pub fractured: bool,
 }
 
 /// Most pairs in the transparency zone at once (preallocated); beyond it a crossing pair is
@@ -157,6 +162,8 @@ pub struct CuttingStage {
     /// Pairs of body points removed since the start (virtual points' pairs not counted).
     pub pairs_removed_total: usize,
     material_points: usize,
+    /// The crack front and its samples (`fracture`).
+    front: CrackFront,
 }
 
 /// What the blade's edge is read from.
@@ -214,6 +221,7 @@ impl CuttingStage {
             transparent: Vec::with_capacity(MAX_TRANSPARENT_PAIRS),
             pairs_removed_total: 0,
             material_points,
+            front: CrackFront::default(),
         }
     }
 
@@ -302,9 +310,14 @@ impl CuttingStage {
                 crushed: phase_before == CutPhase::Loading && crushed_under_blade(solver),
             },
         );
-        let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing);
+        // The crack advances by energy: what the edge's samples pushed with last step.
+        let jump = match withdrawing {
+            true => None,
+            false => self.fracture_due(force.phase, blade, depth_m * crack, solver),
+        };
+        let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
-        self.touch_tissue(dt, &force, blade, surface, solver, grid);
+        self.touch_tissue(dt, &force, blade, depth_m, surface, solver, grid);
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
         CutTick {
             force,
@@ -316,6 +329,7 @@ impl CuttingStage {
             points_changed: self.changed.len(),
             withdrawing,
             slit_rest: sweep.slit_rest,
+            fractured: sweep.fractured,
         }
     }
 

@@ -20,6 +20,8 @@ pub(super) struct Sweep {
     pub(super) new_sigma: Range<usize>,
     pub(super) slit_rest: Option<Vec3>,
     pub(super) plunge_normal: Option<Vec3>,
+    /// The crack front jumped (fracture).
+    pub(super) fractured: bool,
 }
 
 impl CuttingStage {
@@ -32,8 +34,11 @@ impl CuttingStage {
         blade: Option<&Blade>,
         retracing: bool,
         withdrawing: bool,
+        jump: Option<f64>,
     ) -> Sweep {
         let sigma_before = self.sigma.triangles.len();
+        let front_before = self.last_sweep;
+        let jumps_before = self.front.jumps;
         let mut slit_rest = None;
         // While the blade goes in point first, the normal of its flat: the plane that parts
         // left from right when the motion, along the edge, defines none.
@@ -66,26 +71,40 @@ impl CuttingStage {
                     // The edge jitters with the device's noise, and would sweep Σ to and
                     // fro around a held blade: the blade must also have moved steadily.
                     Some(last) => {
-                        if self.moved_enough(&last, &edge)
-                            && self.moved_steadily_since(self.last_sweep_at)
-                        {
-                            self.sigma.add_sweep(last[0], last[1], edge[0], edge[1]);
+                        // Cutting edge first, the crack front advances by fracture
+                        // (`fracture`); in point first, the flat's slit follows the blade.
+                        let ahead = blade
+                            .and_then(touch::front_ahead)
+                            .filter(|_| flat.is_none() && self.force.fracture_by_energy());
+                        let target = match ahead {
+                            Some(ahead) => self.front_target(&last, &edge, ahead, jump),
+                            None => (self.moved_enough(&last, &edge)
+                                && self.moved_steadily_since(self.last_sweep_at))
+                            .then_some(edge),
+                        };
+                        if let Some(target) = target {
+                            self.sigma.add_sweep(last[0], last[1], target[0], target[1]);
                             if let Some(back) = flat {
                                 let width = self.tool.blade_width_m;
-                                self.sigma.add_blade_flat(edge[0], edge[1], back, width);
+                                self.sigma.add_blade_flat(target[0], target[1], back, width);
                                 slit_rest = Some(back * (entry - tip).norm().min(width));
                             }
-                            (self.last_sweep, self.last_sweep_at) = (Some(edge), at);
+                            (self.last_sweep, self.last_sweep_at) = (Some(target), at);
                         }
                     }
                 }
             }
             _ => (self.last_sweep, self.last_sweep_at) = (None, None),
         }
+        // A front that moved needs its samples again.
+        if self.last_sweep != front_before {
+            self.front.stale = true;
+        }
         Sweep {
             new_sigma: sigma_before..self.sigma.triangles.len(),
             slit_rest,
             plunge_normal,
+            fractured: self.front.jumps > jumps_before,
         }
     }
 

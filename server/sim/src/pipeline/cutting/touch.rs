@@ -35,6 +35,12 @@ const BUILT_INSIDE_PITCHES: f64 = 0.1;
 /// across its edge from where they were built.
 const REBUILD_PITCHES: f64 = 0.25;
 
+/// The way the blade's edge faces, across the edge: where it pushes the crack front.
+pub(super) fn front_ahead(b: &Blade) -> Option<Vec3> {
+    let ahead = -b.toward_back;
+    (ahead - b.edge * ahead.dot(&b.edge)).try_normalize(1e-9)
+}
+
 /// The blade's slab for `blade` with the scene's tool.
 pub(crate) fn slab_of(blade: &Blade, tool: &ToolSpec) -> Slab {
     Slab {
@@ -50,9 +56,9 @@ pub(crate) fn slab_of(blade: &Blade, tool: &ToolSpec) -> Slab {
 /// The scratch a build uses (room made once).
 pub(super) struct TouchScratch {
     crossings: Vec<crate::pipeline::surface::Crossing>,
-    within: Vec<u32>,
-    zero: Vec<(u32, f64)>,
-    row: Vec<(u32, f64)>,
+    pub(super) within: Vec<u32>,
+    pub(super) zero: Vec<(u32, f64)>,
+    pub(super) row: Vec<(u32, f64)>,
     /// Where the tip was when the samples were last built.
     built_at: Option<Vec3>,
     /// The next build goes here, and is swapped with the solver's (room made once).
@@ -90,7 +96,7 @@ impl CuttingStage {
     }
 
     /// The blade's pitch of samples (m).
-    fn pitch(&self) -> f64 {
+    pub(super) fn pitch(&self) -> f64 {
         (PITCH_PER_SPACING * self.spacing_m)
             .min(MOST_PITCH_M)
             .max(1.5 * self.tool.blade_thickness_m)
@@ -99,50 +105,34 @@ impl CuttingStage {
     /// The blade against the tissue this tick: samples built when it touches (and rebuilt
     /// as it travels while cutting), the faces that hold for the phase, the blade moved to
     /// where it is, the points the samples follow woken; all taken away when it leaves.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn touch_tissue(
         &mut self,
         dt: f64,
         force: &CutForce,
         blade: Option<&Blade>,
+        depth_m: f64,
         surface: &CurrentSurface,
         solver: &mut Solver,
         grid: &RestGrid,
     ) {
-        // Pressing only, for now: the flats against the lips while cutting were tried and
-        // are not on yet (docs/CUTTING-DECISIONS.md, "The blade in the tick"). Once the
-        // capsule fails, or the blade is gone, the tissue is let go over RELEASE_S.
+        // Pressing, every face holds the tissue. Once the capsule fails the press is let go
+        // over RELEASE_S, and then the edge holds the crack front's samples (`fracture`);
+        // the flats against the lips are not on yet (docs/CUTTING-DECISIONS.md, "The blade
+        // in the tick").
         let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
             self.touch.built_at = None;
             self.touch.pending = None;
-            let Some(body) = solver.blade_mut() else {
-                return;
-            };
-            if body.is_empty() {
-                self.touch.letting_go = None;
+            if (!self.front.built && self.let_go(dt, solver)) || !self.force.fracture_by_energy() {
                 return;
             }
-            // Let go where it ruptured (or was lost), the faces backing out along the edge
-            // to where it touched: the dent relaxes as the crack opens under the blade.
-            let (at, depth) = *self.touch.letting_go.get_or_insert_with(|| {
-                let at = *body.slab();
-                let depth = self
-                    .touch
-                    .touched_at
-                    .map_or(0.0, |t| (t - at.tip).dot(&at.edge));
-                (at, depth.max(0.0))
-            });
-            let left = body.release(dt / RELEASE_S);
-            body.move_to(Slab {
-                tip: at.tip + at.edge * (depth * (1.0 - left)),
-                ..at
-            });
-            if left > 0.0 {
-                self.wake_under_blade(solver, false);
-            } else {
-                self.touch.letting_go = None;
+            match (blade, force.phase) {
+                (Some(b), CutPhase::Cutting) => self.follow_front(b, depth_m, solver, grid),
+                _ => self.drop_front(solver),
             }
             return;
         };
+        self.drop_front(solver);
         self.touch.letting_go = None;
         let slab = slab_of(b, &self.tool);
         let rebuild = self.touch.built_at.is_none_or(|at| {
@@ -167,6 +157,67 @@ impl CuttingStage {
         // checked every SLEEP_CHECK_EVERY ticks, and waking keeps a point awake for
         // SLEEP_AFTER_TICKS: the neighbours need waking only that often.)
         self.wake_under_blade(solver, grew);
+    }
+
+    /// Lets go of what a press held, a step of `dt`: the faces back out along the edge to
+    /// where it touched, so the dent relaxes as the crack opens under the blade. Returns
+    /// whether some of it is still held.
+    fn let_go(&mut self, dt: f64, solver: &mut Solver) -> bool {
+        let Some(body) = solver.blade_mut() else {
+            return false;
+        };
+        if body.is_empty() {
+            self.touch.letting_go = None;
+            return false;
+        }
+        let (at, depth) = *self.touch.letting_go.get_or_insert_with(|| {
+            let at = *body.slab();
+            let depth = self
+                .touch
+                .touched_at
+                .map_or(0.0, |t| (t - at.tip).dot(&at.edge));
+            (at, depth.max(0.0))
+        });
+        let left = body.release(dt / RELEASE_S);
+        body.move_to(Slab {
+            tip: at.tip + at.edge * (depth * (1.0 - left)),
+            ..at
+        });
+        if left > 0.0 {
+            self.wake_under_blade(solver, false);
+            true
+        } else {
+            self.touch.letting_go = None;
+            false
+        }
+    }
+
+    /// While cutting, the edge against the crack front: its samples built where Σ ends
+    /// (again after each jump), the blade moved to where it is, the points they follow awake.
+    fn follow_front(&mut self, b: &Blade, depth_m: f64, solver: &mut Solver, grid: &RestGrid) {
+        let slab = slab_of(b, &self.tool);
+        let fresh = !self.front.built || self.front.stale;
+        if fresh {
+            let Some((front, ahead)) = self.last_sweep.zip(front_ahead(b)) else {
+                return;
+            };
+            self.build_front(&front, depth_m, ahead, solver, grid);
+            if let Some(body) = solver.blade_mut() {
+                body.place(slab);
+            }
+        } else if let Some(body) = solver.blade_mut() {
+            body.move_to(slab);
+        }
+        self.wake_under_blade(solver, fresh);
+    }
+
+    /// Takes the crack front's samples away (the blade left, or presses again).
+    fn drop_front(&mut self, solver: &mut Solver) {
+        if std::mem::take(&mut self.front.built)
+            && let Some(body) = solver.blade_mut()
+        {
+            body.clear();
+        }
     }
 
     /// Wakes the points the blade's samples follow, and their neighbours when `grew` (new

@@ -132,6 +132,8 @@ struct RawForce {
     rupture_force_n: Option<f64>,
     rupture_displacement_mm: Option<f64>,
     toughness_n_per_mm: Option<f64>,
+    fracture_by_energy: Option<bool>,
+    crack_tip_stiffening: Option<f64>,
     friction_n: Option<f64>,
     friction_depth_mm: Option<f64>,
     ripple_amplitude: Option<f64>,
@@ -550,6 +552,16 @@ fn apply_force(spec: &mut SceneSpec, f: &RawForce, check: &Checker<'_>) -> Resul
         key,
         Limit::closed(0.0, 10.0, "N/mm"),
         1e3,
+    )?;
+    if let Some(on) = f.fracture_by_energy {
+        out.fracture_by_energy = on;
+    }
+    check.set(
+        &mut out.crack_tip_stiffening,
+        f.crack_tip_stiffening,
+        "force.crack_tip_stiffening",
+        Limit::closed(1.0, 1000.0, ""),
+        1.0,
     )?;
     check.set(
         &mut out.friction_n,

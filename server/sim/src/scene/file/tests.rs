@@ -241,6 +241,8 @@ fn docs_example_is_complete() {
         rupture_force_n,
         rupture_displacement_mm,
         toughness_n_per_mm,
+        fracture_by_energy,
+        crack_tip_stiffening,
         friction_n,
         friction_depth_mm,
         ripple_amplitude,
@@ -250,10 +252,12 @@ fn docs_example_is_complete() {
         motion_deadband_mm,
         max_force_n,
     } = force.expect("[force]");
+    assert!(fracture_by_energy.is_some());
     for f in [
         rupture_force_n,
         rupture_displacement_mm,
         toughness_n_per_mm,
+        crack_tip_stiffening,
         friction_n,
         friction_depth_mm,
         ripple_amplitude,
