@@ -48,27 +48,19 @@ impl TissueForce {
         let mut f = *cut;
         match cut.phase {
             CutPhase::Free => *self = Self::default(),
-            CutPhase::Loading => {
-                f.force_n = tissue;
-                f.magnitude_n = tissue.norm();
-                f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
-                f.stored_energy_j = self.store(tissue, tip);
-            }
+            CutPhase::Loading => self.read_into(&mut f, tissue, tissue, tip),
             CutPhase::Cutting if by_energy => {
                 // The crack front's push (the tissue's) and the friction on the faces.
-                f.force_n = tissue + cut.force_n;
-                f.magnitude_n = f.force_n.norm();
-                f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
-                let stored = self.store(tissue, tip);
+                self.read_into(&mut f, tissue + cut.force_n, tissue, tip);
                 // A fracture dissipates what the jump released: what is left to give back
-                // is at most the tissue's push's own elastic energy, ½ f²/k.
+                // is at most the push's own elastic energy, ½ f²/k.
                 let k = self.stiffness.trace() / 3.0;
                 let elastic = if k > 0.0 {
                     0.5 * tissue.norm_squared() / k
                 } else {
                     0.0
                 };
-                self.stored_j = stored.min(elastic);
+                self.stored_j = self.stored_j.min(elastic);
                 f.stored_energy_j = self.stored_j;
             }
             CutPhase::Cutting => {
@@ -80,6 +72,15 @@ impl TissueForce {
             }
         }
         f
+    }
+
+    /// `f` felt as `felt`, with the stiffness and the stored energy of the tissue's push
+    /// `tissue` on the tip at `tip`.
+    fn read_into(&mut self, f: &mut CutForce, felt: Vec3, tissue: Vec3, tip: Vec3) {
+        f.force_n = felt;
+        f.magnitude_n = felt.norm();
+        f.stiffness_matrix_n_per_m = self.read_stiffness(tissue, tip);
+        f.stored_energy_j = self.store(tissue, tip);
     }
 
     /// The tissue's stiffness seen at the blade: each time the blade has moved

@@ -63,11 +63,13 @@ impl Slab {
 
     /// Whether a point at local `l` is inside the steel.
     fn inside(&self, l: &Vec3) -> bool {
-        l.x > 0.0
-            && l.x < self.length
-            && l.y > 0.0
-            && l.y < self.width
-            && l.z.abs() < 0.5 * self.thickness
+        self.inside_across(l, 0.5 * self.thickness)
+    }
+
+    /// Whether a point at local `l` is within the blade's length and width, and within
+    /// `half` of its mid-plane across the flats.
+    fn inside_across(&self, l: &Vec3, half: f64) -> bool {
+        l.x > 0.0 && l.x < self.length && l.y > 0.0 && l.y < self.width && l.z.abs() < half
     }
 
     /// The slab a fraction `frac` of the way from `a` to `b` (positions and axes blended,
@@ -289,11 +291,9 @@ impl BladeBody {
     /// Whether sample `s`, at local `l`, is inside what holds it: the steel, or for a
     /// crack-front sample the edge's capture band.
     fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
-        let capture = self.capture[s];
-        if capture > 0.0 {
-            l.x > 0.0 && l.x < at.length && l.y > 0.0 && l.y < at.width && l.z.abs() < capture
-        } else {
-            at.inside(l)
+        match self.capture[s] {
+            capture if capture > 0.0 => at.inside_across(l, capture),
+            _ => at.inside(l),
         }
     }
 

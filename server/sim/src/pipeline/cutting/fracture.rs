@@ -16,7 +16,6 @@
 //! liver at the default 19). That sets the sawtooth's period; its drop is about k·Δa.
 
 use super::*;
-use crate::model::SurfaceEmbedding;
 use crate::model::embedding::Blockers;
 
 /// The crack-front samples sit this many sample pitches ahead of Σ's end (rest): on the
@@ -40,9 +39,6 @@ pub(super) struct CrackFront {
     pub(super) stale: bool,
     /// The tissue's stiffness along the blade's facing (N/m), read by the force stage.
     pub(super) tissue_k: f64,
-    /// Jumps so far, and blades that got past the front without breaking it.
-    pub(super) jumps: u64,
-    pub(super) slips: u64,
 }
 
 impl CuttingStage {
@@ -50,11 +46,6 @@ impl CuttingStage {
     /// stage's reading: the loading slope the fracture criterion takes off the release.
     pub fn note_tissue_stiffness(&mut self, k: f64) {
         self.front.tissue_k = if k.is_finite() { k.max(0.0) } else { 0.0 };
-    }
-
-    /// Crack-front jumps so far (fracture events) and blades that slipped past the front.
-    pub fn fracture_counts(&self) -> (u64, u64) {
-        (self.front.jumps, self.front.slips)
     }
 
     /// The jump Δa (m) if the crack advances this tick: the energy criterion on what the
@@ -77,7 +68,6 @@ impl CuttingStage {
         }
         // The tissue pushes the blade toward its spine.
         let push = body.force_on_blade().dot(&b.toward_back);
-
         let jump = self.process_zone(solver);
         let toughness = self.force.toughness_n_per_m();
         (push - 0.5 * self.front.tissue_k * jump >= toughness * width_m).then_some(jump)
@@ -100,24 +90,19 @@ impl CuttingStage {
     /// when it fractures, to the edge if the blade has got a support radius past the front
     /// unheld, else nowhere.
     pub(super) fn front_target(
-        &mut self,
+        &self,
         last: &[Vec3; 2],
         edge: &[Vec3; 2],
         ahead: Vec3,
         jump: Option<f64>,
     ) -> Option<[Vec3; 2]> {
-        let lag = (edge[1] - last[1]).dot(&ahead);
         if let Some(da) = jump {
-            self.front.jumps += 1;
             // The front's new place, the blade's depth and lean.
             let top = last[1] + ahead * da;
             return Some([top + (edge[0] - edge[1]), top]);
         }
-        if lag > MOST_LAG_SUPPORTS * self.kernel.support_m {
-            self.front.slips += 1;
-            return Some(*edge);
-        }
-        None
+        let lag = (edge[1] - last[1]).dot(&ahead);
+        (lag > MOST_LAG_SUPPORTS * self.kernel.support_m).then_some(*edge)
     }
 
     /// Builds the crack-front samples along Σ's end `front` (rest: tip, top), `ahead` of it:
@@ -163,23 +148,14 @@ impl CuttingStage {
             triangles: &self.sigma.triangles,
             boxes: &self.sigma.boxes,
         };
-        let TouchScratch {
-            within, zero, row, ..
-        } = &mut self.touch;
+        let touch = &mut self.touch;
         let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
             return;
         };
         body.clear();
         for x in at.iter().flatten() {
-            SurfaceEmbedding::row_into(x, rest, grid, &kernel, blockers, within, zero);
-            let total: f64 = zero.iter().map(|(_, w)| w).sum();
-            if total <= 0.0 {
-                continue;
-            }
-            zero.iter_mut().for_each(|(_, w)| *w /= total);
-            op.linear_row(zero, x, rest, row);
-            if body.fits(row.len()) {
-                body.push_front(row, *x, rest, CAPTURE_PITCHES * pitch);
+            if touch.row_at(x, rest, grid, &kernel, blockers, op) && body.fits(touch.row.len()) {
+                body.push_front(&touch.row, *x, rest, CAPTURE_PITCHES * pitch);
             }
         }
         body.finish(positions, 0.0, 0);

@@ -311,9 +311,10 @@ impl CuttingStage {
             },
         );
         // The crack advances by energy: what the edge's samples pushed with last step.
-        let jump = match withdrawing {
-            true => None,
-            false => self.fracture_due(force.phase, blade, depth_m * crack, solver),
+        let jump = if withdrawing {
+            None
+        } else {
+            self.fracture_due(force.phase, blade, depth_m * crack, solver)
         };
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);

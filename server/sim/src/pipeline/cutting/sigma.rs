@@ -38,7 +38,7 @@ impl CuttingStage {
     ) -> Sweep {
         let sigma_before = self.sigma.triangles.len();
         let front_before = self.last_sweep;
-        let jumps_before = self.front.jumps;
+        let mut fractured = false;
         let mut slit_rest = None;
         // While the blade goes in point first, the normal of its flat: the plane that parts
         // left from right when the motion, along the edge, defines none.
@@ -77,7 +77,10 @@ impl CuttingStage {
                             .and_then(touch::front_ahead)
                             .filter(|_| flat.is_none() && self.force.fracture_by_energy());
                         let target = match ahead {
-                            Some(ahead) => self.front_target(&last, &edge, ahead, jump),
+                            Some(ahead) => {
+                                fractured = jump.is_some();
+                                self.front_target(&last, &edge, ahead, jump)
+                            }
                             None => (self.moved_enough(&last, &edge)
                                 && self.moved_steadily_since(self.last_sweep_at))
                             .then_some(edge),
@@ -104,7 +107,7 @@ impl CuttingStage {
             new_sigma: sigma_before..self.sigma.triangles.len(),
             slit_rest,
             plunge_normal,
-            fractured: self.front.jumps > jumps_before,
+            fractured,
         }
     }
 

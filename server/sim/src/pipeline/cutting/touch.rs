@@ -5,6 +5,7 @@
 //! by the tip's end, and a blade slid sideways drags it by friction.
 
 use super::*;
+use crate::mls::MlsOperator;
 use crate::model::SurfaceEmbedding;
 use crate::model::embedding::Blockers;
 use crate::solver::blade::{BladeBody, Slab};
@@ -56,8 +57,9 @@ pub(crate) fn slab_of(blade: &Blade, tool: &ToolSpec) -> Slab {
 /// The scratch a build uses (room made once).
 pub(super) struct TouchScratch {
     crossings: Vec<crate::pipeline::surface::Crossing>,
-    pub(super) within: Vec<u32>,
-    pub(super) zero: Vec<(u32, f64)>,
+    within: Vec<u32>,
+    zero: Vec<(u32, f64)>,
+    /// The last row [`TouchScratch::row_at`] made.
     pub(super) row: Vec<(u32, f64)>,
     /// Where the tip was when the samples were last built.
     built_at: Option<Vec3>,
@@ -85,6 +87,29 @@ impl TouchScratch {
             touched_at: None,
             letting_go: None,
         }
+    }
+
+    /// The field's first-order row at rest point `x` for a sample that follows it, into
+    /// `self.row`: the kernel's weights of the points that see `x` without crossing Σ
+    /// (`blockers`), normalised. `false` where no point sees it.
+    pub(super) fn row_at(
+        &mut self,
+        x: &Vec3,
+        rest: &[Vec3],
+        grid: &RestGrid,
+        kernel: &Kernel,
+        blockers: Blockers<'_>,
+        op: &MlsOperator,
+    ) -> bool {
+        let zero = &mut self.zero;
+        SurfaceEmbedding::row_into(x, rest, grid, kernel, blockers, &mut self.within, zero);
+        let total: f64 = zero.iter().map(|(_, w)| w).sum();
+        if total.is_nan() || total <= 0.0 {
+            return false;
+        }
+        zero.iter_mut().for_each(|(_, w)| *w /= total);
+        op.linear_row(zero, x, rest, &mut self.row);
+        true
     }
 }
 
@@ -123,7 +148,10 @@ impl CuttingStage {
         let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
             self.touch.built_at = None;
             self.touch.pending = None;
-            if (!self.front.built && self.let_go(dt, solver)) || !self.force.fracture_by_energy() {
+            if !self.front.built && self.let_go(dt, solver) {
+                return;
+            }
+            if !self.force.fracture_by_energy() {
                 return;
             }
             match (blade, force.phase) {
@@ -289,13 +317,7 @@ impl CuttingStage {
             triangles: &self.sigma.triangles,
             boxes: &self.sigma.boxes,
         };
-        let TouchScratch {
-            crossings,
-            within,
-            zero,
-            row,
-            ..
-        } = &mut self.touch;
+        let touch = &mut self.touch;
         let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
             return false;
         };
@@ -310,19 +332,16 @@ impl CuttingStage {
             let back = ((c - COLUMNS_BEYOND) as f64 + 0.5) * along_pitch;
             let foot = slab.tip + slab.back * back + side * (r as f64 * across_pitch);
             let (from_x, to_x) = (foot + slab.edge * reach, foot - slab.edge * reach);
-            let Some((t, bary, _)) = surface.first_entry(&from_x, &to_x, crossings) else {
+            let Some((t, bary, _)) = surface.first_entry(&from_x, &to_x, &mut touch.crossings)
+            else {
                 continue;
             };
             let x = surface.rest_point(t, bary);
             if (0..kept).any(|s| (body.rest_position(s, rest) - x).norm() < 0.5 * pitch) {
                 continue;
             }
-            SurfaceEmbedding::row_into(&x, rest, grid, &kernel, blockers, within, zero);
-            let total: f64 = zero.iter().map(|(_, w)| w).sum();
-            zero.iter_mut().for_each(|(_, w)| *w /= total);
-            op.linear_row(zero, &x, rest, row);
-            if body.fits(row.len()) {
-                body.push(row, x, rest);
+            if touch.row_at(&x, rest, grid, &kernel, blockers, op) && body.fits(touch.row.len()) {
+                body.push(&touch.row, x, rest);
             }
         }
         body.finish(positions, BUILT_INSIDE_PITCHES * pitch, from);
