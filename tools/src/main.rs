@@ -431,6 +431,15 @@ enum BenchCommand {
         /// Most points across the beam.
         #[arg(long, default_value_t = 9)]
         max_across: usize,
+        /// Which body: cantilever, uniaxial or all.
+        #[arg(long, default_value = "all")]
+        case: String,
+        /// Which solver mode: explicit, projective or all.
+        #[arg(long, default_value = "all")]
+        mode: String,
+        /// A peers file (tools/bench/peers/run.py) whose points join the plot.
+        #[arg(long)]
+        peers: Option<PathBuf>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -668,8 +677,19 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
             out,
             min_across,
             max_across,
+            case,
+            mode,
+            peers,
             json,
-        } => bench::accuracy::run(&out, min_across, max_across, json),
+        } => {
+            let selection = bench::accuracy::Selection {
+                across: (min_across, max_across),
+                case,
+                mode,
+                peers,
+            };
+            bench::accuracy::run(&out, &selection, json)
+        }
     }
 }
 

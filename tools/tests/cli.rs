@@ -452,23 +452,89 @@ fn a_report_piped_into_a_closed_reader_ends_quietly() {
 #[test]
 fn accuracy_bench_writes_csv_and_plot() {
     let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
     let r = ok_json(&[
         "bench",
         "accuracy",
         "--out",
-        dir.path().to_str().unwrap(),
+        out,
         "--min-across",
         "3",
         "--max-across",
         "3",
         "--json",
     ]);
-    assert_eq!(r["rows"].as_array().unwrap().len(), 4, "2 cases × 2 modes");
+    let rows = r["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 4, "2 cases × 2 modes");
+    let reference = r["reference_tip_m"].as_f64().unwrap();
+    assert!((reference - 5.19e-4).abs() < 1e-6, "{reference}");
+    for row in rows.iter().filter(|row| row["case"] == "cantilever") {
+        // Three points across are coarse: too stiff, and Timoshenko's figure sits further
+        // off than the 3D reference's.
+        let (e, t) = (
+            row["error"].as_f64().unwrap(),
+            row["error_timoshenko"].as_f64().unwrap(),
+        );
+        assert!(e > 0.05 && e < 0.3 && t > e, "{row}");
+    }
     let csv = std::fs::read_to_string(dir.path().join("accuracy.csv")).unwrap();
     assert!(csv.starts_with("case,mode,points_across"));
     assert_eq!(csv.lines().count(), 5);
     let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+
+    // A peer's points join the report with their error against the same reference; one
+    // case and one mode can be run alone (the peers script times scalpel that way).
+    let peers = dir.path().join("peers.json");
+    std::fs::write(
+        &peers,
+        r#"{"rows": [{"peer": "mujoco-flex", "across": 3, "nodes": 81,
+            "wall_s_per_simulated_s": 0.5, "tip_m": 3.894e-4}]}"#,
+    )
+    .unwrap();
+    let r = ok_json(&[
+        "bench",
+        "accuracy",
+        "--out",
+        out,
+        "--min-across",
+        "3",
+        "--max-across",
+        "3",
+        "--case",
+        "cantilever",
+        "--mode",
+        "explicit",
+        "--peers",
+        peers.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(r["rows"].as_array().unwrap().len(), 1);
+    let peer_error = r["peers"][0]["error"].as_f64().unwrap();
+    assert!(
+        (peer_error - (1.0 - 3.894e-4 / reference)).abs() < 1e-9,
+        "{peer_error}"
+    );
+    let fits = r["fits"].as_array().unwrap();
+    assert!(fits.iter().any(|f| f["mode"] == "peer"), "{fits:?}");
+
+    std::fs::write(&peers, "{\"rows\": [{\"peer\": \"x\"}]}").unwrap();
+    let err = fails(&[
+        "bench",
+        "accuracy",
+        "--out",
+        out,
+        "--case",
+        "cantilever",
+        "--peers",
+        peers.to_str().unwrap(),
+    ]);
+    assert!(err.contains("peers.json is not a peers file"), "{err}");
+    let err = fails(&["bench", "accuracy", "--out", out, "--case", "beam"]);
+    assert!(
+        err.contains("--case beam: expected one of cantilever, uniaxial or all"),
+        "{err}"
+    );
 }
 
 /// A short scripted cut on the liver: down 14 mm at 10 mm/s, 20 mm along, back up.

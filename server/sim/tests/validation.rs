@@ -1,4 +1,4 @@
-//! The analytic benchmarks of physics.md §8 (B1, B2, B3, B5, B5b, B6, B9, B11, B12) and
+//! The analytic benchmarks of physics.md §8 (B1, B2, B3, B5, B5T, B5b, B6, B9, B11, B12) and
 //! cutting-physics.md §1 (B13) pass their bands. The same functions back `scalpel validate`.
 
 use scalpel_sim::validate;
@@ -22,6 +22,34 @@ fn every_benchmark_passes() {
         }
     }
     assert!(failures.is_empty(), "failed: {failures:?}");
+}
+
+/// The 3D references compiled into the benchmarks are the ones the reference script stored
+/// (tools/reference/reference.json, from tools/reference/fem_reference.py).
+#[test]
+fn compiled_references_match_the_stored_result() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tools/reference/reference.json"
+    );
+    let text = std::fs::read_to_string(path).expect("the stored reference is in the repository");
+    let stored: serde_json::Value = serde_json::from_str(&text).expect("it is JSON");
+    for (case, compiled) in [
+        ("cantilever", validate::CANTILEVER_3D_TIP_M),
+        ("slender_cantilever", validate::SLENDER_CANTILEVER_3D_TIP_M),
+    ] {
+        let tip = stored[case]["tip_m"].as_f64().expect("an extrapolated tip");
+        assert!(
+            (compiled / tip - 1.0).abs() < 1e-6,
+            "{case}: compiled {compiled:e} m, stored {tip:e} m: copy the stored value"
+        );
+        // Beam theory is softer than the clamped 3D beam, more so for the short one.
+        let timoshenko = stored[case]["timoshenko_over_reference"].as_f64().unwrap();
+        assert!(
+            timoshenko > 1.0 && timoshenko < 1.05,
+            "{case}: {timoshenko}"
+        );
+    }
 }
 
 /// physics.md §9, "Müller-literal check": MuellerCompat with E/4 gives the same motion as

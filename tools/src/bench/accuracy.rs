@@ -2,9 +2,12 @@
 //!
 //! For the cantilever (B5 geometry, tip load) and the uniaxial block (B3), at 3 to 9 points
 //! across and in both dynamic solver modes, the body is simulated with damping until it
-//! settles; the error is measured against the analytic answer at the end, and the cost is
-//! the wall time per simulated second. The slope of log error against log cost is fitted
-//! per series (physics.md expects about −1/4 for explicit dynamics).
+//! settles; the error is measured at the end against the converged 3D reference (the
+//! cantilever: tools/reference/fem_reference.py; Timoshenko's figure is kept beside it) or
+//! the exact answer (the uniaxial block's homogeneous stretch), and the cost is the wall
+//! time per simulated second. The slope of log error against log cost is fitted per series
+//! (physics.md expects about −1/4 for explicit dynamics). Peers' points (tools/bench/peers)
+//! join the plot from their JSON.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -15,10 +18,10 @@ use scalpel_sim::math::Vec3;
 use scalpel_sim::scene::Material;
 use scalpel_sim::solver::{SolverConfig, SolverMode};
 use scalpel_sim::validate::{
-    BoxBody, box_body, cantilever_body, timoshenko_tip_deflection, tip_deflection,
-    uniaxial_measure, uniaxial_setup,
+    BoxBody, CANTILEVER_3D_TIP_M, box_body, cantilever_body, timoshenko_tip_deflection,
+    tip_deflection, uniaxial_measure, uniaxial_setup,
 };
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::plot::{Series, log_log};
 
@@ -42,7 +45,42 @@ struct Row {
     wall_s: f64,
     wall_s_per_simulated_s: f64,
     substeps_per_tick: u32,
+    /// Relative error against the converged 3D reference (the cantilever) or the exact
+    /// answer (the uniaxial block).
     error: f64,
+    /// The cantilever's relative error against Timoshenko's beam theory.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error_timoshenko: Option<f64>,
+}
+
+/// A peer simulator's run of the cantilever, as tools/bench/peers writes it.
+#[derive(Deserialize, Serialize, Clone)]
+struct PeerRow {
+    peer: String,
+    across: usize,
+    nodes: usize,
+    wall_s_per_simulated_s: f64,
+    tip_m: f64,
+    /// Relative error against the 3D reference, computed here.
+    #[serde(default)]
+    error: f64,
+}
+
+#[derive(Deserialize)]
+struct PeerFile {
+    rows: Vec<PeerRow>,
+}
+
+/// Which bodies and modes to run.
+pub struct Selection {
+    /// Points across the beam, fewest and most.
+    pub across: (usize, usize),
+    /// "cantilever", "uniaxial" or "all".
+    pub case: String,
+    /// "explicit", "projective" or "all".
+    pub mode: String,
+    /// A peers JSON (tools/bench/peers) whose cantilever points join the plot.
+    pub peers: Option<std::path::PathBuf>,
 }
 
 #[derive(Serialize)]
@@ -55,8 +93,10 @@ struct Fit {
 
 #[derive(Serialize)]
 struct Report {
+    reference_tip_m: f64,
     rows: Vec<Row>,
     fits: Vec<Fit>,
+    peers: Vec<PeerRow>,
     csv: String,
     plot: String,
 }
@@ -101,16 +141,20 @@ fn cantilever(m: usize, mode: SolverMode) -> Row {
     );
     let ticks = CANTILEVER_TICKS;
     let wall = simulate(&mut body, ticks);
-    let expected = timoshenko_tip_deflection(load, 0.040, 0.010, 5000.0, 0.45);
-    row(
-        "cantilever",
-        mode,
-        m,
-        &body,
-        ticks,
-        wall,
-        (tip_deflection(&body) / expected - 1.0).abs(),
-    )
+    let timoshenko = timoshenko_tip_deflection(load, 0.040, 0.010, 5000.0, 0.45);
+    let tip = tip_deflection(&body);
+    Row {
+        error_timoshenko: Some((tip / timoshenko - 1.0).abs()),
+        ..row(
+            "cantilever",
+            mode,
+            m,
+            &body,
+            ticks,
+            wall,
+            (tip / CANTILEVER_3D_TIP_M - 1.0).abs(),
+        )
+    }
 }
 
 fn uniaxial(m: usize, mode: SolverMode) -> Row {
@@ -163,6 +207,7 @@ fn row(
         wall_s_per_simulated_s: wall / simulated,
         substeps_per_tick: body.solver.substeps(),
         error,
+        error_timoshenko: None,
     }
 }
 
@@ -184,29 +229,82 @@ fn log_slope(points: &[(f64, f64)]) -> f64 {
     sxy / sxx
 }
 
-/// Runs the sweep and writes `accuracy.csv` and `accuracy.png` into `out`.
-pub fn run(out: &Path, min_across: usize, max_across: usize, json: bool) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        min_across >= 3 && max_across >= min_across,
-        "points across must be 3 or more, min ≤ max"
-    );
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+fn wanted(choice: &str, name: &str) -> bool {
+    choice == "all" || choice == name
+}
+
+/// Simulates every selected case, mode and resolution.
+fn sweep(selection: &Selection, json: bool) -> Vec<Row> {
     let mut rows = Vec::new();
     for mode in [SolverMode::Explicit, SolverMode::Projective] {
-        for m in min_across..=max_across {
-            rows.push(cantilever(m, mode));
-            rows.push(uniaxial(m, mode));
+        if !wanted(&selection.mode, mode_name(mode)) {
+            continue;
+        }
+        for m in selection.across.0..=selection.across.1 {
+            if wanted(&selection.case, "cantilever") {
+                rows.push(cantilever(m, mode));
+            }
+            if wanted(&selection.case, "uniaxial") {
+                rows.push(uniaxial(m, mode));
+            }
             if !json {
-                let r = &rows[rows.len() - 2];
-                eprintln!(
-                    "{} {} m = {m}: error {:.3e}, {:.3} s per simulated s",
-                    r.case, r.mode, r.error, r.wall_s_per_simulated_s
-                );
+                for r in rows.iter().rev().take_while(|r| r.points_across == m) {
+                    eprintln!(
+                        "{} {} m = {m}: error {:.3e}, {:.3} s per simulated s",
+                        r.case, r.mode, r.error, r.wall_s_per_simulated_s
+                    );
+                }
             }
         }
     }
+    rows
+}
+
+/// Reads a peers file and measures each row's error against the 3D reference.
+fn read_peers(path: &Path) -> anyhow::Result<Vec<PeerRow>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let file: PeerFile = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a peers file (tools/bench/peers)", path.display()))?;
+    let mut rows = file.rows;
+    for r in &mut rows {
+        anyhow::ensure!(
+            r.tip_m.is_finite() && r.wall_s_per_simulated_s > 0.0,
+            "{}: peer {} at {} across has tip {} m and cost {} s per simulated s",
+            path.display(),
+            r.peer,
+            r.across,
+            r.tip_m,
+            r.wall_s_per_simulated_s
+        );
+        r.error = (r.tip_m / CANTILEVER_3D_TIP_M - 1.0).abs();
+    }
+    Ok(rows)
+}
+
+/// The fitted slope and plot series of each (case, mode) and each peer.
+fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
     let mut fits = Vec::new();
     let mut series = Vec::new();
+    let mut add = |case: &'static str, mode: &'static str, label: &str, points: Vec<(f64, f64)>| {
+        if points.is_empty() {
+            return;
+        }
+        let slope = log_slope(&points);
+        fits.push(Fit {
+            case,
+            mode,
+            slope,
+            samples: points.len(),
+        });
+        series.push(Series {
+            label: format!("{label} (slope {slope:.2})"),
+            points: points
+                .into_iter()
+                .filter(|(x, y)| *x > 0.0 && *y > 0.0)
+                .collect(),
+        });
+    };
     for case in ["cantilever", "uniaxial"] {
         for mode in ["explicit", "projective"] {
             let points: Vec<(f64, f64)> = rows
@@ -214,30 +312,30 @@ pub fn run(out: &Path, min_across: usize, max_across: usize, json: bool) -> anyh
                 .filter(|r| r.case == case && r.mode == mode)
                 .map(|r| (r.wall_s_per_simulated_s, r.error))
                 .collect();
-            let slope = log_slope(&points);
-            fits.push(Fit {
-                case,
-                mode,
-                slope,
-                samples: points.len(),
-            });
-            series.push(Series {
-                label: format!("{case}, {mode} (slope {slope:.2})"),
-                points: points
-                    .into_iter()
-                    .filter(|(x, y)| *x > 0.0 && *y > 0.0)
-                    .collect(),
-            });
+            add(case, mode, &format!("scalpel {case}, {mode}"), points);
         }
     }
-    let csv_path = out.join("accuracy.csv");
+    let mut names: Vec<&str> = peers.iter().map(|p| p.peer.as_str()).collect();
+    names.dedup();
+    for name in names {
+        let points = peers
+            .iter()
+            .filter(|p| p.peer == name)
+            .map(|p| (p.wall_s_per_simulated_s, p.error))
+            .collect();
+        add("cantilever", "peer", &format!("{name} cantilever"), points);
+    }
+    (fits, series)
+}
+
+fn csv_of(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "case,mode,points_across,points,spacing_mm,simulated_s,wall_s,wall_s_per_simulated_s,substeps_per_tick,error\n",
+        "case,mode,points_across,points,spacing_mm,simulated_s,wall_s,wall_s_per_simulated_s,substeps_per_tick,error,error_timoshenko\n",
     );
-    for r in &rows {
+    for r in rows {
         let _ = writeln!(
             csv,
-            "{},{},{},{},{:.4},{},{:.6},{:.6},{},{:.6e}",
+            "{},{},{},{},{:.4},{},{:.6},{:.6},{},{:.6e},{}",
             r.case,
             r.mode,
             r.points_across,
@@ -247,50 +345,97 @@ pub fn run(out: &Path, min_across: usize, max_across: usize, json: bool) -> anyh
             r.wall_s,
             r.wall_s_per_simulated_s,
             r.substeps_per_tick,
-            r.error
+            r.error,
+            r.error_timoshenko
+                .map(|e| format!("{e:.6e}"))
+                .unwrap_or_default()
         );
     }
-    std::fs::write(&csv_path, csv)
+    csv
+}
+
+fn print_table(rows: &[Row], fits: &[Fit], peers: &[PeerRow]) {
+    println!(
+        "{:<11} {:<11} {:>6} {:>7} {:>8} {:>10} {:>12} {:>12}",
+        "case", "mode", "across", "points", "s (mm)", "error", "vs Timosh.", "s per sim s"
+    );
+    for r in rows {
+        println!(
+            "{:<11} {:<11} {:>6} {:>7} {:>8.3} {:>10.3e} {:>12} {:>12.4}",
+            r.case,
+            r.mode,
+            r.points_across,
+            r.points,
+            r.spacing_mm,
+            r.error,
+            r.error_timoshenko
+                .map(|e| format!("{e:.3e}"))
+                .unwrap_or_else(|| "-".into()),
+            r.wall_s_per_simulated_s
+        );
+    }
+    for p in peers {
+        println!(
+            "{:<11} {:<11} {:>6} {:>7} {:>8} {:>10.3e} {:>12} {:>12.4}",
+            "cantilever", p.peer, p.across, p.nodes, "-", p.error, "-", p.wall_s_per_simulated_s
+        );
+    }
+    for f in fits {
+        println!(
+            "slope of log error vs log cost, {} {}: {:.3}",
+            f.case, f.mode, f.slope
+        );
+    }
+}
+
+/// Runs the sweep and writes `accuracy.csv` and `accuracy.png` into `out`.
+pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> {
+    let (min_across, max_across) = selection.across;
+    anyhow::ensure!(
+        min_across >= 3 && max_across >= min_across,
+        "points across must be 3 or more, min ≤ max"
+    );
+    for (what, choice, names) in [
+        ("case", &selection.case, ["cantilever", "uniaxial"]),
+        ("mode", &selection.mode, ["explicit", "projective"]),
+    ] {
+        anyhow::ensure!(
+            choice == "all" || names.contains(&choice.as_str()),
+            "--{what} {choice}: expected one of {}, {} or all",
+            names[0],
+            names[1]
+        );
+    }
+    let peers = match &selection.peers {
+        Some(path) => read_peers(path)?,
+        None => Vec::new(),
+    };
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let rows = sweep(selection, json);
+    let (fits, series) = series_of(&rows, &peers);
+    let csv_path = out.join("accuracy.csv");
+    std::fs::write(&csv_path, csv_of(&rows))
         .with_context(|| format!("cannot write {}", csv_path.display()))?;
     let plot_path = out.join("accuracy.png");
     log_log(
         &plot_path,
-        "Error against run time (liver, E = 5 kPa, ν = 0.45)",
+        "Error against run time vs the converged 3D reference (E = 5 kPa, ν = 0.45)",
         "wall time per simulated second (s)",
         "relative error",
         &series,
     )?;
     if json {
         let report = Report {
+            reference_tip_m: CANTILEVER_3D_TIP_M,
             rows,
             fits,
+            peers,
             csv: csv_path.display().to_string(),
             plot: plot_path.display().to_string(),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        println!(
-            "{:<11} {:<11} {:>6} {:>7} {:>8} {:>10} {:>12}",
-            "case", "mode", "across", "points", "s (mm)", "error", "s per sim s"
-        );
-        for r in &rows {
-            println!(
-                "{:<11} {:<11} {:>6} {:>7} {:>8.3} {:>10.3e} {:>12.4}",
-                r.case,
-                r.mode,
-                r.points_across,
-                r.points,
-                r.spacing_mm,
-                r.error,
-                r.wall_s_per_simulated_s
-            );
-        }
-        for f in &fits {
-            println!(
-                "slope of log error vs log cost, {} {}: {:.3}",
-                f.case, f.mode, f.slope
-            );
-        }
+        print_table(&rows, &fits, &peers);
         println!("wrote {} and {}", csv_path.display(), plot_path.display());
     }
     Ok(())

@@ -1,7 +1,8 @@
-//! The benchmarks B1, B2, B3, B5, B5b, B6, B9, B11, B12 of physics.md §8.
+//! The benchmarks B1, B2, B3, B9, B11, B12 of physics.md §8 (the cantilever's B5, B5b and B6
+//! are in `cantilever`).
 
 use super::BenchmarkResult;
-use super::bodies::{BoxBody, box_body, timoshenko_tip_deflection};
+use super::bodies::{BoxBody, box_body};
 use crate::math::{Mat3, Vec3};
 use crate::mls::PointRank;
 use crate::model::Neighbourhoods;
@@ -17,7 +18,7 @@ pub const LIVER_UNDAMPED: Material = Material {
 /// Static solves of the pure MLS discretisation. The static accuracy benchmarks run without
 /// hourglass stabilisation (α = 0), as physics.md's reference figures were measured; each
 /// also reports the figure at the product default α, which stiffens non-affine fields.
-fn quasi_static() -> SolverConfig {
+pub(super) fn quasi_static() -> SolverConfig {
     SolverConfig {
         mode: SolverMode::QuasiStatic,
         hourglass_alpha: 0.0,
@@ -26,7 +27,7 @@ fn quasi_static() -> SolverConfig {
 }
 
 /// The same with the product's default hourglass coefficient.
-fn quasi_static_default_alpha() -> SolverConfig {
+pub(super) fn quasi_static_default_alpha() -> SolverConfig {
     SolverConfig {
         mode: SolverMode::QuasiStatic,
         ..SolverConfig::default()
@@ -79,13 +80,6 @@ pub fn b1_kinematic_patch() -> BenchmarkResult {
         1e-10,
         format!("max |F − G| / |G| over {checked} full-rank points"),
     )
-}
-
-/// Fixes every dof of `points` where they are now.
-fn fix_all(body: &mut BoxBody, points: &[usize]) {
-    for &i in points {
-        body.solver.fix(i, [true; 3]);
-    }
 }
 
 /// B2, static patch test: the outer layer of a 10³ block follows `u = G X`; the interior,
@@ -302,172 +296,6 @@ pub fn uniaxial_measure(body: &mut BoxBody, strain: f64) -> UniaxialResult {
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     sum / n as f64
-}
-
-/// Static tip deflection of a cantilever (root face clamped, tip load along −z spread over
-/// the tip face by point volume) and the Timoshenko value.
-pub fn cantilever_deflection(
-    length: f64,
-    side: f64,
-    points_across: usize,
-    load_n: f64,
-    config: SolverConfig,
-) -> (f64, f64, BoxBody) {
-    let mut body = cantilever_body(length, side, points_across, load_n, &LIVER_UNDAMPED, config);
-    body.solver.solve_static();
-    let deflection = tip_deflection(&body);
-    let e = LIVER_UNDAMPED.youngs_modulus_pa;
-    let expected = timoshenko_tip_deflection(load_n, length, side, e, LIVER_UNDAMPED.poisson_ratio);
-    (deflection, expected, body)
-}
-
-/// A cantilever with its root face clamped and the tip load applied, at rest.
-pub fn cantilever_body(
-    length: f64,
-    side: f64,
-    points_across: usize,
-    load_n: f64,
-    material: &Material,
-    config: SolverConfig,
-) -> BoxBody {
-    let mut body = box_body(
-        Vec3::new(length, side, side),
-        points_across,
-        material,
-        2.0,
-        config,
-    );
-    let root = body.face(0, -1.0);
-    fix_all(&mut body, &root);
-    load_tip(&mut body, load_n);
-    body
-}
-
-/// Spreads a total load along −z over the tip face, by point volume (= face area weights).
-fn load_tip(body: &mut BoxBody, load_n: f64) {
-    let tip = body.face(0, 1.0);
-    let total: f64 = tip.iter().map(|&i| body.model.points.volume_m3[i]).sum();
-    for &i in &tip {
-        let share = body.model.points.volume_m3[i] / total;
-        body.solver
-            .set_external_force(i, Vec3::new(0.0, 0.0, -load_n * share));
-    }
-}
-
-/// Volume-weighted mean downward displacement of the tip face (m).
-pub fn tip_deflection(body: &BoxBody) -> f64 {
-    body.face_sag(0, 1.0)
-}
-
-/// B5, cantilever L = 40 mm, b = 10 mm, tip load 0.1 mN: tip deflection within 5 % of
-/// Timoshenko at 7 and 9 points across.
-pub fn b5_cantilever() -> BenchmarkResult {
-    let mut details = Vec::new();
-    let mut error: f64 = 0.0;
-    for m in [7, 9] {
-        let (d, expected, _) = cantilever_deflection(0.040, 0.010, m, 1e-4, quasi_static());
-        let (d_default, _, _) =
-            cantilever_deflection(0.040, 0.010, m, 1e-4, quasi_static_default_alpha());
-        error = error.max((d / expected - 1.0).abs());
-        details.push(format!(
-            "m = {m}: δ/δ_T = {:.4} (α = {}: {:.4})",
-            d / expected,
-            SolverConfig::default().hourglass_alpha,
-            d_default / expected
-        ));
-    }
-    BenchmarkResult::new(
-        "B5",
-        "cantilever tip deflection vs Timoshenko (L/b = 4)",
-        error,
-        0.05,
-        format!(
-            "{} (δ_T = {:.4} mm)",
-            details.join(", "),
-            1e3 * timoshenko_tip_deflection(1e-4, 0.04, 0.01, 5000.0, 0.45)
-        ),
-    )
-}
-
-/// B5b, slender cantilever L/b = 10, within 5 %.
-pub fn b5b_slender_cantilever() -> BenchmarkResult {
-    let (d, expected, _) = cantilever_deflection(0.100, 0.010, 5, 1e-4, quasi_static());
-    let (d_default, _, _) =
-        cantilever_deflection(0.100, 0.010, 5, 1e-4, quasi_static_default_alpha());
-    BenchmarkResult::new(
-        "B5b",
-        "slender cantilever tip deflection vs Timoshenko (L/b = 10)",
-        (d / expected - 1.0).abs(),
-        0.05,
-        format!(
-            "m = 5: δ = {:.4} mm, δ_T = {:.4} mm, ratio {:.4} (α = {}: {:.4})",
-            d * 1e3,
-            expected * 1e3,
-            d / expected,
-            SolverConfig::default().hourglass_alpha,
-            d_default / expected
-        ),
-    )
-}
-
-/// First bending frequency of the B5 cantilever (Euler–Bernoulli), Hz.
-pub fn euler_bernoulli_frequency(length: f64, side: f64, e: f64, density: f64) -> f64 {
-    let inertia = side.powi(4) / 12.0;
-    let area = side * side;
-    1.8751f64.powi(2) / (2.0 * std::f64::consts::PI * length * length)
-        * (e * inertia / (density * area)).sqrt()
-}
-
-/// Measured first bending period: release the B5 beam from its static deflection and time
-/// the zero crossings of the tip (undamped explicit dynamics). Returns (period s, body).
-pub fn bending_period(points_across: usize) -> (f64, BoxBody) {
-    let (_, _, mut body) =
-        cantilever_deflection(0.040, 0.010, points_across, 1e-4, SolverConfig::default());
-    // Release: the static solve left the beam deflected and at rest.
-    body.solver.clear_external_forces();
-    let dynamic = &mut body;
-    let dt = 1e-3;
-    let mut crossings: Vec<f64> = Vec::new();
-    let mut previous = tip_deflection(dynamic);
-    let mut t = 0.0;
-    while crossings.len() < 5 && t < 3.0 {
-        dynamic.solver.step(dt);
-        t += dt;
-        let now = tip_deflection(dynamic);
-        if previous > 0.0 && now <= 0.0 || previous < 0.0 && now >= 0.0 {
-            // Linear interpolation of the crossing time within the tick.
-            crossings.push(t - dt * now / (now - previous));
-        }
-        previous = now;
-    }
-    let period = if crossings.len() >= 3 {
-        // Successive crossings are half a period apart.
-        2.0 * (crossings[crossings.len() - 1] - crossings[0]) / (crossings.len() - 1) as f64
-    } else {
-        f64::NAN
-    };
-    (period, body)
-}
-
-/// B6, first bending frequency of the B5 beam: period within 5 % of Euler–Bernoulli 2.19 Hz.
-pub fn b6_bending_frequency() -> BenchmarkResult {
-    let (period, body) = bending_period(5);
-    let f = euler_bernoulli_frequency(0.04, 0.01, 5000.0, 1060.0);
-    let expected = 1.0 / f;
-    BenchmarkResult::new(
-        "B6",
-        "first bending period vs Euler–Bernoulli f₁ = 2.19 Hz",
-        (period / expected - 1.0).abs(),
-        0.05,
-        format!(
-            "m = 5, undamped explicit ({} sub-steps per ms): T = {:.4} s vs {:.4} s (f = {:.3} Hz vs {:.3} Hz)",
-            body.solver.substeps(),
-            period,
-            expected,
-            1.0 / period,
-            f
-        ),
-    )
 }
 
 /// B9, rigid-motion invariance: under a 90° rotation (and a spin) the elastic forces vanish.

@@ -5,6 +5,7 @@
 //! analytic answer. No clock here: callers time the runs.
 
 mod bodies;
+mod cantilever;
 mod cases;
 mod punch;
 mod stability;
@@ -13,6 +14,7 @@ mod supports;
 use serde::Serialize;
 
 pub use bodies::{BoxBody, LatticeCube, box_body, cut_down_to, timoshenko_tip_deflection};
+pub use cantilever::*;
 pub use cases::*;
 pub use punch::*;
 pub use stability::*;
@@ -80,6 +82,10 @@ pub fn all() -> Vec<Benchmark> {
         Benchmark {
             name: "B5",
             run: b5_cantilever,
+        },
+        Benchmark {
+            name: "B5T",
+            run: b5t_cantilever_timoshenko,
         },
         Benchmark {
             name: "B5b",
