@@ -10,6 +10,10 @@ ones in server/sim/src/validate:
   load 0.1 mN along -z as a uniform traction on the tip face; the read-out is the tip face's
   area-mean downward displacement (scalpel's point-volume-weighted face mean).
 * slender cantilever (B5b): the same at L = 100 mm.
+* punch (B14): the quarter of a block 8 punch radii wide and deep (a = 6 mm) on a fixed base,
+  rollers on its two cut planes, a rigid frictionless flat punch pressed 2 % of a into it; the
+  read-out is the whole punch's stiffness (N/mm). The grid is warped so a ring of nodes lies on
+  the punch's rim; the rim's stress singularity keeps the observed order near 0.85.
 * uniaxial (B3): a 20 x 10 x 10 mm block with sliding ends stretched by 1e-3; the read-outs are
   the end reaction and the Poisson ratio from the lateral strain. A homogeneous stretch lies in
   the element space, so the answer must be E*eps*A and nu at every level: this case proves the
@@ -19,7 +23,7 @@ Linear elasticity is the right reference for these loads: the cantilever's tip t
 1/80 rad, so the geometric nonlinearity it leaves out is below 1e-4 of the deflection.
 
 Usage:
-  fem_reference.py --out tools/reference/reference.json            # the full run (minutes)
+  fem_reference.py --out tools/reference/reference.json            # the full run (10 min, 7 GB)
   fem_reference.py --check tools/reference/reference.json --small  # CI: rerun the coarse
                                                                     # levels, compare
 """
@@ -64,6 +68,8 @@ FULL_LEVELS = [2, 3, 4, 6, 8, 10]
 SMALL_LEVELS = [2, 3]
 SLENDER_LEVELS = [1, 2, 3, 4, 6]
 SMALL_SLENDER_LEVELS = [1, 2]
+PUNCH_LEVELS = [1, 2, 3, 4]
+SMALL_PUNCH_LEVELS = [1]
 
 
 def box_mesh(lengths, per_axis):
@@ -139,6 +145,62 @@ def uniaxial(across):
     bottom = where(uy, lambda p: p[1] < -0.5 * SIDE_M + 1e-12)
     lateral = (u[top].mean() - u[bottom].mean()) / SIDE_M
     return reaction, -lateral / STRAIN, basis.N
+
+
+PUNCH_RADIUS_M = 0.006
+PUNCH_INDENTATION = 0.02
+
+
+def punch_mesh(per_radius):
+    """The quarter block of B14 (4a x 4a x 8a, the punch's axis on the x = y = 0 edge, its
+    face at z = 0), `per_radius` elements per punch radius across, half as many per radius
+    in depth. The grid is warped in x-y so that a ring of nodes lies on r = a: inside the
+    max-norm square of side a, points move radially by max(x, y)/r, and the warp fades
+    linearly to nothing at the block's sides."""
+    a = PUNCH_RADIUS_M
+    n = per_radius
+    mesh = MeshHex.init_tensor(
+        np.linspace(0.0, 4 * a, 4 * n + 1),
+        np.linspace(0.0, 4 * a, 4 * n + 1),
+        np.linspace(-8 * a, 0.0, 4 * n + 1),
+    )
+    p = mesh.p.copy()
+    xy = p[:2]
+    r = np.hypot(xy[0], xy[1])
+    m = np.maximum(xy[0], xy[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        full = np.where(r > 0, m / r, 1.0)
+    weight = np.clip((4 * a - np.maximum(m, a)) / (3 * a), 0.0, 1.0)
+    weight = np.where(m <= a, 1.0, weight)
+    p[:2] = xy * (weight * full + (1.0 - weight))
+    return MeshHex(p, mesh.t)
+
+
+def punch(per_radius):
+    """The block's stiffness under the whole flat punch (N/mm): four times the quarter's
+    reaction over the indentation. Frictionless: only u_z is prescribed under the punch."""
+    a = PUNCH_RADIUS_M
+    mesh = punch_mesh(per_radius)
+    basis = Basis(mesh, ElementVector(ElementHex2()), intorder=4)
+    k = stiffness(basis)
+    ux, uy, uz = basis.split_indices()
+    x = basis.doflocs
+
+    def where(component, test):
+        return component[test(x[:, component])]
+
+    depth = PUNCH_INDENTATION * a
+    base = np.concatenate([where(c, lambda q: q[2] < -8 * a + 1e-12) for c in (ux, uy, uz)])
+    rollers = np.concatenate(
+        [where(ux, lambda q: q[0] < 1e-12), where(uy, lambda q: q[1] < 1e-12)]
+    )
+    under = where(uz, lambda q: (q[2] > -1e-12) & (np.hypot(q[0], q[1]) < a * (1 + 1e-9)))
+    u_prescribed = np.zeros(basis.N)
+    u_prescribed[under] = -depth
+    fixed = np.unique(np.concatenate([base, rollers, under]))
+    u = solve(*condense(k, np.zeros(basis.N), x=u_prescribed, D=fixed))
+    reaction = -(k @ u)[under].sum()
+    return 4.0 * reaction / (depth * 1e3), basis.N
 
 
 def richardson(levels, values):
@@ -236,6 +298,44 @@ def run_uniaxial(levels, log):
     }
 
 
+def run_punch(levels, log):
+    rows = []
+    for n in levels:
+        start = time.perf_counter()
+        k, dofs = punch(n)
+        wall = time.perf_counter() - start
+        rows.append({"per_radius": n, "unknowns": int(dofs), "stiffness_n_per_mm": k})
+        log(f"punch: {n} per radius, {dofs} unknowns, {k:.6f} N/mm ({wall:.1f} s)")
+    half_space = 2 * PUNCH_RADIUS_M * E_PA / (1 - NU**2) / 1e3
+    out = {
+        "radius_m": PUNCH_RADIUS_M,
+        "indentation": PUNCH_INDENTATION,
+        "block_radii": [4, 4, 8],
+        "levels": rows,
+        "half_space_n_per_mm": half_space,
+    }
+    if len(levels) >= 3:
+        sizes = [r["per_radius"] for r in rows]
+        ks = [r["stiffness_n_per_mm"] for r in rows]
+        v0, p, err = richardson(sizes, ks)
+        spread = abs(richardson(sizes[:-1], ks[:-1])[0] / v0 - 1.0) if len(levels) >= 4 else None
+        out.update(
+            {
+                "stiffness_n_per_mm": v0,
+                "observed_order": p,
+                "finest_level_error": err,
+                "extrapolation_spread": spread,
+                "over_half_space": v0 / half_space,
+            }
+        )
+        log(
+            f"punch: extrapolated {v0:.6f} N/mm (order {p:.2f}, finest level "
+            f"{100 * err:.3f} % off, spread {100 * (spread or 0):.3f} %), half-space {half_space:.6f} N/mm "
+            f"({100 * (v0 / half_space - 1):+.2f} %)"
+        )
+    return out
+
+
 def compute(small, log):
     levels = SMALL_LEVELS if small else FULL_LEVELS
     slender = SMALL_SLENDER_LEVELS if small else SLENDER_LEVELS
@@ -252,6 +352,7 @@ def compute(small, log):
         "cantilever": run_cantilever("cantilever", 0.040, levels, log),
         "slender_cantilever": run_cantilever("slender cantilever", 0.100, slender, log),
         "uniaxial": run_uniaxial([1, 2] if small else [1, 2, 3], log),
+        "punch": run_punch(SMALL_PUNCH_LEVELS if small else PUNCH_LEVELS, log),
     }
 
 
@@ -269,6 +370,12 @@ def check(stored, fresh):
                     f"{case}: level {r['across']} gives {r['tip_m']:.9e} m, stored "
                     f"{s['tip_m']:.9e} m"
                 )
+    by_level = {r["per_radius"]: r for r in stored["punch"]["levels"]}
+    for r in fresh["punch"]["levels"]:
+        s = by_level.get(r["per_radius"])
+        k = r["stiffness_n_per_mm"]
+        if s is None or abs(k / s["stiffness_n_per_mm"] - 1.0) > 1e-8:
+            failures.append(f"punch: level {r['per_radius']} gives {k:.9e} N/mm, stored {s}")
     u = fresh["uniaxial"]
     if abs(u["reaction_n"] / u["linear_reaction_n"] - 1.0) > 1e-8 or abs(u["nu"] - NU) > 1e-8:
         failures.append(f"uniaxial: reaction {u['reaction_n']} N, nu {u['nu']}")

@@ -516,7 +516,7 @@ fn accuracy_bench_writes_csv_and_plot() {
         "{peer_error}"
     );
     let fits = r["fits"].as_array().unwrap();
-    assert!(fits.iter().any(|f| f["mode"] == "peer"), "{fits:?}");
+    assert!(fits.iter().any(|f| f["mode"] == "mujoco-flex"), "{fits:?}");
 
     std::fs::write(&peers, "{\"rows\": [{\"peer\": \"x\"}]}").unwrap();
     let err = fails(&[

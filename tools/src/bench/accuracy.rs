@@ -51,6 +51,9 @@ struct Row {
     /// The cantilever's relative error against Timoshenko's beam theory.
     #[serde(skip_serializing_if = "Option::is_none")]
     error_timoshenko: Option<f64>,
+    /// The cantilever's tip deflection (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tip_m: Option<f64>,
 }
 
 /// A peer simulator's run of the cantilever, as tools/bench/peers writes it.
@@ -86,7 +89,8 @@ pub struct Selection {
 #[derive(Serialize)]
 struct Fit {
     case: &'static str,
-    mode: &'static str,
+    /// A solver mode, or a peer's name.
+    mode: String,
     slope: f64,
     samples: usize,
 }
@@ -145,6 +149,7 @@ fn cantilever(m: usize, mode: SolverMode) -> Row {
     let tip = tip_deflection(&body);
     Row {
         error_timoshenko: Some((tip / timoshenko - 1.0).abs()),
+        tip_m: Some(tip),
         ..row(
             "cantilever",
             mode,
@@ -208,6 +213,7 @@ fn row(
         substeps_per_tick: body.solver.substeps(),
         error,
         error_timoshenko: None,
+        tip_m: None,
     }
 }
 
@@ -241,6 +247,7 @@ fn sweep(selection: &Selection, json: bool) -> Vec<Row> {
             continue;
         }
         for m in selection.across.0..=selection.across.1 {
+            let before = rows.len();
             if wanted(&selection.case, "cantilever") {
                 rows.push(cantilever(m, mode));
             }
@@ -248,7 +255,7 @@ fn sweep(selection: &Selection, json: bool) -> Vec<Row> {
                 rows.push(uniaxial(m, mode));
             }
             if !json {
-                for r in rows.iter().rev().take_while(|r| r.points_across == m) {
+                for r in &rows[before..] {
                     eprintln!(
                         "{} {} m = {m}: error {:.3e}, {:.3} s per simulated s",
                         r.case, r.mode, r.error, r.wall_s_per_simulated_s
@@ -286,14 +293,14 @@ fn read_peers(path: &Path) -> anyhow::Result<Vec<PeerRow>> {
 fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
     let mut fits = Vec::new();
     let mut series = Vec::new();
-    let mut add = |case: &'static str, mode: &'static str, label: &str, points: Vec<(f64, f64)>| {
+    let mut add = |case: &'static str, mode: &str, label: &str, points: Vec<(f64, f64)>| {
         if points.is_empty() {
             return;
         }
         let slope = log_slope(&points);
         fits.push(Fit {
             case,
-            mode,
+            mode: mode.to_string(),
             slope,
             samples: points.len(),
         });
@@ -316,6 +323,7 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
         }
     }
     let mut names: Vec<&str> = peers.iter().map(|p| p.peer.as_str()).collect();
+    names.sort_unstable();
     names.dedup();
     for name in names {
         let points = peers
@@ -323,7 +331,7 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
             .filter(|p| p.peer == name)
             .map(|p| (p.wall_s_per_simulated_s, p.error))
             .collect();
-        add("cantilever", "peer", &format!("{name} cantilever"), points);
+        add("cantilever", name, &format!("{name} cantilever"), points);
     }
     (fits, series)
 }
