@@ -431,9 +431,15 @@ enum BenchCommand {
         /// Most points across the beam.
         #[arg(long, default_value_t = 9)]
         max_across: usize,
-        /// Which body: cantilever, uniaxial or all.
+        /// Which body: cantilever, uniaxial, cut (the liver stroke) or all.
         #[arg(long, default_value = "all")]
         case: String,
+        /// The cut's resolutions, in target points (comma-separated).
+        #[arg(long, value_delimiter = ',', default_values_t = bench::accuracy::CUT_POINTS)]
+        cut_points: Vec<usize>,
+        /// The target points of the cut's reference run.
+        #[arg(long, default_value_t = bench::accuracy::CUT_REFERENCE_POINTS)]
+        cut_reference: usize,
         /// Which solver mode: explicit, projective or all.
         #[arg(long, default_value = "all")]
         mode: String,
@@ -678,6 +684,8 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
             min_across,
             max_across,
             case,
+            cut_points,
+            cut_reference,
             mode,
             peers,
             json,
@@ -687,6 +695,8 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
                 case,
                 mode,
                 peers,
+                cut_points,
+                cut_reference,
             };
             bench::accuracy::run(&out, &selection, json)
         }

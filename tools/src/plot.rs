@@ -7,6 +7,18 @@ use std::sync::OnceLock;
 use anyhow::{Context, anyhow};
 use plotters::prelude::*;
 
+/// Line colours, in order: eight before one repeats (the accuracy plot has seven series).
+const PALETTE: [RGBColor; 8] = [
+    RED,
+    BLUE,
+    GREEN,
+    MAGENTA,
+    CYAN,
+    BLACK,
+    RGBColor(255, 140, 0),
+    RGBColor(128, 128, 128),
+];
+
 const FONT_PATHS: [&str; 4] = [
     "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
     "/usr/share/fonts/TTF/DejaVuSans.ttf",
@@ -90,9 +102,8 @@ pub fn log_log(
         .y_label_formatter(&|v| format!("{v:.1e}"))
         .draw()
         .context("drawing the axes")?;
-    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     for (k, s) in series.iter().enumerate() {
-        let colour = colours[k % colours.len()];
+        let colour = PALETTE[k % PALETTE.len()];
         chart
             .draw_series(LineSeries::new(
                 s.points.iter().copied(),
@@ -162,9 +173,8 @@ pub fn lines(
         .label_style(("sans-serif", 16))
         .draw()
         .context("drawing the axes")?;
-    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     for (k, s) in series.iter().enumerate() {
-        let colour = colours[k % colours.len()];
+        let colour = PALETTE[k % PALETTE.len()];
         chart
             .draw_series(LineSeries::new(
                 s.points.iter().copied(),

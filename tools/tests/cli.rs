@@ -462,10 +462,20 @@ fn accuracy_bench_writes_csv_and_plot() {
         "3",
         "--max-across",
         "3",
+        "--cut-points",
+        "600",
+        "--cut-reference",
+        "1200",
         "--json",
     ]);
     let rows = r["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 4, "2 cases × 2 modes");
+    assert_eq!(rows.len(), 5, "2 bodies × 2 modes, and the cut");
+    // The liver stroke at 600 points against the same at 1200: the force curves differ, by
+    // a few per cent (a sheared or missing curve would be off by far more).
+    let cut = rows.iter().find(|row| row["case"] == "cut").unwrap();
+    let e = cut["error"].as_f64().unwrap();
+    assert!(e > 1e-4 && e < 0.2, "{cut}");
+    assert!(cut["wall_s_per_simulated_s"].as_f64().unwrap() > 0.0);
     let reference = r["reference_tip_m"].as_f64().unwrap();
     assert!((reference - 5.19e-4).abs() < 1e-6, "{reference}");
     for row in rows.iter().filter(|row| row["case"] == "cantilever") {
@@ -479,7 +489,7 @@ fn accuracy_bench_writes_csv_and_plot() {
     }
     let csv = std::fs::read_to_string(dir.path().join("accuracy.csv")).unwrap();
     assert!(csv.starts_with("case,mode,points_across"));
-    assert_eq!(csv.lines().count(), 5);
+    assert_eq!(csv.lines().count(), 6);
     let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
 
@@ -532,7 +542,7 @@ fn accuracy_bench_writes_csv_and_plot() {
     assert!(err.contains("peers.json is not a peers file"), "{err}");
     let err = fails(&["bench", "accuracy", "--out", out, "--case", "beam"]);
     assert!(
-        err.contains("--case beam: expected one of cantilever, uniaxial or all"),
+        err.contains("--case beam: expected one of cantilever, uniaxial, cut or all"),
         "{err}"
     );
 }

@@ -6,8 +6,9 @@
 //! cantilever: tools/reference/fem_reference.py; Timoshenko's figure is kept beside it) or
 //! the exact answer (the uniaxial block's homogeneous stretch), and the cost is the wall
 //! time per simulated second. The slope of log error against log cost is fitted per series
-//! (physics.md expects about −1/4 for explicit dynamics). Peers' points (tools/bench/peers)
-//! join the plot from their JSON.
+//! (physics.md expects about −1/4 for explicit dynamics). The cut's series (`accuracy_cut`)
+//! measures the liver stroke's force curve against a fine run's. Peers' points
+//! (tools/bench/peers) join the plot from their JSON.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -23,6 +24,8 @@ use scalpel_sim::validate::{
 };
 use serde::{Deserialize, Serialize};
 
+use super::accuracy_cut;
+pub use super::accuracy_cut::{CUT_POINTS, CUT_REFERENCE_POINTS};
 use crate::plot::{Series, log_log};
 
 /// Mass-proportional damping that settles each case within its run: about twice the
@@ -84,6 +87,10 @@ pub struct Selection {
     pub mode: String,
     /// A peers JSON (tools/bench/peers) whose cantilever points join the plot.
     pub peers: Option<std::path::PathBuf>,
+    /// The cut's resolutions (target points) and its reference run's.
+    pub cut_points: Vec<usize>,
+    /// The reference run's target points.
+    pub cut_reference: usize,
 }
 
 #[derive(Serialize)]
@@ -239,8 +246,43 @@ fn wanted(choice: &str, name: &str) -> bool {
     choice == "all" || choice == name
 }
 
+/// The cut's rows: each resolution's force curve against the reference run's. The cut runs
+/// in the liver scene's own solver mode, so only when every mode is asked for.
+fn cut_rows(selection: &Selection, json: bool) -> anyhow::Result<Vec<Row>> {
+    let mut script = None;
+    let reference = accuracy_cut::run_at(selection.cut_reference, &mut script)?;
+    let mut rows = Vec::new();
+    for &target in &selection.cut_points {
+        let s = accuracy_cut::run_at(target, &mut script)?;
+        let error = accuracy_cut::curve_error(&s.force_n, &reference.force_n);
+        if !json {
+            eprintln!(
+                "cut {} points: error {error:.3e} against {} points, {:.3} CPU s per simulated s",
+                s.points,
+                reference.points,
+                s.cpu_s / s.simulated_s
+            );
+        }
+        rows.push(Row {
+            case: "cut",
+            mode: mode_name(s.mode),
+            points_across: 0,
+            points: s.points,
+            spacing_mm: s.spacing_mm,
+            simulated_s: s.simulated_s,
+            wall_s: s.cpu_s,
+            wall_s_per_simulated_s: s.cpu_s / s.simulated_s,
+            substeps_per_tick: s.substeps_max,
+            error,
+            error_timoshenko: None,
+            tip_m: None,
+        });
+    }
+    Ok(rows)
+}
+
 /// Simulates every selected case, mode and resolution.
-fn sweep(selection: &Selection, json: bool) -> Vec<Row> {
+fn sweep(selection: &Selection, json: bool) -> anyhow::Result<Vec<Row>> {
     let mut rows = Vec::new();
     for mode in [SolverMode::Explicit, SolverMode::Projective] {
         if !wanted(&selection.mode, mode_name(mode)) {
@@ -264,7 +306,10 @@ fn sweep(selection: &Selection, json: bool) -> Vec<Row> {
             }
         }
     }
-    rows
+    if wanted(&selection.case, "cut") && selection.mode == "all" {
+        rows.extend(cut_rows(selection, json)?);
+    }
+    Ok(rows)
 }
 
 /// Reads a peers file and measures each row's error against the 3D reference.
@@ -312,8 +357,8 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
                 .collect(),
         });
     };
-    for case in ["cantilever", "uniaxial"] {
-        for mode in ["explicit", "projective"] {
+    for case in ["cantilever", "uniaxial", "cut"] {
+        for mode in ["explicit", "projective", "quasi-static"] {
             let points: Vec<(f64, f64)> = rows
                 .iter()
                 .filter(|r| r.case == case && r.mode == mode)
@@ -404,22 +449,33 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
         "points across must be 3 or more, min ≤ max"
     );
     for (what, choice, names) in [
-        ("case", &selection.case, ["cantilever", "uniaxial"]),
-        ("mode", &selection.mode, ["explicit", "projective"]),
+        (
+            "case",
+            &selection.case,
+            &["cantilever", "uniaxial", "cut"][..],
+        ),
+        ("mode", &selection.mode, &["explicit", "projective"][..]),
     ] {
         anyhow::ensure!(
             choice == "all" || names.contains(&choice.as_str()),
-            "--{what} {choice}: expected one of {}, {} or all",
-            names[0],
-            names[1]
+            "--{what} {choice}: expected one of {} or all",
+            names.join(", ")
         );
     }
+    anyhow::ensure!(
+        selection
+            .cut_points
+            .iter()
+            .all(|&p| p < selection.cut_reference),
+        "--cut-points must all be fewer than --cut-reference ({})",
+        selection.cut_reference
+    );
     let peers = match &selection.peers {
         Some(path) => read_peers(path)?,
         None => Vec::new(),
     };
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let rows = sweep(selection, json);
+    let rows = sweep(selection, json)?;
     let (fits, series) = series_of(&rows, &peers);
     let csv_path = out.join("accuracy.csv");
     std::fs::write(&csv_path, csv_of(&rows))
@@ -427,7 +483,7 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
     let plot_path = out.join("accuracy.png");
     log_log(
         &plot_path,
-        "Error against run time vs the converged 3D reference (E = 5 kPa, ν = 0.45)",
+        "Error against run time: bodies vs the 3D reference, the cut vs its finest run",
         "wall time per simulated second (s)",
         "relative error",
         &series,

@@ -1,6 +1,7 @@
 //! `scalpel bench ...`: whole-system figures, reported as medians and tails.
 
 pub mod accuracy;
+mod accuracy_cut;
 pub mod admission;
 pub mod cutting;
 pub mod loop_bench;
