@@ -39,7 +39,6 @@ import scipy
 import skfem
 from skfem import (
     Basis,
-    BilinearForm,
     ElementHex2,
     ElementVector,
     FacetBasis,
@@ -49,7 +48,6 @@ from skfem import (
     condense,
     solve,
 )
-from skfem.helpers import dot
 from skfem.models.elasticity import lame_parameters, linear_elasticity
 
 # The script's version: bump it when a body, a read-out or the extrapolation changes, so a
@@ -218,18 +216,44 @@ def richardson(levels, values):
 
     lo, hi = 0.2, 8.0
     if g(lo) * g(hi) > 0:
-        p = 2.0
-    else:
-        for _ in range(200):
-            mid = 0.5 * (lo + hi)
-            if g(lo) * g(mid) <= 0:
-                hi = mid
-            else:
-                lo = mid
-        p = 0.5 * (lo + hi)
+        raise ValueError(
+            f"levels {levels[-3:]} give {values[-3:]}: no order in [{lo}, {hi}] fits, so "
+            "they are not converging monotonically; add a finer level"
+        )
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if g(lo) * g(mid) <= 0:
+            hi = mid
+        else:
+            lo = mid
+    p = 0.5 * (lo + hi)
     c = (v2 - v3) / (h2**p - h3**p)
     v0 = v3 - c * h3**p
     return v0, p, abs(v3 - v0) / abs(v0)
+
+
+def extrapolated(sizes, values, key):
+    """The extrapolated value under `key`, its order, the finest level's error, and the
+    extrapolation's own uncertainty: how far the answer from the three levels before the
+    finest lies from it (with four levels or more)."""
+    v0, p, err = richardson(sizes, values)
+    spread = None
+    if len(sizes) >= 4:
+        spread = abs(richardson(sizes[:-1], values[:-1])[0] / v0 - 1.0)
+    return {
+        key: v0,
+        "observed_order": p,
+        "finest_level_error": err,
+        "extrapolation_spread": spread,
+    }
+
+
+def describe(fit):
+    spread = fit["extrapolation_spread"] or 0.0
+    return (
+        f"order {fit['observed_order']:.2f}, finest level "
+        f"{100 * fit['finest_level_error']:.3f} % off, spread {100 * spread:.3f} %"
+    )
 
 
 def timoshenko(length):
@@ -258,25 +282,13 @@ def run_cantilever(name, length, levels, log):
         "timoshenko_m": timoshenko(length),
     }
     if len(levels) >= 3:
-        sizes = [r["across"] for r in rows]
-        tips = [r["tip_m"] for r in rows]
-        v0, p, err = richardson(sizes, tips)
-        # The extrapolation's own uncertainty: how far the answer from the three levels
-        # before the finest lies from it.
-        spread = abs(richardson(sizes[:-1], tips[:-1])[0] / v0 - 1.0) if len(levels) >= 4 else None
-        out.update(
-            {
-                "tip_m": v0,
-                "observed_order": p,
-                "finest_level_error": err,
-                "extrapolation_spread": spread,
-                "timoshenko_over_reference": timoshenko(length) / v0,
-            }
-        )
+        fit = extrapolated([r["across"] for r in rows], [r["tip_m"] for r in rows], "tip_m")
+        v0 = fit["tip_m"]
+        out.update(fit)
+        out["timoshenko_over_reference"] = timoshenko(length) / v0
         log(
-            f"{name}: extrapolated {v0 * 1e3:.6f} mm (order {p:.2f}, finest level "
-            f"{100 * err:.3f} % off, spread {100 * (spread or 0):.3f} %), Timoshenko {timoshenko(length) * 1e3:.6f} mm "
-            f"({100 * (timoshenko(length) / v0 - 1):+.2f} %)"
+            f"{name}: extrapolated {v0 * 1e3:.6f} mm ({describe(fit)}), Timoshenko "
+            f"{timoshenko(length) * 1e3:.6f} mm ({100 * (timoshenko(length) / v0 - 1):+.2f} %)"
         )
     return out
 
@@ -317,20 +329,12 @@ def run_punch(levels, log):
     if len(levels) >= 3:
         sizes = [r["per_radius"] for r in rows]
         ks = [r["stiffness_n_per_mm"] for r in rows]
-        v0, p, err = richardson(sizes, ks)
-        spread = abs(richardson(sizes[:-1], ks[:-1])[0] / v0 - 1.0) if len(levels) >= 4 else None
-        out.update(
-            {
-                "stiffness_n_per_mm": v0,
-                "observed_order": p,
-                "finest_level_error": err,
-                "extrapolation_spread": spread,
-                "over_half_space": v0 / half_space,
-            }
-        )
+        fit = extrapolated(sizes, ks, "stiffness_n_per_mm")
+        v0 = fit["stiffness_n_per_mm"]
+        out.update(fit)
+        out["over_half_space"] = v0 / half_space
         log(
-            f"punch: extrapolated {v0:.6f} N/mm (order {p:.2f}, finest level "
-            f"{100 * err:.3f} % off, spread {100 * (spread or 0):.3f} %), half-space {half_space:.6f} N/mm "
+            f"punch: extrapolated {v0:.6f} N/mm ({describe(fit)}), half-space {half_space:.6f} N/mm "
             f"({100 * (v0 / half_space - 1):+.2f} %)"
         )
     return out

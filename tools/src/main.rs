@@ -420,7 +420,8 @@ enum BenchCommand {
         json: bool,
     },
     /// Error against run time: resolution sweep × solver mode on the cantilever and the
-    /// uniaxial block; writes accuracy.csv and accuracy.png.
+    /// uniaxial block, and the liver stroke at several resolutions (about 5 minutes in all);
+    /// writes accuracy.csv and accuracy.png.
     Accuracy {
         /// Output folder.
         #[arg(long)]

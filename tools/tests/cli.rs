@@ -540,6 +540,20 @@ fn accuracy_bench_writes_csv_and_plot() {
         peers.to_str().unwrap(),
     ]);
     assert!(err.contains("peers.json is not a peers file"), "{err}");
+    let err = fails(&[
+        "bench",
+        "accuracy",
+        "--out",
+        out,
+        "--case",
+        "cut",
+        "--mode",
+        "projective",
+    ]);
+    assert!(
+        err.contains("the cut runs in the liver scene's own mode"),
+        "{err}"
+    );
     let err = fails(&["bench", "accuracy", "--out", out, "--case", "beam"]);
     assert!(
         err.contains("--case beam: expected one of cantilever, uniaxial, cut or all"),

@@ -50,6 +50,14 @@ fn compiled_references_match_the_stored_result() {
             "{case}: {timoshenko}"
         );
     }
+    let punch = stored["punch"]["stiffness_n_per_mm"]
+        .as_f64()
+        .expect("an extrapolated stiffness");
+    let compiled = validate::PUNCH_BLOCK_3D_N_PER_MM;
+    assert!(
+        (compiled / punch - 1.0).abs() < 1e-6,
+        "punch: compiled {compiled} N/mm, stored {punch} N/mm: copy the stored value"
+    );
 }
 
 /// physics.md §9, "Müller-literal check": MuellerCompat with E/4 gives the same motion as

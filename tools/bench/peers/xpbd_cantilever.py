@@ -23,11 +23,9 @@ What Warp does with it:
 import argparse
 import contextlib
 import gc
-import json
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import warp as wp
@@ -37,16 +35,8 @@ with contextlib.redirect_stdout(sys.stderr):  # its deprecation notice goes to s
     import warp.sim  # deprecated in 1.9, removed in 1.10: hence warp-lang 1.9.1
     import warp.sim.integrator_xpbd as xpbd
 
-LENGTH, SIDE = 0.040, 0.010  # m
-YOUNG, POISSON, DENSITY = 5000.0, 0.45, 1060.0  # Pa, -, kg/m^3
-LOAD = 1e-4  # N, total, along -z
-DAMPING = 28.0  # 1/s, mass-proportional
-TICK = 1e-3  # s
-# m, the converged 3D answer (tools/reference/fem_reference.py's stored result).
-REFERENCE_TIP = json.loads(
-    (Path(__file__).resolve().parents[2] / "reference" / "reference.json").read_text()
-)["cantilever"]["tip_m"]
-BLOWUP = 3.0 * 0.52e-3  # m
+from common import BLOWUP, DAMPING, DENSITY, LENGTH, LOAD, POISSON, SIDE, TICK, YOUNG
+from common import largest_stable, report
 
 # The material-aware tet constraint (see the module doc); simulate() looks the name up at
 # call time, so rebinding the module global is enough.
@@ -131,23 +121,17 @@ def main():
     p.add_argument("--ticks", type=int, default=1000, help="1 ms ticks to simulate")
     p.add_argument("--iterations", type=int, default=1, help="XPBD iterations per substep")
     p.add_argument("--relaxation", type=float, default=1.0, help="Jacobi delta scaling")
-    p.add_argument("--dt", type=float, help="substep (s); default: largest stable 1 ms / 2^k")
+    p.add_argument("--dt", type=float, help="substep (s); default: largest stable 1 ms / k")
     p.add_argument("--json", action="store_true")
     a = p.parse_args()
 
-    candidates = [a.dt] if a.dt else [TICK / 2**k for k in range(0, 9)]
-    for dt in candidates:
+    def attempt(dt):
         model, ok, wall, history, substeps, nodes = run(a.across, a.ticks, dt, a.iterations,
                                                         a.relaxation)
-        if ok:
-            break
-        print(f"# dt = {dt * 1e3:g} ms unstable, halving", file=sys.stderr)
-    else:
-        sys.exit("no stable timestep found")
-    simulated = a.ticks * TICK
-    tip = history[-1]
-    ref = history[int(0.9 * len(history)) - 1]
-    out = {
+        return ok, (model, wall, history, substeps, nodes)
+
+    dt, (model, wall, history, substeps, nodes) = largest_stable(attempt, a.dt)
+    fields = {
         "peer": "xpbd-warp",
         "version": wp.config.version,
         "integrator": f"XPBD, {a.iterations} iteration(s)/substep, relaxation {a.relaxation}",
@@ -157,19 +141,8 @@ def main():
         "elements": int(model.tet_count),
         "timestep_s": dt,
         "substeps_per_ms": substeps,
-        "simulated_s": simulated,
-        "wall_s": wall,
-        "wall_s_per_simulated_s": wall / simulated,
-        "tip_m": tip,
-        "tip_over_reference": tip / REFERENCE_TIP,
-        "tip_change_last_10pct": (tip - ref) / tip if tip else None,
-        "settled": abs(tip - ref) < 1e-3 * abs(tip),  # moved < 0.1 % over the last 10 %
     }
-    if a.json:
-        print(json.dumps(out))
-    else:
-        for k, v in out.items():
-            print(f"{k:>24}: {v}")
+    report(fields, history, wall, a.ticks, a.json)
 
 
 if __name__ == "__main__":
