@@ -42,14 +42,20 @@ def log(line):
 
 
 def ensure_venv():
+    """The peers' venv with requirements.txt installed; pip runs only when the file changed
+    since the last install (a stamp in the venv holds the file's text)."""
     python = VENV / "bin" / "python"
     if not python.exists():
         log(f"creating {VENV}")
         subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
-    subprocess.run(
-        [str(python), "-m", "pip", "install", "-q", "-r", str(HERE / "requirements.txt")],
-        check=True,
-    )
+    requirements = (HERE / "requirements.txt").read_text()
+    stamp = VENV / "scalpel-peers-requirements.txt"
+    if not stamp.exists() or stamp.read_text() != requirements:
+        subprocess.run(
+            [str(python), "-m", "pip", "install", "-q", "-r", str(HERE / "requirements.txt")],
+            check=True,
+        )
+        stamp.write_text(requirements)
     return python
 
 
