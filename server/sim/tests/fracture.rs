@@ -94,12 +94,13 @@ fn the_crack_advances_by_energy_in_a_sawtooth_set_by_toughness() {
         "{m_soft} N at 10 kPa, {m_stiff} N at 20 kPa"
     );
     for s in [&soft, &stiff] {
-        // J_c·w + friction is the target (0.19 N/mm × ~9.6 mm + 0.3 N); this first trial
-        // runs 20–30 % under it (several jumps in a row: CUTTING-DECISIONS.md).
+        // J_c·w + friction is the target (0.19 N/mm × ~9.6 mm + 0.3 N): 0 and −7 % at 10
+        // and 20 kPa since a jump pays for all the edge got past the front
+        // (CUTTING-DECISIONS.md, "Fracture by energy").
         let target = 190.0 * s.depth_m + 0.3;
         let m = mean(s);
         assert!(
-            m > 0.6 * target && m < 1.05 * target,
+            m > 0.85 * target && m < 1.05 * target,
             "{m} N against {target} N"
         );
         assert!(s.fracture_ticks >= 10, "{} fractures", s.fracture_ticks);
@@ -107,7 +108,21 @@ fn the_crack_advances_by_energy_in_a_sawtooth_set_by_toughness() {
     let (d_soft, d_stiff) = (drops(&soft.forces), drops(&stiff.forces));
     let per_10mm = |d: &[f64], s: &Steady| d.len() as f64 / (s.travel_m / 0.01);
     let (p_soft, p_stiff) = (per_10mm(&d_soft, &soft), per_10mm(&d_stiff, &stiff));
-    assert!(p_soft >= 2.0, "{p_soft} drops per 10 mm at 10 kPa");
+    // The figures of docs/CUTTING-DECISIONS.md ("Fracture by energy"), with --nocapture.
+    for (e, s, d, p) in [
+        (10, &soft, &d_soft, p_soft),
+        (20, &stiff, &d_stiff, p_stiff),
+    ] {
+        println!(
+            "{e} kPa: mean {:.3} N against J_c·w + friction {:.3} N, {} fracture ticks, \
+             {p:.1} drops per 10 mm of mean {:.3} N",
+            mean(s),
+            190.0 * s.depth_m + 0.3,
+            s.fracture_ticks,
+            d.iter().sum::<f64>() / d.len().max(1) as f64
+        );
+    }
+    assert!(p_soft >= 1.0, "{p_soft} drops per 10 mm at 10 kPa");
     assert!(
         p_stiff > 1.2 * p_soft,
         "{p_soft} → {p_stiff} drops per 10 mm"

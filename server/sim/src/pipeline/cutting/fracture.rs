@@ -8,7 +8,9 @@
 //! place releases f·Δa − ½k·Δa² (f the push along the blade's facing, k the tissue's
 //! stiffness there, the loading slope), and costs J_c·w·Δa (w the width of fresh tissue
 //! the edge engages). So it jumps when f − ½k·Δa ≥ J_c·w, and the mean force over the
-//! deformation–fracture cycles is J_c·w whatever the stiffness.
+//! deformation–fracture cycles is J_c·w whatever the stiffness. Where the edge has got
+//! further past the front than Δa, the release is taken over that span instead, so the
+//! catch-up jumps are paid for too.
 //!
 //! Δa is the process zone's length, below the lattice: the tissue at the edge strain-
 //! stiffens, so the zone that loads the crack tip is `crack_tip_stiffening` times stiffer than
@@ -50,12 +52,16 @@ impl CuttingStage {
 
     /// The jump Δa (m) if the crack advances this tick: the energy criterion on what the
     /// edge's samples pushed with over the last step (`force_on_blade`), `width_m` of fresh
-    /// tissue engaged.
+    /// tissue engaged. Where the edge (`edge_rest`: tip, top) has got past the front by more
+    /// than the process zone (the tissue beside it flowed by), the release is taken over
+    /// that whole span, so a run of catch-up jumps is paid for (the mean force stays J_c·w);
+    /// the front still moves by Δa a jump.
     pub(super) fn fracture_due(
         &self,
         phase: CutPhase,
         blade: Option<&Blade>,
         width_m: f64,
+        edge_rest: Option<[Vec3; 2]>,
         solver: &Solver,
     ) -> Option<f64> {
         let (CutPhase::Cutting, Some(b), Some(body), true) =
@@ -68,9 +74,15 @@ impl CuttingStage {
         }
         // The tissue pushes the blade toward its spine.
         let push = body.force_on_blade().dot(&b.toward_back);
+        let lag = match (self.last_sweep, edge_rest, touch::front_ahead(b)) {
+            (Some(front), Some(edge), Some(ahead)) => (edge[1] - front[1]).dot(&ahead),
+            _ => 0.0,
+        };
+        let most = MOST_LAG_SUPPORTS * self.kernel.support_m;
         let jump = self.process_zone(solver);
+        let span = jump.max(lag.min(most));
         let toughness = self.force.toughness_n_per_m();
-        (push - 0.5 * self.front.tissue_k * jump >= toughness * width_m).then_some(jump)
+        (push - 0.5 * self.front.tissue_k * span >= toughness * width_m).then_some(jump)
     }
 
     /// The process zone's length (m): J_c / (c·E), within a quarter of a sample pitch and a

@@ -314,7 +314,7 @@ impl CuttingStage {
         let jump = if withdrawing {
             None
         } else {
-            self.fracture_due(force.phase, blade, depth_m * crack, solver)
+            self.fracture_due(force.phase, blade, depth_m * crack, edge_rest, solver)
         };
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
