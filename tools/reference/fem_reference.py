@@ -87,6 +87,19 @@ def stiffness(basis):
     return asm(linear_elasticity(lam, mu), basis)
 
 
+def solid(mesh):
+    """The mesh's triquadratic vector basis, its stiffness matrix, the dofs of its three
+    displacement components, and `where(component, test)`: a component's dofs whose place
+    passes `test`."""
+    basis = Basis(mesh, ElementVector(ElementHex2()), intorder=4)
+    x = basis.doflocs
+
+    def where(component, test):
+        return component[test(x[:, component])]
+
+    return basis, stiffness(basis), basis.split_indices(), where
+
+
 def cantilever(length, across):
     """Tip face's mean downward displacement (m) with `across` elements on the short side."""
     along = int(round(across * length / SIDE_M))
@@ -118,13 +131,7 @@ def uniaxial(across):
     """End reaction (N) and Poisson ratio of the sliding-end block stretched by STRAIN."""
     length = 2.0 * SIDE_M
     mesh = box_mesh((length, SIDE_M, SIDE_M), (2 * across, across, across))
-    basis = Basis(mesh, ElementVector(ElementHex2()), intorder=4)
-    k = stiffness(basis)
-    ux, uy, uz = basis.split_indices()
-    x = basis.doflocs
-
-    def where(component, test):
-        return component[test(x[:, component])]
+    basis, k, (ux, uy, uz), where = solid(mesh)
 
     low = where(ux, lambda p: p[0] < 1e-12)
     high = where(ux, lambda p: p[0] > length - 1e-12)
@@ -179,13 +186,7 @@ def punch(per_radius):
     reaction over the indentation. Frictionless: only u_z is prescribed under the punch."""
     a = PUNCH_RADIUS_M
     mesh = punch_mesh(per_radius)
-    basis = Basis(mesh, ElementVector(ElementHex2()), intorder=4)
-    k = stiffness(basis)
-    ux, uy, uz = basis.split_indices()
-    x = basis.doflocs
-
-    def where(component, test):
-        return component[test(x[:, component])]
+    basis, k, (ux, uy, uz), where = solid(mesh)
 
     depth = PUNCH_INDENTATION * a
     base = np.concatenate([where(c, lambda q: q[2] < -8 * a + 1e-12) for c in (ux, uy, uz)])
