@@ -449,11 +449,9 @@ fn a_report_piped_into_a_closed_reader_ends_quietly() {
     );
 }
 
-#[test]
-fn accuracy_bench_writes_csv_and_plot() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().to_str().unwrap();
-    let r = ok_json(&[
+/// `scalpel bench accuracy --out OUT` at 3 points across, then `rest`.
+fn accuracy_args<'a>(out: &'a str, rest: &[&'a str]) -> Vec<&'a str> {
+    let head = [
         "bench",
         "accuracy",
         "--out",
@@ -462,12 +460,18 @@ fn accuracy_bench_writes_csv_and_plot() {
         "3",
         "--max-across",
         "3",
-        "--cut-points",
-        "600",
-        "--cut-reference",
-        "1200",
-        "--json",
-    ]);
+    ];
+    head.into_iter().chain(rest.iter().copied()).collect()
+}
+
+#[test]
+fn accuracy_bench_writes_csv_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let r = ok_json(&accuracy_args(
+        out,
+        &["--cut-points", "600", "--cut-reference", "1200", "--json"],
+    ));
     let rows = r["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 5, "2 bodies × 2 modes, and the cut");
     // The liver stroke at 600 points against the same at 1200: the force curves differ, by
@@ -502,23 +506,19 @@ fn accuracy_bench_writes_csv_and_plot() {
             "wall_s_per_simulated_s": 0.5, "tip_m": 3.894e-4}]}"#,
     )
     .unwrap();
-    let r = ok_json(&[
-        "bench",
-        "accuracy",
-        "--out",
+    let peers_arg = peers.to_str().unwrap();
+    let r = ok_json(&accuracy_args(
         out,
-        "--min-across",
-        "3",
-        "--max-across",
-        "3",
-        "--case",
-        "cantilever",
-        "--mode",
-        "explicit",
-        "--peers",
-        peers.to_str().unwrap(),
-        "--json",
-    ]);
+        &[
+            "--case",
+            "cantilever",
+            "--mode",
+            "explicit",
+            "--peers",
+            peers_arg,
+            "--json",
+        ],
+    ));
     assert_eq!(r["rows"].as_array().unwrap().len(), 1);
     let peer_error = r["peers"][0]["error"].as_f64().unwrap();
     assert!(
@@ -529,32 +529,20 @@ fn accuracy_bench_writes_csv_and_plot() {
     assert!(fits.iter().any(|f| f["mode"] == "mujoco-flex"), "{fits:?}");
 
     std::fs::write(&peers, "{\"rows\": [{\"peer\": \"x\"}]}").unwrap();
-    let err = fails(&[
-        "bench",
-        "accuracy",
-        "--out",
+    let err = fails(&accuracy_args(
         out,
-        "--case",
-        "cantilever",
-        "--peers",
-        peers.to_str().unwrap(),
-    ]);
+        &["--case", "cantilever", "--peers", peers_arg],
+    ));
     assert!(err.contains("peers.json is not a peers file"), "{err}");
-    let err = fails(&[
-        "bench",
-        "accuracy",
-        "--out",
+    let err = fails(&accuracy_args(
         out,
-        "--case",
-        "cut",
-        "--mode",
-        "projective",
-    ]);
+        &["--case", "cut", "--mode", "projective"],
+    ));
     assert!(
         err.contains("the cut runs in the liver scene's own mode"),
         "{err}"
     );
-    let err = fails(&["bench", "accuracy", "--out", out, "--case", "beam"]);
+    let err = fails(&accuracy_args(out, &["--case", "beam"]));
     assert!(
         err.contains("--case beam: expected one of cantilever, uniaxial, cut or all"),
         "{err}"

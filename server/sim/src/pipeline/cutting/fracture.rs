@@ -43,6 +43,11 @@ pub(super) struct CrackFront {
     pub(super) tissue_k: f64,
 }
 
+/// How far the edge (rest: tip, top) has got past the crack front `front` along `ahead`.
+fn lag_past(front: &[Vec3; 2], edge: &[Vec3; 2], ahead: Vec3) -> f64 {
+    (edge[1] - front[1]).dot(&ahead)
+}
+
 impl CuttingStage {
     /// The tissue's stiffness seen at the blade along its facing (N/m), from the force
     /// stage's reading: the loading slope the fracture criterion takes off the release.
@@ -75,12 +80,11 @@ impl CuttingStage {
         // The tissue pushes the blade toward its spine.
         let push = body.force_on_blade().dot(&b.toward_back);
         let lag = match (self.last_sweep, edge_rest, touch::front_ahead(b)) {
-            (Some(front), Some(edge), Some(ahead)) => (edge[1] - front[1]).dot(&ahead),
+            (Some(front), Some(edge), Some(ahead)) => lag_past(&front, &edge, ahead),
             _ => 0.0,
         };
-        let most = MOST_LAG_SUPPORTS * self.kernel.support_m;
         let jump = self.process_zone(solver);
-        let span = jump.max(lag.min(most));
+        let span = jump.max(lag.min(self.most_lag()));
         let toughness = self.force.toughness_n_per_m();
         (push - 0.5 * self.front.tissue_k * span >= toughness * width_m).then_some(jump)
     }
@@ -113,8 +117,12 @@ impl CuttingStage {
             let top = last[1] + ahead * da;
             return Some([top + (edge[0] - edge[1]), top]);
         }
-        let lag = (edge[1] - last[1]).dot(&ahead);
-        (lag > MOST_LAG_SUPPORTS * self.kernel.support_m).then_some(*edge)
+        (lag_past(last, edge, ahead) > self.most_lag()).then_some(*edge)
+    }
+
+    /// How far past the front (rest) the edge may get unheld before it takes the crack.
+    fn most_lag(&self) -> f64 {
+        MOST_LAG_SUPPORTS * self.kernel.support_m
     }
 
     /// Builds the crack-front samples along Σ's end `front` (rest: tip, top), `ahead` of it:
