@@ -176,6 +176,10 @@ pub struct RealtimeConfig {
     /// and packet processing) does not share its CPU. Off by default: stations on one
     /// machine must each get their own.
     pub haptic_cpu: i32,
+    /// Threads for the simulation, its own included (1 or 2): with 2 its force evaluation's
+    /// two parts run in parallel on a worker it waits on (never the haptic thread: that
+    /// one runs above both). At most the CPUs the process may use.
+    pub sim_threads: u32,
 }
 
 /// Output stage limits.
@@ -246,6 +250,7 @@ impl Default for RealtimeConfig {
             sim_fifo_priority: 0,
             lock_memory: true,
             haptic_cpu: -1,
+            sim_threads: 2,
         }
     }
 }
@@ -364,6 +369,15 @@ impl ServerConfig {
             f64::from(c),
             (-1..=1023).contains(&c),
             "-1 (none) or a CPU number",
+        )?;
+        let t = self.realtime.sim_threads;
+        range(
+            "realtime.sim_threads",
+            f64::from(t),
+            // The force evaluation is split into two fixed parts (the same bits on one
+            // thread or two); more threads would have nothing to take.
+            (1..=2).contains(&t),
+            "1 (the simulation thread alone) or 2 (with a worker)",
         )?;
         Ok(())
     }
@@ -623,6 +637,10 @@ mod tests {
         // A real-time simulation above a normally scheduled haptic thread.
         let e = refused("[realtime]\nfifo_priority = 0\nsim_fifo_priority = 10\n");
         assert!(e.contains("realtime.sim_fifo_priority"), "{e}");
+        for threads in ["0", "3"] {
+            let e = refused(&format!("[realtime]\nsim_threads = {threads}\n"));
+            assert!(e.contains("realtime.sim_threads"), "{e}");
+        }
         // The journal names the scene on one line.
         let e = refused("scene = \"a\\nb.toml\"\n");
         assert!(e.contains("scene") && e.contains("control"), "{e}");

@@ -21,5 +21,6 @@ pub mod render_frames;
 pub mod scene_budget;
 pub mod scene_file;
 pub mod shm_device;
+pub mod sim_pool;
 pub mod sim_wake;
 pub mod station;

@@ -163,6 +163,7 @@ fn station_params(
         sim_fifo_priority: config.realtime.sim_fifo_priority,
         lock_memory: config.realtime.lock_memory,
         haptic_cpu: usize::try_from(config.realtime.haptic_cpu).ok(),
+        sim_threads: config.realtime.sim_threads as usize,
         limits: OutputLimits {
             // Both are range-checked; the bound holds for built-in scenes too.
             max_force_n: if o.max_force_n > 0.0 {

@@ -11,7 +11,7 @@
 #[path = "../sim/tests/common/counting_alloc.rs"]
 mod counting_alloc;
 
-use counting_alloc::allocations;
+use counting_alloc::{allocations, count_in_group, group_allocations};
 use scalpel_sim::progress::Silent;
 use scalpel_sim::scene::{build_scene, builtin};
 
@@ -36,8 +36,17 @@ struct CutAllocations {
 }
 
 /// A cut on `scene` (the default stroke, or a lab session of `strokes` strokes), counting
-/// each tick's allocations after warm-up by what the tick did.
-fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
+/// each tick's allocations after warm-up by what the tick did, on a thread of its own that
+/// joins the station's simulation pool of `threads` (`scalpel_server::sim_pool`; the
+/// worker's allocations count as the tick's). The state hash at the end.
+fn cut_allocations(scene: &'static str, strokes: usize, threads: usize) -> (CutAllocations, u64) {
+    std::thread::spawn(move || cut_allocations_here(scene, strokes, threads))
+        .join()
+        .unwrap()
+}
+
+/// [`cut_allocations`] on the calling thread (which joins the pool).
+fn cut_allocations_here(scene: &str, strokes: usize, threads: usize) -> (CutAllocations, u64) {
     use scalpel_sim::pipeline::{CutScript, NoClock, Simulation};
     let mut spec = builtin(scene).unwrap();
     spec.features.cutting = true;
@@ -50,6 +59,14 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
     .unwrap();
     let mut sim = Simulation::new(&scene);
     scalpel_server::recut_worker::attach(&mut sim);
+    let plan = scalpel_server::sim_pool::PoolPlan {
+        threads,
+        worker_cpus: Vec::new(),
+        fifo_priority: 0,
+    };
+    if let Some(pool) = scalpel_server::sim_pool::join_new_pool(&plan, count_in_group).unwrap() {
+        sim.use_pool(pool.pool);
+    }
     let ticks = (script.duration_s() / 1e-3) as usize;
     let mut seen = CutAllocations::default();
     // Warm-up: the approach, the press and the first second of cutting (scratch buffers
@@ -65,9 +82,9 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
         let (runs, begun, late) = stats(&sim);
         // Virtual points still to be placed after a re-mesh (a few a tick).
         let placing = sim.virtual_points().is_some_and(|v| v.has_pending());
-        let before = allocations();
+        let before = allocations() + group_allocations();
         let report = sim.tick(1e-3, &mut NoClock);
-        let during = allocations() - before;
+        let during = allocations() + group_allocations() - before;
         if k < warm_up {
             continue;
         }
@@ -97,7 +114,34 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
         seen.allocations += during;
     }
     println!("{seen:?}");
-    seen
+    if threads == 2 {
+        // The worker took its share: not a pool that left every part to this thread.
+        let (own, worker) = (scalpel_server::realtime::thread_cpu_s(), worker_cpu_s());
+        println!("CPU: simulation thread {own:.2} s, its worker {worker:.2} s");
+        assert!(
+            worker > 0.2 * own,
+            "{worker} s of the worker's CPU against {own} s"
+        );
+    }
+    (seen, sim.state_hash())
+}
+
+/// CPU time of this process's thread named `sim-worker-1` (s).
+fn worker_cpu_s() -> f64 {
+    let ticks_per_s = 100.0; // USER_HZ on Linux
+    for task in std::fs::read_dir("/proc/self/task").unwrap().flatten() {
+        let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
+        if comm.trim() == "sim-worker-1" {
+            let stat = std::fs::read_to_string(task.path().join("stat")).unwrap();
+            // Fields after the parenthesised name: state is field 3, utime 14, stime 15.
+            let rest = &stat[stat.rfind(')').unwrap() + 2..];
+            let fields: Vec<&str> = rest.split(' ').collect();
+            let (user, system): (f64, f64) =
+                (fields[11].parse().unwrap(), fields[12].parse().unwrap());
+            return (user + system) / ticks_per_s;
+        }
+    }
+    panic!("no sim-worker-1 thread");
 }
 
 /// No cutting tick allocates after warm-up, a landing that waits for its re-cut worker
@@ -106,12 +150,29 @@ fn cut_allocations(scene: &str, strokes: usize) -> CutAllocations {
 /// start a stroke. On the
 /// liver, on the cerebroma (whose cut places virtual points over dozens of ticks), and
 /// over a lab session of six strokes on the liver (later strokes start after warm-up,
-/// some crossing earlier wounds).
+/// some crossing earlier wounds). The station's two threads (the simulation and its pool's
+/// worker, both counted) on the cerebroma and the session, giving the same bits as one.
 #[test]
 fn cutting_ticks_do_not_allocate_after_warm_up() {
-    for (scene, strokes) in [("liver", 0), ("cerebroma", 0), ("liver", 6)] {
-        let seen = cut_allocations(scene, strokes);
-        let what = format!("{scene}, {strokes} strokes: {seen:?}");
+    let mut serial = 0;
+    for (scene, strokes, threads) in [
+        ("liver", 0, 1),
+        ("cerebroma", 0, 1),
+        ("cerebroma", 0, 2),
+        ("liver", 6, 1),
+        ("liver", 6, 2),
+    ] {
+        let (seen, hash) = cut_allocations(scene, strokes, threads);
+        // Each two-thread run follows the same cut on one thread.
+        if threads == 1 {
+            serial = hash;
+        } else {
+            assert_eq!(
+                hash, serial,
+                "{scene}, {strokes} strokes: 2 threads against 1"
+            );
+        }
+        let what = format!("{scene}, {strokes} strokes, {threads} thread(s): {seen:?}");
         assert!(seen.plain_ticks > 1000, "{what}");
         assert!(
             seen.topology_ticks > 40,

@@ -133,7 +133,7 @@ fn a_station_whose_stdout_is_closed_runs_on() {
 }
 
 #[test]
-fn with_a_haptic_cpu_the_simulation_runs_on_the_other_cpus() {
+fn with_a_haptic_cpu_the_simulation_and_its_worker_run_on_the_other_cpus() {
     let allowed = scalpel_server::realtime::allowed_cpus();
     let Some(&haptic_cpu) = allowed.last().filter(|_| allowed.len() >= 2) else {
         eprintln!("skipped: one CPU ({allowed:?}), nothing to keep the haptic CPU apart from");
@@ -182,6 +182,8 @@ fn with_a_haptic_cpu_the_simulation_runs_on_the_other_cpus() {
     };
     let haptic = cpus_of("haptic");
     let simulation = cpus_of("simulation");
+    // The simulation's worker (realtime.sim_threads = 2 by default).
+    let worker = cpus_of("sim-worker-1");
     let _ = child.kill();
     let _ = child.wait();
     std::fs::remove_dir_all(&dir).ok();
@@ -192,8 +194,12 @@ fn with_a_haptic_cpu_the_simulation_runs_on_the_other_cpus() {
         .filter(|&c| c != haptic_cpu)
         .collect();
     assert_eq!(parse_cpu_list(&simulation), others, "{runs}");
+    // On the other CPUs when there are two of them; else anywhere (below the haptic
+    // thread's priority), as one CPU would leave it nothing to do beside the simulation.
+    let worker_cpus = if others.len() >= 2 { &others } else { &allowed };
+    assert_eq!(&parse_cpu_list(&worker), worker_cpus, "{runs}");
     assert!(
-        runs.contains(&format!("simulation thread (CPUs {others:?})")),
+        runs.contains(&format!("simulation on 2 threads (CPUs {others:?})")),
         "{runs}"
     );
 }

@@ -88,6 +88,7 @@ fn conformance_of_the_in_process_scripted_device() {
         sim_fifo_priority: 0,
         lock_memory: false,
         haptic_cpu: None,
+        sim_threads: 2,
         limits: OutputLimits {
             max_force_n: MAX_FORCE_N,
             rate_limit_n_per_ms: RATE_LIMIT_N,

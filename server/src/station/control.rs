@@ -52,14 +52,19 @@ impl Station<'_> {
             fifo_priority,
             pinned_cpu,
             sim_pinned,
+            sim_threads,
             frames_running,
             ..
         } = *started;
         let (haptic_thread, t0) = (&threads.haptic_thread, threads.t0);
+        let threads = match sim_threads {
+            1 => "simulation thread".to_string(),
+            n => format!("simulation on {n} threads"),
+        };
         let mut running = vec![if sim_pinned {
-            format!("simulation thread (CPUs {other_cpus:?})")
+            format!("{threads} (CPUs {other_cpus:?})")
         } else {
-            "simulation thread".to_string()
+            threads
         }];
         let mut off = Vec::new();
         if haptic_thread.is_some() {

@@ -86,6 +86,8 @@ pub struct StationParams {
     pub lock_memory: bool,
     /// A CPU of its own for the haptic thread (config `realtime.haptic_cpu`).
     pub haptic_cpu: Option<usize>,
+    /// Threads for the simulation, its own included (config `realtime.sim_threads`).
+    pub sim_threads: usize,
     /// Output stage.
     pub limits: OutputLimits,
     /// Status interval (s).

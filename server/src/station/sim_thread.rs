@@ -16,6 +16,7 @@ use crate::grid_clock::GridClock;
 use crate::journal::TickRecord;
 use crate::realtime;
 use crate::render_frames::{FrameInfo, FramePublisher};
+use crate::sim_pool::{self, PoolPlan};
 use crate::sim_wake::SimWake;
 
 use super::journal_writer::SimJournal;
@@ -129,11 +130,55 @@ pub(super) struct SimThread {
     pub(super) fifo_gate: Arc<AtomicU8>,
     /// The CPUs it may run on (empty: any); the CPUs besides a pinned haptic thread's.
     pub(super) cpus: Vec<usize>,
-    /// Where it says whether pinning to `cpus` worked (for the start report).
-    pub(super) pinned: std::sync::mpsc::SyncSender<Result<(), String>>,
+    /// Threads for the simulation, its own included (config `realtime.sim_threads`, at
+    /// most the process's CPUs), and why fewer than asked.
+    pub(super) threads: (usize, Option<String>),
+    /// Its worker's CPUs (empty: any).
+    pub(super) worker_cpus: Vec<usize>,
+    /// Where it says how it started (for the start report), once its scheduling is known.
+    pub(super) started: std::sync::mpsc::SyncSender<SimStart>,
     /// The device's stable stiffness (N/m): each local model's K is bounded by it here,
     /// off the haptic thread.
     pub(super) max_stiffness_n_per_m: f64,
+}
+
+/// How the simulation thread started.
+pub(super) struct SimStart {
+    /// Whether pinning to [`SimThread::cpus`] worked.
+    pub(super) pinned: Result<(), String>,
+    /// The threads the simulation runs on, its own included.
+    pub(super) threads: usize,
+    /// What its pool could not get.
+    pub(super) warnings: Vec<String>,
+}
+
+/// Joins the simulation's pool as its thread 0 and hands it to `sim` (issue 42; the worker
+/// is scheduled as this thread is, at `fifo_priority`): the threads the simulation runs on
+/// and what was not granted.
+fn start_pool(
+    sim: &mut Simulation,
+    thread: &SimThread,
+    fifo_priority: i32,
+) -> (usize, Vec<String>) {
+    let (threads, why) = thread.threads.clone();
+    let mut warnings: Vec<String> = why.into_iter().collect();
+    let plan = PoolPlan {
+        threads,
+        worker_cpus: thread.worker_cpus.clone(),
+        fifo_priority,
+    };
+    match sim_pool::join_new_pool(&plan, || {}) {
+        Ok(Some(pool)) => {
+            warnings.extend(pool.warnings);
+            sim.use_pool(pool.pool);
+            (threads, warnings)
+        }
+        Ok(None) => (1, warnings),
+        Err(e) => {
+            warnings.push(format!("{e}: the simulation runs on its own thread"));
+            (1, warnings)
+        }
+    }
 }
 
 /// [`SimThread::fifo_gate`]: waiting for the haptic thread's scheduling.
@@ -162,13 +207,14 @@ pub(super) fn spawn_sim(
         .spawn(move || {
             // Off the haptic thread's own CPU: woken by each haptic tick, the simulation
             // would otherwise often be placed beside it. Refused is not fatal (the start
-            // report says so).
-            let _ = thread.pinned.send(if thread.cpus.is_empty() {
+            // report says so, once the pool is made).
+            let mut pinned = Some(if thread.cpus.is_empty() {
                 Ok(())
             } else {
                 realtime::pin_thread(&thread.cpus)
             });
             let mut fifo_pending = thread.fifo_priority > 0;
+            let mut fifo_granted = 0;
             // Shared-memory ports belong to the thread that opens them.
             let mut publisher = None;
             if frames.every_ticks > 0 {
@@ -193,12 +239,23 @@ pub(super) fn spawn_sim(
                         FIFO_TAKE => {
                             // Refused is not fatal: the simulation then runs with normal
                             // scheduling (reported by the status line's late ticks).
-                            let _ = realtime::make_thread_fifo(thread.fifo_priority);
+                            if realtime::make_thread_fifo(thread.fifo_priority).is_ok() {
+                                fifo_granted = thread.fifo_priority;
+                            }
                             fifo_pending = false;
                         }
                         FIFO_STAY_NORMAL => fifo_pending = false,
                         _ => {}
                     }
+                }
+                // The pool once this thread's scheduling is known: its worker gets the same.
+                if !fifo_pending && let Some(pinned) = pinned.take() {
+                    let (threads, warnings) = start_pool(&mut sim, &thread, fifo_granted);
+                    let _ = thread.started.send(SimStart {
+                        pinned,
+                        threads,
+                        warnings,
+                    });
                 }
                 let k = clock.advance();
                 let deadline = clock.deadline(k) + SIM_PHASE_S;

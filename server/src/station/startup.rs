@@ -16,13 +16,14 @@ use crate::device_monitor::DeviceMonitor;
 use crate::faults::FaultTable;
 use crate::journal::TickRecord;
 use crate::realtime;
+use crate::sim_pool::usable_threads;
 use crate::sim_wake::SimWake;
 
 use super::haptic::{HapticContext, HapticReady, spawn_haptic};
 use super::journal_writer::{JOURNAL_RING, SimJournal, spawn_journal_writer};
 use super::sim_thread::{
-    FIFO_PENDING, FIFO_STAY_NORMAL, FIFO_TAKE, SimFrames, SimThread, frame_interval_ticks,
-    spawn_sim,
+    FIFO_PENDING, FIFO_STAY_NORMAL, FIFO_TAKE, SimFrames, SimStart, SimThread,
+    frame_interval_ticks, spawn_sim,
 };
 use super::{
     HapticCounters, ModelUpdate, POSE_RING, PoseIn, SIM_TICK_S, SimStatus, StationParams,
@@ -251,7 +252,7 @@ pub(super) struct Threads {
 pub(super) struct StartChannels {
     pub(super) ready_rx: std::sync::mpsc::Receiver<HapticReady>,
     pub(super) sim_fifo_gate: Arc<AtomicU8>,
-    pub(super) sim_pinned_rx: std::sync::mpsc::Receiver<Result<(), String>>,
+    pub(super) sim_started_rx: std::sync::mpsc::Receiver<SimStart>,
     pub(super) frames_rx: std::sync::mpsc::Receiver<Result<(), String>>,
 }
 
@@ -265,6 +266,8 @@ pub(super) struct Started {
     pub(super) device_error: Option<String>,
     /// The simulation thread runs on the other CPUs.
     pub(super) sim_pinned: bool,
+    /// The threads the simulation runs on, its own included.
+    pub(super) sim_threads: usize,
     /// Render frames are sent.
     pub(super) frames_running: bool,
 }
@@ -284,7 +287,9 @@ impl Threads {
         // The haptic thread wakes the simulation thread once its tick is done.
         let sim_wake = params.haptics.then(|| Arc::new(SimWake::new()));
         let sim_fifo_gate = Arc::new(AtomicU8::new(FIFO_PENDING));
-        let (sim_pinned_tx, sim_pinned_rx) = std::sync::mpsc::sync_channel(1);
+        let (sim_started_tx, sim_started_rx) = std::sync::mpsc::sync_channel(1);
+        // Read here: the simulation thread's own is its pinned CPUs.
+        let allowed = realtime::allowed_cpus();
         let sim_thread = spawn_sim(
             built.sim,
             hand_offs.pose_out,
@@ -306,7 +311,16 @@ impl Threads {
                 fifo_priority: params.sim_fifo_priority,
                 fifo_gate: sim_fifo_gate.clone(),
                 cpus: other_cpus.to_vec(),
-                pinned: sim_pinned_tx,
+                threads: usable_threads(params.sim_threads, allowed.len()),
+                // The worker on the other CPUs when there are two; else anywhere (on two
+                // CPUs with a haptic CPU, beside the haptic thread, below its priority),
+                // said explicitly, as a thread inherits the pinned simulation's CPUs.
+                worker_cpus: if other_cpus.len() >= 2 || other_cpus.is_empty() {
+                    other_cpus.to_vec()
+                } else {
+                    allowed
+                },
+                started: sim_started_tx,
                 max_stiffness_n_per_m: params.limits.max_stiffness_n_per_m,
             },
             sim_wake.clone(),
@@ -356,7 +370,7 @@ impl Threads {
             StartChannels {
                 ready_rx: hand_offs.ready_rx,
                 sim_fifo_gate,
-                sim_pinned_rx,
+                sim_started_rx,
                 frames_rx: hand_offs.frames_rx,
             },
         ))
@@ -396,7 +410,7 @@ impl StartChannels {
         let StartChannels {
             ready_rx,
             sim_fifo_gate,
-            sim_pinned_rx,
+            sim_started_rx,
             frames_rx,
         } = self;
         let mut fifo_priority = 0;
@@ -427,16 +441,18 @@ impl StartChannels {
             },
             Ordering::Release,
         );
-        let sim_pinned = match sim_pinned_rx.recv() {
-            Ok(Ok(())) => !other_cpus.is_empty(),
-            Ok(Err(e)) => {
-                warnings.push(format!(
+        // Sent once the simulation knows its scheduling (the gate above) and made its pool.
+        let (mut sim_pinned, mut sim_threads) = (false, 1);
+        if let Ok(start) = sim_started_rx.recv() {
+            match start.pinned {
+                Ok(()) => sim_pinned = !other_cpus.is_empty(),
+                Err(e) => warnings.push(format!(
                     "{e}: the simulation thread may share the haptic thread's CPU"
-                ));
-                false
+                )),
             }
-            Err(_) => false,
-        };
+            sim_threads = start.threads;
+            warnings.extend(start.warnings);
+        }
         let mut frames_running = false;
         if params.frame_hz > 0.0 {
             match frames_rx.recv() {
@@ -450,6 +466,7 @@ impl StartChannels {
             pinned_cpu,
             device_error,
             sim_pinned,
+            sim_threads,
             frames_running,
         }
     }

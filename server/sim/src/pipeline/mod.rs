@@ -779,6 +779,15 @@ impl Simulation {
         }
     }
 
+    /// The force evaluations run their two parts in parallel on the caller's `pool` from
+    /// now on, with the same results bit for bit ([`Solver::use_pool`]). A station's
+    /// simulation thread is the pool's thread 0 (`use_current_thread`), so a tick hands
+    /// nothing across threads but the parts' jobs.
+    #[cfg(feature = "parallel")]
+    pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
+        self.solver.use_pool(pool);
+    }
+
     /// The latest local force model for the haptic loop.
     pub fn local_force_model(&self) -> LocalForceModel {
         self.local_model

@@ -478,9 +478,10 @@ impl Solver {
 
     /// The explicit force evaluation's two halves run in parallel on `pool` from now on,
     /// with the same results bit for bit (the halves are summed the same way either way).
-    /// The pool is the caller's: the core makes none. For offline runs and benches: the
-    /// tick then runs on the pool's threads, which get neither the station's SCHED_FIFO
-    /// priority nor its locked memory, and the caller waits on rayon's latch.
+    /// The pool is the caller's: the core makes none. Called from outside the pool (offline
+    /// runs, benches) a tick is handed into it; a station's simulation thread is itself the
+    /// pool's thread 0 (`scalpel_server::sim_pool`), so its ticks run where they are called
+    /// and only the second part's job crosses to the worker.
     #[cfg(feature = "parallel")]
     pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
         self.pool = Some(pool);
