@@ -75,7 +75,11 @@ pub fn cutting_spec(target: &TargetArgs) -> anyhow::Result<SceneSpec> {
 /// Runs `script` on the built scene with a progress bar (on a terminal), and says once on
 /// stderr — terminal or not — when the run will take long: a stiff scene's single tick can
 /// take minutes.
-pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
+pub fn run_with_progress(
+    scene: &BuiltScene,
+    script: &CutScript,
+    threads: usize,
+) -> anyhow::Result<CutRun> {
     use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let bar = ProgressBar::hidden();
     let done_ticks = AtomicUsize::new(0);
@@ -83,7 +87,7 @@ pub fn run_with_progress(scene: &BuiltScene, script: &CutScript) -> CutRun {
     let total = script.tick_count(cutrun::TICK_S);
     std::thread::scope(|scope| {
         scope.spawn(|| say_the_pace(&done_ticks, total, &finished, &bar));
-        let run = cutrun::run_cut(scene, script, |done, total| {
+        let run = cutrun::run_cut(scene, script, threads, |done, total| {
             if done == 1 {
                 bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
                 bar.set_length(total as u64);
@@ -164,6 +168,7 @@ pub fn run(
     script: &ScriptChoice,
     out: &Path,
     mesh_format: &str,
+    threads: usize,
     json: bool,
 ) -> anyhow::Result<()> {
     let spec = cutting_spec(target)?;
@@ -192,7 +197,7 @@ pub fn run(
             );
         }
     }
-    let run = run_with_progress(scene, &script);
+    let run = run_with_progress(scene, &script, threads)?;
     let metrics = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
     // The figures first: whatever fails later, they are kept.
     let metrics_path = out.join("metrics.json");

@@ -77,15 +77,50 @@ pub struct CutRun {
     pub sim: Simulation,
 }
 
-/// Runs `script` on `scene` at 1 kHz; `tick` is told the progress (done, total).
+/// Runs `script` on `scene` at 1 kHz; `tick` is told the progress (done, total). With
+/// `threads` = 2 the run is on a thread of its own that joins a two-thread pool as a
+/// station's simulation thread does (`scalpel_server::sim_pool`): the same bits, the
+/// force evaluation's second part on the worker.
 pub fn run_cut(
     scene: &BuiltScene,
     script: &CutScript,
+    threads: usize,
+    tick: impl FnMut(usize, usize) + Send,
+) -> anyhow::Result<CutRun> {
+    if threads <= 1 {
+        return Ok(run_cut_here(scene, script, None, tick));
+    }
+    std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("simulation".into())
+            .spawn_scoped(scope, || {
+                let plan = scalpel_server::sim_pool::PoolPlan {
+                    threads,
+                    worker_cpus: Vec::new(),
+                    fifo_priority: 0,
+                };
+                let pool = scalpel_server::sim_pool::join_new_pool(&plan, || {})
+                    .map_err(anyhow::Error::msg)?;
+                Ok(run_cut_here(scene, script, pool.map(|p| p.pool), tick))
+            })?
+            .join()
+            .map_err(|_| anyhow::anyhow!("the cut's thread panicked"))?
+    })
+}
+
+/// [`run_cut`] on the calling thread, with the pool it has joined (if any).
+fn run_cut_here(
+    scene: &BuiltScene,
+    script: &CutScript,
+    pool: Option<std::sync::Arc<rayon::ThreadPool>>,
     mut tick: impl FnMut(usize, usize),
 ) -> CutRun {
     let mut sim = Simulation::new(scene);
     // Re-cuts on a worker, as at a station (their time is the worker's, not the tick's).
     scalpel_server::recut_worker::attach(&mut sim);
+    if let Some(pool) = pool {
+        sim.use_pool(pool);
+    }
     sim.prepare(TICK_S);
     let ticks = script.tick_count(TICK_S);
     let mut rows = Vec::with_capacity(ticks);

@@ -87,6 +87,10 @@ enum Command {
         /// Format of the cut surface mesh.
         #[arg(long, default_value = "vtk", value_parser = ["vtk", "ply", "obj"])]
         mesh_format: String,
+        /// Threads for the simulation, as a station's `realtime.sim_threads` (1 or 2; the
+        /// same results either way).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+        threads: u32,
         /// Print the metrics as JSON.
         #[arg(long)]
         json: bool,
@@ -295,6 +299,9 @@ enum BenchCommand {
     /// The paper's Table 1: the default scripted cut on liver, shoulder and cerebroma,
     /// surface and internal time per cut step (median, p99) against the paper's figures.
     Table1 {
+        /// Threads for the simulation, as a station's `realtime.sim_threads` (1 or 2).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+        threads: u32,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -304,6 +311,9 @@ enum BenchCommand {
         /// Target interior point counts.
         #[arg(long, value_delimiter = ',', default_value = "1526,15000,100000")]
         points: Vec<usize>,
+        /// Threads for the simulation, as a station's `realtime.sim_threads` (1 or 2).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+        threads: u32,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -535,12 +545,14 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             seed,
             out,
             mesh_format,
+            threads,
             json,
         } => cut_cmd::run(
             &target,
             &script_choice(script, strokes, seed),
             &out,
             &mesh_format,
+            threads as usize,
             json,
         ),
         Command::Settle { target, out, json } => settle_cmd::run(&target, &out, json),
@@ -628,8 +640,12 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
     match what {
         BenchCommand::Scenes { runs, json } => bench::scenes(runs, json),
         BenchCommand::Stability { json } => bench::stability::run(json),
-        BenchCommand::Table1 { json } => bench::cutting::table1(json),
-        BenchCommand::Scaling { points, json } => bench::cutting::scaling(&points, json),
+        BenchCommand::Table1 { threads, json } => bench::cutting::table1(threads as usize, json),
+        BenchCommand::Scaling {
+            points,
+            threads,
+            json,
+        } => bench::cutting::scaling(&points, threads as usize, json),
         BenchCommand::Idle {
             target,
             units,

@@ -59,13 +59,13 @@ fn build(spec: &SceneSpec) -> anyhow::Result<BuiltScene> {
 }
 
 /// `scalpel bench table1`.
-pub fn table1(json: bool) -> anyhow::Result<()> {
+pub fn table1(threads: usize, json: bool) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for (name, paper_tris, paper_points, paper_surface, paper_internal) in PAPER_TABLE1 {
         let spec = scene::builtin(name).expect("built-in scene");
         let scene = build(&spec)?;
         let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?;
-        let run = cut_cmd::run_with_progress(&scene, &script);
+        let run = cut_cmd::run_with_progress(&scene, &script, threads)?;
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let paper_total = paper_surface + paper_internal;
         rows.push(Table1Row {
@@ -174,7 +174,7 @@ struct ScalingRow {
 }
 
 /// `scalpel bench scaling`.
-pub fn scaling(targets: &[usize], json: bool) -> anyhow::Result<()> {
+pub fn scaling(targets: &[usize], threads: usize, json: bool) -> anyhow::Result<()> {
     anyhow::ensure!(!targets.is_empty(), "no resolutions given");
     let mut rows: Vec<ScalingRow> = Vec::new();
     let mut script: Option<CutScript> = None;
@@ -187,7 +187,7 @@ pub fn scaling(targets: &[usize], json: bool) -> anyhow::Result<()> {
         let script = script.get_or_insert(CutScript::default_for(
             &scalpel_sim::pipeline::start_surface(&scene),
         )?);
-        let run = cut_cmd::run_with_progress(&scene, script);
+        let run = cut_cmd::run_with_progress(&scene, script, threads)?;
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let base = rows.first().map_or(m.total_ms.p50, |r| r.total_ms.p50);
         rows.push(ScalingRow {

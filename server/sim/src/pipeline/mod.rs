@@ -41,6 +41,7 @@ use crate::cut::{Blade, IncisionParams, ToolPose};
 use crate::force::{CutForce, CutPhase, LocalForceModel};
 use crate::geometry::TriMesh;
 use crate::math::Vec3;
+use crate::mls::forces::Threads;
 use crate::model::{Neighbourhoods, RestGrid};
 use crate::scene::{BuiltScene, SceneSpec};
 use crate::solver::blade::BladeBody;
@@ -144,7 +145,7 @@ pub enum Half {
 }
 
 /// The caller's clock, read at each stage's boundaries (the core reads none itself).
-pub trait StageClock {
+pub trait StageClock: Send {
     /// Seconds on any monotonic clock.
     fn now_s(&mut self) -> f64;
 }
@@ -261,6 +262,10 @@ pub struct Simulation {
     settled: Option<supports::SettleReport>,
     support_counts: supports::SupportCounts,
     tissue_force: tissue_force::TissueForce,
+    /// Where the stages' parts run: one thread, or the caller's pool (`use_pool`).
+    threads: Threads,
+    #[cfg(feature = "parallel")]
+    pool: Option<std::sync::Arc<rayon::ThreadPool>>,
 }
 
 impl Simulation {
@@ -352,6 +357,9 @@ impl Simulation {
             },
             all_points: (0..n as u32).collect(),
             spec,
+            threads: Threads::One,
+            #[cfg(feature = "parallel")]
+            pool: None,
         };
         if sim.settled.is_some() {
             sim.surface.follow(
@@ -359,6 +367,7 @@ impl Simulation {
                 sim.solver.rest(),
                 sim.solver.positions(),
                 &sim.all_points,
+                Threads::One,
             );
         }
         sim
@@ -383,6 +392,7 @@ impl Simulation {
             self.solver.rest(),
             self.solver.positions(),
             &self.all_points,
+            self.threads,
         );
         self.settled = Some(report);
         report
@@ -458,7 +468,17 @@ impl Simulation {
 
     /// Advances by `dt` seconds (every caller's tick is [`SIMULATION_TICK_S`]), through the
     /// stages of the module docs in their order, timing each on `clock`.
+    /// With a pool (`use_pool`) the whole tick runs on it, its other thread kept at hand
+    /// through the tick for the parts of each stage.
     pub fn tick(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pool.clone() {
+            return crate::solver::on_pool::on_pool(&pool, || self.tick_here(dt, clock));
+        }
+        self.tick_here(dt, clock)
+    }
+
+    fn tick_here(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
         let mut laps = Laps::start(clock);
         let blade = self.move_blade(dt);
         let contact = self.contact(&blade);
@@ -601,6 +621,7 @@ impl Simulation {
             self.solver.rest(),
             self.solver.positions(),
             moved,
+            self.threads,
         )
     }
 
@@ -785,7 +806,9 @@ impl Simulation {
     /// nothing across threads but the parts' jobs.
     #[cfg(feature = "parallel")]
     pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
-        self.solver.use_pool(pool);
+        self.solver.use_pool(pool.clone());
+        self.pool = Some(pool);
+        self.threads = Threads::Rayon;
     }
 
     /// The latest local force model for the haptic loop.

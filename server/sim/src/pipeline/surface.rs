@@ -15,6 +15,7 @@ use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::{closest_point_on_triangle, line_triangle};
 use crate::math::{Aabb, Mat3, Vec3};
 use crate::mls::MlsOperator;
+use crate::mls::forces::Threads;
 use crate::model::rows::Rows;
 use crate::model::{Blockers, CoupledModel, Kernel, RestGrid, SurfaceEmbedding};
 
@@ -140,6 +141,10 @@ pub struct CurrentSurface {
     followed: Vec<Vec3>,
     point_list: Vec<u32>,
     gradients: Vec<Mat3>,
+    /// The listed points' new gradients and the listed vertices' new places, in list order
+    /// (made in two parts, then stored in order).
+    new_gradients: Vec<Mat3>,
+    new_places: Vec<Vec3>,
     crossings: Vec<Crossing>,
 }
 
@@ -263,6 +268,8 @@ impl CurrentSurface {
             followed: vec![STALE; model.points.len()],
             point_list: Vec::with_capacity(model.points.len()),
             gradients: vec![Mat3::identity(); model.points.len()],
+            new_gradients: Vec::with_capacity(model.points.len()),
+            new_places: room(nv),
             crossings: Vec::with_capacity(64),
             mesh,
             vertex_triangles,
@@ -289,8 +296,9 @@ impl CurrentSurface {
         rest_points: &[Vec3],
         p: &[Vec3],
         moved: &[u32],
+        threads: Threads,
     ) -> usize {
-        let count = self.place_followers(op, rest_points, p, moved);
+        let count = self.place_followers(op, rest_points, p, moved, threads);
         for &t in &self.triangle_list {
             let t = t as usize;
             self.bvh.update(t, &self.mesh.corners(t));
@@ -306,10 +314,11 @@ impl CurrentSurface {
         rest_points: &[Vec3],
         p: &[Vec3],
         moved: &[u32],
+        threads: Threads,
     ) -> usize {
         self.vertex_list.clear();
         self.list_followers(p, moved);
-        self.place_listed(op, rest_points, p)
+        self.place_listed(op, rest_points, p, threads)
     }
 
     /// Adds to `vertex_list` the vertices of the points in `moved` that have moved since
@@ -337,7 +346,13 @@ impl CurrentSurface {
 
     /// Places the vertices in `vertex_list` in the field; `triangle_list` lists the
     /// triangles they moved. Returns how many.
-    fn place_listed(&mut self, op: &MlsOperator, rest_points: &[Vec3], p: &[Vec3]) -> usize {
+    fn place_listed(
+        &mut self,
+        op: &MlsOperator,
+        rest_points: &[Vec3],
+        p: &[Vec3],
+        threads: Threads,
+    ) -> usize {
         // The gradients those vertices read: a frozen point next to a moving one deforms too.
         self.point_list.clear();
         for &v in &self.vertex_list {
@@ -347,24 +362,34 @@ impl CurrentSurface {
                 }
             }
         }
-        for &k in &self.point_list {
+        // Each gradient and each place depends on its own point or vertex only: two parts
+        // give one's bits.
+        in_two_parts(threads, &self.point_list, &mut self.new_gradients, |&k| {
+            op.deformation_gradient(k as usize, p)
+        });
+        for (&k, g) in self.point_list.iter().zip(&self.new_gradients) {
             self.point_flag[k as usize] = false;
-            self.gradients[k as usize] = op.deformation_gradient(k as usize, p);
+            self.gradients[k as usize] = *g;
         }
-        self.triangle_list.clear();
-        for &v in &self.vertex_list {
+        let (embedding, rest, gradients) = (&self.embedding, &self.rest, &self.gradients);
+        in_two_parts(threads, &self.vertex_list, &mut self.new_places, |&v| {
             let v = v as usize;
-            self.vertex_flag[v] = false;
-            let (points, weights) = self.embedding.of(v);
-            let xv = self.rest[v];
+            let (points, weights) = embedding.of(v);
+            let xv = rest[v];
             let mut x = Vec3::zeros();
             for (&k, &w) in points.iter().zip(weights) {
                 if w == 0.0 {
                     continue;
                 }
                 let k = k as usize;
-                x += (p[k] + self.gradients[k] * (xv - rest_points[k])) * w;
+                x += (p[k] + gradients[k] * (xv - rest_points[k])) * w;
             }
+            x
+        });
+        self.triangle_list.clear();
+        for (&v, &x) in self.vertex_list.iter().zip(&self.new_places) {
+            let v = v as usize;
+            self.vertex_flag[v] = false;
             self.mesh.positions[v] = x;
             for &t in self.vertex_triangles.of(v) {
                 if !std::mem::replace(&mut self.triangle_flag[t as usize], true) {
@@ -643,7 +668,7 @@ impl CurrentSurface {
         self.rebuild_indices(rest_points.len(), index.vertex_triangles, index.vertex_grid);
         // The new vertices are placed in the field.
         (self.vertex_list).extend((0..nv).filter(|&v| carried(v).is_none()).map(|v| v as u32));
-        self.place_listed(op, rest_points, p);
+        self.place_listed(op, rest_points, p, Threads::One);
         // The hierarchy (shaped over the rest positions) is refitted once to where the
         // vertices are, not leaf by leaf.
         self.bvh = index.bvh;
@@ -678,6 +703,27 @@ impl CurrentSurface {
             w > 0.0 && segment_meets_triangle(&self.rest[v], &rest_points[k as usize], cut)
         })
     }
+}
+
+/// `out[i] = each(&items[i])` for every item, the two halves on `threads` (`out` keeps
+/// its room: no allocation while it has some).
+fn in_two_parts<T: Sync, R: Send + Copy + Default>(
+    threads: Threads,
+    items: &[T],
+    out: &mut Vec<R>,
+    each: impl Fn(&T) -> R + Sync,
+) {
+    out.clear();
+    out.resize(items.len(), R::default());
+    let half = items.len() / 2;
+    let (items_a, items_b) = items.split_at(half);
+    let (out_a, out_b) = out.split_at_mut(half);
+    let fill = |items: &[T], out: &mut [R]| {
+        for (o, item) in out.iter_mut().zip(items) {
+            *o = each(item);
+        }
+    };
+    threads.both(|| fill(items_a, out_a), || fill(items_b, out_b));
 }
 
 /// Intersection of the segment p→q with a triangle: the parameter along the segment and the

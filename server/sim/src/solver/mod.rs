@@ -25,6 +25,8 @@ pub mod events;
 mod explicit;
 pub mod held;
 mod kept_substeps;
+#[cfg(feature = "parallel")]
+pub(crate) mod on_pool;
 mod projective;
 mod projective_contact;
 mod slaves;
@@ -468,10 +470,13 @@ impl Solver {
     /// report and as events, and the state stays finite.
     pub fn step(&mut self, dt: f64) -> StepReport {
         #[cfg(feature = "parallel")]
-        if let Some(pool) = self.pool.clone() {
-            // The whole tick runs on a pool thread, so the force evaluation's join finds its
-            // pool (no per-evaluation hand-over from outside).
-            return pool.install(|| self.step_here(dt));
+        if let Some(pool) = self.pool.clone()
+            && pool.current_thread_index().is_none()
+        {
+            // Called from outside the pool: the tick is handed in (`on_pool`). On a thread
+            // of the pool (a station's simulation thread, inside `Simulation::tick`'s own
+            // `on_pool`) it runs here and its joins find the pool.
+            return on_pool::on_pool(&pool, || self.step_here(dt));
         }
         self.step_here(dt)
     }

@@ -391,8 +391,8 @@ pub fn add_elastic_forces(
             (None, None) => Skip::OperatorRuns,
         },
     };
-    // Half of the runs and half of the single points each: the two kernels' costs per point
-    // differ, so both are split.
+    // Half of the runs and half of the single points' work each: the two kernels' costs per
+    // point differ, so both are split.
     let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
     let listed = match (set, stencil) {
         (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pairs.points[..]),
@@ -402,7 +402,7 @@ pub fn add_elastic_forces(
     };
     let (points_a, points_b) = match listed {
         Some(list) => {
-            let (a, b) = list.split_at(list.len() / 2);
+            let (a, b) = list.split_at(shared.halfway(list));
             (Points::Listed(a), Points::Listed(b))
         }
         None => {
@@ -500,6 +500,22 @@ pub enum Threads {
     /// The caller waits on rayon's latch, so this is for machines with a core to spare.
     #[cfg(feature = "parallel")]
     Rayon,
+}
+
+impl Threads {
+    /// Runs `a` and `b`, one after the other or as a `rayon::join` (`b` then on another
+    /// thread of the caller's pool if one is free).
+    pub(crate) fn both<A: Send, B: Send>(
+        self,
+        a: impl FnOnce() -> A + Send,
+        b: impl FnOnce() -> B + Send,
+    ) -> (A, B) {
+        match self {
+            Threads::One => (a(), b()),
+            #[cfg(feature = "parallel")]
+            Threads::Rayon => rayon::join(a, b),
+        }
+    }
 }
 
 /// `out = K v`, where K = −∂f/∂p is the tangent stiffness of the elastic forces at `p`

@@ -264,7 +264,10 @@ pub(crate) fn evaluate(
             fields.written_chunks.extend_from_slice(&r.chunks.stress);
         }
     }
-    let split = halfway(two, stencil.chunks());
+    // Each pass split where its own chunks are halved (pass one runs over the stress
+    // chunks, a wider set than pass two's active ones): a chunk's results do not depend on
+    // the half it falls in.
+    let split = halfway(one, stencil.chunks());
     let (half_a, half_b) = (0..split, split..stencil.chunks());
     let lanes = Lanes {
         stress: restriction.map(|r| r.stress),
@@ -279,8 +282,8 @@ pub(crate) fn evaluate(
         ..
     } = fields;
     let [scratch_a, scratch_b] = scratch;
-    let (mut f_a, mut f_b) = split_each(f, split);
     let stats = {
+        let (mut f_a, mut f_b) = split_each(f, split);
         let (stress_a, stress_b) = split_each(stress, split);
         let (k_a, k_b) = k.split_at_mut(split);
         let read = PassOneIn { u, z };
@@ -322,6 +325,9 @@ pub(crate) fn evaluate(
             },
         )
     };
+    let split = halfway(two, stencil.chunks());
+    let (half_a, half_b) = (0..split, split..stencil.chunks());
+    let (mut f_a, mut f_b) = split_each(f, split);
     let read = PassTwoIn { stress, k, u };
     let mut a = PassTwoOut {
         offset: 0,

@@ -9,11 +9,7 @@ pub(super) fn both<A: Send, B: Send>(
     a: impl FnOnce() -> A + Send,
     b: impl FnOnce() -> B + Send,
 ) -> (A, B) {
-    match threads {
-        Threads::One => (a(), b()),
-        #[cfg(feature = "parallel")]
-        Threads::Rayon => rayon::join(a, b),
-    }
+    threads.both(a, b)
 }
 
 /// Each field cut at chunk `at`: the first parts, then the second.
