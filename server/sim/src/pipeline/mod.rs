@@ -264,9 +264,19 @@ pub struct Simulation {
     tissue_force: tissue_force::TissueForce,
     /// Where the stages' parts run: one thread, or the caller's pool (`use_pool`).
     threads: Threads,
+    /// The last tick's integrated points × sub-steps: what decides whether the next one
+    /// shares its work ([`PARALLEL_MIN_WORK`]).
+    last_work: usize,
     #[cfg(feature = "parallel")]
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
 }
+
+/// The least work a tick shares with a pool's other thread (integrated points ×
+/// sub-steps): below it a join's hand-over and the other thread's wake cost more than its
+/// half of the work saves (`scalpel bench table1 --threads 2`: the liver cut, ~480 awake
+/// points and one sub-step, took 0.295 ms a step on two threads against 0.214 on one; the
+/// shoulder and cerebroma, a few thousand, 1.45× and 1.24× faster; docs/BENCHMARKS.md).
+pub const PARALLEL_MIN_WORK: usize = 2000;
 
 impl Simulation {
     /// Starts a built scene at rest.
@@ -358,6 +368,7 @@ impl Simulation {
             all_points: (0..n as u32).collect(),
             spec,
             threads: Threads::One,
+            last_work: 0,
             #[cfg(feature = "parallel")]
             pool: None,
         };
@@ -473,7 +484,18 @@ impl Simulation {
     pub fn tick(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pool.clone() {
-            return crate::solver::on_pool::on_pool(&pool, || self.tick_here(dt, clock));
+            // Decided on the last tick's work (the awake region changes slowly); the same
+            // bits either way.
+            let parallel = self.last_work >= PARALLEL_MIN_WORK;
+            self.threads = if parallel {
+                Threads::Rayon
+            } else {
+                Threads::One
+            };
+            self.solver.set_parallel(parallel);
+            if parallel {
+                return crate::solver::on_pool::on_pool(&pool, || self.tick_here(dt, clock));
+            }
         }
         self.tick_here(dt, clock)
     }
@@ -500,19 +522,21 @@ impl Simulation {
         self.time_s += dt;
         let tool_force_n = self.force_model(&cut, &blade);
         laps.lap(Stage::ForceModel);
+        // The body's points (virtual points are kinematic nodes, not integrated).
+        let active_points = {
+            let body = self.solver.material_points() as u32;
+            self.solver
+                .active_points()
+                .iter()
+                .filter(|&&i| i < body)
+                .count()
+        };
+        self.last_work = active_points * solver.substeps as usize;
         TickReport {
             time_s: self.time_s,
             cut,
             tool_force_n,
-            // The body's points (virtual points are kinematic nodes, not integrated).
-            active_points: {
-                let body = self.solver.material_points() as u32;
-                self.solver
-                    .active_points()
-                    .iter()
-                    .filter(|&&i| i < body)
-                    .count()
-            },
+            active_points,
             vertices_moved,
             remeshed,
             solver,

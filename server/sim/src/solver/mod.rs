@@ -471,6 +471,7 @@ impl Solver {
     pub fn step(&mut self, dt: f64) -> StepReport {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pool.clone()
+            && self.force_scratch.threads() == Threads::Rayon
             && pool.current_thread_index().is_none()
         {
             // Called from outside the pool: the tick is handed in (`on_pool`). On a thread
@@ -491,6 +492,18 @@ impl Solver {
     pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
         self.pool = Some(pool);
         self.force_scratch.set_threads(Threads::Rayon);
+    }
+
+    /// Whether the next ticks use the pool given (`use_pool`): a tick too small to share
+    /// runs on its caller's thread alone. The same bits either way.
+    #[cfg(feature = "parallel")]
+    pub fn set_parallel(&mut self, on: bool) {
+        let threads = if on && self.pool.is_some() {
+            Threads::Rayon
+        } else {
+            Threads::One
+        };
+        self.force_scratch.set_threads(threads);
     }
 
     fn step_here(&mut self, dt: f64) -> StepReport {

@@ -261,6 +261,11 @@ impl ForceScratch {
         self
     }
 
+    /// Where the evaluations run their parts.
+    pub fn threads(&self) -> Threads {
+        self.threads
+    }
+
     /// Where the evaluation's parts run from now on.
     pub fn set_threads(&mut self, threads: Threads) {
         self.threads = threads;
