@@ -180,6 +180,10 @@ pub struct RealtimeConfig {
     /// two parts run in parallel on a worker it waits on (never the haptic thread: that
     /// one runs above both). At most the CPUs the process may use.
     pub sim_threads: u32,
+    /// Nice value of the simulation's threads under normal scheduling (−20 to 19; 0: the
+    /// process's): above local viewers and the station's other threads, below none that
+    /// is real time. Refused (no CAP_SYS_NICE or RLIMIT_NICE) with a warning.
+    pub sim_nice: i32,
 }
 
 /// Output stage limits.
@@ -251,6 +255,7 @@ impl Default for RealtimeConfig {
             lock_memory: true,
             haptic_cpu: -1,
             sim_threads: 2,
+            sim_nice: -10,
         }
     }
 }
@@ -378,6 +383,13 @@ impl ServerConfig {
             // thread or two); more threads would have nothing to take.
             (1..=2).contains(&t),
             "1 (the simulation thread alone) or 2 (with a worker)",
+        )?;
+        let n = self.realtime.sim_nice;
+        range(
+            "realtime.sim_nice",
+            f64::from(n),
+            (-20..=19).contains(&n),
+            "-20 to 19 (0: the process's)",
         )?;
         Ok(())
     }

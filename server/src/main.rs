@@ -164,6 +164,7 @@ fn station_params(
         lock_memory: config.realtime.lock_memory,
         haptic_cpu: usize::try_from(config.realtime.haptic_cpu).ok(),
         sim_threads: config.realtime.sim_threads as usize,
+        sim_nice: config.realtime.sim_nice,
         limits: OutputLimits {
             // Both are range-checked; the bound holds for built-in scenes too.
             max_force_n: if o.max_force_n > 0.0 {
@@ -318,13 +319,20 @@ fn print_summary(
         return Ok(());
     }
     say!(
-        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, {} of them over a tick of CPU time; longest {:.2} ms, {:.2} ms of CPU; at most {} sub-step(s); {} re-cut(s) waited for), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
+        "stopped: {} haptic ticks, {} deadline misses, {} poses dropped; {} simulation ticks ({} late, {} of them over a tick of CPU time; p50 / p99 / p99.9 {} ms; longest {:.2} ms, {:.2} ms of CPU; at most {} sub-step(s); {} re-cut(s) waited for), cut {:.1} mm; state hash {:016x}; SCHED_FIFO {}, memory locked {}",
         summary.haptic_ticks,
         summary.deadline_misses,
         summary.poses_dropped,
         summary.sim.ticks,
         summary.sim.late_ticks,
         summary.sim.late_ticks_cpu,
+        [0.5, 0.99, 0.999]
+            .map(|q| summary
+                .sim
+                .tick_times
+                .quantile_ms(q)
+                .map_or("> 5.1".to_string(), |ms| format!("{ms:.2}")))
+            .join(" / "),
         summary.sim.max_tick_ms,
         summary.sim.max_tick_cpu_ms,
         summary.sim.most_substeps,

@@ -86,6 +86,21 @@ pub fn pin_thread(cpus: &[usize]) -> Result<(), String> {
     }
 }
 
+/// Sets the calling thread's nice value (Linux schedules threads, not processes, by it):
+/// below 0 needs CAP_SYS_NICE or RLIMIT_NICE, as SCHED_FIFO does.
+pub fn set_thread_nice(nice: i32) -> Result<(), String> {
+    // SAFETY: gettid and setpriority take plain integers and touch no Rust memory.
+    let rc = unsafe {
+        let tid = libc::gettid();
+        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, nice)
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!("nice {nice}: {}", std::io::Error::last_os_error()))
+    }
+}
+
 /// Seconds on CLOCK_MONOTONIC.
 pub fn monotonic_s() -> f64 {
     let t = monotonic();

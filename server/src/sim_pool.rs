@@ -25,6 +25,9 @@ pub struct PoolPlan {
     pub worker_cpus: Vec<usize>,
     /// The worker's SCHED_FIFO priority: the simulation thread's (0: normal scheduling).
     pub fifo_priority: i32,
+    /// The worker's nice value under normal scheduling: the simulation thread's (0: as
+    /// the process).
+    pub nice: i32,
 }
 
 /// A pool the calling thread has joined as thread 0.
@@ -55,7 +58,7 @@ pub fn join_new_pool(plan: &PoolPlan, on_worker_start: fn()) -> Result<Option<Si
         return Ok(None);
     }
     let (tx, rx) = std::sync::mpsc::channel::<Vec<String>>();
-    let (cpus, priority) = (plan.worker_cpus.clone(), plan.fifo_priority);
+    let (cpus, priority, nice) = (plan.worker_cpus.clone(), plan.fifo_priority, plan.nice);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(plan.threads)
         .use_current_thread()
@@ -64,7 +67,7 @@ pub fn join_new_pool(plan: &PoolPlan, on_worker_start: fn()) -> Result<Option<Si
             std::thread::Builder::new()
                 .name(format!("sim-worker-{}", thread.index()))
                 .spawn(move || {
-                    let _ = tx.send(set_up_worker(&cpus, priority));
+                    let _ = tx.send(set_up_worker(&cpus, priority, nice));
                     drop(tx);
                     on_worker_start();
                     thread.run();
@@ -82,8 +85,9 @@ pub fn join_new_pool(plan: &PoolPlan, on_worker_start: fn()) -> Result<Option<Si
     }))
 }
 
-/// Pins the worker to `cpus` and gives it SCHED_FIFO `priority` (0: none); what failed.
-fn set_up_worker(cpus: &[usize], priority: i32) -> Vec<String> {
+/// Pins the worker to `cpus` and gives it SCHED_FIFO `priority` (0: none) or else the
+/// `nice` value (0: none); what failed.
+fn set_up_worker(cpus: &[usize], priority: i32, nice: i32) -> Vec<String> {
     let name = std::thread::current()
         .name()
         .unwrap_or("sim-worker")
@@ -99,6 +103,14 @@ fn set_up_worker(cpus: &[usize], priority: i32) -> Vec<String> {
     {
         warnings.push(format!(
             "{e}: the simulation's {name} runs with normal scheduling"
+        ));
+    }
+    if priority == 0
+        && nice != 0
+        && let Err(e) = realtime::set_thread_nice(nice)
+    {
+        warnings.push(format!(
+            "{e}: the simulation's {name} runs at the process's nice"
         ));
     }
     warnings
@@ -125,6 +137,7 @@ mod tests {
             threads: 1,
             worker_cpus: Vec::new(),
             fifo_priority: 0,
+            nice: 0,
         };
         assert!(join_new_pool(&plan, || {}).unwrap().is_none());
         // A thread joins one pool in its life: a thread of its own.

@@ -63,6 +63,7 @@ fn cut_allocations_here(scene: &str, strokes: usize, threads: usize) -> (CutAllo
         threads,
         worker_cpus: Vec::new(),
         fifo_priority: 0,
+        nice: 0,
     };
     if let Some(pool) = scalpel_server::sim_pool::join_new_pool(&plan, count_in_group).unwrap() {
         sim.use_pool(pool.pool);

@@ -98,6 +98,7 @@ pub fn run_cut(
                     threads,
                     worker_cpus: Vec::new(),
                     fifo_priority: 0,
+                    nice: 0,
                 };
                 let pool = scalpel_server::sim_pool::join_new_pool(&plan, || {})
                     .map_err(anyhow::Error::msg)?;

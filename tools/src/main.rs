@@ -371,6 +371,34 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Each station as a lab runs it (issue 42): the release server on each scene with a
+    /// shared-memory device, the mock device looping the scene's default cut and viewers
+    /// rendering every frame; simulation ticks late and their p50 / p99 / p99.9, haptic
+    /// misses and jitter.
+    Stations {
+        /// Seconds measured per station (after 3 s of settling).
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        /// Viewers per station.
+        #[arg(long, default_value_t = 2)]
+        viewers: usize,
+        /// The simulation's threads (`realtime.sim_threads`: 1 or 2).
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=2))]
+        threads: u32,
+        /// Built-in scenes, scene files or mesh files.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "liver,shoulder,cerebroma,../shared/meshes/liver_tumour_PPP_Tumor.obj"
+        )]
+        scenes: Vec<String>,
+        /// Units of the mesh files' coordinates.
+        #[arg(long, default_value = "cm", value_parser = ["m", "cm", "mm"])]
+        mesh_units: String,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Remote observers over QUIC on loopback: frame latency, bytes per second per
     /// observer, and the haptic deadline misses they add (docs/BENCHMARKS.md).
     Net {
@@ -661,6 +689,21 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
             };
             bench::cutting::idle(&target, ticks, json)
         }
+        BenchCommand::Stations {
+            seconds,
+            viewers,
+            threads,
+            scenes,
+            mesh_units,
+            json,
+        } => bench::stations::run(&bench::stations::StationsArgs {
+            seconds,
+            viewers,
+            threads: threads as usize,
+            scenes: &scenes,
+            mesh_units: &mesh_units,
+            json,
+        }),
         BenchCommand::Session {
             target,
             strokes,

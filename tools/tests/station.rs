@@ -89,6 +89,7 @@ fn conformance_of_the_in_process_scripted_device() {
         lock_memory: false,
         haptic_cpu: None,
         sim_threads: 2,
+        sim_nice: 0,
         limits: OutputLimits {
             max_force_n: MAX_FORCE_N,
             rate_limit_n_per_ms: RATE_LIMIT_N,

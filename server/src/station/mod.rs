@@ -22,10 +22,12 @@ mod remote_feed;
 mod report;
 mod sim_thread;
 mod startup;
+mod tick_times;
 
 pub use haptic::{HapticCounters, HapticState, HapticWindow, drive_haptic_ticks};
 pub use report::{RunSummary, SimStatus, StationEvent, StationReport, StatusLine, stages_text};
 pub use startup::prepare_simulation;
+pub use tick_times::{TICK_BIN_MS, TICK_BINS, TickTimes};
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -88,6 +90,8 @@ pub struct StationParams {
     pub haptic_cpu: Option<usize>,
     /// Threads for the simulation, its own included (config `realtime.sim_threads`).
     pub sim_threads: usize,
+    /// The simulation threads' nice value under normal scheduling (`realtime.sim_nice`).
+    pub sim_nice: i32,
     /// Output stage.
     pub limits: OutputLimits,
     /// Status interval (s).

@@ -79,6 +79,7 @@ impl Counted {
         figures.substeps = report.solver.substeps;
         figures.most_substeps = figures.most_substeps.max(report.solver.substeps);
         figures.max_tick_ms = figures.max_tick_ms.max(took_ms);
+        figures.tick_times.record(took_ms);
         figures.late_ticks += u64::from(took_ms > SIM_TICK_S * 1e3);
         figures.late_ticks_cpu +=
             u64::from(took_ms > SIM_TICK_S * 1e3 && cpu_ms > SIM_TICK_S * 1e3);
@@ -135,6 +136,8 @@ pub(super) struct SimThread {
     pub(super) threads: (usize, Option<String>),
     /// Its worker's CPUs (empty: any).
     pub(super) worker_cpus: Vec<usize>,
+    /// Its nice value and its worker's under normal scheduling (0: the process's).
+    pub(super) nice: i32,
     /// Where it says how it started (for the start report), once its scheduling is known.
     pub(super) started: std::sync::mpsc::SyncSender<SimStart>,
     /// The device's stable stiffness (N/m): each local model's K is bounded by it here,
@@ -166,6 +169,7 @@ fn start_pool(
         threads,
         worker_cpus: thread.worker_cpus.clone(),
         fifo_priority,
+        nice: thread.nice,
     };
     match sim_pool::join_new_pool(&plan, || {}) {
         Ok(Some(pool)) => {
@@ -213,6 +217,12 @@ pub(super) fn spawn_sim(
             } else {
                 realtime::pin_thread(&thread.cpus)
             });
+            // Above the station's other normally scheduled threads and local viewers: a
+            // simulation thread kept off its CPU, or a worker holding a part it took, makes
+            // a late tick. Refused is not fatal (the start report says so).
+            let mut nice_refused = (thread.nice != 0)
+                .then(|| realtime::set_thread_nice(thread.nice).err())
+                .flatten();
             let mut fifo_pending = thread.fifo_priority > 0;
             let mut fifo_granted = 0;
             // Shared-memory ports belong to the thread that opens them.
@@ -250,7 +260,12 @@ pub(super) fn spawn_sim(
                 }
                 // The pool once this thread's scheduling is known: its worker gets the same.
                 if !fifo_pending && let Some(pinned) = pinned.take() {
-                    let (threads, warnings) = start_pool(&mut sim, &thread, fifo_granted);
+                    let (threads, mut warnings) = start_pool(&mut sim, &thread, fifo_granted);
+                    if let Some(e) = nice_refused.take() {
+                        warnings.push(format!(
+                            "{e}: the simulation thread runs at the process's nice"
+                        ));
+                    }
                     let _ = thread.started.send(SimStart {
                         pinned,
                         threads,

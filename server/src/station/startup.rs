@@ -320,6 +320,7 @@ impl Threads {
                 } else {
                     allowed
                 },
+                nice: params.sim_nice,
                 started: sim_started_tx,
                 max_stiffness_n_per_m: params.limits.max_stiffness_n_per_m,
             },

@@ -243,7 +243,7 @@ fn settle_then_wait(wall_t0: Instant, seconds: f64) -> (f64, f64) {
 
 /// The mock device playing `script` in a loop until `stop`: pose → force latencies as
 /// (s since it started, latency s), once phase-locked.
-fn spawn_device(
+pub(crate) fn spawn_device(
     station: &str,
     script: CutScript,
     stop: &Arc<AtomicBool>,
@@ -310,7 +310,7 @@ fn spawn_subscriber(
 
 /// `viewers` viewers that receive, decode and render every frame until `stop`; each
 /// returns the frames it drew.
-fn spawn_viewers(
+pub(crate) fn spawn_viewers(
     station: &str,
     viewers: usize,
     stop: &Arc<AtomicBool>,

@@ -8,6 +8,7 @@ pub mod loop_bench;
 pub mod net;
 pub mod session;
 pub mod stability;
+pub mod stations;
 
 use scalpel_sim::scene::{self, BUILTIN_SCENES};
 use serde::Serialize;
