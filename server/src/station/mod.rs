@@ -20,6 +20,7 @@ mod haptic;
 mod journal_writer;
 mod remote_feed;
 mod report;
+mod sharing;
 mod sim_thread;
 mod startup;
 mod tick_times;

@@ -27,6 +27,9 @@ pub struct SimStatus {
     pub late_ticks_cpu: u64,
     /// Longest tick so far in the thread's own CPU time (ms).
     pub max_tick_cpu_ms: f64,
+    /// Ticks that shared their work with the simulation's worker (the others ran on its
+    /// thread alone: too small, a single-thread station, or faster so at this station).
+    pub shared_ticks: u64,
     /// Every tick's wall time so far (shown as its p50, p99 and p99.9).
     pub tick_times: super::TickTimes,
     /// Re-cuts of the incision whose result the simulation waited for at its tick (the
@@ -89,6 +92,7 @@ impl Default for SimStatus {
             late_ticks: 0,
             late_ticks_cpu: 0,
             max_tick_cpu_ms: 0.0,
+            shared_ticks: 0,
             tick_times: super::TickTimes::default(),
             recuts_waited: 0,
             slowest_tick: SlowestTick::default(),

@@ -20,6 +20,7 @@ use crate::sim_pool::{self, PoolPlan};
 use crate::sim_wake::SimWake;
 
 use super::journal_writer::SimJournal;
+use super::sharing::SharingChooser;
 use super::{ModelUpdate, PoseIn, SIM_TICK_S, SimStatus, station_tick};
 
 /// The simulation thread ticks on the same 1 ms grid as the haptic thread, woken by it once
@@ -238,6 +239,7 @@ pub(super) fn spawn_sim(
             // latest `SIM_PHASE_S` after the grid point).
             let mut clock = GridClock::starting_at(t0, SIM_TICK_S, realtime::monotonic_s());
             let mut counted = Counted::default();
+            let mut sharing = SharingChooser::new();
             let mut pose: Option<PoseIn> = None;
             // Simulated ticks owed to a slowed-down simulation (1 per wall tick at real
             // time), and the stiffness factor in effect and last asked for.
@@ -353,8 +355,15 @@ pub(super) fn spawn_sim(
                 {
                     journal.dropped.fetch_add(1, Ordering::Relaxed);
                 }
+                // Shared with the worker when that is the faster way here (sharing.rs).
+                sim.set_sharing(true);
+                let eligible = sim.shares_next_tick();
+                sim.set_sharing(sharing.next());
+                let shared = sim.shares_next_tick();
                 let report = sim.tick(SIM_TICK_S, &mut Monotonic);
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
+                sharing.record(eligible, shared, took_ms);
+                counted.figures.shared_ticks += u64::from(shared);
                 let cpu_ms = (realtime::thread_cpu_s() - started_cpu) * 1e3;
                 counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms, cpu_ms);
                 counted.figures.recuts_waited = sim.incisions().map_or(0, |s| s.late_recuts as u64);

@@ -200,12 +200,7 @@ fn measure(
     // One more status line covering the end of phase 2.
     std::thread::sleep(Duration::from_millis(1100));
     viewer_stop.store(true, Ordering::Relaxed);
-    let mut rendered = 0;
-    for t in viewer_threads {
-        rendered += t
-            .join()
-            .map_err(|_| anyhow::anyhow!("a viewer panicked"))??;
-    }
+    let rendered = join_viewers(viewer_threads)?;
     stop.store(true, Ordering::Relaxed);
     let device_latencies = device
         .join()
@@ -346,6 +341,17 @@ pub(crate) fn spawn_viewers(
         );
     }
     Ok(viewer_threads)
+}
+
+/// Waits for the viewers (stopped): the frames they drew in all.
+pub(crate) fn join_viewers(viewers: Vec<JoinHandle<anyhow::Result<u64>>>) -> anyhow::Result<u64> {
+    let mut rendered = 0;
+    for v in viewers {
+        rendered += v
+            .join()
+            .map_err(|_| anyhow::anyhow!("a viewer panicked"))??;
+    }
+    Ok(rendered)
 }
 
 /// What the device, the subscriber and the server recorded over both phases.

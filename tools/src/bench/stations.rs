@@ -16,7 +16,7 @@ use anyhow::{Context, bail};
 use scalpel_sim::pipeline::CutScript;
 use serde::Serialize;
 
-use super::loop_bench::{spawn_device, spawn_server, spawn_viewers};
+use super::loop_bench::{join_viewers, spawn_device, spawn_server, spawn_viewers};
 
 /// Seconds a station runs before it is measured (its build, the device's phase lock).
 const SETTLE_S: f64 = 3.0;
@@ -44,6 +44,8 @@ struct StationRow {
     sim_tick_p999_ms: Option<f64>,
     sim_tick_max_ms: f64,
     most_substeps: u64,
+    /// Ticks that shared their work with the simulation's worker.
+    shared_ticks: u64,
     haptic_ticks: u64,
     haptic_misses: u64,
     /// Largest p99.9 of the haptic wake-up jitter over the measured status windows.
@@ -200,12 +202,7 @@ fn run_station(
     }
     viewer_stop.store(true, Ordering::Relaxed);
     stop.store(true, Ordering::Relaxed);
-    let mut rendered = 0;
-    for v in viewers {
-        rendered += v
-            .join()
-            .map_err(|_| anyhow::anyhow!("a viewer panicked"))??;
-    }
+    let rendered = join_viewers(viewers)?;
     let _ = device.join();
     wait_or_kill(&mut server, Duration::from_secs(10));
     let _ = reader.join();
@@ -270,6 +267,7 @@ fn row_of(
         sim_tick_p999_ms: sim["tick_times"]["p999_ms"].as_f64(),
         sim_tick_max_ms: f(&sim["max_tick_ms"]),
         most_substeps: u(&sim["most_substeps"]),
+        shared_ticks: u(&sim["shared_ticks"]),
         haptic_ticks,
         haptic_misses: misses,
         haptic_jitter_p999_ms: jitter,

@@ -267,6 +267,8 @@ pub struct Simulation {
     /// The last tick's integrated points × sub-steps: what decides whether the next one
     /// shares its work ([`PARALLEL_MIN_WORK`]).
     last_work: usize,
+    /// The caller lets the ticks share their work (`set_sharing`).
+    sharing: bool,
     #[cfg(feature = "parallel")]
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
 }
@@ -369,6 +371,7 @@ impl Simulation {
             spec,
             threads: Threads::One,
             last_work: 0,
+            sharing: true,
             #[cfg(feature = "parallel")]
             pool: None,
         };
@@ -486,7 +489,7 @@ impl Simulation {
         if let Some(pool) = self.pool.clone() {
             // Decided on the last tick's work (the awake region changes slowly); the same
             // bits either way.
-            let parallel = self.last_work >= PARALLEL_MIN_WORK;
+            let parallel = self.shares_next_tick();
             self.threads = if parallel {
                 Threads::Rayon
             } else {
@@ -833,6 +836,23 @@ impl Simulation {
         self.solver.use_pool(pool.clone());
         self.pool = Some(pool);
         self.threads = Threads::Rayon;
+    }
+
+    /// Whether the next tick runs on the pool (`use_pool`): its work is large enough
+    /// ([`PARALLEL_MIN_WORK`]) and the caller has not held it to one thread
+    /// (`set_sharing`).
+    pub fn shares_next_tick(&self) -> bool {
+        #[cfg(feature = "parallel")]
+        return self.pool.is_some() && self.sharing && self.last_work >= PARALLEL_MIN_WORK;
+        #[cfg(not(feature = "parallel"))]
+        false
+    }
+
+    /// Holds the ticks to the calling thread (`false`) or lets them share their work with
+    /// the pool again (`true`, the default): the caller's choice from what it measures (a
+    /// station whose worker is kept off its CPU waits for it). The same bits either way.
+    pub fn set_sharing(&mut self, on: bool) {
+        self.sharing = on;
     }
 
     /// The latest local force model for the haptic loop.
