@@ -5,8 +5,10 @@
 //! and scheduled like it. A force evaluation is a `rayon::join` of two fixed parts: the
 //! second part's job goes on the simulation thread's own deque, with no allocation and no
 //! lock, and the worker steals it. If the worker has not taken it by the time the first
-//! part is done, the simulation thread runs it itself: a late worker costs one serial
-//! evaluation, never a result. The parts are summed in the same order either way, so one
+//! part is done, the simulation thread runs it itself: a worker slow to wake costs one serial
+//! evaluation, never a result. A worker kept off its CPU after it took a part (viewers
+//! rendering on the same cores) does make the simulation thread wait: the station then
+//! holds its ticks to one thread (station/sharing.rs). The parts are summed in the same order either way, so one
 //! thread and two give the same bits (server/tests/cutting_realtime.rs).
 //!
 //! The haptic thread is never in the pool and never waits on it: its SCHED_FIFO priority

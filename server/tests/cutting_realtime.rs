@@ -153,7 +153,9 @@ fn worker_cpu_s() -> f64 {
 /// liver, on the cerebroma (whose cut places virtual points over dozens of ticks), and
 /// over a lab session of six strokes on the liver (later strokes start after warm-up,
 /// some crossing earlier wounds). The station's two threads (the simulation and its pool's
-/// worker, both counted) on the cerebroma and the session, giving the same bits as one.
+/// worker, both counted) on the cerebroma and the session, giving the same bits as one (the
+/// liver's ticks mostly stay under `PARALLEL_MIN_WORK`: the session checks the switches
+/// between held and shared ticks; the cerebroma's share).
 #[test]
 fn cutting_ticks_do_not_allocate_after_warm_up() {
     let mut serial = 0;

@@ -356,10 +356,9 @@ pub(super) fn spawn_sim(
                     journal.dropped.fetch_add(1, Ordering::Relaxed);
                 }
                 // Shared with the worker when that is the faster way here (sharing.rs).
-                sim.set_sharing(true);
-                let eligible = sim.shares_next_tick();
-                sim.set_sharing(sharing.next());
-                let shared = sim.shares_next_tick();
+                let (eligible, share) = (sim.can_share_next_tick(), sharing.next());
+                sim.set_sharing(share);
+                let shared = eligible && share;
                 let report = sim.tick(SIM_TICK_S, &mut Monotonic);
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
                 sharing.record(eligible, shared, took_ms);

@@ -13,7 +13,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
+use scalpel_sim::geometry::import::MeshFormat;
 use scalpel_sim::pipeline::CutScript;
+use scalpel_sim::scene::Features;
 use serde::Serialize;
 
 use super::loop_bench::{join_viewers, spawn_device, spawn_server, spawn_viewers};
@@ -110,10 +112,7 @@ pub fn run(args: &StationsArgs<'_>) -> anyhow::Result<()> {
 /// What the server's `scene` key takes for `scene`: a built-in name or a scene file as
 /// given, a mesh file through a scene file written into `dir`.
 fn scene_file_for(scene: &str, units: &str, dir: &Path) -> anyhow::Result<String> {
-    let is_mesh = [".obj", ".stl", ".ply", ".vtk"]
-        .iter()
-        .any(|e| scene.to_ascii_lowercase().ends_with(e));
-    if !is_mesh {
+    if MeshFormat::from_file_name(scene).is_err() {
         return Ok(scene.to_string());
     }
     let mesh = std::fs::canonicalize(scene).with_context(|| {
@@ -122,12 +121,18 @@ fn scene_file_for(scene: &str, units: &str, dir: &Path) -> anyhow::Result<String
     let name = Path::new(scene)
         .file_stem()
         .map_or("mesh".into(), |s| s.to_string_lossy().to_string());
+    // A cutting station's features, as the built-in organs have them.
+    let features: String = Features::CUTTING_STATION
+        .enabled()
+        .iter()
+        .map(|f| format!("{f} = true\n"))
+        .collect();
     let file = dir.join("scene.toml");
     std::fs::write(
         &file,
         format!(
-            // A cutting station's features, as the built-in organs have them.
-            "name = \"{name}\"\n[mesh]\nfile = {}\nunits = \"{units}\"\n[features]\ncutting = true\nhaptics = true\nvirtual_points = true\nripple = true\nframes = true\n",
+            "name = {}\n[mesh]\nfile = {}\nunits = \"{units}\"\n[features]\n{features}",
+            toml_string(&name),
             toml_string(&mesh.to_string_lossy())
         ),
     )?;

@@ -262,8 +262,6 @@ pub struct Simulation {
     settled: Option<supports::SettleReport>,
     support_counts: supports::SupportCounts,
     tissue_force: tissue_force::TissueForce,
-    /// Where the stages' parts run: one thread, or the caller's pool (`use_pool`).
-    threads: Threads,
     /// The last tick's integrated points × sub-steps: what decides whether the next one
     /// shares its work ([`PARALLEL_MIN_WORK`]).
     last_work: usize,
@@ -369,7 +367,6 @@ impl Simulation {
             },
             all_points: (0..n as u32).collect(),
             spec,
-            threads: Threads::One,
             last_work: 0,
             sharing: true,
             #[cfg(feature = "parallel")]
@@ -406,7 +403,7 @@ impl Simulation {
             self.solver.rest(),
             self.solver.positions(),
             &self.all_points,
-            self.threads,
+            Threads::One,
         );
         self.settled = Some(report);
         report
@@ -487,23 +484,21 @@ impl Simulation {
     pub fn tick(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pool.clone() {
-            // Decided on the last tick's work (the awake region changes slowly); the same
-            // bits either way.
-            let parallel = self.shares_next_tick();
-            self.threads = if parallel {
-                Threads::Rayon
-            } else {
-                Threads::One
-            };
+            // Decided on the last tick's work (the awake region changes slowly) and the
+            // caller's choice; the same bits either way.
+            let parallel = self.sharing && self.can_share_next_tick();
             self.solver.set_parallel(parallel);
             if parallel {
-                return crate::solver::on_pool::on_pool(&pool, || self.tick_here(dt, clock));
+                return crate::solver::on_pool::on_pool(&pool, || {
+                    self.tick_here(dt, clock, Threads::Rayon)
+                });
             }
         }
-        self.tick_here(dt, clock)
+        self.tick_here(dt, clock, Threads::One)
     }
 
-    fn tick_here(&mut self, dt: f64, clock: &mut dyn StageClock) -> TickReport {
+    /// The tick's stages, their parts on `threads`.
+    fn tick_here(&mut self, dt: f64, clock: &mut dyn StageClock, threads: Threads) -> TickReport {
         let mut laps = Laps::start(clock);
         let blade = self.move_blade(dt);
         let contact = self.contact(&blade);
@@ -520,7 +515,7 @@ impl Simulation {
             self.place_virtual_points(remeshed, tick.edge_rest, PLACE_PER_TICK);
         }
         laps.lap(Stage::PlaceVirtualPoints);
-        let vertices_moved = self.surface_follow();
+        let vertices_moved = self.surface_follow(threads);
         laps.lap(Stage::SurfaceFollow);
         self.time_s += dt;
         let tool_force_n = self.force_model(&cut, &blade);
@@ -637,7 +632,7 @@ impl Simulation {
 
     /// Stage surface follow: the surface's vertices follow the points that moved (all of
     /// them in a scene that does not cut). Returns how many vertices moved.
-    fn surface_follow(&mut self) -> usize {
+    fn surface_follow(&mut self, threads: Threads) -> usize {
         let moved = if self.cutting.is_some() {
             self.solver.active_points()
         } else {
@@ -648,7 +643,7 @@ impl Simulation {
             self.solver.rest(),
             self.solver.positions(),
             moved,
-            self.threads,
+            threads,
         )
     }
 
@@ -835,15 +830,14 @@ impl Simulation {
     pub fn use_pool(&mut self, pool: std::sync::Arc<rayon::ThreadPool>) {
         self.solver.use_pool(pool.clone());
         self.pool = Some(pool);
-        self.threads = Threads::Rayon;
     }
 
-    /// Whether the next tick runs on the pool (`use_pool`): its work is large enough
-    /// ([`PARALLEL_MIN_WORK`]) and the caller has not held it to one thread
+    /// Whether the next tick may run on the pool (`use_pool`): its work is large enough
+    /// ([`PARALLEL_MIN_WORK`]). It does unless the caller holds it to one thread
     /// (`set_sharing`).
-    pub fn shares_next_tick(&self) -> bool {
+    pub fn can_share_next_tick(&self) -> bool {
         #[cfg(feature = "parallel")]
-        return self.pool.is_some() && self.sharing && self.last_work >= PARALLEL_MIN_WORK;
+        return self.pool.is_some() && self.last_work >= PARALLEL_MIN_WORK;
         #[cfg(not(feature = "parallel"))]
         false
     }

@@ -396,8 +396,8 @@ pub fn add_elastic_forces(
             (None, None) => Skip::OperatorRuns,
         },
     };
-    // Half of the runs and half of the single points' work each: the two kernels' costs per
-    // point differ, so both are split.
+    // Half of the runs and half of the single points each: the two kernels' costs per point
+    // differ, so both are split.
     let (runs_a, runs_b) = runs.split_at(runs.len() / 2);
     let listed = match (set, stencil) {
         (Some(s), Some(_)) => s.stencil_chunks().map(|c| &c.pairs.points[..]),
@@ -407,7 +407,7 @@ pub fn add_elastic_forces(
     };
     let (points_a, points_b) = match listed {
         Some(list) => {
-            let (a, b) = list.split_at(shared.halfway(list));
+            let (a, b) = list.split_at(list.len() / 2);
             (Points::Listed(a), Points::Listed(b))
         }
         None => {

@@ -31,41 +31,7 @@ pub(crate) enum Skip<'a> {
     Stencil(&'a [bool]),
 }
 
-/// A single point's work besides its pairs, in pairs (its stress and set-up).
-const POINT_COST_PAIRS: usize = 8;
-
 impl Shared<'_> {
-    /// Whether the single-point kernel leaves point `i` to another.
-    fn elsewhere(&self, i: usize) -> bool {
-        match self.skip {
-            Skip::OperatorRuns => self.op.in_run(i),
-            Skip::InRuns(flags) | Skip::Stencil(flags) => flags[i],
-        }
-    }
-
-    /// Where `list` splits into two parts of about the same single-point work (its pairs):
-    /// the points the kernel leaves to another are not spread evenly over a list, so a
-    /// split at half the points left one part with twice the other's work on a cut.
-    pub(crate) fn halfway(&self, list: &[u32]) -> usize {
-        let cost = |i: u32| {
-            let i = i as usize;
-            if self.elsewhere(i) {
-                0
-            } else {
-                self.op.neighbours(i).len() + POINT_COST_PAIRS
-            }
-        };
-        let total: usize = list.iter().map(|&i| cost(i)).sum();
-        let mut so_far = 0;
-        for (k, &i) in list.iter().enumerate() {
-            so_far += cost(i);
-            if 2 * so_far >= total {
-                return k + 1;
-            }
-        }
-        list.len()
-    }
-
     /// Evaluates `runs` and the single points of `points` that no run covers into `out`.
     // Inlined into the caller's module, as when the kernels shared one file: without it
     // the evaluation measured 3 % slower (docs/ARCHITECTURE.md, "Decisions").
@@ -92,7 +58,11 @@ impl Shared<'_> {
         }
         let mut offsets = [f64x4::ZERO; BUFFERED];
         let mut one = |i: usize| {
-            if !self.elsewhere(i) {
+            let elsewhere = match self.skip {
+                Skip::OperatorRuns => self.op.in_run(i),
+                Skip::InRuns(flags) | Skip::Stencil(flags) => flags[i],
+            };
+            if !elsewhere {
                 point_kernel(
                     self.op,
                     self.params,
