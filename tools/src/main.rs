@@ -479,9 +479,12 @@ enum BenchCommand {
         /// The target points of the cut's reference run.
         #[arg(long, default_value_t = bench::accuracy::CUT_REFERENCE_POINTS)]
         cut_reference: usize,
-        /// Which solver mode: explicit, projective or all.
+        /// Which integrator: explicit, projective, implicit, implicit-factored or all.
         #[arg(long, default_value = "all")]
         mode: String,
+        /// The implicit modes' CG tolerance, relative to a tick's impulse.
+        #[arg(long, default_value_t = scalpel_sim::solver::SolverConfig::default().implicit_tolerance)]
+        implicit_tolerance: f64,
         /// A peers file (tools/bench/peers/run.py) whose points join the plot.
         #[arg(long)]
         peers: Option<PathBuf>,
@@ -747,6 +750,7 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
             cut_points,
             cut_reference,
             mode,
+            implicit_tolerance,
             peers,
             json,
         } => {
@@ -754,6 +758,7 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
                 across: (min_across, max_across),
                 case,
                 mode,
+                implicit_tolerance,
                 peers,
                 cut_points,
                 cut_reference,

@@ -86,7 +86,7 @@ impl TimeStepReport {
                 mass_floor: kept.mass_floor,
             });
         }
-        if s.spec.features.stiff_mode || s.model.points.len() > PLANNED_POINTS_MAX {
+        if !s.spec.is_explicit() || s.model.points.len() > PLANNED_POINTS_MAX {
             return None;
         }
         let mut sim = Simulation::new(s);
@@ -207,6 +207,9 @@ pub fn print_scene(timed: &TimedScene, json: bool) -> anyhow::Result<()> {
         ),
         None if timed.scene.spec.features.stiff_mode => {
             println!("  time step  stiff mode: one projective step per tick")
+        }
+        None if !timed.scene.spec.is_explicit() => {
+            println!("  time step  implicit: one preconditioned CG solve per tick")
         }
         None => println!("  time step  not planned here (over {PLANNED_POINTS_MAX} points)"),
     }

@@ -473,7 +473,19 @@ fn accuracy_bench_writes_csv_and_plot() {
         &["--cut-points", "600", "--cut-reference", "1200", "--json"],
     ));
     let rows = r["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 5, "2 bodies × 2 modes, and the cut");
+    assert_eq!(rows.len(), 13, "3 bodies × 4 integrators, and the cut");
+    // The implicit rows take one step a tick and say how many CG iterations it took; the
+    // stiff beam's explicit rows take many sub-steps.
+    for row in rows.iter() {
+        let mode = row["mode"].as_str().unwrap();
+        if mode.starts_with("implicit") {
+            assert_eq!(row["substeps_per_tick"], 1, "{row}");
+            assert!(row["iterations_per_tick"].as_f64().unwrap() > 0.0, "{row}");
+        }
+        if mode == "explicit" && row["case"] == "cantilever-stiff" {
+            assert!(row["substeps_per_tick"].as_u64().unwrap() >= 20, "{row}");
+        }
+    }
     // The liver stroke at 600 points against the same at 1200: the force curves differ, by
     // a few per cent (a sheared or missing curve would be off by far more).
     let cut = rows.iter().find(|row| row["case"] == "cut").unwrap();
@@ -493,7 +505,7 @@ fn accuracy_bench_writes_csv_and_plot() {
     }
     let csv = std::fs::read_to_string(dir.path().join("accuracy.csv")).unwrap();
     assert!(csv.starts_with("case,mode,points_across"));
-    assert_eq!(csv.lines().count(), 6);
+    assert_eq!(csv.lines().count(), 14);
     let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
 
@@ -544,7 +556,9 @@ fn accuracy_bench_writes_csv_and_plot() {
     );
     let err = fails(&accuracy_args(out, &["--case", "beam"]));
     assert!(
-        err.contains("--case beam: expected one of cantilever, uniaxial, cut or all"),
+        err.contains(
+            "--case beam: expected one of cantilever, cantilever-stiff, uniaxial, cut or all"
+        ),
         "{err}"
     );
 }

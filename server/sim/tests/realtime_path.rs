@@ -74,6 +74,7 @@ fn step_does_not_allocate_after_warm_up() {
     for mode in [
         SolverMode::Explicit,
         SolverMode::Projective,
+        SolverMode::Implicit,
         SolverMode::QuasiStatic,
     ] {
         let mut solver = prepared(&model, mode);

@@ -104,7 +104,7 @@ fn mueller_compat_with_a_quarter_of_e_matches_stvk() {
 
 #[test]
 fn scene_features_select_the_solver() {
-    use scalpel_sim::scene::{Features, Material, SolverSpec};
+    use scalpel_sim::scene::{Features, Integrator, Material, SolverSpec};
     use scalpel_sim::solver::{SolverConfig, SolverMode};
     let stiff = Features {
         stiff_mode: true,
@@ -121,7 +121,69 @@ fn scene_features_select_the_solver() {
     assert_eq!(plain.mass_scaling_budget, 0.01);
     let unscaled = SolverSpec {
         mass_scaling_budget: 0.0,
+        ..default
     };
     let c = SolverConfig::for_scene(&Features::default(), &Material::LIVER, &unscaled);
     assert_eq!(c.mass_scaling_budget, 0.0);
+    let implicit = SolverSpec {
+        integrator: Integrator::Implicit,
+        ..default
+    };
+    let c = SolverConfig::for_scene(&Features::default(), &Material::LIVER, &implicit);
+    assert_eq!(c.mode, SolverMode::Implicit);
+}
+
+/// The implicit mode comes to the same rest as the explicit one (the cantilever's tip under
+/// its load, 5 across), in one CG-solved step a tick whose iterations stay few, and on a
+/// stiff beam (E = 1 MPa) it takes one step where the explicit mode takes dozens.
+#[test]
+fn the_implicit_mode_settles_where_the_explicit_mode_does() {
+    use scalpel_sim::scene::Material;
+    use scalpel_sim::solver::{ImplicitPreconditioner, SolverConfig, SolverMode};
+    use scalpel_sim::validate::{cantilever_body, tip_deflection};
+    for (e, damping) in [(5e3, 28.0), (1e6, 400.0)] {
+        let material = Material {
+            youngs_modulus_pa: e,
+            damping_per_s: damping,
+            ..Material::LIVER
+        };
+        let load = 1e-4 * e / 5e3;
+        let settle = |mode, preconditioner| {
+            let config = SolverConfig {
+                mode,
+                implicit_preconditioner: preconditioner,
+                ..SolverConfig::default()
+            };
+            let mut body = cantilever_body(0.040, 0.010, 5, load, &material, config);
+            let mut iterations = 0;
+            for _ in 0..800 {
+                let r = body.solver.step(1e-3);
+                assert!(!r.diverged && r.rollbacks == 0);
+                iterations += r.iterations;
+            }
+            (tip_deflection(&body), iterations, body.solver.substeps())
+        };
+        let (explicit, _, substeps) = settle(SolverMode::Explicit, ImplicitPreconditioner::Jacobi);
+        for preconditioner in [
+            ImplicitPreconditioner::Jacobi,
+            ImplicitPreconditioner::Factored,
+        ] {
+            let (implicit, iterations, one) = settle(SolverMode::Implicit, preconditioner);
+            assert_eq!(one, 1);
+            assert!(
+                (implicit / explicit - 1.0).abs() < 2e-3,
+                "E = {e}, {preconditioner:?}: tip {implicit} against {explicit}"
+            );
+            assert!(
+                iterations > 0 && iterations < 40 * 800,
+                "E = {e}, {preconditioner:?}: {iterations} CG iterations in 800 ticks"
+            );
+        }
+        if e > 1e5 {
+            assert!(
+                substeps >= 30,
+                "the stiff beam's explicit sub-steps: {substeps}"
+            );
+        }
+    }
 }

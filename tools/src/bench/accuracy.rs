@@ -17,7 +17,7 @@ use std::time::Instant;
 use anyhow::Context;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::scene::Material;
-use scalpel_sim::solver::{SolverConfig, SolverMode};
+use scalpel_sim::solver::{ImplicitPreconditioner, SolverConfig, SolverMode};
 use scalpel_sim::validate::{
     BoxBody, CANTILEVER_3D_TIP_M, box_body, cantilever_body, timoshenko_tip_deflection,
     tip_deflection, uniaxial_measure, uniaxial_setup,
@@ -48,6 +48,9 @@ struct Row {
     wall_s: f64,
     wall_s_per_simulated_s: f64,
     substeps_per_tick: u32,
+    /// Mean solver iterations per tick: the implicit mode's conjugate gradients, the
+    /// projective mode's local/global rounds, 0 for explicit.
+    iterations_per_tick: f64,
     /// Relative error against the converged 3D reference (the cantilever) or the exact
     /// answer (the uniaxial block).
     error: f64,
@@ -84,10 +87,12 @@ struct PeerFile {
 pub struct Selection {
     /// Points across the beam, fewest and most.
     pub across: (usize, usize),
-    /// "cantilever", "uniaxial" or "all".
+    /// "cantilever", "cantilever-stiff", "uniaxial", "cut" or "all".
     pub case: String,
-    /// "explicit", "projective" or "all".
+    /// "explicit", "projective", "implicit", "implicit-factored" or "all".
     pub mode: String,
+    /// The implicit modes' CG tolerance.
+    pub implicit_tolerance: f64,
     /// A peers JSON (tools/bench/peers) whose cantilever points join the plot.
     pub peers: Option<std::path::PathBuf>,
     /// The cut's resolutions (target points) and its reference run's.
@@ -115,21 +120,71 @@ struct Report {
     plot: String,
 }
 
+/// An integrator as the bench names it: a solver mode and, for the implicit mode, its
+/// preconditioner.
+#[derive(Clone, Copy)]
+struct Method {
+    name: &'static str,
+    mode: SolverMode,
+    preconditioner: ImplicitPreconditioner,
+}
+
+/// The dynamic integrators compared, in the order they run.
+const METHODS: [Method; 4] = [
+    Method {
+        name: "explicit",
+        mode: SolverMode::Explicit,
+        preconditioner: ImplicitPreconditioner::Jacobi,
+    },
+    Method {
+        name: "projective",
+        mode: SolverMode::Projective,
+        preconditioner: ImplicitPreconditioner::Jacobi,
+    },
+    Method {
+        name: "implicit",
+        mode: SolverMode::Implicit,
+        preconditioner: ImplicitPreconditioner::Jacobi,
+    },
+    Method {
+        name: "implicit-factored",
+        mode: SolverMode::Implicit,
+        preconditioner: ImplicitPreconditioner::Factored,
+    },
+];
+
+impl Method {
+    fn config(self, tolerance: f64) -> SolverConfig {
+        SolverConfig {
+            mode: self.mode,
+            implicit_preconditioner: self.preconditioner,
+            implicit_tolerance: tolerance,
+            ..SolverConfig::default()
+        }
+    }
+}
+
 fn mode_name(mode: SolverMode) -> &'static str {
     match mode {
         SolverMode::Explicit => "explicit",
         SolverMode::Projective => "projective",
         SolverMode::QuasiStatic => "quasi-static",
+        SolverMode::Implicit => "implicit",
     }
 }
 
-/// Simulates `ticks` ticks of 1 ms and times them.
-fn simulate(body: &mut BoxBody, ticks: usize) -> f64 {
+/// Simulates `ticks` ticks of 1 ms and times them; the mean iterations per tick (the
+/// implicit mode's CG, the projective mode's local/global rounds; 0 for explicit).
+fn simulate(body: &mut BoxBody, ticks: usize) -> (f64, f64) {
     let start = Instant::now();
+    let mut iterations = 0u64;
     for _ in 0..ticks {
-        body.solver.step(1e-3);
+        iterations += u64::from(body.solver.step(1e-3).iterations);
     }
-    start.elapsed().as_secs_f64()
+    (
+        start.elapsed().as_secs_f64(),
+        iterations as f64 / ticks as f64,
+    )
 }
 
 fn settling_material(damping_per_s: f64) -> Material {
@@ -139,44 +194,49 @@ fn settling_material(damping_per_s: f64) -> Material {
     }
 }
 
-fn cantilever(m: usize, mode: SolverMode) -> Row {
-    let config = SolverConfig {
-        mode,
-        ..SolverConfig::default()
+/// The stiff cantilever's Young's modulus: the top of the range tissue reaches (a
+/// stiffened capsule, cartilage), 200 times the liver's. Its load is 200 times too, so the
+/// deflection, and the 3D reference, are the soft beam's; its damping is √200 times, for
+/// its slowest mode is that much faster.
+const STIFF_E_PA: f64 = 1e6;
+
+fn cantilever(m: usize, method: Method, stiff: bool, tolerance: f64) -> Row {
+    let config = method.config(tolerance);
+    let ratio = if stiff {
+        STIFF_E_PA / Material::LIVER.youngs_modulus_pa
+    } else {
+        1.0
     };
-    let load = 1e-4;
-    let mut body = cantilever_body(
-        0.040,
-        0.010,
-        m,
-        load,
-        &settling_material(CANTILEVER_DAMPING),
-        config,
-    );
+    let load = 1e-4 * ratio;
+    let material = Material {
+        youngs_modulus_pa: Material::LIVER.youngs_modulus_pa * ratio,
+        ..settling_material(CANTILEVER_DAMPING * ratio.sqrt())
+    };
+    let mut body = cantilever_body(0.040, 0.010, m, load, &material, config);
     let ticks = CANTILEVER_TICKS;
-    let wall = simulate(&mut body, ticks);
-    let timoshenko = timoshenko_tip_deflection(load, 0.040, 0.010, 5000.0, 0.45);
+    let (wall, iterations) = simulate(&mut body, ticks);
+    let timoshenko = timoshenko_tip_deflection(load, 0.040, 0.010, 5000.0 * ratio, 0.45);
     let tip = tip_deflection(&body);
     Row {
         error_timoshenko: Some((tip / timoshenko - 1.0).abs()),
         tip_m: Some(tip),
         ..row(
-            "cantilever",
-            mode,
+            if stiff {
+                "cantilever-stiff"
+            } else {
+                "cantilever"
+            },
+            method,
             m,
             &body,
-            ticks,
-            wall,
+            (ticks, wall, iterations),
             (tip / CANTILEVER_3D_TIP_M - 1.0).abs(),
         )
     }
 }
 
-fn uniaxial(m: usize, mode: SolverMode) -> Row {
-    let config = SolverConfig {
-        mode,
-        ..SolverConfig::default()
-    };
+fn uniaxial(m: usize, method: Method, tolerance: f64) -> Row {
+    let config = method.config(tolerance);
     let side = 0.010;
     let mut body = box_body(
         Vec3::new(2.0 * side, side, side),
@@ -188,32 +248,31 @@ fn uniaxial(m: usize, mode: SolverMode) -> Row {
     let strain = 1e-3;
     uniaxial_setup(&mut body, strain);
     let ticks = UNIAXIAL_TICKS;
-    let wall = simulate(&mut body, ticks);
+    let (wall, iterations) = simulate(&mut body, ticks);
     let r = uniaxial_measure(&mut body, strain);
     row(
         "uniaxial",
-        mode,
+        method,
         m,
         &body,
-        ticks,
-        wall,
+        (ticks, wall, iterations),
         r.reaction_error.abs().max(r.nu_error.abs()),
     )
 }
 
+/// `run` is (ticks, wall seconds, mean iterations per tick).
 fn row(
     case: &'static str,
-    mode: SolverMode,
+    method: Method,
     m: usize,
     body: &BoxBody,
-    ticks: usize,
-    wall: f64,
+    (ticks, wall, iterations): (usize, f64, f64),
     error: f64,
 ) -> Row {
     let simulated = ticks as f64 * 1e-3;
     Row {
         case,
-        mode: mode_name(mode),
+        mode: method.name,
         points_across: m,
         points: body.model.points.len(),
         spacing_mm: body.model.lattice.spacing * 1e3,
@@ -221,6 +280,7 @@ fn row(
         wall_s: wall,
         wall_s_per_simulated_s: wall / simulated,
         substeps_per_tick: body.solver.substeps(),
+        iterations_per_tick: iterations,
         error,
         error_timoshenko: None,
         tip_m: None,
@@ -285,6 +345,7 @@ fn cut_rows(selection: &Selection, json: bool) -> anyhow::Result<Vec<Row>> {
             wall_s: s.cpu_s,
             wall_s_per_simulated_s: s.cpu_s / s.simulated_s,
             substeps_per_tick: s.substeps_max,
+            iterations_per_tick: 0.0,
             error,
             error_timoshenko: None,
             tip_m: None,
@@ -297,23 +358,32 @@ fn cut_rows(selection: &Selection, json: bool) -> anyhow::Result<Vec<Row>> {
 /// Simulates every selected case, mode and resolution.
 fn sweep(selection: &Selection, json: bool) -> anyhow::Result<Vec<Row>> {
     let mut rows = Vec::new();
-    for mode in [SolverMode::Explicit, SolverMode::Projective] {
-        if !wanted(&selection.mode, mode_name(mode)) {
+    for method in METHODS {
+        if !wanted(&selection.mode, method.name) {
             continue;
         }
         for m in selection.across.0..=selection.across.1 {
             let before = rows.len();
             if wanted(&selection.case, "cantilever") {
-                rows.push(cantilever(m, mode));
+                rows.push(cantilever(m, method, false, selection.implicit_tolerance));
+            }
+            if wanted(&selection.case, "cantilever-stiff") {
+                rows.push(cantilever(m, method, true, selection.implicit_tolerance));
             }
             if wanted(&selection.case, "uniaxial") {
-                rows.push(uniaxial(m, mode));
+                rows.push(uniaxial(m, method, selection.implicit_tolerance));
             }
             if !json {
                 for r in &rows[before..] {
                     eprintln!(
-                        "{} {} m = {m}: error {:.3e}, {:.3} s per simulated s",
-                        r.case, r.mode, r.error, r.wall_s_per_simulated_s
+                        "{} {} m = {m}: error {:.3e}, {:.3} s per simulated s, {} sub-steps, \
+                         {:.1} iterations per tick",
+                        r.case,
+                        r.mode,
+                        r.error,
+                        r.wall_s_per_simulated_s,
+                        r.substeps_per_tick,
+                        r.iterations_per_tick
                     );
                 }
             }
@@ -371,8 +441,8 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
                 .collect(),
         });
     };
-    for case in ["cantilever", "uniaxial", "cut"] {
-        for mode in ["explicit", "projective", "quasi-static"] {
+    for case in ["cantilever", "cantilever-stiff", "uniaxial", "cut"] {
+        for mode in ["explicit", "projective", "implicit", "implicit-factored"] {
             let points: Vec<(f64, f64)> = rows
                 .iter()
                 .filter(|r| r.case == case && r.mode == mode)
@@ -402,12 +472,12 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
 
 fn csv_of(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "case,mode,points_across,points,spacing_mm,simulated_s,wall_s,wall_s_per_simulated_s,cost_clock,substeps_per_tick,error,error_timoshenko\n",
+        "case,mode,points_across,points,spacing_mm,simulated_s,wall_s,wall_s_per_simulated_s,cost_clock,substeps_per_tick,iterations_per_tick,error,error_timoshenko\n",
     );
     for r in rows {
         let _ = writeln!(
             csv,
-            "{},{},{},{},{:.4},{},{:.6},{:.6},{},{},{:.6e},{}",
+            "{},{},{},{},{:.4},{},{:.6},{:.6},{},{},{:.2},{:.6e},{}",
             r.case,
             r.mode,
             r.points_across,
@@ -418,6 +488,7 @@ fn csv_of(rows: &[Row]) -> String {
             r.wall_s_per_simulated_s,
             r.cost_clock,
             r.substeps_per_tick,
+            r.iterations_per_tick,
             r.error,
             r.error_timoshenko
                 .map(|e| format!("{e:.6e}"))
@@ -429,12 +500,21 @@ fn csv_of(rows: &[Row]) -> String {
 
 fn print_table(rows: &[Row], fits: &[Fit], peers: &[PeerRow]) {
     println!(
-        "{:<11} {:<11} {:>6} {:>7} {:>8} {:>10} {:>12} {:>12}",
-        "case", "mode", "across", "points", "s (mm)", "error", "vs Timosh.", "s per sim s"
+        "{:<11} {:<15} {:>6} {:>7} {:>8} {:>10} {:>12} {:>12} {:>5} {:>6}",
+        "case",
+        "mode",
+        "across",
+        "points",
+        "s (mm)",
+        "error",
+        "vs Timosh.",
+        "s per sim s",
+        "subst",
+        "iter"
     );
     for r in rows {
         println!(
-            "{:<11} {:<11} {:>6} {:>7} {:>8.3} {:>10.3e} {:>12} {:>12.4}",
+            "{:<11} {:<15} {:>6} {:>7} {:>8.3} {:>10.3e} {:>12} {:>12.4} {:>5} {:>6.1}",
             r.case,
             r.mode,
             r.points_across,
@@ -444,12 +524,14 @@ fn print_table(rows: &[Row], fits: &[Fit], peers: &[PeerRow]) {
             r.error_timoshenko
                 .map(|e| format!("{e:.3e}"))
                 .unwrap_or_else(|| "-".into()),
-            r.wall_s_per_simulated_s
+            r.wall_s_per_simulated_s,
+            r.substeps_per_tick,
+            r.iterations_per_tick
         );
     }
     for p in peers {
         println!(
-            "{:<11} {:<11} {:>6} {:>7} {:>8} {:>10.3e} {:>12} {:>12.4}",
+            "{:<11} {:<15} {:>6} {:>7} {:>8} {:>10.3e} {:>12} {:>12.4}",
             "cantilever", p.peer, p.across, p.nodes, "-", p.error, "-", p.wall_s_per_simulated_s
         );
     }
@@ -472,9 +554,13 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
         (
             "case",
             &selection.case,
-            &["cantilever", "uniaxial", "cut"][..],
+            &["cantilever", "cantilever-stiff", "uniaxial", "cut"][..],
         ),
-        ("mode", &selection.mode, &["explicit", "projective"][..]),
+        (
+            "mode",
+            &selection.mode,
+            &["explicit", "projective", "implicit", "implicit-factored"][..],
+        ),
     ] {
         anyhow::ensure!(
             choice == "all" || names.contains(&choice.as_str()),
@@ -483,8 +569,10 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
         );
     }
     anyhow::ensure!(
-        !(selection.case == "cut" && selection.mode == "projective"),
-        "--case cut --mode projective: the cut runs in the liver scene's own mode, explicit"
+        !(selection.case == "cut" && !matches!(selection.mode.as_str(), "explicit" | "all")),
+        "--case cut --mode {}: the cut runs in the liver scene's own mode, explicit (a scene \
+         file with `[solver] integrator = \"implicit\"` cuts with `scalpel cut`)",
+        selection.mode
     );
     anyhow::ensure!(
         selection

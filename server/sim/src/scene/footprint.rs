@@ -113,7 +113,7 @@ pub fn estimate(spec: &SceneSpec, surface: &TriMesh) -> Footprint {
     let memory_bytes = MEMORY_BASE_BYTES
         .saturating_add(MEMORY_PER_POINT_BYTES.saturating_mul(points as u64))
         .saturating_add(MEMORY_PER_TRIANGLE_BYTES.saturating_mul(triangles as u64));
-    let tick = (!spec.features.stiff_mode).then(|| {
+    let tick = spec.is_explicit().then(|| {
         let (mut ticked, mut n) = (points, substeps(spec, spacing_m));
         // The real-time rule thins the sampling until the tick fits (cost ∝ points^(4/3):
         // sub-steps grow as 1/spacing), but never below LEAST_POINTS.

@@ -61,13 +61,35 @@ pub struct SolverSpec {
     /// `solver::whole_substeps` and `solver::kept_substeps`); 0 keeps the masses as built
     /// (the cap on fits a cut leaves degenerate is a matter of stability, not of this).
     pub mass_scaling_budget: f64,
+    /// How ticks are integrated when the scene does not ask for the stiff mode.
+    pub integrator: Integrator,
 }
 
 impl Default for SolverSpec {
     fn default() -> Self {
         Self {
             mass_scaling_budget: 0.01,
+            integrator: Integrator::Explicit,
         }
+    }
+}
+
+/// The dynamic integrator a scene chooses (`[solver] integrator`); the stiff mode
+/// (`[features] stiff_mode`, projective dynamics) is the third.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Integrator {
+    /// Symplectic Euler in sub-steps from the stable step (the default).
+    Explicit,
+    /// Linearly implicit Euler, one preconditioned CG solve per tick (`solver::implicit`).
+    Implicit,
+}
+
+impl SceneSpec {
+    /// Whether ticks are explicit sub-steps (what the sampling plan and the footprint's
+    /// tick estimate know how to plan).
+    pub fn is_explicit(&self) -> bool {
+        !self.features.stiff_mode && self.solver.integrator == Integrator::Explicit
     }
 }
 

@@ -11,7 +11,7 @@ use crate::mls::forces::ForceStats;
 /// half within a tick at 0.5 dt_crit with nothing wrong; at 1e-12 J that swing rolled
 /// ticks back (the shoulder's 16-stroke session: 1.2e-10 → 1.9e-10 J, no work put in). A
 /// real divergence grows past this within sub-steps, and the speed test stands beside it.
-const ENERGY_FLOOR: f64 = 1e-9;
+pub(super) const ENERGY_FLOOR: f64 = 1e-9;
 /// Allowed growth of total energy within a tick beyond the work put in.
 const ENERGY_GROWTH: f64 = 1.5;
 /// A point may move at most this many lattice spacings in one sub-step.

@@ -242,8 +242,17 @@ impl Held {
 
     /// `y += K x` with K = −∂f/∂p of the springs and of the tray contacts as they stand: a
     /// vertex stuck to its anchor holds in every direction, a free one along the normal.
-    pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3]) {
-        for v in 0..self.rest.len() {
+    /// Over the vertices `which` takes (the implicit tick: those following an awake point).
+    pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3], which: Vertices) {
+        let count = match which {
+            Vertices::All => self.rest.len(),
+            Vertices::Awake => self.awake.len(),
+        };
+        for index in 0..count {
+            let v = match which {
+                Vertices::All => index,
+                Vertices::Awake => self.awake[index] as usize,
+            };
             let k = self.spring[v];
             let moved = self.rows.moved(v, x);
             let mut f = moved * k;
@@ -343,7 +352,7 @@ mod tests {
         // K x against a finite difference of the forces.
         let dx = vec![Vec3::new(1e-6, 0.0, 0.0), Vec3::new(0.0, 2e-6, 0.0)];
         let mut kx = vec![Vec3::zeros(); 2];
-        held.add_stiffness_product(&p, &dx, &mut kx);
+        held.add_stiffness_product(&p, &dx, &mut kx, Vertices::All);
         let moved: Vec<Vec3> = p.iter().zip(&dx).map(|(a, b)| a + b).collect();
         let mut f2 = vec![Vec3::zeros(); 2];
         held.forces(&moved, &mut f2, true, Vertices::All);

@@ -1,11 +1,14 @@
 //! Time integration of the meshless body (physics.md §2).
 //!
-//! Three modes:
+//! Four modes:
 //! * **Explicit** (default): symplectic Euler with automatic sub-stepping. The stable step
 //!   `dt_crit = 2/ω_max` comes from power iteration on M⁻¹K at run time (and again after a
 //!   topology change); a tick of length `dt` takes `⌈dt / (safety·dt_crit)⌉` sub-steps.
 //! * **Projective** (stiff mode): projective dynamics with a prefactored sparse Cholesky
 //!   (see `projective`); stable at 1 ms ticks whatever the stiffness or ν.
+//! * **Implicit**: linearly implicit Euler, one conjugate-gradient solve per tick on the
+//!   exact tangent, preconditioned by the factored projective-dynamics matrix (see
+//!   `implicit`); its iterations do not grow as the lattice gets finer.
 //! * **QuasiStatic**: every tick solves static equilibrium by Newton's method with
 //!   preconditioned conjugate gradients; for validation.
 //!
@@ -24,6 +27,7 @@ pub mod embedded;
 pub mod events;
 mod explicit;
 pub mod held;
+mod implicit;
 mod kept_substeps;
 #[cfg(feature = "parallel")]
 pub(crate) mod on_pool;
@@ -39,6 +43,7 @@ mod whole_substeps;
 use serde::Serialize;
 
 pub use events::{DivergenceReason, EventQueue, SolverEvent, StepReport};
+pub use implicit::ImplicitPreconditioner;
 pub use kept_substeps::SubstepKeepingMass;
 pub use statics::StaticReport;
 pub use whole_substeps::WholeStepMass;
@@ -62,6 +67,8 @@ pub enum SolverMode {
     Projective,
     /// Static equilibrium each tick.
     QuasiStatic,
+    /// Linearly implicit Euler, one preconditioned CG solve per tick (see `implicit`).
+    Implicit,
 }
 
 /// Solver settings.
@@ -102,6 +109,13 @@ pub struct SolverConfig {
     pub projective_iterations: u32,
     /// Relative residual at which a static solve stops.
     pub static_tolerance: f64,
+    /// The implicit mode's preconditioner.
+    pub implicit_preconditioner: ImplicitPreconditioner,
+    /// The implicit mode's CG stops when the step's error energy is within this squared of
+    /// the tick's (momentum and impulse; see `implicit`).
+    pub implicit_tolerance: f64,
+    /// Most CG iterations an implicit tick takes.
+    pub implicit_max_iterations: u32,
 }
 
 impl Default for SolverConfig {
@@ -123,12 +137,16 @@ impl Default for SolverConfig {
             mass_scaling_budget: 0.01,
             projective_iterations: 10,
             static_tolerance: 1e-9,
+            implicit_preconditioner: ImplicitPreconditioner::Jacobi,
+            implicit_tolerance: 3e-4,
+            implicit_max_iterations: 200,
         }
     }
 }
 
 impl SolverConfig {
     /// The configuration a scene asks for: projective dynamics when it declares `stiff_mode`,
+    /// else its `[solver] integrator`,
     /// Müller's volume term (k_v = λ, the upper end physics.md §1.8 recommends) when it
     /// declares `volume_term`, the material's damping, its mass scaling budget; everything
     /// else default.
@@ -139,10 +157,10 @@ impl SolverConfig {
     ) -> Self {
         let lame = Lame::from_young_poisson(material.youngs_modulus_pa, material.poisson_ratio);
         Self {
-            mode: if features.stiff_mode {
-                SolverMode::Projective
-            } else {
-                SolverMode::Explicit
+            mode: match (features.stiff_mode, solver.integrator) {
+                (true, _) => SolverMode::Projective,
+                (false, crate::scene::Integrator::Explicit) => SolverMode::Explicit,
+                (false, crate::scene::Integrator::Implicit) => SolverMode::Implicit,
             },
             volume_k_pa: if features.volume_term {
                 lame.lambda
@@ -243,6 +261,7 @@ pub struct Solver {
     last: StepReport,
     last_stats: Option<ForceStats>,
     projective: Option<projective::Projective>,
+    implicit: Option<implicit::Implicit>,
     /// Points of the body; nodes after them (virtual points) are kinematic.
     material_points: usize,
     /// Spare nodes tied to body points (virtual points, see `slaves`).
@@ -447,6 +466,7 @@ impl Solver {
             last: StepReport::default(),
             last_stats: None,
             projective: None,
+            implicit: None,
             material_points: n,
             slaves: Slaves::default(),
             eval_seed: Vec::with_capacity(n),
@@ -511,6 +531,7 @@ impl Solver {
         let report = match self.config.mode {
             SolverMode::Explicit => self.tick_explicit(dt),
             SolverMode::Projective => self.tick_projective(dt),
+            SolverMode::Implicit => self.tick_implicit(dt),
             SolverMode::QuasiStatic => {
                 let r = self.solve_static();
                 StepReport {
@@ -553,10 +574,10 @@ impl Solver {
             ForceBuffer::Force => &mut self.force,
             ForceBuffer::Scratch(k) => &mut self.scratch[k],
         };
-        // With a restricted active set only the explicit mode evaluates locally; the other
-        // modes work on the whole body.
+        // With a restricted active set the explicit and implicit modes evaluate locally; the
+        // other modes work on the whole body.
         let set = match self.config.mode {
-            SolverMode::Explicit => self.eval_set.as_ref(),
+            SolverMode::Explicit | SolverMode::Implicit => self.eval_set.as_ref(),
             _ => None,
         };
         match set {

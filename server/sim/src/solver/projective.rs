@@ -28,10 +28,10 @@ use crate::sparse_llt::{LltError, SparseLlt};
 const ROTATION_ITERATIONS: usize = 4;
 
 /// One reduced linear system (the free dofs of the components sharing a fixed pattern).
-struct ComponentSystem {
-    components: Vec<usize>,
+pub(super) struct ComponentSystem {
+    pub(super) components: Vec<usize>,
     /// Point → row in the reduced system, or `u32::MAX` if the dof is fixed.
-    row_of: Vec<u32>,
+    pub(super) row_of: Vec<u32>,
     /// Row → point.
     point_of: Vec<u32>,
     /// Entries L[row, fixed point] that move to the right-hand side.
@@ -117,19 +117,7 @@ impl Projective {
             }
         }
         let columns = assemble_columns(s, dt, &strain_weight, &volume_weight);
-        // Group the components by their fixed pattern; usually all three share one.
-        let mut systems: Vec<ComponentSystem> = Vec::new();
-        for c in 0..3 {
-            let pattern: Vec<bool> = s.fixed.iter().map(|f| f[c]).collect();
-            if let Some(sys) = systems
-                .iter_mut()
-                .find(|sys| (0..n).all(|i| (sys.row_of[i] == u32::MAX) == pattern[i]))
-            {
-                sys.components.push(c);
-                continue;
-            }
-            systems.push(ComponentSystem::factor(&columns, &pattern, c)?);
-        }
+        let systems = factor_systems(s, &columns)?;
         let contacts = match systems.as_slice() {
             [one] => Some(FaceContacts::with_room(one.point_of.len())),
             _ => None,
@@ -304,9 +292,31 @@ fn extract_rotation(f: &Mat3, q: &mut UnitQuaternion<f64>) {
     }
 }
 
+/// A scalar matrix given by its full columns, factored once per fixed pattern of the three
+/// components (usually all three share one).
+pub(super) fn factor_systems(
+    s: &Solver,
+    columns: &[Vec<(u32, f64)>],
+) -> Result<Vec<ComponentSystem>, String> {
+    let n = s.p.len();
+    let mut systems: Vec<ComponentSystem> = Vec::new();
+    for c in 0..3 {
+        let pattern: Vec<bool> = s.fixed.iter().map(|f| f[c]).collect();
+        if let Some(sys) = systems
+            .iter_mut()
+            .find(|sys| (0..n).all(|i| (sys.row_of[i] == u32::MAX) == pattern[i]))
+        {
+            sys.components.push(c);
+            continue;
+        }
+        systems.push(ComponentSystem::factor(columns, &pattern, c)?);
+    }
+    Ok(systems)
+}
+
 /// The full symmetric scalar matrix `M/dt² + Σ_i (w_s + w_v) G_iᵀG_i + hourglass`, by column:
 /// `columns[k]` lists (row, value) with rows sorted.
-fn assemble_columns(
+pub(super) fn assemble_columns(
     s: &Solver,
     dt: f64,
     strain_weight: &[f64],
@@ -440,7 +450,7 @@ impl ComponentSystem {
 
     /// Solves for this system's components and writes them into `p` (fixed dofs are read
     /// from `p`, where the step put their targets).
-    fn solve(&mut self, rhs: &[Vec3], p: &mut [Vec3]) {
+    pub(super) fn solve(&mut self, rhs: &[Vec3], p: &mut [Vec3]) {
         let m = self.point_of.len();
         let k = self.components.len();
         for (col, &c) in self.components.iter().enumerate() {

@@ -280,7 +280,7 @@ impl Solver {
             iterations = k + 1;
             stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
             if let Some(held) = &self.held {
-                held.add_stiffness_product(&self.p, d, q);
+                held.add_stiffness_product(&self.p, d, q, Vertices::All);
             }
             if let Some(contact) = &self.contact {
                 contact.add_stiffness_product(&self.p, d, q);

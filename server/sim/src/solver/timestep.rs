@@ -69,7 +69,7 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
         s.slaves.interpolate_vectors(x);
         stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
         if let Some(held) = &s.held {
-            held.add_stiffness_product(&s.p, x, y);
+            held.add_stiffness_product(&s.p, x, y, super::held::Vertices::All);
         }
         s.slaves.hand_back(y);
         for i in 0..n {

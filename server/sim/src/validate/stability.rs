@@ -46,6 +46,8 @@ struct Observed {
     first_detection: Option<u32>,
     diverged: bool,
     nan: bool,
+    /// Solver iterations over the run (CG or local/global; 0 for explicit).
+    iterations: u64,
 }
 
 impl Observed {
@@ -70,6 +72,7 @@ fn run(
         first_detection: None,
         diverged: false,
         nan: false,
+        iterations: 0,
     };
     let mut work = 0.0;
     for t in 0..ticks {
@@ -89,6 +92,7 @@ fn run(
             }
         }
         work += r.work_j;
+        obs.iterations += u64::from(r.iterations);
         let energy = r.kinetic_energy + r.elastic_energy;
         obs.max_energy_ratio = obs
             .max_energy_ratio
@@ -170,6 +174,11 @@ fn stiff_case(name: &'static str, e: f64, nu: f64, solver: SolverMode) -> Stabil
             "8³ points, s = 3 mm: dt_crit = {:.1} µs, {substeps} sub-steps per 1 ms tick",
             dt_crit * 1e6
         ),
+        SolverMode::Implicit => format!(
+            "8³ points, s = 3 mm, 1 ms ticks, {:.1} CG iterations per tick (explicit would need dt_crit = {:.1} µs)",
+            obs.iterations as f64 / 100.0,
+            dt_crit * 1e6
+        ),
         _ => format!(
             "8³ points, s = 3 mm, 1 ms ticks, {} local/global iterations (explicit would need dt_crit = {:.1} µs)",
             body.solver.config().projective_iterations,
@@ -191,6 +200,21 @@ pub fn stiff_projective() -> StabilityResult {
         1e6,
         0.45,
         SolverMode::Projective,
+    )
+}
+
+/// E = 1 MPa, implicit (factored preconditioner) at 1 ms.
+pub fn stiff_implicit() -> StabilityResult {
+    stiff_case("E = 1 MPa, implicit, 1 ms", 1e6, 0.45, SolverMode::Implicit)
+}
+
+/// E = 1 MPa and ν = 0.499 together, implicit at 1 ms.
+pub fn stiff_incompressible_implicit() -> StabilityResult {
+    stiff_case(
+        "E = 1 MPa, ν = 0.499, implicit, 1 ms",
+        1e6,
+        0.499,
+        SolverMode::Implicit,
     )
 }
 
@@ -626,6 +650,12 @@ pub fn stability_cases() -> Vec<StabilityCase> {
             "stiff_incompressible_projective",
             true,
             stiff_incompressible_projective,
+        ),
+        case("stiff_implicit", true, stiff_implicit),
+        case(
+            "stiff_incompressible_implicit",
+            true,
+            stiff_incompressible_implicit,
         ),
         case("huge_time_step", true, huge_time_step),
         case("rotation_180", true, rotated_180),

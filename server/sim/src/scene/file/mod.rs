@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::Deserialize;
 use thiserror::Error;
 
-use super::{BuiltinMesh, MeshSource, RemeshRule, SceneSpec, builtin, for_mesh_file};
+use super::{BuiltinMesh, Integrator, MeshSource, RemeshRule, SceneSpec, builtin, for_mesh_file};
 use crate::geometry::LengthUnit;
 use crate::model::{MAX_POINTS, SpacingRule};
 
@@ -148,6 +148,7 @@ struct RawForce {
 #[serde(deny_unknown_fields)]
 struct RawSolver {
     mass_scaling_percent: Option<f64>,
+    integrator: Option<String>,
 }
 
 /// Checks values against ranges and names the key on failure.
@@ -645,6 +646,28 @@ fn apply_solver(
         Limit::closed(0.0, 10.0, "%"),
         0.01,
     )?;
+    if let Some(name) = &s.integrator {
+        spec.solver.integrator = match name.as_str() {
+            "explicit" => Integrator::Explicit,
+            "implicit" if spec.features.stiff_mode => {
+                return Err(check.fail(
+                    "solver.integrator",
+                    "`integrator = \"implicit\"` with `[features] stiff_mode = true`: the stiff \
+                     mode is the projective integrator; choose one",
+                ));
+            }
+            "implicit" => Integrator::Implicit,
+            other => {
+                return Err(check.fail(
+                    "solver.integrator",
+                    format!(
+                        "unknown integrator \"{other}\": expected \"explicit\" or \"implicit\" \
+                         (the stiff mode is `[features] stiff_mode = true`)"
+                    ),
+                ));
+            }
+        };
+    }
     Ok(())
 }
 

@@ -53,6 +53,15 @@ fn mass_scaling_is_given_in_per_cent_of_the_body() {
 }
 
 #[test]
+fn the_integrator_is_chosen_by_name() {
+    let integrator = |text: &str| parse(text).unwrap().solver.integrator;
+    assert_eq!(integrator("extends = \"liver\"\n"), Integrator::Explicit);
+    let implicit = "extends = \"liver\"\n[solver]\nintegrator = \"implicit\"\n";
+    assert_eq!(integrator(implicit), Integrator::Implicit);
+    assert!(!parse(implicit).unwrap().is_explicit());
+}
+
+#[test]
 fn file_paths_are_relative_to_the_scene() {
     let s = parse("[mesh]\nfile = \"organ.stl\"\nunits = \"mm\"\n[sampling]\nspacing_mm = 2.5\n")
         .unwrap();
@@ -120,6 +129,14 @@ fn out_of_range_values_name_their_key() {
         (
             "extends = \"liver\"\n[solver]\nmass_scaling_percent = 12\n",
             "solver.mass_scaling_percent",
+        ),
+        (
+            "extends = \"liver\"\n[solver]\nintegrator = \"verlet\"\n",
+            "solver.integrator",
+        ),
+        (
+            "extends = \"liver\"\n[features]\nstiff_mode = true\n[solver]\nintegrator = \"implicit\"\n",
+            "solver.integrator",
         ),
     ] {
         match parse(text) {
@@ -271,8 +288,9 @@ fn docs_example_is_complete() {
     }
     let RawSolver {
         mass_scaling_percent,
+        integrator,
     } = solver.expect("[solver]");
-    assert!(mass_scaling_percent.is_some());
+    assert!(mass_scaling_percent.is_some() && integrator.is_some());
     let supports::RawLoads { gravity_m_s2 } = loads.expect("[loads]");
     assert!(gravity_m_s2.is_some());
     let supports::RawSupports {
