@@ -569,7 +569,7 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
         );
     }
     anyhow::ensure!(
-        !(selection.case == "cut" && !matches!(selection.mode.as_str(), "explicit" | "all")),
+        selection.case != "cut" || matches!(selection.mode.as_str(), "explicit" | "all"),
         "--case cut --mode {}: the cut runs in the liver scene's own mode, explicit (a scene \
          file with `[solver] integrator = \"implicit\"` cuts with `scalpel cut`)",
         selection.mode
