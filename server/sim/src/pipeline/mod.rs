@@ -262,8 +262,9 @@ pub struct Simulation {
     settled: Option<supports::SettleReport>,
     support_counts: supports::SupportCounts,
     tissue_force: tissue_force::TissueForce,
-    /// The last tick's integrated points × sub-steps: what decides whether the next one
-    /// shares its work ([`PARALLEL_MIN_WORK`]).
+    /// The last tick's integrated points × passes over them (sub-steps, or an implicit
+    /// tick's CG iterations and its step): what decides whether the next one shares its
+    /// work ([`PARALLEL_MIN_WORK`]).
     last_work: usize,
     /// The caller lets the ticks share their work (`set_sharing`).
     sharing: bool,
@@ -271,8 +272,8 @@ pub struct Simulation {
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
 }
 
-/// The least work a tick shares with a pool's other thread (integrated points ×
-/// sub-steps): below it a join's hand-over and the other thread's wake cost more than its
+/// The least work a tick shares with a pool's other thread (integrated points × passes,
+/// `StepReport::passes`): below it a join's hand-over and the other thread's wake cost more than its
 /// half of the work saves (`scalpel bench table1 --threads 2`: the liver cut, ~480 awake
 /// points and one sub-step, took 0.295 ms a step on two threads against 0.214 on one; the
 /// shoulder and cerebroma, a few thousand, 1.45× and 1.24× faster; docs/BENCHMARKS.md).
@@ -529,7 +530,7 @@ impl Simulation {
                 .filter(|&&i| i < body)
                 .count()
         };
-        self.last_work = active_points * solver.substeps as usize;
+        self.last_work = active_points * solver.passes() as usize;
         TickReport {
             time_s: self.time_s,
             cut,

@@ -143,10 +143,19 @@ pub struct StepReport {
     pub min_det_f: f64,
     /// Points with clamped F at the last force evaluation.
     pub clamped_points: u32,
-    /// Iterations used (projective dynamics, Newton) where applicable.
+    /// Iterations used (projective dynamics' local/global rounds, Newton's, the implicit
+    /// mode's conjugate gradients) where applicable.
     pub iterations: u32,
     /// Work done on the body by applied loads and moving constraints during the tick (J).
     pub work_j: f64,
+}
+
+impl StepReport {
+    /// The tick's work in passes over its points: a sub-step or an iteration each (the
+    /// implicit mode's CG iteration is one force evaluation, as a sub-step is).
+    pub fn passes(&self) -> u32 {
+        self.substeps + self.iterations
+    }
 }
 
 #[cfg(test)]
