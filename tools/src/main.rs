@@ -479,7 +479,8 @@ enum BenchCommand {
         /// The target points of the cut's reference run.
         #[arg(long, default_value_t = bench::accuracy::CUT_REFERENCE_POINTS)]
         cut_reference: usize,
-        /// Which integrator: explicit, projective, implicit, implicit-factored or all.
+        /// Which integrator: explicit, projective, implicit, implicit-factored, implicit-two-level
+        /// or all.
         #[arg(long, default_value = "all")]
         mode: String,
         /// The implicit modes' CG tolerance, relative to a tick's impulse.

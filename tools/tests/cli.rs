@@ -473,7 +473,7 @@ fn accuracy_bench_writes_csv_and_plot() {
         &["--cut-points", "600", "--cut-reference", "1200", "--json"],
     ));
     let rows = r["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 13, "3 bodies × 4 integrators, and the cut");
+    assert_eq!(rows.len(), 16, "3 bodies × 5 integrators, and the cut");
     // The implicit rows take one step a tick and say how many CG iterations it took; the
     // stiff beam's explicit rows take many sub-steps.
     for row in rows.iter() {
@@ -505,7 +505,7 @@ fn accuracy_bench_writes_csv_and_plot() {
     }
     let csv = std::fs::read_to_string(dir.path().join("accuracy.csv")).unwrap();
     assert!(csv.starts_with("case,mode,points_across"));
-    assert_eq!(csv.lines().count(), 14);
+    assert_eq!(csv.lines().count(), 17);
     let png = std::fs::read(dir.path().join("accuracy.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
 

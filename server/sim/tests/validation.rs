@@ -167,6 +167,7 @@ fn the_implicit_mode_settles_where_the_explicit_mode_does() {
         for preconditioner in [
             ImplicitPreconditioner::Jacobi,
             ImplicitPreconditioner::Factored,
+            ImplicitPreconditioner::TwoLevel,
         ] {
             let (implicit, iterations, one) = settle(SolverMode::Implicit, preconditioner);
             assert_eq!(one, 1);

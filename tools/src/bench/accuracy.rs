@@ -89,7 +89,8 @@ pub struct Selection {
     pub across: (usize, usize),
     /// "cantilever", "cantilever-stiff", "uniaxial", "cut" or "all".
     pub case: String,
-    /// "explicit", "projective", "implicit", "implicit-factored" or "all".
+    /// "explicit", "projective", "implicit", "implicit-factored", "implicit-two-level" or
+    /// "all".
     pub mode: String,
     /// The implicit modes' CG tolerance.
     pub implicit_tolerance: f64,
@@ -130,7 +131,7 @@ struct Method {
 }
 
 /// The dynamic integrators compared, in the order they run.
-const METHODS: [Method; 4] = [
+const METHODS: [Method; 5] = [
     Method {
         name: "explicit",
         mode: SolverMode::Explicit,
@@ -150,6 +151,11 @@ const METHODS: [Method; 4] = [
         name: "implicit-factored",
         mode: SolverMode::Implicit,
         preconditioner: ImplicitPreconditioner::Factored,
+    },
+    Method {
+        name: "implicit-two-level",
+        mode: SolverMode::Implicit,
+        preconditioner: ImplicitPreconditioner::TwoLevel,
     },
 ];
 
@@ -442,7 +448,13 @@ fn series_of(rows: &[Row], peers: &[PeerRow]) -> (Vec<Fit>, Vec<Series>) {
         });
     };
     for case in ["cantilever", "cantilever-stiff", "uniaxial", "cut"] {
-        for mode in ["explicit", "projective", "implicit", "implicit-factored"] {
+        for mode in [
+            "explicit",
+            "projective",
+            "implicit",
+            "implicit-factored",
+            "implicit-two-level",
+        ] {
             let points: Vec<(f64, f64)> = rows
                 .iter()
                 .filter(|r| r.case == case && r.mode == mode)
@@ -559,7 +571,13 @@ pub fn run(out: &Path, selection: &Selection, json: bool) -> anyhow::Result<()> 
         (
             "mode",
             &selection.mode,
-            &["explicit", "projective", "implicit", "implicit-factored"][..],
+            &[
+                "explicit",
+                "projective",
+                "implicit",
+                "implicit-factored",
+                "implicit-two-level",
+            ][..],
         ),
     ] {
         anyhow::ensure!(

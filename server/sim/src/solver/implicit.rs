@@ -21,6 +21,7 @@
 use super::Solver;
 use super::events::{DivergenceReason, SolverEvent, StepReport};
 use super::held::Vertices;
+use super::implicit_coarse::Coarse;
 use super::projective::{ComponentSystem, assemble_columns, factor_systems};
 use crate::math::Vec3;
 use crate::mls::operator::PointRank;
@@ -35,6 +36,9 @@ pub enum ImplicitPreconditioner {
     /// The projective-dynamics matrix with the P-wave modulus as its weight, factored once:
     /// iterations that do not grow with 1/spacing, at a solve that does (its fill).
     Factored,
+    /// The diagonal plus a coarse correction on 2×2×2 blocks of lattice cells, factored
+    /// once (`implicit_coarse`).
+    TwoLevel,
 }
 
 pub(super) struct Implicit {
@@ -56,6 +60,7 @@ pub(super) struct Implicit {
     /// The Newton step from the first guess, in velocity.
     step_dv: Vec<Vec3>,
     factor: Option<Vec<ComponentSystem>>,
+    coarse: Option<Coarse>,
 }
 
 impl Solver {
@@ -106,25 +111,26 @@ impl Implicit {
     fn build(s: &Solver, dt: f64) -> Result<Self, String> {
         let n = s.p.len();
         let damping = 1.0 + dt * s.config.damping_per_s;
-        let factor = match s.config.implicit_preconditioner {
-            ImplicitPreconditioner::Jacobi => None,
+        // The P-wave modulus λ + 2μ matches the tangent's diagonal (as the Jacobi estimate
+        // does); the volume part is folded into the one weight.
+        let lame = s.params.effective_lame();
+        let modulus = lame.lambda + 2.0 * lame.mu + s.params.volume_k;
+        let weight: Vec<f64> = (0..n)
+            .map(|i| match s.op.point(i).rank {
+                PointRank::Orphan => 0.0,
+                _ => modulus * s.volume[i],
+            })
+            .collect();
+        // M/dt'² with dt' = h/√(1 + hγ) is (1 + hγ)M/h²: the matrix is the preconditioner
+        // over h².
+        let dt_mass = dt / damping.sqrt();
+        let (factor, coarse) = match s.config.implicit_preconditioner {
+            ImplicitPreconditioner::Jacobi => (None, None),
             ImplicitPreconditioner::Factored => {
-                // The P-wave modulus λ + 2μ matches the tangent's diagonal (as the Jacobi
-                // estimate does); the volume part is folded into the one weight.
-                let lame = s.params.effective_lame();
-                let modulus = lame.lambda + 2.0 * lame.mu + s.params.volume_k;
-                let weight: Vec<f64> = (0..n)
-                    .map(|i| match s.op.point(i).rank {
-                        PointRank::Orphan => 0.0,
-                        _ => modulus * s.volume[i],
-                    })
-                    .collect();
-                // M/dt'² with dt' = h/√(1 + hγ) is (1 + hγ)M/h²: the matrix is the
-                // preconditioner over h².
-                let dt_mass = dt / damping.sqrt();
                 let columns = assemble_columns(s, dt_mass, &weight, &vec![0.0; n]);
-                Some(factor_systems(s, &columns)?)
+                (Some(factor_systems(s, &columns)?), None)
             }
+            ImplicitPreconditioner::TwoLevel => (None, Some(Coarse::build(s, dt_mass, &weight)?)),
         };
         let zeros = vec![Vec3::zeros(); n];
         Ok(Self {
@@ -140,6 +146,7 @@ impl Implicit {
             target_y: zeros.clone(),
             step_dv: zeros,
             factor,
+            coarse,
         })
     }
 
@@ -381,6 +388,9 @@ impl Implicit {
                 for &i in active {
                     let i = i as usize;
                     self.z[i] = self.r[i] / diagonal(i);
+                }
+                if let Some(coarse) = &mut self.coarse {
+                    coarse.add_correction(&self.r, &mut self.z, h, active);
                 }
             }
             Some(systems) => {

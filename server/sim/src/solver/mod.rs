@@ -28,6 +28,7 @@ pub mod events;
 mod explicit;
 pub mod held;
 mod implicit;
+mod implicit_coarse;
 mod kept_substeps;
 #[cfg(feature = "parallel")]
 pub(crate) mod on_pool;

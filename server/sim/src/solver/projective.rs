@@ -392,7 +392,7 @@ pub(super) fn assemble_columns(
 }
 
 impl ComponentSystem {
-    fn factor(
+    pub(super) fn factor(
         columns: &[Vec<(u32, f64)>],
         fixed: &[bool],
         component: usize,
