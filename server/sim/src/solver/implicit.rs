@@ -68,30 +68,10 @@ impl Solver {
         if self.implicit.as_ref().is_none_or(|im| im.dt != dt) {
             match Implicit::build(self, dt) {
                 Ok(im) => self.implicit = Some(im),
-                Err(message) => {
-                    // Cannot happen for positive masses; keep the state and say so.
-                    debug_assert!(false, "{message}");
-                    self.events.push(SolverEvent::Diverged {
-                        tick: self.tick,
-                        reason: DivergenceReason::NonFinite,
-                    });
-                    return StepReport {
-                        diverged: true,
-                        ..StepReport::default()
-                    };
-                }
+                Err(message) => return self.unbuilt_step(&message),
             }
         }
-        // Slaved nodes are fixed dofs here, held where their masters are now.
-        self.slaves.interpolate(&mut self.p);
-        for &i in self.slaves.list() {
-            self.target[i as usize] = self.p[i as usize];
-        }
-        if let Some(blade) = &mut self.blade {
-            blade.begin_tick();
-            blade.begin_attempt();
-            blade.begin_substep(0.0, 1.0, &self.p, f64::INFINITY);
-        }
+        self.begin_one_step_tick();
         let mut im = self.implicit.take().expect("built above");
         let report = im.step(self, dt);
         self.implicit = Some(im);

@@ -58,32 +58,10 @@ impl Solver {
         if self.projective.as_ref().is_none_or(|pd| pd.dt != dt) {
             match Projective::build(self, dt) {
                 Ok(pd) => self.projective = Some(pd),
-                Err(message) => {
-                    // Cannot happen for a positive mass matrix; keep the state and say so.
-                    debug_assert!(false, "{message}");
-                    self.events.push(SolverEvent::Diverged {
-                        tick: self.tick,
-                        reason: super::DivergenceReason::NonFinite,
-                    });
-                    return StepReport {
-                        diverged: true,
-                        ..StepReport::default()
-                    };
-                }
+                Err(message) => return self.unbuilt_step(&message),
             }
         }
-        // Slaved nodes are fixed dofs here, held for the tick where their masters are now
-        // (the global solve has no place for the interpolation).
-        self.slaves.interpolate(&mut self.p);
-        for &i in self.slaves.list() {
-            self.target[i as usize] = self.p[i as usize];
-        }
-        if let Some(blade) = &mut self.blade {
-            blade.begin_tick();
-            blade.begin_attempt();
-            // The projective step has no speed bound: every sample is a candidate.
-            blade.begin_substep(0.0, 1.0, &self.p, f64::INFINITY);
-        }
+        self.begin_one_step_tick();
         let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
         let in_solve = pd.contacts.is_some();

@@ -324,4 +324,33 @@ impl Solver {
     pub fn kinetic_energy(&self) -> f64 {
         kinetic_energy(&self.mass, &self.v, &self.fixed)
     }
+
+    /// A one-step mode's solver could not be built (cannot happen for positive masses): the
+    /// state is kept and the tick reported diverged.
+    pub(super) fn unbuilt_step(&mut self, message: &str) -> StepReport {
+        debug_assert!(false, "{message}");
+        self.events.push(SolverEvent::Diverged {
+            tick: self.tick,
+            reason: DivergenceReason::NonFinite,
+        });
+        StepReport {
+            diverged: true,
+            ..StepReport::default()
+        }
+    }
+
+    /// Begins a tick taken in one step (projective, implicit): slaved nodes are fixed dofs,
+    /// held for the tick where their masters are now (the step has no place for the
+    /// interpolation), and every blade sample is a candidate (the step has no speed bound).
+    pub(super) fn begin_one_step_tick(&mut self) {
+        self.slaves.interpolate(&mut self.p);
+        for &i in self.slaves.list() {
+            self.target[i as usize] = self.p[i as usize];
+        }
+        if let Some(blade) = &mut self.blade {
+            blade.begin_tick();
+            blade.begin_attempt();
+            blade.begin_substep(0.0, 1.0, &self.p, f64::INFINITY);
+        }
+    }
 }
