@@ -5,8 +5,9 @@
 //!
 //! Why: the explicit mode's sub-steps per tick grow as 1/spacing (ω_max ∝ 1/h). Here a tick
 //! is one step whatever the spacing, and what grows instead is the conjugate gradients'
-//! iteration count, ∝ √κ of `M + h²K`. With a Jacobi preconditioner that is ∝ 1/h again;
-//! with the factored projective-dynamics matrix as the preconditioner (`M + h² w GᵀG ⊗ I₃`,
+//! iteration count, ∝ √κ of `M + h²K`. With the Jacobi preconditioner (the default) that
+//! is ∝ 1/h again, though measured far below the sub-steps (the warm start); with the
+//! factored projective-dynamics matrix as the preconditioner (`M + h² w GᵀG ⊗ I₃`,
 //! rotation-invariant, so it stays good under large rotations; factored once) κ no longer
 //! depends on the spacing, only on how far the tissue's tangent is from that Laplacian
 //! (ν, above all). A factor left stale by a cut is still symmetric positive definite, so the
@@ -15,8 +16,9 @@
 //! docs/CUTTING-DECISIONS.md, "A step that does not shrink with the spacing".
 //!
 //! The step, with mass damping γ: `((1 + hγ)M + h²K) Δv = h(f − γMv) − h²K v`, then
-//! `v += Δv`, `x += h v`. At rest under balanced loads the right-hand side is zero, so a
-//! truncated solve keeps the true equilibrium.
+//! `v += Δv`, `x += h v`, shortened by a line search until the tick's incremental potential
+//! is no higher than at its start. At rest under balanced loads the right-hand side is
+//! zero, so a truncated solve keeps the true equilibrium.
 
 use super::Solver;
 use super::events::{DivergenceReason, SolverEvent, StepReport};

@@ -1,9 +1,11 @@
 //! Stiff mode: projective dynamics (Bouaziz et al. 2014) on the MLS operator
 //! (physics.md §2.4, option 2).
 //!
-//! Why this and not implicit Euler with CG: at E = 1 MPa and ν = 0.499 the implicit system
-//! `M + dt²K` at dt = 1 ms has a condition number near 10⁵, so CG needs well over a thousand
-//! iterations and a truncated solve is not guaranteed stable. Projective dynamics solves with
+//! Why this was the stiff mode before the implicit mode (`implicit`): at E = 1 MPa and
+//! ν = 0.499 the implicit system `M + dt²K` at dt = 1 ms has a condition number near 10⁵,
+//! so CG from nothing needs well over a thousand iterations and a truncated solve is not
+//! guaranteed stable (the implicit mode warm-starts it and guards it with a line search).
+//! Projective dynamics solves with
 //! one constant matrix, `M/dt² + Σ_i w_i G_iᵀ G_i (+ hourglass)`, factored once (sparse
 //! Cholesky, AMD ordering) and reused every tick; each local/global iteration decreases the
 //! step's energy, so it is stable for any stiffness and any ν, at a fixed cost per tick.
