@@ -273,8 +273,8 @@ pub struct Simulation {
 }
 
 /// The least work a tick shares with a pool's other thread (integrated points × passes,
-/// `StepReport::passes`): below it a join's hand-over and the other thread's wake cost more than its
-/// half of the work saves (`scalpel bench table1 --threads 2`: the liver cut, ~480 awake
+/// `StepReport::passes`): below it a join's hand-over and the other thread's wake cost more
+/// than its half of the work saves (`scalpel bench table1 --threads 2`: the liver cut, ~480 awake
 /// points and one sub-step, took 0.295 ms a step on two threads against 0.214 on one; the
 /// shoulder and cerebroma, a few thousand, 1.45× and 1.24× faster; docs/BENCHMARKS.md).
 pub const PARALLEL_MIN_WORK: usize = 2000;

@@ -137,12 +137,11 @@ impl Held {
     /// go; without it the friction state is only read (a static solve's trial positions
     /// must not move it).
     pub fn forces(&mut self, p: &[Vec3], out: &mut [Vec3], slide: bool, which: Vertices) -> f64 {
-        let count = match which {
+        match which {
             Vertices::All => {
                 for &k in self.rows.reached() {
                     out[k as usize] = Vec3::zeros();
                 }
-                self.rest.len()
             }
             Vertices::Awake => {
                 for &v in &self.awake {
@@ -150,16 +149,12 @@ impl Held {
                         out[k as usize] = Vec3::zeros();
                     }
                 }
-                self.awake.len()
             }
-        };
+        }
         let sunk = self.deepest_sink(p);
         let mut energy = 0.0;
-        for index in 0..count {
-            let v = match which {
-                Vertices::All => index,
-                Vertices::Awake => self.awake[index] as usize,
-            };
+        for index in 0..self.count(which) {
+            let v = self.vertex(which, index);
             // A tray sample whose points have not come down as far as its height above
             // the tray cannot touch it (its weights are a convex combination): no need to
             // place it. Most of a body's samples, most of the time.
@@ -244,15 +239,8 @@ impl Held {
     /// vertex stuck to its anchor holds in every direction, a free one along the normal.
     /// Over the vertices `which` takes (the implicit tick: those following an awake point).
     pub fn add_stiffness_product(&self, p: &[Vec3], x: &[Vec3], y: &mut [Vec3], which: Vertices) {
-        let count = match which {
-            Vertices::All => self.rest.len(),
-            Vertices::Awake => self.awake.len(),
-        };
-        for index in 0..count {
-            let v = match which {
-                Vertices::All => index,
-                Vertices::Awake => self.awake[index] as usize,
-            };
+        for index in 0..self.count(which) {
+            let v = self.vertex(which, index);
             let k = self.spring[v];
             let moved = self.rows.moved(v, x);
             let mut f = moved * k;
@@ -270,6 +258,22 @@ impl Held {
             if f != Vec3::zeros() {
                 self.rows.spread(v, f, y);
             }
+        }
+    }
+
+    /// How many vertices `which` takes.
+    fn count(&self, which: Vertices) -> usize {
+        match which {
+            Vertices::All => self.rest.len(),
+            Vertices::Awake => self.awake.len(),
+        }
+    }
+
+    /// The `index`th vertex `which` takes.
+    fn vertex(&self, which: Vertices, index: usize) -> usize {
+        match which {
+            Vertices::All => index,
+            Vertices::Awake => self.awake[index] as usize,
         }
     }
 

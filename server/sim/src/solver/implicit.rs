@@ -52,11 +52,8 @@ pub(super) struct Implicit {
     z: Vec<Vec3>,
     d: Vec<Vec3>,
     q: Vec<Vec3>,
+    /// The positions at the tick's start, which it is linearised about.
     start: Vec<Vec3>,
-    /// The positions the tick is linearised about.
-    base: Vec<Vec3>,
-    /// Per point: the last tick it was awake in (its `warm` is stale otherwise).
-    awake_at: Vec<u64>,
     /// The inertial target y of the tick's incremental potential.
     target_y: Vec<Vec3>,
     /// The Newton step from the first guess, in velocity.
@@ -67,14 +64,14 @@ pub(super) struct Implicit {
 
 impl Solver {
     pub(super) fn tick_implicit(&mut self, dt: f64) -> StepReport {
-        if self.implicit.as_ref().is_none_or(|im| im.dt != dt) {
-            match Implicit::build(self, dt) {
-                Ok(im) => self.implicit = Some(im),
+        let mut im = match self.implicit.take() {
+            Some(im) if im.dt == dt => im,
+            _ => match Implicit::build(self, dt) {
+                Ok(im) => im,
                 Err(message) => return self.unbuilt_step(&message),
-            }
-        }
+            },
+        };
         self.begin_one_step_tick();
-        let mut im = self.implicit.take().expect("built above");
         let report = im.step(self, dt);
         self.implicit = Some(im);
         if !report.diverged {
@@ -86,6 +83,17 @@ impl Solver {
             blade.end_tick();
         }
         report
+    }
+}
+
+impl Solver {
+    /// Builds the implicit step for ticks of `dt` before the first tick (a factored
+    /// preconditioner is the start-up's work, not the first tick's).
+    pub(super) fn prepare_implicit(&mut self, dt: f64) {
+        if self.implicit.as_ref().is_none_or(|im| im.dt != dt) {
+            // On failure the first tick reports it (`unbuilt_step`).
+            self.implicit = Implicit::build(self, dt).ok();
+        }
     }
 }
 
@@ -106,13 +114,11 @@ impl Implicit {
         // M/dt'² with dt' = h/√(1 + hγ) is (1 + hγ)M/h²: the matrix is the preconditioner
         // over h².
         let dt_mass = dt / damping.sqrt();
+        let columns = || assemble_columns(s, dt_mass, &weight, &vec![0.0; n]);
         let (factor, coarse) = match s.config.implicit_preconditioner {
             ImplicitPreconditioner::Jacobi => (None, None),
-            ImplicitPreconditioner::Factored => {
-                let columns = assemble_columns(s, dt_mass, &weight, &vec![0.0; n]);
-                (Some(factor_systems(s, &columns)?), None)
-            }
-            ImplicitPreconditioner::TwoLevel => (None, Some(Coarse::build(s, dt_mass, &weight)?)),
+            ImplicitPreconditioner::Factored => (Some(factor_systems(s, &columns())?), None),
+            ImplicitPreconditioner::TwoLevel => (None, Some(Coarse::build(s, &columns())?)),
         };
         let zeros = vec![Vec3::zeros(); n];
         Ok(Self {
@@ -123,8 +129,6 @@ impl Implicit {
             d: zeros.clone(),
             q: zeros.clone(),
             start: zeros.clone(),
-            base: zeros.clone(),
-            awake_at: vec![0; n],
             target_y: zeros.clone(),
             step_dv: zeros,
             factor,
@@ -136,9 +140,18 @@ impl Implicit {
         // The awake points only, as in the explicit mode: the rest of the body is at rest
         // and holds its place (a fixed dof of this tick's system).
         let active = std::mem::take(&mut s.active_list);
-        let report = self.step_active(s, dt, &active);
+        let mut report = self.step_active(s, dt, &active);
         s.active_list = active;
+        if !report.diverged {
+            report.kinetic_energy = s.active_kinetic_energy();
+        }
         report
+    }
+
+    /// Drops point i's first guess: it has left the awake region, and its last Δv belongs
+    /// to another motion when it wakes again.
+    pub(super) fn forget_guess(&mut self, i: usize) {
+        self.warm[i] = Vec3::zeros();
     }
 
     fn step_active(&mut self, s: &mut Solver, dt: f64, active: &[u32]) -> StepReport {
@@ -153,11 +166,6 @@ impl Implicit {
                 }
             }
             self.start[i] = s.p[i];
-            // A point awake again starts from no guess (its last is from another motion).
-            if self.awake_at[i] + 1 != s.tick {
-                self.warm[i] = Vec3::zeros();
-            }
-            self.awake_at[i] = s.tick;
             self.warm[i] = free_part(&s.fixed[i], self.warm[i]);
             s.v[i] = free_part(&s.fixed[i], s.v[i]);
             // y, the inertial target of the tick's incremental potential.
@@ -171,13 +179,12 @@ impl Implicit {
         for &i in active {
             let i = i as usize;
             self.d[i] = s.v[i] + self.warm[i];
-            self.base[i] = s.p[i];
         }
         self.apply_k(s, active);
         let gamma = s.config.damping_per_s;
         for &i in active {
             let i = i as usize;
-            let f = s.force[i] + self.applied(s, i) + s.contact_force[i];
+            let f = s.force[i] + s.applied_load(i) + s.contact_force[i];
             let r = (f - s.v[i] * (gamma * s.mass[i])) * h
                 - self.warm[i] * (damping * s.mass[i])
                 - self.q[i] * (h * h);
@@ -220,7 +227,7 @@ impl Implicit {
             finite &= v.iter().all(|x| x.is_finite()) && s.p[i].iter().all(|x| x.is_finite());
             self.warm[i] = free_part(&s.fixed[i], v - s.v[i]);
             s.v[i] = free_part(&s.fixed[i], v);
-            work += self.applied(s, i).dot(&(s.p[i] - self.start[i]));
+            work += s.applied_load(i).dot(&(s.p[i] - self.start[i]));
         }
         s.slaves.interpolate(&mut s.p);
         if !finite {
@@ -245,18 +252,14 @@ impl Implicit {
             dt_sub_s: dt,
             rollbacks: 0,
             diverged: false,
-            kinetic_energy: kinetic_energy_of(s, active),
+            // Set by `step` once the awake list is back.
+            kinetic_energy: 0.0,
             elastic_energy: stats.energy(),
             min_det_f: stats.min_det_f,
             clamped_points: stats.clamped_points,
             iterations,
             work_j: work,
         }
-    }
-
-    /// The loads on point i that do work: applied forces, gravity, the supports.
-    fn applied(&self, s: &Solver, i: usize) -> Vec3 {
-        s.external[i] + s.config.gravity * s.base_mass[i] + s.held_force[i]
     }
 
     /// The tick's incremental potential at the current positions,
@@ -291,7 +294,7 @@ impl Implicit {
         let mut phi = stored;
         for &i in active {
             let i = i as usize;
-            let load = s.external[i] + s.config.gravity * s.base_mass[i];
+            let load = s.body_load(i);
             let offset = free_part(&s.fixed[i], s.p[i] - self.target_y[i]);
             phi += 0.5 * damping * s.mass[i] / (h * h) * offset.norm_squared() - load.dot(&s.p[i]);
         }
@@ -408,7 +411,7 @@ impl Implicit {
 }
 
 impl Implicit {
-    /// q = K d at the tick's start (`base`, whose forces are in `s.force`) on the awake
+    /// q = K d at the tick's start (`start`, whose forces are in `s.force`) on the awake
     /// points: the elastic part as the forces' directional difference through the
     /// evaluation kernel (the stencil passes over the awake region, on the pool when there
     /// is one), the supports' and the pressed tool's exact. An exact product with F and the
@@ -430,13 +433,13 @@ impl Implicit {
         let eps = 1e-6 * s.spacing_m / largest;
         for &i in active {
             let i = i as usize;
-            s.p[i] = self.base[i] + self.d[i] * eps;
+            s.p[i] = self.start[i] + self.d[i] * eps;
         }
         s.evaluate_elastic(super::ForceBuffer::Scratch(0));
         for &i in active {
             let i = i as usize;
             self.q[i] = (s.force[i] - s.scratch[0][i]) / eps;
-            s.p[i] = self.base[i];
+            s.p[i] = self.start[i];
         }
         // Slaved nodes back where their masters are.
         s.slaves.interpolate(&mut s.p);
@@ -457,15 +460,4 @@ fn free_part(fixed: &[bool; 3], mut x: Vec3) -> Vec3 {
         }
     }
     x
-}
-
-/// Kinetic energy of the awake points' free dofs (the rest are at rest).
-fn kinetic_energy_of(s: &Solver, active: &[u32]) -> f64 {
-    active
-        .iter()
-        .map(|&i| {
-            let i = i as usize;
-            0.5 * s.mass[i] * free_part(&s.fixed[i], s.v[i]).norm_squared()
-        })
-        .sum()
 }

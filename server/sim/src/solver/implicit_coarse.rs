@@ -8,7 +8,7 @@
 use std::collections::HashMap;
 
 use super::Solver;
-use super::projective::{ComponentSystem, assemble_columns};
+use super::projective::ComponentSystem;
 use crate::math::Vec3;
 
 pub(super) struct Coarse {
@@ -20,8 +20,9 @@ pub(super) struct Coarse {
 }
 
 impl Coarse {
-    /// Aggregates the points of `s` and factors `R P_f Rᵀ`, P_f = `M/dt² + Σ w GᵀG`.
-    pub(super) fn build(s: &Solver, dt: f64, weight: &[f64]) -> Result<Self, String> {
+    /// Aggregates the points of `s` and factors `R P_f Rᵀ`, P_f given by its full columns
+    /// (`projective::assemble_columns`).
+    pub(super) fn build(s: &Solver, fine: &[Vec<(u32, f64)>]) -> Result<Self, String> {
         let n = s.p.len();
         let mut origin = Vec3::repeat(f64::INFINITY);
         for x in &s.rest {
@@ -46,7 +47,6 @@ impl Coarse {
                 members[a as usize].push(i as u32);
             }
         }
-        let fine = assemble_columns(s, dt, weight, &vec![0.0; n]);
         let mut acc = vec![0.0; count];
         let mut listed = vec![false; count];
         let mut touched: Vec<usize> = Vec::new();

@@ -6,9 +6,10 @@
 //!   topology change); a tick of length `dt` takes `⌈dt / (safety·dt_crit)⌉` sub-steps.
 //! * **Projective** (stiff mode): projective dynamics with a prefactored sparse Cholesky
 //!   (see `projective`); stable at 1 ms ticks whatever the stiffness or ν.
-//! * **Implicit**: linearly implicit Euler, one conjugate-gradient solve per tick on the
-//!   exact tangent, preconditioned by the factored projective-dynamics matrix (see
-//!   `implicit`); its iterations do not grow as the lattice gets finer.
+//! * **Implicit**: one Newton step of backward Euler per tick over the awake region, a
+//!   conjugate-gradient solve on the exact tangent (Jacobi-preconditioned by default) and a
+//!   line search (see `implicit`); its iterations grow far more slowly than the explicit
+//!   sub-steps as the lattice gets finer.
 //! * **QuasiStatic**: every tick solves static equilibrium by Newton's method with
 //!   preconditioned conjugate gradients; for validation.
 //!
@@ -113,7 +114,7 @@ pub struct SolverConfig {
     /// The implicit mode's preconditioner.
     pub implicit_preconditioner: ImplicitPreconditioner,
     /// The implicit mode's CG stops when the step's error energy is within this squared of
-    /// the tick's (momentum and impulse; see `implicit`).
+    /// the tick's kinetic or stored energy, whichever is larger (see `implicit`).
     pub implicit_tolerance: f64,
     /// Most CG iterations an implicit tick takes.
     pub implicit_max_iterations: u32,
@@ -478,12 +479,14 @@ impl Solver {
     }
 
     /// Plans ticks of `dt` now — the stable step, and on the uncut body the mass scaling to
-    /// whole sub-steps (`whole_substeps`) — so that the first tick does not pay for their
-    /// power iterations (tens of milliseconds each at organ scale). Optional: the first
-    /// explicit tick plans otherwise.
+    /// whole sub-steps (`whole_substeps`); in the implicit mode its preconditioner — so that
+    /// the first tick does not pay for their power iterations or factor (tens of
+    /// milliseconds each at organ scale). Optional: the first tick does it otherwise.
     pub fn prepare(&mut self, dt: f64) {
-        if self.config.mode == SolverMode::Explicit {
-            self.plan_substeps(dt);
+        match self.config.mode {
+            SolverMode::Explicit => self.plan_substeps(dt),
+            SolverMode::Implicit => self.prepare_implicit(dt),
+            _ => {}
         }
     }
 

@@ -57,14 +57,14 @@ pub(super) struct Projective {
 
 impl Solver {
     pub(super) fn tick_projective(&mut self, dt: f64) -> StepReport {
-        if self.projective.as_ref().is_none_or(|pd| pd.dt != dt) {
-            match Projective::build(self, dt) {
-                Ok(pd) => self.projective = Some(pd),
+        let mut pd = match self.projective.take() {
+            Some(pd) if pd.dt == dt => pd,
+            _ => match Projective::build(self, dt) {
+                Ok(pd) => pd,
                 Err(message) => return self.unbuilt_step(&message),
-            }
-        }
+            },
+        };
         self.begin_one_step_tick();
-        let mut pd = self.projective.take().expect("built above");
         let report = pd.step(self, dt);
         let in_solve = pd.contacts.is_some();
         self.projective = Some(pd);
@@ -127,7 +127,7 @@ impl Projective {
         // tick map's steady state is then the true equilibrium: started from y, a resting
         // body would settle where the unfinished iterations balance the load, not at rest.
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.base_mass[i] + s.held_force[i];
+            let applied = s.applied_load(i);
             for a in 0..3 {
                 if s.fixed[i][a] {
                     s.scratch[0][i][a] = s.target[i][a];
@@ -168,8 +168,7 @@ impl Projective {
         // Work of the applied loads over the step (moving constraints are not tracked here).
         let mut work = 0.0;
         for i in 0..n {
-            let applied = s.external[i] + s.config.gravity * s.base_mass[i] + s.held_force[i];
-            work += applied.dot(&(s.p[i] - self.start[i]));
+            work += s.applied_load(i).dot(&(s.p[i] - self.start[i]));
         }
         let mut finite = true;
         for i in 0..n {

@@ -247,6 +247,9 @@ impl Solver {
         for &i in &self.retired {
             if !self.is_active[i as usize] {
                 self.v[i as usize] = Vec3::zeros();
+                if let Some(implicit) = &mut self.implicit {
+                    implicit.forget_guess(i as usize);
+                }
             }
         }
         self.eval_set.get_or_insert_with(EvalSet::default);
@@ -323,6 +326,18 @@ impl Solver {
     /// Kinetic energy of the free dofs (J).
     pub fn kinetic_energy(&self) -> f64 {
         kinetic_energy(&self.mass, &self.v, &self.fixed)
+    }
+
+    /// The loads on point i besides the tissue's and the supports': applied forces and
+    /// gravity (N).
+    pub(super) fn body_load(&self, i: usize) -> Vec3 {
+        self.external[i] + self.config.gravity * self.base_mass[i]
+    }
+
+    /// The loads on point i that do work in a one-step tick: `body_load` and the supports'
+    /// force (N).
+    pub(super) fn applied_load(&self, i: usize) -> Vec3 {
+        self.body_load(i) + self.held_force[i]
     }
 
     /// A one-step mode's solver could not be built (cannot happen for positive masses): the

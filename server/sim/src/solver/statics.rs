@@ -162,7 +162,7 @@ impl Solver {
         let n = self.p.len();
         report.converged = false;
         let loads: f64 = (0..n)
-            .map(|i| (self.external[i] + self.config.gravity * self.base_mass[i]).norm_squared())
+            .map(|i| self.body_load(i).norm_squared())
             .sum::<f64>()
             .sqrt();
         let mut reference = loads;
@@ -239,8 +239,7 @@ impl Solver {
             potential += contact.forces(&self.p, &mut self.contact_force);
         }
         for i in 0..n {
-            potential -=
-                (self.external[i] + self.config.gravity * self.base_mass[i]).dot(&self.p[i]);
+            potential -= self.body_load(i).dot(&self.p[i]);
         }
         if stats.finite {
             potential
