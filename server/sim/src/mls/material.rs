@@ -70,6 +70,9 @@ pub struct ElasticParams {
     /// Evaluate the stress at F with clamped singular values when det F leaves
     /// [`DET_RANGE`] (the guard's inversion fallback). Off only to show what plain StVK does.
     pub clamp_inversion: bool,
+    /// Strain-stiffening β (dimensionless; 0: none): Fung's exponential on the law's
+    /// energy ψ₀, ψ = (c/2)(e^Q − 1) with Q = 2βψ₀/E and c = E/β (see [`stiffen`]).
+    pub stiffening: f64,
 }
 
 impl ElasticParams {
@@ -82,6 +85,7 @@ impl ElasticParams {
             hourglass_alpha: 0.1,
             volume_k: 0.0,
             clamp_inversion: true,
+            stiffening: 0.0,
         }
     }
 
@@ -111,6 +115,71 @@ impl ElasticParams {
     }
 }
 
+/// Past this exponent the tissue stiffens no further: the base law e^Q times over (7.4 at
+/// 2), so a point crushed or torn at the blade's edge does not take the explicit step down
+/// with an unbounded tangent. Q = 2 is a stretch of about √(2/β): 45 % at β = 10.
+const MOST_STIFFENING_EXPONENT: f64 = 2.0;
+
+/// What the strain-stiffening makes of a point with base energy density ψ₀.
+#[derive(Debug, Clone, Copy)]
+pub struct Stiffened {
+    /// dψ/dψ₀: the factor on the base law's stress.
+    pub slope: f64,
+    /// ψ (J/m³).
+    pub psi: f64,
+    /// The factor on the tangent, at most: e^Q (1 + 2Q) below the cap, e^Qmax past it.
+    pub tangent_factor: f64,
+}
+
+impl ElasticParams {
+    /// The stiffening at base energy density `psi0` (call only with `stiffening` > 0).
+    #[inline]
+    pub fn stiffened(&self, psi0: f64) -> Stiffened {
+        let q = self.stiffening_exponent(psi0);
+        let slope = stiffening_slope(q);
+        Stiffened {
+            slope,
+            psi: self.stiffened_energy(q),
+            tangent_factor: slope + 2.0 * q * stiffening_curvature(q),
+        }
+    }
+
+    /// Q = 2βψ₀/E for the base law's energy density ψ₀.
+    #[inline]
+    fn stiffening_exponent(&self, psi0: f64) -> f64 {
+        2.0 * self.stiffening * psi0 / self.effective_youngs_modulus()
+    }
+
+    /// ψ = (c/2)(e^Q − 1), c = E/β, continued past [`MOST_STIFFENING_EXPONENT`] at the
+    /// slope it reached there.
+    #[inline]
+    fn stiffened_energy(&self, q: f64) -> f64 {
+        let c = self.effective_youngs_modulus() / self.stiffening;
+        let qm = MOST_STIFFENING_EXPONENT;
+        if q <= qm {
+            0.5 * c * q.exp_m1()
+        } else {
+            0.5 * c * (qm.exp_m1() + qm.exp() * (q - qm))
+        }
+    }
+}
+
+/// dψ/dψ₀ = g'(Q) = e^min(Q, Qmax).
+#[inline]
+pub fn stiffening_slope(q: f64) -> f64 {
+    q.min(MOST_STIFFENING_EXPONENT).exp()
+}
+
+/// d g'/dQ: e^Q, none past the cap.
+#[inline]
+fn stiffening_curvature(q: f64) -> f64 {
+    if q < MOST_STIFFENING_EXPONENT {
+        q.exp()
+    } else {
+        0.0
+    }
+}
+
 /// First Piola–Kirchhoff stress and energy density at F.
 #[derive(Debug, Clone, Copy)]
 pub struct StressSample {
@@ -122,6 +191,9 @@ pub struct StressSample {
     pub det: f64,
     /// True when the singular values were clamped.
     pub clamped: bool,
+    /// How much stiffer than the base law the stiffening makes the tangent here, at most
+    /// (1 without stiffening): e^Q (1 + 2Q), what a uniaxial stretch sees.
+    pub stiffening: f64,
 }
 
 /// P(F) and ψ(F) for the model, plus the volume term.
@@ -144,6 +216,12 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
         ElasticModel::MuellerCompat => mueller(&params.lame, f_eval),
         ElasticModel::Corotated => corotated(&params.lame, f_eval),
     };
+    let mut stiffening = 1.0;
+    if params.stiffening > 0.0 {
+        let s = params.stiffened(psi);
+        (psi, stiffening) = (s.psi, s.tangent_factor);
+        p *= s.slope;
+    }
     if params.volume_k > 0.0 {
         let j = f_eval.determinant();
         p += cofactor(f_eval) * (params.volume_k * (j - 1.0));
@@ -154,6 +232,7 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
         psi,
         det,
         clamped,
+        stiffening,
     }
 }
 
@@ -206,6 +285,18 @@ pub fn stress_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 
             r * (Mat3::identity() * (params.lame.lambda * de.trace()) + de * (2.0 * params.lame.mu))
         }
     };
+    if params.stiffening > 0.0 {
+        // P = g'(Q) P₀ with Q = 2βψ₀/E: dP = g' dP₀ + g''(Q) (2β/E)(P₀ : dF) P₀.
+        let (p0, psi0) = match params.model {
+            ElasticModel::StVK => stvk(&params.lame, f, 1.0),
+            ElasticModel::MuellerCompat => mueller(&params.lame, f),
+            ElasticModel::Corotated => corotated(&params.lame, f),
+        };
+        let q = params.stiffening_exponent(psi0);
+        let dq = 2.0 * params.stiffening / params.effective_youngs_modulus()
+            * p0.component_mul(df).sum();
+        dp = dp * stiffening_slope(q) + p0 * (stiffening_curvature(q) * dq);
+    }
     if params.volume_k > 0.0 {
         // d[(J − 1) cof F] = (cof F : dF) cof F + (J − 1) d(cof F).
         let j = f.determinant();
@@ -335,6 +426,82 @@ mod tests {
             let an = stress_differential(&params, &f, &df);
             assert!((fd - an).norm() < 1e-5 * an.norm(), "{model:?}");
         }
+    }
+
+    /// Strain-stiffening keeps P = ∂ψ/∂F and its differential exact, below and past the
+    /// cap on the exponent.
+    #[test]
+    fn stiffened_stress_is_the_energy_gradient() {
+        let stretched = |x: f64| {
+            Mat3::new(
+                x,
+                0.05,
+                -0.02,
+                0.03,
+                1.0 / x.sqrt(),
+                0.04,
+                -0.02,
+                0.01,
+                1.0 / x.sqrt(),
+            )
+        };
+        for model in [ElasticModel::StVK, ElasticModel::Corotated] {
+            let mut params = ElasticParams::stvk(5000.0, 0.45);
+            params.model = model;
+            params.stiffening = 10.0;
+            // Q ≈ 0.9 and ≈ 5 (past the cap).
+            for f in [stretched(1.3), stretched(1.8)] {
+                let p = stress(&params, &f).p;
+                let h = 1e-6;
+                for a in 0..3 {
+                    for b in 0..3 {
+                        let mut fp = f;
+                        let mut fm = f;
+                        fp[(a, b)] += h;
+                        fm[(a, b)] -= h;
+                        let fd = (energy(&params, &fp) - energy(&params, &fm)) / (2.0 * h);
+                        assert!(
+                            (fd - p[(a, b)]).abs() < 1e-5 * p.norm(),
+                            "{model:?} ({a},{b})"
+                        );
+                    }
+                }
+            }
+        }
+        let mut params = ElasticParams::stvk(5000.0, 0.45);
+        params.stiffening = 10.0;
+        params.volume_k = 1000.0;
+        let f = stretched(1.3);
+        let df = Mat3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.3, 0.1, 0.2, -0.2);
+        let h = 1e-6;
+        let fd = (stress(&params, &(f + df * h)).p - stress(&params, &(f - df * h)).p) / (2.0 * h);
+        let an = stress_differential(&params, &f, &df);
+        assert!((fd - an).norm() < 1e-5 * an.norm());
+    }
+
+    /// At small strain the stiffened law is the base law; stretched, it is e^Q times the
+    /// base stress (Q = 2βψ₀/E), and no more than e^2 times past the cap; the reported
+    /// factor on the tangent is e^Q (1 + 2Q) below the cap.
+    #[test]
+    fn stiffening_is_exponential_in_the_base_energy_and_capped() {
+        let base = ElasticParams::stvk(5000.0, 0.45);
+        let stiff = ElasticParams {
+            stiffening: 10.0,
+            ..base
+        };
+        let small = Mat3::from_diagonal(&crate::math::Vec3::new(1.001, 1.0, 1.0));
+        let (a, b) = (stress(&base, &small), stress(&stiff, &small));
+        assert!((b.p - a.p).norm() < 1e-3 * a.p.norm());
+        let f = Mat3::from_diagonal(&crate::math::Vec3::new(1.2, 1.0, 1.0));
+        let (a, b) = (stress(&base, &f), stress(&stiff, &f));
+        let q = 2.0 * 10.0 * a.psi / 5000.0;
+        assert!((b.p - a.p * q.exp()).norm() < 1e-12 * b.p.norm());
+        assert!((b.stiffening - q.exp() * (1.0 + 2.0 * q)).abs() < 1e-12 * b.stiffening);
+        assert_eq!(a.stiffening, 1.0);
+        let far = Mat3::from_diagonal(&crate::math::Vec3::new(2.0, 1.0, 1.0));
+        let (a, b) = (stress(&base, &far), stress(&stiff, &far));
+        assert!((b.p - a.p * 2f64.exp()).norm() < 1e-12 * b.p.norm());
+        assert_eq!(b.stiffening, 2f64.exp());
     }
 
     #[test]

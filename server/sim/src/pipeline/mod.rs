@@ -662,11 +662,6 @@ impl Simulation {
                 let force = self
                     .tissue_force
                     .combine(&t.force, tissue, b.tip, by_energy);
-                if let (Some(stage), true) = (&mut self.cutting, by_energy) {
-                    // The loading slope along the blade's facing, for the fracture criterion.
-                    let k = &force.stiffness_matrix_n_per_m;
-                    stage.note_tissue_stiffness(b.toward_back.dot(&(k * b.toward_back)));
-                }
                 let force = bounded(&force, self.spec.force.max_force_n);
                 self.local_model = force.local_model(b.tip);
                 force.force_n

@@ -257,6 +257,10 @@ pub struct Material {
     pub density_kg_m3: f64,
     /// Mass-proportional damping γ (1/s): v ← v·e^(−γ dt).
     pub damping_per_s: f64,
+    /// Strain-stiffening β (dimensionless, 0: none): the base law's energy ψ₀ becomes
+    /// (E/2β)(e^Q − 1), Q = 2βψ₀/E — the same at small strain, about e^(βε²) stiffer at a
+    /// stretch ε (docs/SCENES.md).
+    pub stiffening: f64,
 }
 
 impl Material {
@@ -266,6 +270,7 @@ impl Material {
         poisson_ratio: 0.45,
         density_kg_m3: 1060.0,
         damping_per_s: 10.0,
+        stiffening: 0.0,
     };
     /// Relaxed skeletal muscle (deltoid): E ≈ 10 kPa.
     pub const MUSCLE: Material = Material {
@@ -273,6 +278,7 @@ impl Material {
         poisson_ratio: 0.45,
         density_kg_m3: 1060.0,
         damping_per_s: 10.0,
+        stiffening: 0.0,
     };
     /// Brain tissue around a tumour: E ≈ 3 kPa (physics.md §6.3: brain 1–3 kPa).
     pub const BRAIN: Material = Material {
@@ -280,6 +286,7 @@ impl Material {
         poisson_ratio: 0.45,
         density_kg_m3: 1040.0,
         damping_per_s: 10.0,
+        stiffening: 0.0,
     };
 }
 

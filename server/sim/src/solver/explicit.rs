@@ -18,10 +18,14 @@ const ENERGY_GROWTH: f64 = 1.5;
 const MAX_MOVE_SPACINGS: f64 = 0.3;
 /// Sub-steps added by rollbacks are halved again after this many calm ticks.
 const CALM_TICKS_BEFORE_RELAXING: u32 = 1000;
+/// How much a strain-stiffening tissue's tangent may grow within a tick over the last
+/// tick's largest (the blade loads the crack tip over many ticks).
+const STIFFENING_GROWTH: f64 = 1.5;
 
 impl Solver {
     pub(super) fn tick_explicit(&mut self, dt: f64) -> StepReport {
         self.plan_substeps(dt);
+        self.follow_stiffening();
         for &i in &self.active_list {
             let i = i as usize;
             self.snap_p[i] = self.p[i];
@@ -40,6 +44,7 @@ impl Solver {
                     if let Some(blade) = &mut self.blade {
                         blade.end_tick();
                     }
+                    self.max_stiffening = stats.max_stiffening;
                     // Slaved nodes where the tick's last positions put them.
                     self.slaves.interpolate(&mut self.p);
                     self.note_clamping(&stats);
@@ -106,6 +111,20 @@ impl Solver {
         if self.calm_ticks >= CALM_TICKS_BEFORE_RELAXING && self.substeps > self.planned_substeps {
             self.substeps = (self.substeps / 2).max(self.planned_substeps);
             self.calm_ticks = 0;
+        }
+    }
+
+    /// A strain-stiffening tissue is stiffer where it is strained (at the crack tip, under
+    /// the blade) than when dt_crit was estimated: ω goes as the square root of the
+    /// tangent's factor, so the sub-steps do too. Raised at once, relaxed like a rollback's.
+    fn follow_stiffening(&mut self) {
+        if self.params.stiffening <= 0.0 || self.config.dt_override_s.is_some() {
+            return;
+        }
+        let factor = self.max_stiffening * STIFFENING_GROWTH / self.stiffening_at_estimate;
+        if factor > 1.0 {
+            let wanted = (f64::from(self.planned_substeps) * factor.sqrt()).ceil();
+            self.substeps = self.substeps.max((wanted as u32).min(MAX_SUBSTEPS));
         }
     }
 

@@ -87,6 +87,8 @@ pub struct SolverConfig {
     /// Clamp F's singular values to [0.2, 5] when det F leaves that range (inversion
     /// fallback, physics.md §2.5). On by default.
     pub clamp_inversion: bool,
+    /// Strain-stiffening β of the material (`ElasticParams::stiffening`).
+    pub stiffening: f64,
     /// Mass-proportional damping γ (1/s).
     pub damping_per_s: f64,
     /// Gravity (m/s²).
@@ -130,6 +132,7 @@ impl Default for SolverConfig {
             hourglass_alpha: 0.05,
             volume_k_pa: 0.0,
             clamp_inversion: true,
+            stiffening: 0.0,
             damping_per_s: 10.0,
             gravity: Vec3::zeros(),
             safety: 0.5,
@@ -170,6 +173,7 @@ impl SolverConfig {
                 0.0
             },
             damping_per_s: material.damping_per_s,
+            stiffening: material.stiffening,
             mass_scaling_budget: solver.mass_scaling_budget,
             ..Self::default()
         }
@@ -251,6 +255,10 @@ pub struct Solver {
     substeps: u32,
     planned_substeps: u32,
     calm_ticks: u32,
+    /// The material's stiffening: the largest factor on a point's tangent at the last tick,
+    /// and at the last estimate of dt_crit (1: none).
+    max_stiffening: f64,
+    stiffening_at_estimate: f64,
     substeps_for_dt: f64,
     /// λ_max(M⁻¹K) / max_i(D_i/m_i) at the last power iteration: turns the local diagonal
     /// bound into a ω² estimate after cuts.
@@ -404,6 +412,7 @@ impl Solver {
             hourglass_alpha: config.hourglass_alpha,
             volume_k: config.volume_k_pa,
             clamp_inversion: config.clamp_inversion,
+            stiffening: config.stiffening,
         };
         let op = MlsOperator::build(rest, neighbours, &kernel, lattice);
         let zeros = vec![Vec3::zeros(); n];
@@ -457,6 +466,8 @@ impl Solver {
             substeps: 1,
             planned_substeps: 1,
             calm_ticks: 0,
+            max_stiffening: 1.0,
+            stiffening_at_estimate: 1.0,
             substeps_for_dt: 0.0,
             omega_calibration: None,
             // Each point at most once (flagged): never more than n.

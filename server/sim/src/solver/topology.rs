@@ -171,6 +171,7 @@ impl Solver {
     /// a ω² estimate.
     pub(super) fn set_dt_crit(&mut self, dt: f64, omega_sq: f64) {
         self.dt_crit = Some(dt);
+        self.stiffening_at_estimate = self.max_stiffening;
         // Fixed points are not integrated: they do not limit the step.
         let diagonal = (0..self.p.len())
             .filter(|&i| self.fixed[i] != [true; 3])

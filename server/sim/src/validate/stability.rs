@@ -152,6 +152,7 @@ fn material(e: f64, nu: f64, damping: f64) -> Material {
         poisson_ratio: nu,
         density_kg_m3: 1060.0,
         damping_per_s: damping,
+        stiffening: 0.0,
     }
 }
 
@@ -341,10 +342,16 @@ pub fn spinning() -> StabilityResult {
 
 /// Squash a cube to 30 % of its height between plates, hold, release. Corotated recovers
 /// with det F > 0; StVK is the negative control of physics.md §9.
-fn compression(name: &'static str, model: ElasticModel, clamp_inversion: bool) -> StabilityResult {
+fn compression(
+    name: &'static str,
+    model: ElasticModel,
+    clamp_inversion: bool,
+    stiffening: f64,
+) -> StabilityResult {
     let config = SolverConfig {
         model,
         clamp_inversion,
+        stiffening,
         ..SolverConfig::default()
     };
     let mut body = cube(7, 0.003, &material(5e3, 0.45, 20.0), config);
@@ -414,6 +421,7 @@ pub fn compression_corotated() -> StabilityResult {
         "compression to 30 %, corotated",
         ElasticModel::Corotated,
         true,
+        0.0,
     )
 }
 
@@ -423,6 +431,18 @@ pub fn compression_stvk() -> StabilityResult {
         "compression to 30 %, StVK + clamp fallback",
         ElasticModel::StVK,
         true,
+        0.0,
+    )
+}
+
+/// Compression to 30 %, StVK strain-stiffened (β = 10: the tangent up to e² × 5 = 37 times
+/// the small-strain one), explicit: the sub-steps follow the stiffening.
+pub fn compression_stiffened() -> StabilityResult {
+    compression(
+        "compression to 30 %, StVK stiffened (β = 10)",
+        ElasticModel::StVK,
+        true,
+        10.0,
     )
 }
 
@@ -433,6 +453,7 @@ pub fn compression_stvk_plain() -> StabilityResult {
         "compression to 30 %, plain StVK (negative control)",
         ElasticModel::StVK,
         false,
+        0.0,
     )
 }
 
@@ -665,6 +686,7 @@ pub fn stability_cases() -> Vec<StabilityCase> {
         case("spin", true, spinning),
         case("compression_corotated", true, compression_corotated),
         case("compression_stvk", true, compression_stvk),
+        case("compression_stiffened", true, compression_stiffened),
         case("compression_stvk_plain", false, compression_stvk_plain),
         case("lattice_2", true, lattice_2),
         case("lattice_3", true, lattice_3),

@@ -2,13 +2,14 @@
 
 use super::*;
 
-/// StVK for one point whose F is given as column vectors (x, y, z, 0): P as column
-/// vectors, ψ and det F; `None` when the model is not plain StVK or det F needs the clamp.
+/// StVK (strain-stiffened where the material is) for one point whose F is given as column
+/// vectors (x, y, z, 0): P as column vectors, ψ and its check; `None` when the model is not
+/// StVK or det F needs the clamp.
 #[inline]
 pub(crate) fn point_stvk(
     params: &ElasticParams,
     fc: &[f64x4; 3],
-) -> Option<([f64x4; 3], f64, f64)> {
+) -> Option<([f64x4; 3], f64, PointCheck)> {
     if params.model != ElasticModel::StVK || params.volume_k != 0.0 {
         return None;
     }
@@ -35,7 +36,15 @@ pub(crate) fn point_stvk(
     let (lambda, mu) = (params.lame.lambda, params.lame.mu);
     let ee: f64 = e.iter().flatten().map(|x| x * x).sum();
     let psi = mu * ee + 0.5 * lambda * tr * tr;
-    let sm = |r: usize, c: usize| 2.0 * mu * e[r][c] + if r == c { lambda * tr } else { 0.0 };
+    let (slope, psi, factor) = match params.stiffening > 0.0 {
+        true => {
+            let s = params.stiffened(psi);
+            (s.slope, s.psi, s.tangent_factor)
+        }
+        false => (1.0, psi, 1.0),
+    };
+    let sm =
+        |r: usize, c: usize| slope * (2.0 * mu * e[r][c] + if r == c { lambda * tr } else { 0.0 });
     // P = F S, column by column: P[:, c] = Σ_k F[:, k] S[k][c].
     let pc = std::array::from_fn(|c| {
         fc[0].mul_add(
@@ -43,16 +52,16 @@ pub(crate) fn point_stvk(
             fc[1].mul_add(f64x4::splat(sm(1, c)), fc[2] * f64x4::splat(sm(2, c))),
         )
     });
-    Some((pc, psi, det))
+    Some((pc, psi, PointCheck::plain(det, factor)))
 }
 
-/// StVK stress and energy density for four lanes, or `None` when the model is not plain
-/// StVK or some lane needs the clamp fallback.
+/// StVK stress (strain-stiffened where the material is), energy density and checks for
+/// four lanes, or `None` when the model is not StVK or some lane needs the clamp fallback.
 #[inline]
 pub(crate) fn lane_stvk(
     params: &ElasticParams,
     f: &[[f64x4; 3]; 3],
-) -> Option<([[f64x4; 3]; 3], f64x4, f64x4)> {
+) -> Option<([[f64x4; 3]; 3], f64x4, [PointCheck; LANES])> {
     if params.model != ElasticModel::StVK || params.volume_k != 0.0 {
         return None;
     }
@@ -89,14 +98,28 @@ pub(crate) fn lane_stvk(
             ee = e[r][c].mul_add(e[r][c], ee);
         }
     }
-    let psi = f64x4::splat(params.lame.mu) * ee + half * lambda * tr * tr;
+    let mut psi = f64x4::splat(params.lame.mu) * ee + half * lambda * tr * tr;
+    let mut factor = [1.0; LANES];
+    if params.stiffening > 0.0 {
+        // Per lane: one exponential each, against some 150 multiply-adds of the stress.
+        let s = psi.to_array().map(|p| params.stiffened(p));
+        let slope = f64x4::from(s.map(|x| x.slope));
+        psi = f64x4::from(s.map(|x| x.psi));
+        factor = s.map(|x| x.tangent_factor);
+        sm.iter_mut().flatten().for_each(|x| *x *= slope);
+    }
     let mut p = [[f64x4::ZERO; 3]; 3];
     for r in 0..3 {
         for c in 0..3 {
             p[r][c] = f[r][0].mul_add(sm[0][c], f[r][1].mul_add(sm[1][c], f[r][2] * sm[2][c]));
         }
     }
-    Some((p, psi, det))
+    let det = det.to_array();
+    Some((
+        p,
+        psi,
+        std::array::from_fn(|l| PointCheck::plain(det[l], factor[l])),
+    ))
 }
 
 /// Per-lane stress through the general (scalar) constitutive code.

@@ -50,6 +50,9 @@ pub struct ForceStats {
     pub clamped_points: u32,
     /// False if any F was not finite.
     pub finite: bool,
+    /// The largest factor by which the material's stiffening raised a point's tangent (1:
+    /// none; `StressSample::stiffening`).
+    pub max_stiffening: f64,
 }
 
 impl ForceStats {
@@ -61,6 +64,7 @@ impl ForceStats {
         max_det_f: f64::NEG_INFINITY,
         clamped_points: 0,
         finite: true,
+        max_stiffening: 1.0,
     };
 
     /// Adds one point's energies and stress checks. The hourglass energy is
@@ -72,6 +76,7 @@ impl ForceStats {
         self.max_det_f = self.max_det_f.max(check.det);
         self.clamped_points += u32::from(check.clamped);
         self.finite &= check.finite;
+        self.max_stiffening = self.max_stiffening.max(check.stiffening);
     }
 
     /// The figures of two disjoint sets of points together (`self` first in the sums).
@@ -83,6 +88,7 @@ impl ForceStats {
             max_det_f: self.max_det_f.max(other.max_det_f),
             clamped_points: self.clamped_points + other.clamped_points,
             finite: self.finite && other.finite,
+            max_stiffening: self.max_stiffening.max(other.max_stiffening),
         }
     }
 
@@ -101,6 +107,8 @@ pub(crate) struct PointCheck {
     clamped: bool,
     /// det F and P are finite.
     finite: bool,
+    /// The stiffening's factor on the tangent (1: none).
+    stiffening: f64,
 }
 
 impl PointCheck {
@@ -109,15 +117,18 @@ impl PointCheck {
             det: s.det,
             clamped: s.clamped,
             finite: s.det.is_finite() && s.p.iter().all(|x| x.is_finite()),
+            stiffening: s.stiffening,
         }
     }
 
-    /// Plain StVK inside the ordinary det F range (so finite, not clamped).
-    pub(crate) fn plain(det: f64) -> Self {
+    /// StVK inside the ordinary det F range (so finite, not clamped), its tangent
+    /// `stiffening` times the plain law's.
+    pub(crate) fn plain(det: f64, stiffening: f64) -> Self {
         Self {
             det,
             clamped: false,
             finite: det.is_finite(),
+            stiffening,
         }
     }
 }

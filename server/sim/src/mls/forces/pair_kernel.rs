@@ -169,8 +169,8 @@ pub(crate) fn point_kernel(
         _ => None,
     };
     let pc = match fast {
-        Some((pc, psi, det)) => {
-            stats.add_point(v * psi, hourglass, PointCheck::plain(det));
+        Some((pc, psi, check)) => {
+            stats.add_point(v * psi, hourglass, check);
             pc
         }
         None => {
@@ -307,7 +307,7 @@ pub(crate) fn run_kernel(
         * volume;
     // Stress: vectorised StVK when every lane is in the ordinary range, else per lane.
     let (p_stress, psi, checks) = match lane_stvk(params, &fp) {
-        Some((p, psi, det)) => (p, psi, det.to_array().map(PointCheck::plain)),
+        Some(stressed) => stressed,
         None => lane_stress_scalar(params, &fp),
     };
     let strain = (psi * volume).to_array();

@@ -4,18 +4,18 @@
 //! the end of Σ, embedded in the field like the surface's vertices and held by the edge
 //! alone (`solver::blade`, `push_front`). What they push back with is the tissue's: it rises
 //! with its stiffness as the blade indents the uncut tissue ahead. The crack advances only
-//! when the energy the advance releases pays for the new crack: a jump of Δa at the blade's
-//! place releases f·Δa − ½k·Δa² (f the push along the blade's facing, k the tissue's
-//! stiffness there, the loading slope), and costs J_c·w·Δa (w the width of fresh tissue
-//! the edge engages). So it jumps when f − ½k·Δa ≥ J_c·w, and the mean force over the
-//! deformation–fracture cycles is J_c·w whatever the stiffness. Where the edge has got
-//! further past the front than Δa, the release is taken over that span instead, so the
-//! catch-up jumps are paid for too.
+//! when the energy the blade has put into the tissue ahead pays for the new crack: the work
+//! the edge did since the last advance (what the tissue ahead stores, less what it gave
+//! back) against J_c·w·Δa for a jump of Δa over the width w of fresh tissue the edge
+//! engages. Each jump spends its J_c·w·Δa and the rest stays to the next, so over many
+//! jumps the blade's work is the crack's energy: the mean force is J_c·w whatever the
+//! stiffness (the energy balance of steady cutting), and the stiffness only sets how long
+//! the tissue loads between jumps and how much it gives back at one — the sawtooth.
 //!
-//! Δa is the process zone's length, below the lattice: the tissue at the edge strain-
-//! stiffens, so the zone that loads the crack tip is `crack_tip_stiffening` times stiffer than
-//! the small-strain modulus E, and it fails after J_c/(c·E) of indentation (2 mm on the
-//! liver at the default 19). That sets the sawtooth's period; its drop is about k·Δa.
+//! Δa is the process zone's length, below the lattice: J_c/(c·E) with c =
+//! `crack_tip_stiffening` (2 mm on the liver at the default 19); the strain-stiffening of
+//! the tissue itself (`[material] stiffening`) is what lets the front load to J_c·w within
+//! millimetres of push on soft tissue.
 
 use super::*;
 use crate::model::embedding::Blockers;
@@ -39,8 +39,8 @@ pub(super) struct CrackFront {
     pub(super) built: bool,
     /// ... built for a front that has moved since.
     pub(super) stale: bool,
-    /// The tissue's stiffness along the blade's facing (N/m), read by the force stage.
-    pub(super) tissue_k: f64,
+    /// The work the edge has put into the tissue ahead and no fracture has spent yet (J).
+    pub(super) work_j: f64,
 }
 
 /// How far the edge (rest: tip, top) has got past the crack front `front` along `ahead`.
@@ -49,44 +49,34 @@ fn lag_past(front: &[Vec3; 2], edge: &[Vec3; 2], ahead: Vec3) -> f64 {
 }
 
 impl CuttingStage {
-    /// The tissue's stiffness seen at the blade along its facing (N/m), from the force
-    /// stage's reading: the loading slope the fracture criterion takes off the release.
-    pub fn note_tissue_stiffness(&mut self, k: f64) {
-        self.front.tissue_k = if k.is_finite() { k.max(0.0) } else { 0.0 };
-    }
-
-    /// The jump Δa (m) if the crack advances this tick: the energy criterion on what the
-    /// edge's samples pushed with over the last step (`force_on_blade`), `width_m` of fresh
-    /// tissue engaged. Where the edge (`edge_rest`: tip, top) has got past the front by more
-    /// than the process zone (the tissue beside it flowed by), the release is taken over
-    /// that whole span, so a run of catch-up jumps is paid for (the mean force stays J_c·w);
-    /// the front still moves by Δa a jump.
+    /// The jump Δa (m) if the crack advances this tick: the work the edge's samples did
+    /// on the tissue over the last step (`work_on_tissue`) goes to the front's account, and
+    /// a jump is due when the account pays for Δa of crack over `width_m` of fresh tissue.
     pub(super) fn fracture_due(
-        &self,
+        &mut self,
         phase: CutPhase,
         blade: Option<&Blade>,
         width_m: f64,
-        edge_rest: Option<[Vec3; 2]>,
         solver: &Solver,
     ) -> Option<f64> {
-        let (CutPhase::Cutting, Some(b), Some(body), true) =
+        let (CutPhase::Cutting, Some(_), Some(body), true) =
             (phase, blade, solver.blade(), self.front.built)
         else {
             return None;
         };
+        // What the tissue gives back (the blade backing off) comes off the account; it
+        // never owes.
+        self.front.work_j = (self.front.work_j + body.work_on_tissue()).max(0.0);
         if body.is_empty() || width_m <= 0.0 {
             return None;
         }
-        // The tissue pushes the blade toward its spine.
-        let push = body.force_on_blade().dot(&b.toward_back);
-        let lag = match (self.last_sweep, edge_rest, touch::front_ahead(b)) {
-            (Some(front), Some(edge), Some(ahead)) => lag_past(&front, &edge, ahead),
-            _ => 0.0,
-        };
         let jump = self.process_zone(solver);
-        let span = jump.max(lag.min(self.most_lag()));
-        let toughness = self.force.toughness_n_per_m();
-        (push - 0.5 * self.front.tissue_k * span >= toughness * width_m).then_some(jump)
+        let cost = self.force.toughness_n_per_m() * width_m * jump;
+        if self.front.work_j < cost {
+            return None;
+        }
+        self.front.work_j -= cost;
+        Some(jump)
     }
 
     /// The process zone's length (m): J_c / (c·E), within a quarter of a sample pitch and a

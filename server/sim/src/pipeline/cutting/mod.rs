@@ -310,11 +310,11 @@ impl CuttingStage {
                 crushed: phase_before == CutPhase::Loading && crushed_under_blade(solver),
             },
         );
-        // The crack advances by energy: what the edge's samples pushed with last step.
+        // The crack advances by energy: what the edge's samples stored in the tissue.
         let jump = if withdrawing {
             None
         } else {
-            self.fracture_due(force.phase, blade, depth_m * crack, edge_rest, solver)
+            self.fracture_due(force.phase, blade, depth_m * crack, solver)
         };
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);

@@ -59,7 +59,15 @@ impl CuttingStage {
                 // Left is on the left of a blade cutting edge first (toward −back).
                 plunge_normal = flat.map(|back| back.cross(&up));
                 let at = self.steady.position();
+                // Cutting edge first, the crack front advances by fracture (`fracture`); in
+                // point first, the flat's slit follows the blade.
+                let ahead = blade
+                    .and_then(touch::front_ahead)
+                    .filter(|_| flat.is_none() && self.force.fracture_by_energy());
                 match self.last_sweep {
+                    // A crack front is material: a blade whose edge reads as in its own cut
+                    // (the lips it pushes are mapped there) leaves it where it is.
+                    Some(_) if retracing && ahead.is_some() => {}
                     // Moving back along its cut the blade is on Σ: the sweep goes on from
                     // here when it cuts again (from where it was, one straight quad would
                     // cut the chord of a curved cut).
@@ -71,11 +79,6 @@ impl CuttingStage {
                     // The edge jitters with the device's noise, and would sweep Σ to and
                     // fro around a held blade: the blade must also have moved steadily.
                     Some(last) => {
-                        // Cutting edge first, the crack front advances by fracture
-                        // (`fracture`); in point first, the flat's slit follows the blade.
-                        let ahead = blade
-                            .and_then(touch::front_ahead)
-                            .filter(|_| flat.is_none() && self.force.fracture_by_energy());
                         let target = match ahead {
                             Some(ahead) => {
                                 fractured = jump.is_some();

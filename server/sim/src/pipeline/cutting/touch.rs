@@ -241,6 +241,7 @@ impl CuttingStage {
 
     /// Takes the crack front's samples away (the blade left, or presses again).
     fn drop_front(&mut self, solver: &mut Solver) {
+        self.front.work_j = 0.0;
         if std::mem::take(&mut self.front.built)
             && let Some(body) = solver.blade_mut()
         {

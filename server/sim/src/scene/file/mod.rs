@@ -92,6 +92,7 @@ struct RawMaterial {
     poisson_ratio: Option<f64>,
     density_kg_m3: Option<f64>,
     damping_per_s: Option<f64>,
+    stiffening: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -397,6 +398,14 @@ fn apply_material(
         m.damping_per_s,
         key,
         Limit::closed(0.0, 1000.0, "1/s"),
+        1.0,
+    )?;
+    let key = "material.stiffening";
+    check.set(
+        &mut mat.stiffening,
+        m.stiffening,
+        key,
+        Limit::closed(0.0, 100.0, ""),
         1.0,
     )?;
     Ok(())

@@ -211,9 +211,10 @@ fn docs_example_is_complete() {
         poisson_ratio,
         density_kg_m3,
         damping_per_s,
+        stiffening,
     } = material.expect("[material]");
     assert!(youngs_modulus_kpa.is_some() && poisson_ratio.is_some());
-    assert!(density_kg_m3.is_some() && damping_per_s.is_some());
+    assert!(density_kg_m3.is_some() && damping_per_s.is_some() && stiffening.is_some());
     let RawSampling {
         spacing_mm,
         target_points,

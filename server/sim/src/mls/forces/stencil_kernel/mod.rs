@@ -30,7 +30,7 @@
 use wide::f64x4;
 
 use super::StencilChunks;
-use super::{ForceStats, PointCheck, Threads, lane_stress_scalar, lane_stvk};
+use super::{ForceStats, Threads, lane_stress_scalar, lane_stvk};
 use crate::math::Vec3;
 use crate::mls::material::ElasticParams;
 use crate::mls::operator::LANES;

@@ -227,7 +227,7 @@ pub(super) fn point_stress<const DIAGONAL: bool>(
         }
     }
     let (p_stress, psi, checks) = match lane_stvk(params, &f) {
-        Some((p, psi, det)) => (p, psi, det.to_array().map(PointCheck::plain)),
+        Some(stressed) => stressed,
         None => lane_stress_scalar(params, &f),
     };
     let volume_of = |lane: usize| match t.point[lane] {
