@@ -261,6 +261,18 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
     );
     let _ = writeln!(
         s,
+        "  steady force per depth {:.3} N/mm (friction {:.2} N of it)",
+        m.steady_force_per_depth_n_per_mm, m.steady_friction_n
+    );
+    if let Some(t) = &m.sawtooth {
+        let _ = writeln!(
+            s,
+            "  sawtooth: {:.1} fractures per 10 mm, mean drop {:.2} N, loading {:.3} N/mm",
+            t.drops_per_10mm, t.mean_drop_n, t.loading_slope_n_per_mm
+        );
+    }
+    let _ = writeln!(
+        s,
         "  interior: {} pairs cut by {} triangles of Σ, at most {} of {} points integrated, {} left / {} right of the blade",
         m.pairs_removed,
         m.sigma_triangles,
@@ -312,13 +324,13 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
 
 fn write_csv(run: &CutRun, path: &Path) -> anyhow::Result<()> {
     let mut s = String::from(
-        "t_s,tip_x_mm,tip_y_mm,tip_z_mm,travel_mm,phase,in_tissue,depth_mm,force_n,fx_n,fy_n,fz_n,surface_ms,internal_ms,active_points,substeps,rollbacks\n",
+        "t_s,tip_x_mm,tip_y_mm,tip_z_mm,travel_mm,phase,in_tissue,depth_mm,force_n,fx_n,fy_n,fz_n,surface_ms,internal_ms,active_points,substeps,rollbacks,fractured\n",
     );
     for r in &run.rows {
         let phase = serde_json::to_value(r.phase)?;
         let _ = writeln!(
             s,
-            "{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{},{},{}",
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{},{},{},{}",
             r.t_s,
             r.tip_m[0] * 1e3,
             r.tip_m[1] * 1e3,
@@ -335,7 +347,8 @@ fn write_csv(run: &CutRun, path: &Path) -> anyhow::Result<()> {
             r.internal_ms,
             r.active_points,
             r.substeps,
-            r.rollbacks
+            r.rollbacks,
+            u8::from(r.fractured)
         );
     }
     std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))

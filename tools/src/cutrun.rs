@@ -52,6 +52,8 @@ pub struct TickRow {
     pub rollbacks: u32,
     /// Explicit sub-steps of the tick's last attempt.
     pub substeps: u32,
+    /// The crack front jumped by fracture this tick (`[force] fracture_by_energy`).
+    pub fractured: bool,
 }
 
 /// The wall clock the simulation times its stages with.
@@ -163,6 +165,7 @@ fn run_cut_here(
             diverged: report.solver.diverged,
             rollbacks: report.solver.rollbacks,
             substeps: report.solver.substeps,
+            fractured: cut.is_some_and(|c| c.fractured),
         });
         tick(k + 1, ticks);
     }
@@ -211,6 +214,13 @@ pub struct CutMetrics {
     pub ripple_n: f64,
     /// Depth while stroking, mean (mm).
     pub steady_depth_mm: f64,
+    /// The steady force per millimetre of depth (N/mm): J_c's 0.19 on the liver plus the
+    /// friction's share.
+    pub steady_force_per_depth_n_per_mm: f64,
+    /// The friction the force model adds at the steady depth (N): the share above.
+    pub steady_friction_n: f64,
+    /// The deformation–fracture cycles while stroking (fracture by energy only).
+    pub sawtooth: Option<Sawtooth>,
     /// Incisions opened on the surface.
     pub incisions: usize,
     /// Incision runs refused (surface left as it was).
@@ -277,6 +287,67 @@ pub fn describe_substeps(
         );
     }
     line
+}
+
+/// The deformation–fracture cycles of a steady stroke (cutting-physics.md §3).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Sawtooth {
+    /// Fracture events (runs of ticks the front jumped) per 10 mm of travel.
+    pub drops_per_10mm: f64,
+    /// Mean fall of the force at an event: the highest over the ticks before it to the
+    /// lowest over the ticks after (N).
+    pub mean_drop_n: f64,
+    /// Mean slope of the force against travel from an event's low to the next event's
+    /// high: the tissue's "local effective modulus" (N/mm).
+    pub loading_slope_n_per_mm: f64,
+}
+
+/// The friction the scene's force model adds at `depth_m` (N).
+fn friction_at(scene: &BuiltScene, depth_m: f64) -> f64 {
+    scalpel_sim::force::CuttingForceModel::new(&scene.spec.force, false).friction(depth_m)
+}
+
+/// Ticks either side of a fracture event its high and low are looked for over.
+const EVENT_TICKS: usize = 50;
+
+/// The sawtooth of `steady` (rows in order), `None` without two fracture events.
+fn sawtooth(steady: &[&TickRow]) -> Option<Sawtooth> {
+    // Each event's first tick.
+    let events: Vec<usize> = (0..steady.len())
+        .filter(|&i| steady[i].fractured && (i == 0 || !steady[i - 1].fractured))
+        .collect();
+    if events.len() < 2 {
+        return None;
+    }
+    let travel = steady.last()?.travel_m - steady.first()?.travel_m;
+    let high = |i: usize| {
+        let from = i.saturating_sub(EVENT_TICKS);
+        (from..=i).max_by(|&a, &b| steady[a].force_mag_n.total_cmp(&steady[b].force_mag_n))
+    };
+    let low = |i: usize| {
+        let to = (i + EVENT_TICKS).min(steady.len() - 1);
+        (i..=to).min_by(|&a, &b| steady[a].force_mag_n.total_cmp(&steady[b].force_mag_n))
+    };
+    let (mut drops, mut slopes) = (Vec::new(), Vec::new());
+    for (k, &e) in events.iter().enumerate() {
+        let (Some(h), Some(l)) = (high(e), low(e)) else {
+            continue;
+        };
+        drops.push(steady[h].force_mag_n - steady[l].force_mag_n);
+        if let Some(next) = events.get(k + 1).and_then(|&n| high(n)).filter(|&n| n > l) {
+            let rise = steady[next].force_mag_n - steady[l].force_mag_n;
+            let run = (steady[next].travel_m - steady[l].travel_m) * 1e3;
+            if run > 0.0 {
+                slopes.push(rise / run);
+            }
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    Some(Sawtooth {
+        drops_per_10mm: events.len() as f64 / (travel / 0.01).max(1e-9),
+        mean_drop_n: mean(&drops),
+        loading_slope_n_per_mm: mean(&slopes),
+    })
 }
 
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
@@ -372,6 +443,13 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         steady_force_n: steady_force,
         ripple_n: ripple,
         steady_depth_mm: steady_depth * 1e3,
+        steady_force_per_depth_n_per_mm: if steady_depth > 0.0 {
+            steady_force / (steady_depth * 1e3)
+        } else {
+            0.0
+        },
+        steady_friction_n: friction_at(scene, steady_depth),
+        sawtooth: sawtooth(&steady),
         incisions: incisions.incisions,
         incisions_refused: incisions.refused,
         incision_refusal: incisions.last_refusal.clone(),
@@ -389,5 +467,52 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         substeps_max: run.rows.iter().map(|r| r.substeps).max().unwrap_or(0),
         whole_step_mass: sim.solver().whole_step_mass(),
         substep_keeping_mass: sim.solver().substep_keeping_mass(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(travel_m: f64, force: f64, fractured: bool) -> TickRow {
+        TickRow {
+            t_s: 0.0,
+            tip_m: [0.0; 3],
+            travel_m,
+            phase: CutPhase::Cutting,
+            in_tissue: true,
+            depth_m: 0.01,
+            force_n: [force, 0.0, 0.0],
+            force_mag_n: force,
+            formula_n: None,
+            stroking: true,
+            surface_ms: 0.0,
+            internal_ms: 0.0,
+            stage_ms: [0.0; Stage::ALL.len()],
+            active_points: 0,
+            diverged: false,
+            rollbacks: 0,
+            substeps: 1,
+            fractured,
+        }
+    }
+
+    /// A sawtooth loading at 0.5 N/mm from 1 to 2 N over 2 mm, falling back to 1 N at each
+    /// fracture: 5 events per 10 mm, drops of 1 N, the slope 0.5 N/mm.
+    #[test]
+    fn the_sawtooth_of_a_known_force() {
+        let mut rows = Vec::new();
+        for k in 0..4000 {
+            let travel = k as f64 * 1e-5;
+            let phase = k % 200;
+            rows.push(row(travel, 1.0 + phase as f64 / 200.0, phase == 0 && k > 0));
+        }
+        let steady: Vec<&TickRow> = rows.iter().collect();
+        let t = sawtooth(&steady).expect("events");
+        assert!((t.drops_per_10mm - 19.0 / 4.0).abs() < 0.1, "{t:?}");
+        assert!((t.mean_drop_n - 0.995).abs() < 0.01, "{t:?}");
+        assert!((t.loading_slope_n_per_mm - 0.5).abs() < 0.01, "{t:?}");
+        let none: Vec<&TickRow> = rows.iter().filter(|r| !r.fractured).collect();
+        assert!(sawtooth(&none).is_none());
     }
 }
