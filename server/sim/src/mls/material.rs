@@ -392,23 +392,37 @@ mod tests {
             let mut params = ElasticParams::stvk(5000.0, 0.45);
             params.model = model;
             params.volume_k = 2000.0;
-            let f = sample_f();
-            let p = stress(&params, &f).p;
-            let h = 1e-6;
-            for a in 0..3 {
-                for b in 0..3 {
-                    let mut fp = f;
-                    let mut fm = f;
-                    fp[(a, b)] += h;
-                    fm[(a, b)] -= h;
-                    let fd = (energy(&params, &fp) - energy(&params, &fm)) / (2.0 * h);
-                    assert!(
-                        (fd - p[(a, b)]).abs() < 1e-4 * p.norm().max(1.0),
-                        "{model:?} ({a},{b})"
-                    );
-                }
+            assert_energy_gradient(&params, &sample_f(), 1e-4);
+        }
+    }
+
+    /// P at `f` against central differences of ψ, within `tol` of |P| (at least 1 Pa).
+    fn assert_energy_gradient(params: &ElasticParams, f: &Mat3, tol: f64) {
+        let p = stress(params, f).p;
+        let h = 1e-6;
+        for a in 0..3 {
+            for b in 0..3 {
+                let mut fp = *f;
+                let mut fm = *f;
+                fp[(a, b)] += h;
+                fm[(a, b)] -= h;
+                let fd = (energy(params, &fp) - energy(params, &fm)) / (2.0 * h);
+                assert!(
+                    (fd - p[(a, b)]).abs() < tol * p.norm().max(1.0),
+                    "{:?} ({a},{b})",
+                    params.model
+                );
             }
         }
+    }
+
+    /// The differential along a fixed dF at `f` against central differences of P.
+    fn assert_exact_differential(params: &ElasticParams, f: &Mat3) {
+        let df = Mat3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.3, 0.1, 0.2, -0.2);
+        let h = 1e-6;
+        let fd = (stress(params, &(f + df * h)).p - stress(params, &(f - df * h)).p) / (2.0 * h);
+        let an = stress_differential(params, f, &df);
+        assert!((fd - an).norm() < 1e-5 * an.norm(), "{:?}", params.model);
     }
 
     /// The differential matches finite differences of P (StVK and MuellerCompat exactly).
@@ -418,13 +432,7 @@ mod tests {
             let mut params = ElasticParams::stvk(5000.0, 0.45);
             params.model = model;
             params.volume_k = 1000.0;
-            let f = sample_f();
-            let df = Mat3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.3, 0.1, 0.2, -0.2);
-            let h = 1e-6;
-            let fd =
-                (stress(&params, &(f + df * h)).p - stress(&params, &(f - df * h)).p) / (2.0 * h);
-            let an = stress_differential(&params, &f, &df);
-            assert!((fd - an).norm() < 1e-5 * an.norm(), "{model:?}");
+            assert_exact_differential(&params, &sample_f());
         }
     }
 
@@ -451,32 +459,13 @@ mod tests {
             params.stiffening = 10.0;
             // Q ≈ 0.9 and ≈ 5 (past the cap).
             for f in [stretched(1.3), stretched(1.8)] {
-                let p = stress(&params, &f).p;
-                let h = 1e-6;
-                for a in 0..3 {
-                    for b in 0..3 {
-                        let mut fp = f;
-                        let mut fm = f;
-                        fp[(a, b)] += h;
-                        fm[(a, b)] -= h;
-                        let fd = (energy(&params, &fp) - energy(&params, &fm)) / (2.0 * h);
-                        assert!(
-                            (fd - p[(a, b)]).abs() < 1e-5 * p.norm(),
-                            "{model:?} ({a},{b})"
-                        );
-                    }
-                }
+                assert_energy_gradient(&params, &f, 1e-5);
             }
         }
         let mut params = ElasticParams::stvk(5000.0, 0.45);
         params.stiffening = 10.0;
         params.volume_k = 1000.0;
-        let f = stretched(1.3);
-        let df = Mat3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.3, 0.1, 0.2, -0.2);
-        let h = 1e-6;
-        let fd = (stress(&params, &(f + df * h)).p - stress(&params, &(f - df * h)).p) / (2.0 * h);
-        let an = stress_differential(&params, &f, &df);
-        assert!((fd - an).norm() < 1e-5 * an.norm());
+        assert_exact_differential(&params, &stretched(1.3));
     }
 
     /// At small strain the stiffened law is the base law; stretched, it is e^Q times the
