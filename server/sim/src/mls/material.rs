@@ -71,7 +71,7 @@ pub struct ElasticParams {
     /// [`DET_RANGE`] (the guard's inversion fallback). Off only to show what plain StVK does.
     pub clamp_inversion: bool,
     /// Strain-stiffening β (dimensionless; 0: none): Fung's exponential on the law's
-    /// energy ψ₀, ψ = (c/2)(e^Q − 1) with Q = 2βψ₀/E and c = E/β (see [`stiffen`]).
+    /// energy ψ₀, ψ = (c/2)(e^Q − 1) with Q = 2βψ₀/E and c = E/β (see [`Self::stiffened`]).
     pub stiffening: f64,
 }
 
@@ -166,7 +166,7 @@ impl ElasticParams {
 
 /// dψ/dψ₀ = g'(Q) = e^min(Q, Qmax).
 #[inline]
-pub fn stiffening_slope(q: f64) -> f64 {
+fn stiffening_slope(q: f64) -> f64 {
     q.min(MOST_STIFFENING_EXPONENT).exp()
 }
 
@@ -211,11 +211,7 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
     } else {
         (f, false)
     };
-    let (mut p, mut psi) = match params.model {
-        ElasticModel::StVK => stvk(&params.lame, f_eval, 1.0),
-        ElasticModel::MuellerCompat => mueller(&params.lame, f_eval),
-        ElasticModel::Corotated => corotated(&params.lame, f_eval),
-    };
+    let (mut p, mut psi) = base_law(params, f_eval);
     let mut stiffening = 1.0;
     if params.stiffening > 0.0 {
         let s = params.stiffened(psi);
@@ -233,6 +229,16 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
         det,
         clamped,
         stiffening,
+    }
+}
+
+/// P and ψ of the model's own law, before the stiffening and the volume term.
+#[inline]
+fn base_law(params: &ElasticParams, f: &Mat3) -> (Mat3, f64) {
+    match params.model {
+        ElasticModel::StVK => stvk(&params.lame, f, 1.0),
+        ElasticModel::MuellerCompat => mueller(&params.lame, f),
+        ElasticModel::Corotated => corotated(&params.lame, f),
     }
 }
 
@@ -287,11 +293,7 @@ pub fn stress_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 
     };
     if params.stiffening > 0.0 {
         // P = g'(Q) P₀ with Q = 2βψ₀/E: dP = g' dP₀ + g''(Q) (2β/E)(P₀ : dF) P₀.
-        let (p0, psi0) = match params.model {
-            ElasticModel::StVK => stvk(&params.lame, f, 1.0),
-            ElasticModel::MuellerCompat => mueller(&params.lame, f),
-            ElasticModel::Corotated => corotated(&params.lame, f),
-        };
+        let (p0, psi0) = base_law(params, f);
         let q = params.stiffening_exponent(psi0);
         let dq = 2.0 * params.stiffening / params.effective_youngs_modulus()
             * p0.component_mul(df).sum();

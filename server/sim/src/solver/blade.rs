@@ -174,8 +174,6 @@ pub struct BladeBody {
     substeps: u32,
     /// Mean force on the blade over the last tick (N).
     on_blade: Vec3,
-    /// The work the blade did on the tissue over the last tick (J).
-    tick_work: f64,
     /// 1 while the faces hold, down to 0 while the tissue they held is let go (`release`).
     hold: f64,
     /// Per sample: 0 for a surface sample; for a crack-front sample (`push_front`), how far
@@ -207,7 +205,6 @@ impl BladeBody {
             force_sum: Vec3::zeros(),
             substeps: 0,
             on_blade: Vec3::zeros(),
-            tick_work: 0.0,
             hold: 1.0,
             capture: Vec::with_capacity(samples),
         }
@@ -249,7 +246,6 @@ impl BladeBody {
         self.normal_impulse.clear();
         self.capture.clear();
         self.on_blade = Vec3::zeros();
-        self.tick_work = 0.0;
     }
 
     /// Whether a sample following `entries` points still fits.
@@ -641,22 +637,21 @@ impl BladeBody {
         self.substeps += 1;
     }
 
-    /// The tick is done: its mean force on the blade, and the work that force did on the
-    /// tissue over the blade's move (the steel is rigid and what it holds moves with it; its
-    /// turn within one tick is left out), the same in every mode.
+    /// The tick is done: its mean force on the blade.
     pub(super) fn end_tick(&mut self) {
         self.on_blade = if self.substeps > 0 {
             -self.force_sum / f64::from(self.substeps)
         } else {
             Vec3::zeros()
         };
-        self.tick_work = -self.on_blade.dot(&(self.to.tip - self.from.tip));
     }
 
-    /// The work the blade did on the tissue over the last tick (J): the energy it stored
-    /// in what it holds, or, negative, what the tissue gave back.
+    /// The work the blade did on the tissue over the last tick (J): its mean force on the
+    /// tissue over its move (the steel is rigid and what it holds moves with it; its turn
+    /// within one tick is left out), the same in every mode — the energy it stored in what
+    /// it holds, or, negative, what the tissue gave back. Read before the next `move_to`.
     pub fn work_on_tissue(&self) -> f64 {
-        self.tick_work
+        -self.on_blade.dot(&(self.to.tip - self.from.tip))
     }
 }
 
