@@ -45,7 +45,7 @@ pub fn run(json: bool, only: &[String]) -> anyhow::Result<()> {
         for r in &rows {
             let x = &r.result;
             println!(
-                "{:<4} {:<4} error {:>9.2e} (band {:.0e}) {:>8.1} ms  {}",
+                "{:<4} {:<4} error {:>9.2e} (band {:.2e}) {:>8.1} ms  {}",
                 x.name,
                 if x.pass { "pass" } else { "FAIL" },
                 x.error,

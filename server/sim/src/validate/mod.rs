@@ -7,6 +7,7 @@
 mod bodies;
 mod cantilever;
 mod cases;
+mod griffith;
 mod punch;
 mod stability;
 mod supports;
@@ -16,6 +17,7 @@ use serde::Serialize;
 pub use bodies::{BoxBody, LatticeCube, box_body, cut_down_to, timoshenko_tip_deflection};
 pub use cantilever::*;
 pub use cases::*;
+pub use griffith::*;
 pub use punch::*;
 pub use stability::*;
 pub use supports::*;
@@ -118,6 +120,10 @@ pub fn all() -> Vec<Benchmark> {
         Benchmark {
             name: "B14",
             run: b14_flat_punch,
+        },
+        Benchmark {
+            name: "B15",
+            run: b15_griffith_slit,
         },
     ]
 }
