@@ -13,7 +13,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::thread::{JoinHandle, Thread};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use scalpel_sim::pipeline::recut::RECUTS_OUT;
 use scalpel_sim::pipeline::{InlineRecuts, RecutJob, RecutResult, RecutRunner};
@@ -56,7 +56,11 @@ impl WorkerRecuts {
                 .spawn(move || {
                     loop {
                         while let Ok(job) = inbox.pop() {
-                            let result = job.run();
+                            // Timed here (the core has no clock): the incision's work is
+                            // the ticks' it serves, wherever it runs.
+                            let started = Instant::now();
+                            let mut result = job.run();
+                            result.set_worker_time(started.elapsed().as_secs_f64());
                             // Room for every job's result: the simulation reads them as
                             // they are due, and never has more than RECUTS_OUT out.
                             if outbox.push(result).is_err() {

@@ -256,6 +256,18 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
     );
     let _ = writeln!(
         s,
+        "  all its work (the re-cut worker's {:.1} ms added to the steps they landed in): {:.3} ms median, {:.3} ms p99, {:.3} ms mean",
+        m.recut_worker_ms, m.total_ms.p50, m.total_ms.p99, m.work_per_cut_step_ms
+    );
+    if let Some(lag) = &m.lip_lag_mm {
+        let _ = writeln!(
+            s,
+            "  the drawn incision trails the blade's entry by {:.1} mm median, {:.1} mm at most",
+            lag.p50, lag.max
+        );
+    }
+    let _ = writeln!(
+        s,
         "  force: peak {:.2} N, steady {:.2} N at {:.1} mm deep, ripple ±{:.2} N",
         m.peak_force_n, m.steady_force_n, m.steady_depth_mm, m.ripple_n
     );

@@ -54,6 +54,13 @@ pub struct TickRow {
     pub substeps: u32,
     /// The crack front jumped by fracture this tick (`[force] fracture_by_energy`).
     pub fractured: bool,
+    /// Re-cut work done on the worker for this tick (ms): the re-cuts that landed in it, as
+    /// the worker timed them (0 with re-cuts inline, whose time is in `surface_ms`).
+    pub recut_worker_ms: f64,
+    /// While cutting, how far the blade's entry is from the drawn incision (mm, rest
+    /// space): the nearest top of a wound's wall columns, or with no wound yet, where the
+    /// stroke entered.
+    pub lip_lag_mm: Option<f64>,
 }
 
 /// The wall clock the simulation times its stages with.
@@ -130,8 +137,11 @@ fn run_cut_here(
     let mut travel = 0.0;
     let mut last_tip: Option<Vec3> = None;
     let mut clock = WallClock::default();
+    let worker_s = |sim: &Simulation| sim.incisions().map_or(0.0, |s| s.worker_s);
+    let mut stroke_entry: Option<Vec3> = None;
     for k in 0..ticks {
         sim.handle_tool_pose(Some(script.pose_at(k as f64 * TICK_S)));
+        let worker_before = worker_s(&sim);
         let report = sim.tick(TICK_S, &mut clock);
         // Where the blade went: a script's tip is checked against the blade's speed, but it
         // may turn faster than the blade follows.
@@ -143,6 +153,16 @@ fn run_cut_here(
         let edge = pose.orientation * Vec3::z();
         let direction = sim.cutting().map_or(Vec3::zeros(), |c| c.direction());
         let cut = report.cut.as_ref();
+        let entry_rest = cut
+            .filter(|c| c.in_tissue && c.force.phase == CutPhase::Cutting)
+            .and_then(|c| c.edge_rest)
+            .map(|[_, entry]| entry);
+        if cut.is_none_or(|c| !c.in_tissue) {
+            stroke_entry = None;
+        } else if stroke_entry.is_none() {
+            stroke_entry = entry_rest;
+        }
+        let lip_lag_mm = entry_rest.map(|at| lip_lag(&sim, at, stroke_entry) * 1e3);
         rows.push(TickRow {
             t_s: report.time_s,
             tip_m: pose.tip_m.into(),
@@ -166,13 +186,35 @@ fn run_cut_here(
             rollbacks: report.solver.rollbacks,
             substeps: report.solver.substeps,
             fractured: cut.is_some_and(|c| c.fractured),
+            recut_worker_ms: (worker_s(&sim) - worker_before) * 1e3,
+            lip_lag_mm,
         });
         tick(k + 1, ticks);
     }
     // A script that ends within a re-cut's hand-over of the blade leaving: its output is
-    // the finished incision.
+    // the finished incision (its worker time the last tick's).
+    let worker_before = worker_s(&sim);
     sim.settle_incision();
+    if let Some(last) = rows.last_mut() {
+        last.recut_worker_ms += (worker_s(&sim) - worker_before) * 1e3;
+    }
     CutRun { rows, sim }
+}
+
+/// How far `entry` (rest) is from the drawn incision: the nearest top of any wound's wall
+/// columns, or with no wound yet, `stroke_entry` (m).
+fn lip_lag(sim: &Simulation, entry: Vec3, stroke_entry: Option<Vec3>) -> f64 {
+    let wounds = &sim.current_surface().wounds;
+    let nearest = wounds
+        .iter()
+        .flat_map(|w| w.columns.iter())
+        .map(|c| (c.top - entry).norm())
+        .fold(f64::INFINITY, f64::min);
+    if nearest.is_finite() {
+        nearest
+    } else {
+        stroke_entry.map_or(0.0, |s| (s - entry).norm())
+    }
 }
 
 pub use crate::stats::Quantiles;
@@ -188,8 +230,19 @@ pub struct CutMetrics {
     pub surface_ms: Quantiles,
     /// Internal stage per cut step (ms).
     pub internal_ms: Quantiles,
-    /// Both stages per cut step (ms).
+    /// Both stages on the simulation's thread per cut step (ms).
+    pub on_thread_ms: Quantiles,
+    /// All of a cut step's work, like for like with the paper's single thread (ms): both
+    /// stages plus the re-cut worker's time for the re-cuts that landed in the step.
     pub total_ms: Quantiles,
+    /// The re-cut worker's time over the run (ms).
+    pub recut_worker_ms: f64,
+    /// All the work per cut step on average (ms): both stages and the worker's re-cuts,
+    /// spread over the cut steps.
+    pub work_per_cut_step_ms: f64,
+    /// While stroking, how far the blade's entry is from the drawn incision (mm, rest):
+    /// median and largest.
+    pub lip_lag_mm: Option<LipLag>,
     /// Each stage of the tick (`Stage::name`), over the same ticks (ms).
     pub stages_ms: std::collections::BTreeMap<&'static str, Quantiles>,
     /// Largest turn between consecutive lip segments (degrees).
@@ -289,6 +342,15 @@ pub fn describe_substeps(
     line
 }
 
+/// How far the drawn incision trails the blade (mm).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LipLag {
+    /// Median over the steady stroke's ticks.
+    pub p50: f64,
+    /// Largest.
+    pub max: f64,
+}
+
 /// The deformation–fracture cycles of a steady stroke (cutting-physics.md §3).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Sawtooth {
@@ -350,15 +412,35 @@ fn sawtooth(steady: &[&TickRow]) -> Option<Sawtooth> {
     })
 }
 
+/// The lip lag over `steady`, `None` when no tick measured it.
+fn lip_lag_of(steady: &[&TickRow]) -> Option<LipLag> {
+    let lags: Vec<f64> = steady.iter().filter_map(|r| r.lip_lag_mm).collect();
+    let q = Quantiles::of(&lags)?;
+    Some(LipLag {
+        p50: q.p50,
+        max: q.max,
+    })
+}
+
 /// Metrics of a run; `wavelength_m` is the ripple wavelength (for the moving mean).
 pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetrics {
     let cut_rows: Vec<&TickRow> = run.rows.iter().filter(|r| r.in_tissue).collect();
     let surface: Vec<f64> = cut_rows.iter().map(|r| r.surface_ms).collect();
     let internal: Vec<f64> = cut_rows.iter().map(|r| r.internal_ms).collect();
-    let total: Vec<f64> = cut_rows
+    let on_thread: Vec<f64> = cut_rows
         .iter()
         .map(|r| r.surface_ms + r.internal_ms)
         .collect();
+    // Like for like with the paper's single thread: the re-cut worker's time is added to
+    // the tick it landed in, as an inline re-cut would have cost it. Over every tick: a
+    // re-cut may land after the blade has left.
+    let worker_total: f64 = run.rows.iter().map(|r| r.recut_worker_ms).sum();
+    let total: Vec<f64> = cut_rows
+        .iter()
+        .map(|r| r.surface_ms + r.internal_ms + r.recut_worker_ms)
+        .collect();
+    let work_per_cut_step =
+        (on_thread.iter().sum::<f64>() + worker_total) / cut_rows.len().max(1) as f64;
     // Steady cutting: stroking after rupture, past the first wavelength.
     let rupture_travel = run
         .rows
@@ -417,7 +499,11 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         cut_steps: cut_rows.len(),
         surface_ms: Quantiles::or_zero(&surface),
         internal_ms: Quantiles::or_zero(&internal),
+        on_thread_ms: Quantiles::or_zero(&on_thread),
         total_ms: Quantiles::or_zero(&total),
+        recut_worker_ms: worker_total,
+        work_per_cut_step_ms: work_per_cut_step,
+        lip_lag_mm: lip_lag_of(&steady),
         stages_ms: Stage::ALL
             .iter()
             .enumerate()
@@ -488,6 +574,8 @@ mod tests {
             stroking: true,
             surface_ms: 0.0,
             internal_ms: 0.0,
+            recut_worker_ms: 0.0,
+            lip_lag_mm: None,
             stage_ms: [0.0; Stage::ALL.len()],
             active_points: 0,
             diverged: false,

@@ -302,6 +302,10 @@ enum BenchCommand {
         /// Threads for the simulation, as a station's `realtime.sim_threads` (1 or 2).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
         threads: u32,
+        /// The physical cut instead of the default: fracture by energy on a strain-stiffening
+        /// tissue (`[force] fracture_by_energy`, `[material] stiffening` = this β; issue 41).
+        #[arg(long, value_name = "BETA")]
+        fracture: Option<f64>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -672,7 +676,11 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
     match what {
         BenchCommand::Scenes { runs, json } => bench::scenes(runs, json),
         BenchCommand::Stability { json } => bench::stability::run(json),
-        BenchCommand::Table1 { threads, json } => bench::cutting::table1(threads as usize, json),
+        BenchCommand::Table1 {
+            threads,
+            fracture,
+            json,
+        } => bench::cutting::table1(threads as usize, fracture, json),
         BenchCommand::Scaling {
             points,
             threads,

@@ -623,6 +623,17 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert_eq!(m["steps"].as_u64(), Some(4901));
     assert!(m["surface_ms"]["p50"].as_f64().unwrap() > 0.0);
     assert!(m["internal_ms"]["p99"].as_f64().unwrap() > 0.0);
+    // All of a step's work: the re-cut ran on the worker, and its time is counted in the
+    // step it landed in, over what the simulation's thread did.
+    let worker_ms = m["recut_worker_ms"].as_f64().unwrap();
+    assert!(worker_ms > 0.0, "{m}");
+    let (total, on_thread) = (&m["total_ms"], &m["on_thread_ms"]);
+    assert!(total["max"].as_f64().unwrap() >= on_thread["max"].as_f64().unwrap());
+    let steps = m["cut_steps"].as_f64().unwrap();
+    assert!(m["work_per_cut_step_ms"].as_f64().unwrap() * steps >= worker_ms);
+    // The drawn incision trails the blade (today: by up to a mean edge length).
+    let lag = &m["lip_lag_mm"];
+    assert!(lag["max"].as_f64().unwrap() >= lag["p50"].as_f64().unwrap(), "{m}");
     assert_eq!(m["closed"], true);
     assert_eq!(m["manifold"], true);
     assert_eq!(m["incisions"].as_u64(), Some(1));

@@ -210,6 +210,17 @@ pub struct RecutResult {
     /// The incised surface's wounds, taken out of it and shared (made here, off the
     /// simulation thread; none when nothing was incised).
     pub(crate) wounds: Arc<Vec<Wound>>,
+    /// How long the job took on a worker's thread (s), as its runner timed it (the core has
+    /// no clock): 0 when it ran on the simulation's thread.
+    pub(crate) worker_s: f64,
+}
+
+impl RecutResult {
+    /// Records how long the job took on the runner's worker (s), for the incision's
+    /// figures: a worker's time belongs to the ticks it serves.
+    pub fn set_worker_time(&mut self, seconds: f64) {
+        self.worker_s = seconds.max(0.0);
+    }
 }
 
 impl RecutJob {
@@ -272,6 +283,7 @@ impl RecutJob {
             index,
             spent: JobBuffers::default(),
             wounds,
+            worker_s: 0.0,
         }
     }
 }

@@ -55,6 +55,10 @@ pub struct IncisionStats {
     pub late_recuts: usize,
     /// Ticks of a new stroke held until the last stroke's final re-cut was due.
     pub held_ticks: usize,
+    /// Time the re-cuts read so far took on a worker's thread (s): the surface incision's
+    /// work done off the tick, to be added to the ticks they serve (0 with re-cuts inline,
+    /// whose time is the tick's own).
+    pub worker_s: f64,
 }
 
 /// The surface at the start of the current stroke, and what its re-cuts have made of it.
@@ -551,6 +555,7 @@ impl StrokeTracker {
             let mut waited = false;
             recut = self.runner.finish(&mut waited);
             self.stats.late_recuts += usize::from(waited);
+            self.stats.worker_s += recut.as_ref().map_or(0.0, |r| r.worker_s);
             match &mut recut {
                 Some(r) if left > 0 => self.keep_buffers(std::mem::take(&mut r.spent)),
                 Some(_) => {}
