@@ -327,8 +327,15 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
     if m.diverged_ticks > 0 || m.rollback_ticks > 0 {
         let _ = writeln!(
             s,
-            "  solver: {} tick(s) rolled back and retried with more sub-steps, {} diverged (state restored)",
-            m.rollback_ticks, m.diverged_ticks
+            "  solver: {} tick(s) rolled back and retried with more sub-steps, {} diverged (state restored); attempts rolled back for energy growth {}, speed {}, non-finite values {}; first at tick {}",
+            m.rollback_ticks,
+            m.diverged_ticks,
+            m.guard.energy_growth,
+            m.guard.speed,
+            m.guard.non_finite,
+            m.guard
+                .first_tick
+                .map_or("-".to_string(), |t| t.to_string())
         );
     }
     s

@@ -8,7 +8,7 @@ use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Half, Simulation, Stage, StageClock};
 use scalpel_sim::scene::BuiltScene;
-use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
+use scalpel_sim::solver::{DivergenceReason, SolverEvent, SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
 /// Time per tick (s): the haptic rate.
@@ -78,10 +78,47 @@ impl StageClock for WallClock {
     }
 }
 
+/// Why the solver's guard rolled ticks back or gave them up, over a run.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct GuardCounts {
+    /// Attempts rolled back for a non-finite value ...
+    pub non_finite: usize,
+    /// ... for energy growing past the work put in ...
+    pub energy_growth: usize,
+    /// ... for a point moving more than 0.3 spacings in a sub-step.
+    pub speed: usize,
+    /// Ticks given up (restored, at rest).
+    pub diverged: usize,
+    /// The first tick rolled back or given up (0-based), if any.
+    pub first_tick: Option<usize>,
+}
+
+impl GuardCounts {
+    fn note(&mut self, tick: usize, event: &SolverEvent) {
+        let reason = match event {
+            SolverEvent::Rollback { reason, .. } => reason,
+            SolverEvent::Diverged { .. } => {
+                self.diverged += 1;
+                self.first_tick.get_or_insert(tick);
+                return;
+            }
+            _ => return,
+        };
+        self.first_tick.get_or_insert(tick);
+        match reason {
+            DivergenceReason::NonFinite => self.non_finite += 1,
+            DivergenceReason::EnergyGrowth => self.energy_growth += 1,
+            DivergenceReason::Speed => self.speed += 1,
+        }
+    }
+}
+
 /// A finished run.
 pub struct CutRun {
     /// Every tick.
     pub rows: Vec<TickRow>,
+    /// The solver guard's rollbacks by reason.
+    pub guard: GuardCounts,
     /// The simulation at the end.
     pub sim: Simulation,
 }
@@ -139,10 +176,14 @@ fn run_cut_here(
     let mut clock = WallClock::default();
     let worker_s = |sim: &Simulation| sim.incisions().map_or(0.0, |s| s.worker_s);
     let mut stroke_entry: Option<Vec3> = None;
+    let mut guard = GuardCounts::default();
     for k in 0..ticks {
         sim.handle_tool_pose(Some(script.pose_at(k as f64 * TICK_S)));
         let worker_before = worker_s(&sim);
         let report = sim.tick(TICK_S, &mut clock);
+        while let Some(event) = sim.poll_event() {
+            guard.note(k, &event);
+        }
         // Where the blade went: a script's tip is checked against the blade's speed, but it
         // may turn faster than the blade follows.
         let pose = sim.blade_pose().expect("the tool was put");
@@ -198,7 +239,7 @@ fn run_cut_here(
     if let Some(last) = rows.last_mut() {
         last.recut_worker_ms += (worker_s(&sim) - worker_before) * 1e3;
     }
-    CutRun { rows, sim }
+    CutRun { rows, guard, sim }
 }
 
 /// How far `entry` (rest) is from the drawn incision: the nearest top of any wound's wall
@@ -303,6 +344,8 @@ pub struct CutMetrics {
     pub diverged_ticks: usize,
     /// Ticks the solver's guard rolled back (and retried with more sub-steps).
     pub rollback_ticks: usize,
+    /// The guard's rollbacks by reason, and the first tick it acted in.
+    pub guard: GuardCounts,
     /// Most explicit sub-steps in one tick.
     pub substeps_max: u32,
     /// The mass floor the uncut body was given for whole sub-steps, if any.
@@ -550,6 +593,7 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
         triangles_after: drawn.triangles.len(),
         diverged_ticks: run.rows.iter().filter(|r| r.diverged).count(),
         rollback_ticks: run.rows.iter().filter(|r| r.rollbacks > 0).count(),
+        guard: run.guard,
         substeps_max: run.rows.iter().map(|r| r.substeps).max().unwrap_or(0),
         whole_step_mass: sim.solver().whole_step_mass(),
         substep_keeping_mass: sim.solver().substep_keeping_mass(),
@@ -587,6 +631,46 @@ mod tests {
 
     /// A sawtooth loading at 0.5 N/mm from 1 to 2 N over 2 mm, falling back to 1 N at each
     /// fracture: 5 events per 10 mm, drops of 1 N, the slope 0.5 N/mm.
+    #[test]
+    fn the_guard_is_counted_by_reason_from_its_first_tick() {
+        let mut g = GuardCounts::default();
+        let rollback = |reason| SolverEvent::Rollback {
+            tick: 0,
+            reason,
+            detected_at_substep: 0,
+            substeps: 8,
+        };
+        g.note(
+            3,
+            &SolverEvent::TimeStep {
+                tick: 0,
+                dt_crit_s: 1e-3,
+                substeps: 1,
+            },
+        );
+        assert!(g.first_tick.is_none());
+        g.note(7, &rollback(DivergenceReason::Speed));
+        g.note(7, &rollback(DivergenceReason::Speed));
+        g.note(9, &rollback(DivergenceReason::EnergyGrowth));
+        g.note(
+            9,
+            &SolverEvent::Diverged {
+                tick: 0,
+                reason: DivergenceReason::NonFinite,
+            },
+        );
+        assert_eq!(
+            (
+                g.speed,
+                g.energy_growth,
+                g.non_finite,
+                g.diverged,
+                g.first_tick
+            ),
+            (2, 1, 0, 1, Some(7))
+        );
+    }
+
     #[test]
     fn the_sawtooth_of_a_known_force() {
         let mut rows = Vec::new();

@@ -633,11 +633,19 @@ fn cut_writes_forces_mesh_render_and_metrics() {
     assert!(m["work_per_cut_step_ms"].as_f64().unwrap() * steps >= worker_ms);
     // The drawn incision trails the blade (today: by up to a mean edge length).
     let lag = &m["lip_lag_mm"];
-    assert!(lag["max"].as_f64().unwrap() >= lag["p50"].as_f64().unwrap(), "{m}");
+    assert!(
+        lag["max"].as_f64().unwrap() >= lag["p50"].as_f64().unwrap(),
+        "{m}"
+    );
     assert_eq!(m["closed"], true);
     assert_eq!(m["manifold"], true);
     assert_eq!(m["incisions"].as_u64(), Some(1));
     assert_eq!(m["diverged_ticks"].as_u64(), Some(0), "{m}");
+    // The guard's reasons are counted: none acted on this cut.
+    for reason in ["energy_growth", "speed", "non_finite", "diverged"] {
+        assert_eq!(m["guard"][reason].as_u64(), Some(0), "{m}");
+    }
+    assert!(m["guard"]["first_tick"].is_null(), "{m}");
     assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
     // At a depth d the blade meets 0.19 N/mm × d and friction growing to 0.3 N at 10 mm
     // (the liver resting on its tray has sagged some 10 mm under the script's fixed path:
