@@ -25,6 +25,11 @@ const FREE_SHARE: f64 = 0.5;
 /// Gauss–Seidel passes over the samples per sub-step (samples share points: a second pass
 /// settles what the first one's neighbours pushed back in).
 const PASSES: usize = 2;
+/// How fast the edge takes up a crack-front sample that starts inside it (m/s): put out in
+/// one pass, the speed dp/h that gives its points carries them as far again in the next
+/// sub-step, past the guard's limit whatever the sub-steps (docs/CUTTING-DECISIONS.md, "a
+/// crack front built inside the edge").
+const FRONT_CATCH_UP_M_PER_S: f64 = 0.05;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -179,6 +184,11 @@ pub struct BladeBody {
     /// Per sample: 0 for a surface sample; for a crack-front sample (`push_front`), how far
     /// across the flats (m) the edge catches it.
     capture: Vec<f64>,
+    /// Per crack-front sample, how deep in the steel the edge lets it be (m): built where
+    /// the edge has already passed, it is pushed out at [`FRONT_CATCH_UP_M_PER_S`], not in
+    /// one pass. At the tick's start for a retry.
+    slack: Vec<f64>,
+    slack_at_tick: Vec<f64>,
 }
 
 impl BladeBody {
@@ -207,6 +217,8 @@ impl BladeBody {
             on_blade: Vec3::zeros(),
             hold: 1.0,
             capture: Vec::with_capacity(samples),
+            slack: Vec::with_capacity(samples),
+            slack_at_tick: Vec::with_capacity(samples),
         }
     }
 
@@ -245,6 +257,8 @@ impl BladeBody {
         self.cut_at_tick.clear();
         self.normal_impulse.clear();
         self.capture.clear();
+        self.slack.clear();
+        self.slack_at_tick.clear();
         self.on_blade = Vec3::zeros();
     }
 
@@ -269,6 +283,8 @@ impl BladeBody {
         self.normal_impulse.push(0.0);
         self.impulse.push(Vec3::zeros());
         self.capture.push(0.0);
+        self.slack.push(0.0);
+        self.slack_at_tick.push(0.0);
     }
 
     /// Adds a crack-front sample: material just ahead of the crack front (rest `rest`,
@@ -402,6 +418,7 @@ impl BladeBody {
         self.face_at_tick.copy_from_slice(&self.face);
         self.anchor_at_tick.copy_from_slice(&self.anchor);
         self.cut_at_tick.copy_from_slice(&self.cut);
+        self.slack_at_tick.copy_from_slice(&self.slack);
     }
 
     /// A (re)try of the tick starts from its start's contacts.
@@ -409,6 +426,7 @@ impl BladeBody {
         self.face.copy_from_slice(&self.face_at_tick);
         self.anchor.copy_from_slice(&self.anchor_at_tick);
         self.cut.copy_from_slice(&self.cut_at_tick);
+        self.slack.copy_from_slice(&self.slack_at_tick);
         self.force_sum = Vec3::zeros();
         self.substeps = 0;
     }
@@ -474,10 +492,26 @@ impl BladeBody {
                     }
                     continue;
                 }
+                let newly = self.face[s].is_none();
                 let Some(face) = self.take_face(s, &l) else {
                     continue;
                 };
-                let (gap, normal_local) = at.gap(&l, face);
+                let (mut gap, normal_local) = at.gap(&l, face);
+                if newly && self.capture[s] > 0.0 {
+                    // A crack-front sample the edge first meets already behind it (built
+                    // where the edge had passed, or come within its reach from beyond the
+                    // tip): as deep as it is, it may stay, and is caught up.
+                    self.slack[s] = (-gap).max(0.0);
+                }
+                if self.slack[s] > 0.0 {
+                    // Taken up once a sub-step at a hand's pace, and never looser than it
+                    // now is.
+                    if pass == 0 {
+                        let left = (self.slack[s] - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
+                        self.slack[s] = left.min((-gap).max(0.0));
+                    }
+                    gap += self.slack[s];
+                }
                 if gap >= 0.0 || !self.mostly_free(s, |k| inv_mass(k) > 0.0) {
                     continue;
                 }
@@ -801,6 +835,42 @@ mod tests {
         assert!(blade.cut[0], "came in while letting go");
         blade.begin_attempt();
         assert!(!blade.cut[0], "restored for the retry");
+    }
+
+    /// A crack-front sample the edge first meets half a millimetre behind it is taken up
+    /// at FRONT_CATCH_UP_M_PER_S, not put out in one pass (which would launch its points
+    /// as far again in the next sub-step); one just ahead of the edge is not moved.
+    #[test]
+    fn a_front_met_behind_the_edge_is_caught_up_not_launched() {
+        let b = upright();
+        let h = 1e-4;
+        for (behind, most_per_substep) in [(5e-4, FRONT_CATCH_UP_M_PER_S * h), (-1e-6, 0.0)] {
+            let mut blade = BladeBody::with_room(1, 4, 4, b);
+            let x = Vec3::new(-behind, 0.0, 0.005);
+            blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+            let mut p = [x];
+            blade.finish(&p, 0.0, 0);
+            blade.begin_tick();
+            blade.begin_attempt();
+            let mut v = [Vec3::zeros()];
+            let mut last = -behind;
+            for _ in 0..20 {
+                // The sub-step's inertial move, then the blade.
+                blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+                p[0] += v[0] * h;
+                blade.project(&mut p, &mut v, &[1e-3], h, |_| 1e3);
+                let moved = p[0].x - last;
+                assert!(moved <= most_per_substep + 1e-12, "{behind}: {moved}");
+                last = p[0].x;
+            }
+            if behind > 0.0 {
+                // Taken up steadily: 20 sub-steps of 5 µm.
+                assert!((p[0].x + behind - 20.0 * most_per_substep).abs() < 1e-9);
+                assert!((v[0].x - FRONT_CATCH_UP_M_PER_S).abs() < 1e-9, "{}", v[0].x);
+            } else {
+                assert_eq!(p[0].x, -behind);
+            }
+        }
     }
 
     /// Halfway between two slabs: halfway along, axes still orthonormal.
