@@ -48,6 +48,71 @@ impl BoxBody {
     pub fn points_along(&self, axis: usize) -> usize {
         self.model.lattice.dims[axis]
     }
+
+    /// Stands the box on rollers on its −`axis` face: the face holds `axis` only; of the
+    /// rigid motions left, the face's point nearest its centre is pinned, and the point
+    /// farthest along the first other axis on the centre row also holds the second (the
+    /// spin about `axis`).
+    pub fn on_rollers(&mut self, axis: usize) {
+        let (a, b) = match axis {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
+        let base = self.face(axis, -1.0);
+        let rest = &self.model.points.rest;
+        let nearest = |key: &dyn Fn(usize) -> f64| {
+            *base
+                .iter()
+                .min_by(|&&i, &&j| key(i).total_cmp(&key(j)))
+                .expect("a face has points")
+        };
+        let centre = nearest(&|i| rest[i][a].abs() + rest[i][b].abs());
+        let far = nearest(&|i| rest[i][b].abs() * 1e3 - rest[i][a]);
+        let mut rollers = [false; 3];
+        rollers[axis] = true;
+        for &i in &base {
+            self.solver.fix(i, rollers);
+        }
+        self.solver.fix(centre, [true; 3]);
+        rollers[b] = true;
+        self.solver.fix(far, rollers);
+    }
+
+    /// Cuts the body by `triangles` of Σ (rest space, the product's visibility criterion):
+    /// the pairs they cross are removed from its neighbour lists and the solver's rows;
+    /// how many, and the points whose lists changed (sorted).
+    pub fn cut_by(&mut self, triangles: &[[Vec3; 3]]) -> (usize, Vec<u32>) {
+        let (mut changed, mut candidates) = (Vec::new(), Vec::new());
+        let mut removed = 0;
+        for tri in triangles {
+            removed += crate::cut::cut_pairs(
+                tri,
+                &self.model.points.rest,
+                &self.model.grid,
+                &mut self.model.neighbours,
+                self.model.kernel.support_m,
+                &mut changed,
+                &mut candidates,
+            );
+        }
+        changed.sort_unstable();
+        changed.dedup();
+        self.solver
+            .topology_changed(&changed, &self.model.neighbours);
+        (removed, changed)
+    }
+}
+
+/// The quasi-static solver, with the product's hourglass control or (`hourglass` false)
+/// without it: the bare discretisation.
+pub fn static_config(hourglass: bool) -> SolverConfig {
+    let base = SolverConfig::default();
+    SolverConfig {
+        mode: crate::solver::SolverMode::QuasiStatic,
+        hourglass_alpha: if hourglass { base.hourglass_alpha } else { 0.0 },
+        ..base
+    }
 }
 
 /// A box of `size` (m), centred on the origin, sampled with `points_across` points along its

@@ -372,7 +372,6 @@ pub fn b10_clean_cut() -> BenchmarkResult {
     );
     let s = body.model.lattice.spacing;
     let rest = body.model.points.rest.clone();
-    let mut neighbours = body.model.neighbours.clone();
     let x0 = 0.5 * s;
     let l = 1.0;
     let plane = [
@@ -387,23 +386,8 @@ pub fn b10_clean_cut() -> BenchmarkResult {
             Vec3::new(x0, -l, l),
         ],
     ];
-    let mut changed = Vec::new();
-    let mut candidates = Vec::new();
-    let mut removed = 0;
-    for tri in &plane {
-        removed += crate::cut::cut_pairs(
-            tri,
-            &rest,
-            &body.model.grid,
-            &mut neighbours,
-            body.model.kernel.support_m,
-            &mut changed,
-            &mut candidates,
-        );
-    }
-    changed.sort_unstable();
-    changed.dedup();
-    body.solver.topology_changed(&changed, &neighbours);
+    let (removed, changed) = body.cut_by(&plane);
+    let neighbours = &body.model.neighbours;
     let leaks = (0..rest.len())
         .flat_map(|i| neighbours.of(i).iter().map(move |&j| (i, j as usize)))
         .filter(|&(i, j)| (rest[i].x < x0) != (rest[j].x < x0))

@@ -5,10 +5,9 @@
 //! 2σ/E·√(a² − x²) on each face in plane stress.
 
 use super::BenchmarkResult;
-use super::bodies::{BoxBody, box_body};
+use super::bodies::{BoxBody, box_body, static_config};
 use crate::math::Vec3;
 use crate::scene::Material;
-use crate::solver::{SolverConfig, SolverMode};
 
 /// The slit's half-length in lattice spacings: its ends fall between lattice columns, so no
 /// pair crosses Σ exactly at its edge.
@@ -90,17 +89,7 @@ pub fn slit_in_stretched_plate(half_length_spacings: f64, hourglass: bool) -> Sl
     let a = half_length_spacings * spacing_m;
     let side = SIZE_HALF_LENGTHS * a;
     let thickness = (THICKNESS_POINTS - 1) as f64 * spacing_m;
-    let config = SolverConfig {
-        mode: SolverMode::QuasiStatic,
-        ..if hourglass {
-            SolverConfig::default()
-        } else {
-            SolverConfig {
-                hourglass_alpha: 0.0,
-                ..SolverConfig::default()
-            }
-        }
-    };
+    let config = static_config(hourglass);
     let size = Vec3::new(side, side, thickness);
     let mut body = box_body(size, THICKNESS_POINTS, &MATERIAL, 2.0, config);
     let sigma = STRAIN * MATERIAL.youngs_modulus_pa;
@@ -133,21 +122,7 @@ pub fn slit_in_stretched_plate(half_length_spacings: f64, hourglass: bool) -> Sl
 /// Rollers on the −y end (y held; one point held in x and z, one far along x in z: the
 /// rigid motions), and the +y end pulled by `load_n` along +y, by point volume.
 fn hold_and_pull(body: &mut BoxBody, load_n: f64) {
-    let base = body.face(1, -1.0);
-    let rest = body.model.points.rest.clone();
-    for &i in &base {
-        body.solver.fix(i, [false, true, false]);
-    }
-    let nearest = |key: &dyn Fn(usize) -> f64| {
-        *base
-            .iter()
-            .min_by(|&&a, &&b| key(a).total_cmp(&key(b)))
-            .expect("a face has points")
-    };
-    let centre = nearest(&|i| rest[i].x.abs() + rest[i].z.abs());
-    body.solver.fix(centre, [true, true, true]);
-    let far = nearest(&|i| rest[i].z.abs() * 1e3 - rest[i].x);
-    body.solver.fix(far, [false, true, true]);
+    body.on_rollers(1);
     let end = body.face(1, 1.0);
     let volume = &body.model.points.volume_m3;
     let total: f64 = end.iter().map(|&i| volume[i]).sum();
@@ -174,29 +149,11 @@ fn cut_slit(body: &mut BoxBody, a: f64) -> usize {
         Vec3::new(a, y, z),
         Vec3::new(-a, y, z),
     ];
-    let rest = body.model.points.rest.clone();
-    let mut neighbours = body.model.neighbours.clone();
-    let (mut changed, mut candidates) = (Vec::new(), Vec::new());
-    let mut removed = 0;
-    for tri in [
+    body.cut_by(&[
         [corners[0], corners[1], corners[2]],
         [corners[0], corners[2], corners[3]],
-    ] {
-        removed += crate::cut::cut_pairs(
-            &tri,
-            &rest,
-            &body.model.grid,
-            &mut neighbours,
-            body.model.kernel.support_m,
-            &mut changed,
-            &mut candidates,
-        );
-    }
-    changed.sort_unstable();
-    changed.dedup();
-    body.solver.topology_changed(&changed, &neighbours);
-    body.model.neighbours = neighbours;
-    removed
+    ])
+    .0
 }
 
 /// Along the slit (|x| < a), for each lattice column: its rest x and the jump of u_y from

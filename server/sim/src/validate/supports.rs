@@ -2,10 +2,10 @@
 //! under its own weight.
 
 use super::BenchmarkResult;
-use super::bodies::{BoxBody, box_body};
+use super::bodies::{BoxBody, box_body, static_config};
 use crate::math::Vec3;
 use crate::scene::Material;
-use crate::solver::{SolverConfig, SolverMode};
+use crate::solver::SolverConfig;
 
 /// Standard gravity (m/s²).
 pub const STANDARD_GRAVITY: f64 = 9.81;
@@ -24,35 +24,12 @@ const COLUMN_MATERIAL: Material = Material {
 /// one base point x and y and another y (the rigid motions), the sides are free.
 pub fn standing_column(points_across: usize, alpha_default: bool) -> BoxBody {
     let config = SolverConfig {
-        mode: SolverMode::QuasiStatic,
         gravity: Vec3::new(0.0, 0.0, -STANDARD_GRAVITY),
-        ..if alpha_default {
-            SolverConfig::default()
-        } else {
-            SolverConfig {
-                hourglass_alpha: 0.0,
-                ..SolverConfig::default()
-            }
-        }
+        ..static_config(alpha_default)
     };
     let size = Vec3::new(COLUMN_SIDE_M, COLUMN_SIDE_M, COLUMN_HEIGHT_M);
     let mut body = box_body(size, points_across, &COLUMN_MATERIAL, 2.0, config);
-    let base = body.face(2, -1.0);
-    let rest = body.model.points.rest.clone();
-    for &i in &base {
-        body.solver.fix(i, [false, false, true]);
-    }
-    let nearest = |key: &dyn Fn(usize) -> f64| {
-        *base
-            .iter()
-            .min_by(|&&a, &&b| key(a).total_cmp(&key(b)))
-            .expect("a face has points")
-    };
-    let centre = nearest(&|i| rest[i].x.abs() + rest[i].y.abs());
-    body.solver.fix(centre, [true, true, true]);
-    // Far out in x on the row through y = 0: holds the spin about z.
-    let edge = nearest(&|i| rest[i].y.abs() * 1e3 - rest[i].x);
-    body.solver.fix(edge, [false, true, true]);
+    body.on_rollers(2);
     body.solver.solve_static();
     body
 }
