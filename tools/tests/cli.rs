@@ -240,6 +240,14 @@ fn malformed_inputs_fail_with_a_message_on_stderr() {
         "-5",
     ]);
     assert!(err.contains("newtons -5 is outside 0..=1000"), "{err}");
+    // Table 1's physical cut takes β as a scene file would, range-checked before any run.
+    for beta in ["200", "NaN"] {
+        let err = fails(&["bench", "table1", "--fracture", beta]);
+        assert!(
+            err.contains("material.stiffening") && err.contains("out of range"),
+            "{err}"
+        );
+    }
     // A certificate that is a device or huge is refused, not read whole (/dev/zero was read
     // until memory ran out).
     let lab = dir.path().join("lab");

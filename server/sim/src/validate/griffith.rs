@@ -13,7 +13,7 @@ use crate::scene::Material;
 /// pair crosses Σ exactly at its edge.
 pub const HALF_LENGTH_SPACINGS: f64 = 6.5;
 /// The slab is this many half-lengths wide (across the load) and long (along it): the
-/// issue's ≥ 8a, where the finite width opens the slit 3.8 % more than an infinite plate
+/// issue's ≥ 8a, where the finite width opens the slit 3.9 % more than an infinite plate
 /// (Tada's V(a/b) at a/b = 0.25).
 const SIZE_HALF_LENGTHS: f64 = 8.0;
 /// Points through the thickness (2 spacings: a thin slab, t = 0.31a).
