@@ -266,6 +266,22 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
             lag.p50, lag.max
         );
     }
+    if let Some(jump) = m.max_vertex_jump_mm {
+        let _ = writeln!(
+            s,
+            "  the drawn surface jumped {jump:.1} mm at most where the field did not move it ({} tick(s) over 0.5 mm)",
+            m.vertex_jumps_over_half_mm
+        );
+    }
+    if let Some(o) = &m.opening_mm {
+        let mm = |v: Option<f64>| v.map_or("-".to_string(), |g| format!("{g:.2} mm"));
+        let _ = writeln!(
+            s,
+            "  the lips stand apart {} at the drawn end nearest the blade, {} a second after it passed (medians)",
+            mm(o.at_blade),
+            mm(o.after_1s)
+        );
+    }
     let _ = writeln!(
         s,
         "  force: peak {:.2} N, steady {:.2} N at {:.1} mm deep, ripple ±{:.2} N",
@@ -297,7 +313,7 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
         m.min_angle_deg,
         m.lip_max_turn_deg,
         m.wall_depth_mm,
-        m.opening_mm,
+        m.rest_opening_mm,
     ) {
         (Some(angle), Some(turn), Some(depth), Some(opening)) => {
             let _ = writeln!(

@@ -11,6 +11,8 @@ use scalpel_sim::scene::BuiltScene;
 use scalpel_sim::solver::{DivergenceReason, SolverEvent, SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
+use crate::wound_watch::{SurfaceWatch, lip_gap_m};
+
 /// Time per tick (s): the haptic rate.
 pub const TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
 
@@ -61,7 +63,19 @@ pub struct TickRow {
     /// space): the nearest top of a wound's wall columns, or with no wound yet, where the
     /// stroke entered.
     pub lip_lag_mm: Option<f64>,
+    /// When the drawn surface changed this tick (a re-cut landed, a wound deepened), how
+    /// far it jumped without the field moving it (mm; `wound_watch::SurfaceWatch`).
+    pub surface_jump_mm: Option<f64>,
+    /// While cutting, the lips' gap at the drawn incision's end nearest the blade (mm,
+    /// current positions; `lip_lag_mm` behind the blade's entry).
+    pub gap_at_blade_mm: Option<f64>,
+    /// The lips' gap where the blade's entry was a second earlier (mm), once a lip is
+    /// drawn there.
+    pub gap_after_1s_mm: Option<f64>,
 }
+
+/// Ticks in a second at 1 kHz: how far back `gap_after_1s_mm` looks.
+const TICKS_PER_S: usize = 1000;
 
 /// The wall clock the simulation times its stages with.
 pub struct WallClock(Instant);
@@ -177,6 +191,9 @@ fn run_cut_here(
     let worker_s = |sim: &Simulation| sim.incisions().map_or(0.0, |s| s.worker_s);
     let mut stroke_entry: Option<Vec3> = None;
     let mut guard = GuardCounts::default();
+    let mut watch = SurfaceWatch::new(&sim);
+    let mut entries: Vec<Option<Vec3>> = Vec::with_capacity(ticks);
+    let spacing = scene.model.lattice.spacing;
     for k in 0..ticks {
         sim.handle_tool_pose(Some(script.pose_at(k as f64 * TICK_S)));
         let worker_before = worker_s(&sim);
@@ -204,6 +221,16 @@ fn run_cut_here(
             stroke_entry = entry_rest;
         }
         let lip_lag_mm = entry_rest.map(|at| lip_lag(&sim, at, stroke_entry) * 1e3);
+        let surface_jump_mm = watch.jump_m(&sim).map(|j| j * 1e3);
+        let gap_at_blade_mm = entry_rest
+            .and_then(|at| lip_gap_m(&sim, at, f64::INFINITY))
+            .map(|g| g * 1e3);
+        let gap_after_1s_mm = k
+            .checked_sub(TICKS_PER_S)
+            .and_then(|then| entries[then])
+            .and_then(|at| lip_gap_m(&sim, at, spacing))
+            .map(|g| g * 1e3);
+        entries.push(entry_rest);
         rows.push(TickRow {
             t_s: report.time_s,
             tip_m: pose.tip_m.into(),
@@ -229,6 +256,9 @@ fn run_cut_here(
             fractured: cut.is_some_and(|c| c.fractured),
             recut_worker_ms: (worker_s(&sim) - worker_before) * 1e3,
             lip_lag_mm,
+            surface_jump_mm,
+            gap_at_blade_mm,
+            gap_after_1s_mm,
         });
         tick(k + 1, ticks);
     }
@@ -236,8 +266,12 @@ fn run_cut_here(
     // the finished incision (its worker time the last tick's).
     let worker_before = worker_s(&sim);
     sim.settle_incision();
+    let settled_jump = watch.jump_m(&sim).map(|j| j * 1e3);
     if let Some(last) = rows.last_mut() {
         last.recut_worker_ms += (worker_s(&sim) - worker_before) * 1e3;
+        if let Some(jump) = settled_jump {
+            last.surface_jump_mm = Some(last.surface_jump_mm.map_or(jump, |j| j.max(jump)));
+        }
     }
     CutRun { rows, guard, sim }
 }
@@ -292,8 +326,17 @@ pub struct CutMetrics {
     pub min_angle_deg: Option<f64>,
     /// Deepest wound wall at the end (mm, along the wall's columns).
     pub wall_depth_mm: Option<f64>,
-    /// Widest half-opening of a wound at the end (mm).
-    pub opening_mm: Option<f64>,
+    /// Widest half-opening of a wound's lips in rest space at the end (mm): what the
+    /// incision drew, before the field moved it.
+    pub rest_opening_mm: Option<f64>,
+    /// The lips' gap in the field (current positions, mm): at the drawn end nearest the
+    /// blade and a second after the blade passed, medians over the ticks measured.
+    pub opening_mm: Option<Opening>,
+    /// The largest jump of the drawn surface that the field did not make, over the run (mm):
+    /// a re-cut landing that opens a wound in one frame (`wound_watch`).
+    pub max_vertex_jump_mm: Option<f64>,
+    /// Ticks in which the drawn surface jumped more than 0.5 mm (issue 41's bound).
+    pub vertex_jumps_over_half_mm: usize,
     /// The drawn surface is closed at the end.
     pub closed: bool,
     /// ... and edge- and vertex-manifold.
@@ -455,6 +498,23 @@ fn sawtooth(steady: &[&TickRow]) -> Option<Sawtooth> {
     })
 }
 
+/// The lips' gap in the field (mm).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Opening {
+    /// At the drawn incision's end nearest the blade, median over the cutting ticks.
+    pub at_blade: Option<f64>,
+    /// A second after the blade's entry passed, median.
+    pub after_1s: Option<f64>,
+}
+
+/// The opening over `rows`, `None` when no tick measured it.
+fn opening_of(rows: &[TickRow]) -> Option<Opening> {
+    let median = |v: Vec<f64>| Quantiles::of(&v).map(|q| q.p50);
+    let at_blade = median(rows.iter().filter_map(|r| r.gap_at_blade_mm).collect());
+    let after_1s = median(rows.iter().filter_map(|r| r.gap_after_1s_mm).collect());
+    (at_blade.is_some() || after_1s.is_some()).then_some(Opening { at_blade, after_1s })
+}
+
 /// The lip lag over `steady`, `None` when no tick measured it.
 fn lip_lag_of(steady: &[&TickRow]) -> Option<LipLag> {
     let lags: Vec<f64> = steady.iter().filter_map(|r| r.lip_lag_mm).collect();
@@ -561,10 +621,21 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
             let wounds = &sim.current_surface().wounds;
             wounds.iter().map(|w| w.depth_m()).fold(0.0, f64::max) * 1e3
         }),
-        opening_mm: opened.then(|| {
+        rest_opening_mm: opened.then(|| {
             let wounds = &sim.current_surface().wounds;
             wounds.iter().map(|w| w.opening_m).fold(0.0, f64::max) * 1e3
         }),
+        opening_mm: opening_of(&run.rows),
+        max_vertex_jump_mm: run
+            .rows
+            .iter()
+            .filter_map(|r| r.surface_jump_mm)
+            .reduce(f64::max),
+        vertex_jumps_over_half_mm: run
+            .rows
+            .iter()
+            .filter(|r| r.surface_jump_mm.is_some_and(|j| j > 0.5))
+            .count(),
         closed: check.closed,
         manifold: check.manifold,
         oriented: check.oriented,
@@ -620,6 +691,9 @@ mod tests {
             internal_ms: 0.0,
             recut_worker_ms: 0.0,
             lip_lag_mm: None,
+            surface_jump_mm: None,
+            gap_at_blade_mm: None,
+            gap_after_1s_mm: None,
             stage_ms: [0.0; Stage::ALL.len()],
             active_points: 0,
             diverged: false,

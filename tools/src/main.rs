@@ -23,6 +23,7 @@ mod settle_cmd;
 mod stats;
 mod validate_cmd;
 mod view_cmd;
+mod wound_watch;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -302,10 +303,11 @@ enum BenchCommand {
         /// Threads for the simulation, as a station's `realtime.sim_threads` (1 or 2).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
         threads: u32,
-        /// The physical cut instead of the default: fracture by energy on a strain-stiffening
-        /// tissue (`[force] fracture_by_energy`, `[material] stiffening` = this β; issue 41).
-        #[arg(long, value_name = "BETA")]
-        fracture: Option<f64>,
+        /// The physical cut instead of the default: fracture by energy (`[force]
+        /// fracture_by_energy`; issue 41) on each organ's own strain-stiffening, or on
+        /// `[material] stiffening` = BETA when given.
+        #[arg(long, value_name = "BETA", num_args = 0..=1)]
+        fracture: Option<Option<f64>>,
         /// Print JSON.
         #[arg(long)]
         json: bool,

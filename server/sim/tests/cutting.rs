@@ -96,7 +96,9 @@ fn play_the_stroke(sim: &mut Simulation, scene: &BuiltScene, script: &CutScript)
 }
 
 /// dt_crit as built (1.92 ms) is 4 % short of one sub-step per 1 ms tick: a mass floor on
-/// the surface's clipped cells (under 1 % of the body) gives it, through the cut.
+/// the surface's clipped cells (under 1 % of the body) gives it. Where the blade strains
+/// the strain-stiffening liver (β = 10) its tangent rises and the step follows it: at most
+/// one sub-step more.
 fn check_the_whole_step_mass_floor(sim: &Simulation, stroke: &Stroke) {
     let most_substeps = stroke.most_substeps;
     let floor = sim
@@ -104,7 +106,8 @@ fn check_the_whole_step_mass_floor(sim: &Simulation, stroke: &Stroke) {
         .whole_step_mass()
         .expect("mass scaled to whole sub-steps");
     println!("{floor:?}, at most {most_substeps} sub-steps");
-    assert_eq!((floor.substeps_before, most_substeps), (2, 1));
+    assert_eq!((floor.substeps_before, floor.substeps_after), (2, 1));
+    assert!(most_substeps <= 2, "{most_substeps} sub-steps");
     assert!(floor.fraction <= 0.01);
 }
 

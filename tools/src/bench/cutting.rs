@@ -64,9 +64,9 @@ fn build(spec: &SceneSpec) -> anyhow::Result<BuiltScene> {
     Ok(timed.scene)
 }
 
-/// `scalpel bench table1`; with `fracture` = β, the physical cut (fracture by energy on a
-/// tissue stiffening by β).
-pub fn table1(threads: usize, fracture: Option<f64>, json: bool) -> anyhow::Result<()> {
+/// `scalpel bench table1`; with `fracture`, the physical cut (fracture by energy), on the
+/// organ's own stiffening or on β when given.
+pub fn table1(threads: usize, fracture: Option<Option<f64>>, json: bool) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for (name, paper_tris, paper_points, paper_surface, paper_internal) in PAPER_TABLE1 {
         let spec = match fracture {
@@ -75,11 +75,11 @@ pub fn table1(threads: usize, fracture: Option<f64>, json: bool) -> anyhow::Resu
             // (TOML spells NaN in lower case.)
             Some(beta) => SceneSpec::from_toml(
                 &format!(
-                    "extends = \"{name}\"\nname = \"{name}\"\n[force]\nfracture_by_energy = true\n[material]\nstiffening = {}\n",
-                    if beta.is_nan() {
-                        "nan".to_string()
-                    } else {
-                        format!("{beta:?}")
+                    "extends = \"{name}\"\nname = \"{name}\"\n[force]\nfracture_by_energy = true\n{}",
+                    match beta {
+                        None => String::new(),
+                        Some(b) if b.is_nan() => "[material]\nstiffening = nan\n".to_string(),
+                        Some(b) => format!("[material]\nstiffening = {b:?}\n"),
                     }
                 ),
                 std::path::Path::new("--fracture"),
@@ -123,9 +123,11 @@ pub fn table1(threads: usize, fracture: Option<f64>, json: bool) -> anyhow::Resu
     }
     println!(
         "Table 1 (per cut step, this machine; all of a step's work, the re-cut worker's time added to the step it landed in; paper figures for comparison){}",
-        fracture.map_or(String::new(), |b| format!(
-            "; fracture by energy, stiffening β = {b}"
-        ))
+        match fracture {
+            None => String::new(),
+            Some(None) => "; fracture by energy, each organ's stiffening".to_string(),
+            Some(Some(b)) => format!("; fracture by energy, stiffening β = {b}"),
+        }
     );
     println!(
         "{:<10} {:>6} {:>6} | {:>8} {:>8} | {:>8} {:>8} | {:>8} {:>8} | {:>7} {:>8} {:>7} | {:>7}",

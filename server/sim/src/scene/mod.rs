@@ -264,7 +264,8 @@ pub struct Material {
 }
 
 impl Material {
-    /// Liver: E = 5 kPa, ν = 0.45, ρ = 1060 kg/m³ (physics.md §6.3).
+    /// Liver: E = 5 kPa, ν = 0.45, ρ = 1060 kg/m³ (physics.md §6.3), linear at small
+    /// strain; [`ORGAN_STIFFENING`] is the built-in organ's.
     pub const LIVER: Material = Material {
         youngs_modulus_pa: 5_000.0,
         poisson_ratio: 0.45,
@@ -288,7 +289,37 @@ impl Material {
         damping_per_s: 10.0,
         stiffening: 0.0,
     };
+
+    /// The same material, strain-stiffening by `beta`.
+    pub const fn stiffening_by(self, beta: f64) -> Material {
+        Material {
+            stiffening: beta,
+            ..self
+        }
+    }
 }
+
+/// The built-in organs' strain-stiffening β: liver, muscle and brain are quasi-linear at
+/// small strain and stiffen steeply beyond (liver: exponential fits, Roan & Vemaganti 2007,
+/// Capilnasiu et al. 2020; brain: Ogden fits with |α| ≈ 20, Budday et al. 2017; passive
+/// muscle: exponential fits are the usual model). β = 10 makes the tangent about 7 times E
+/// at a 30 % stretch; chosen to that shape, not fitted to one organ's curve
+/// (docs/CUTTING-DECISIONS.md, "Cutting parameters for each organ").
+pub const ORGAN_STIFFENING: f64 = 10.0;
+
+/// Fracture toughness J_c of liver cut with a blade (N/m = J/m²): 187–225 J/m²
+/// (Chanthasopeephan et al. 2003 via cutting-physics.md §3).
+pub const LIVER_TOUGHNESS_N_PER_M: f64 = 190.0;
+/// Fracture toughness of skeletal muscle cut with a blade (J/m²): no blade measurement of
+/// muscle is known to us; fibrous soft tissues cut with a blade measure 170–450 J/m²
+/// (porcine aorta 290 ± 110, lamina propria 169–451), far below the notched-test figures
+/// for porcine muscle (550–8000 J/m²) that Taylor et al. 2012 show measure strength, not
+/// toughness (docs/CUTTING-DECISIONS.md, "Cutting parameters for each organ").
+pub const MUSCLE_TOUGHNESS_N_PER_M: f64 = 300.0;
+/// Fracture toughness of brain (J/m²): cutting-physics.md §3's 10–50 J/m², the middle of
+/// it (wire cutting and cavitation report 1.5–9 J/m² at low rates, rising with the rate:
+/// Terzano et al. 2021; Dougan et al.'s needle-induced cavitation).
+pub const BRAIN_TOUGHNESS_N_PER_M: f64 = 30.0;
 
 /// What a scene uses. The pipeline builds only these stages and the server starts only
 /// these services ("leave out what a scene does not need").
@@ -414,7 +445,7 @@ impl Default for ForceSpec {
         Self {
             rupture_force_n: 3.0,
             rupture_displacement_m: 0.00317,
-            toughness_n_per_m: 190.0,
+            toughness_n_per_m: LIVER_TOUGHNESS_N_PER_M,
             fracture_by_energy: false,
             // 2 mm jumps on the liver (E = 5 kPa, J_c = 190 J/m²).
             crack_tip_stiffening: 19.0,
@@ -440,19 +471,19 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
     let (description, material, spacing, features) = match shape {
         BuiltinMesh::Liver => (
             "liver, 250 × 150 × 50 mm, 508 triangles, ~1526 points (paper Table 1)",
-            Material::LIVER,
+            Material::LIVER.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(1526),
             Features::CUTTING_STATION,
         ),
         BuiltinMesh::Shoulder => (
             "shoulder muscle (deltoid-like), 1842 triangles, ~4812 points (paper Table 1)",
-            Material::MUSCLE,
+            Material::MUSCLE.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(4812),
             Features::CUTTING_STATION,
         ),
         BuiltinMesh::Cerebroma => (
             "brain tumour, 50 × 40 × 30 mm, 2600 triangles, ~7086 points (paper Table 1)",
-            Material::BRAIN,
+            Material::BRAIN.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(7086),
             Features::CUTTING_STATION,
         ),
@@ -487,7 +518,14 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
         },
         features,
         tool: ToolSpec::default(),
-        force: ForceSpec::default(),
+        force: ForceSpec {
+            toughness_n_per_m: match shape {
+                BuiltinMesh::Shoulder => MUSCLE_TOUGHNESS_N_PER_M,
+                BuiltinMesh::Cerebroma => BRAIN_TOUGHNESS_N_PER_M,
+                _ => LIVER_TOUGHNESS_N_PER_M,
+            },
+            ..ForceSpec::default()
+        },
         solver: SolverSpec::default(),
         // The organs rest on their supports under standard gravity; the validation bodies
         // keep their analytic conditions.

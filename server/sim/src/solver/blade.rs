@@ -146,6 +146,11 @@ impl Face {
     ];
 }
 
+/// A surface sample met deeper in the steel than twice the steel's move in the sub-step and
+/// this was built inside it (re-sampled where the blade had got to): caught up like a
+/// crack-front sample, not launched.
+const DEEP_MEET_M: f64 = 2e-5;
+
 /// The surface samples around the blade, what holds each, and what the blade gave them.
 #[derive(Debug, Clone)]
 pub struct BladeBody {
@@ -189,6 +194,9 @@ pub struct BladeBody {
     /// one pass. At the tick's start for a retry.
     slack: Vec<f64>,
     slack_at_tick: Vec<f64>,
+    /// How far the steel moves in the sub-step (m): deeper than this a sample met is one
+    /// built where the blade had already got to, not one it ran into.
+    substep_move: f64,
 }
 
 impl BladeBody {
@@ -219,6 +227,7 @@ impl BladeBody {
             capture: Vec::with_capacity(samples),
             slack: Vec::with_capacity(samples),
             slack_at_tick: Vec::with_capacity(samples),
+            substep_move: 0.0,
         }
     }
 
@@ -444,10 +453,10 @@ impl BladeBody {
     ) {
         let before = Slab::between(&self.from, &self.to, frac_before);
         self.at = Slab::between(&self.from, &self.to, frac);
-        let reach = (self.at.tip - before.tip).norm()
+        self.substep_move = (self.at.tip - before.tip).norm()
             + 0.5 * self.at.length * (self.at.edge - before.edge).norm()
-            + 0.5 * self.at.width * (self.at.back - before.back).norm()
-            + tissue_reach;
+            + 0.5 * self.at.width * (self.at.back - before.back).norm();
+        let reach = self.substep_move + tissue_reach;
         for s in 0..self.len() {
             let x = self.samples.position(s, p);
             let l = before.local(&x);
@@ -497,7 +506,8 @@ impl BladeBody {
                     continue;
                 };
                 let (mut gap, normal_local) = at.gap(&l, face);
-                if newly && self.capture[s] > 0.0 {
+                if newly && (self.capture[s] > 0.0 || -gap > 2.0 * self.substep_move + DEEP_MEET_M)
+                {
                     // A crack-front sample the edge first meets already behind it (built
                     // where the edge had passed, or come within its reach from beyond the
                     // tip): as deep as it is, it may stay, and is caught up.
@@ -585,13 +595,29 @@ impl BladeBody {
             self.face[s] = None;
             return None;
         }
+        let newly = self.face[s].is_none();
         let face = self.take_face(s, &l)?;
         if !self.mostly_free(s, free) {
             return None;
         }
-        let (gap, normal_local) = at.gap(&l, face);
+        let (mut gap, normal_local) = at.gap(&l, face);
+        // A crack-front sample met behind the edge keeps its slack as in `project`; the
+        // step takes it up (`take_up_slack`), and it is never looser than the sample is.
+        if newly && self.capture[s] > 0.0 {
+            self.slack[s] = (-gap).max(0.0);
+        }
+        self.slack[s] = self.slack[s].min((-gap).max(0.0));
+        gap += self.slack[s];
         let n = at.world(&normal_local);
         Some((n, n.dot(&x) - gap))
+    }
+
+    /// A step of `h` with the contacts in its solve (projective) takes up the crack-front
+    /// samples' slack at [`FRONT_CATCH_UP_M_PER_S`], as `project` does each sub-step.
+    pub(super) fn take_up_slack(&mut self, h: f64) {
+        for slack in &mut self.slack {
+            *slack = (*slack - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
+        }
     }
 
     /// For stiff mode's friction: the world displacement along its face that takes held
@@ -871,6 +897,70 @@ mod tests {
                 assert_eq!(p[0].x, -behind);
             }
         }
+    }
+
+    /// A surface sample the steel meets half a millimetre deep while it hardly moves was
+    /// re-sampled inside it: caught up like a front sample. One the steel runs into (as
+    /// deep as the steel moved) is put out at once.
+    #[test]
+    fn a_surface_sample_met_deep_is_caught_up_one_run_into_is_put_out() {
+        let b = upright();
+        let h = 1e-4;
+        for (deep, most) in [(5e-4, FRONT_CATCH_UP_M_PER_S * h), (1e-6, 1e-6)] {
+            let mut blade = BladeBody::with_room(1, 4, 4, b);
+            // Inside the steel, ahead of the edge, met through the edge.
+            let x = Vec3::new(-deep, 0.0, 0.005);
+            let before = Vec3::new(0.001, 0.0, 0.005);
+            blade.push(&[(0, 1.0)], x, &[x]);
+            let mut p = [before];
+            blade.finish(&p, 0.0, 0);
+            blade.begin_tick();
+            blade.begin_attempt();
+            blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+            p[0] = x;
+            let mut v = [Vec3::zeros()];
+            blade.project(&mut p, &mut v, &[1e-3], h, |_| 1e3);
+            let moved = p[0].x - x.x;
+            assert!(
+                moved <= most + 1e-12 && moved >= 0.0,
+                "{deep}: moved {moved}"
+            );
+            if deep < 1e-5 {
+                assert!((p[0].x).abs() < 1e-12, "put out: {}", p[0].x);
+            }
+        }
+    }
+
+    /// The projective step's constraint keeps the same slack: a front sample met half a
+    /// millimetre behind the edge asks for no push at first, then for what a step's
+    /// catch-up takes up.
+    #[test]
+    fn the_projective_constraint_keeps_a_front_samples_slack() {
+        let b = upright();
+        let behind = 5e-4;
+        let dt = 1e-3;
+        let mut blade = BladeBody::with_room(1, 4, 4, b);
+        let x = Vec3::new(-behind, 0.0, 0.005);
+        blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+        let p = [x];
+        blade.finish(&p, 0.0, 0);
+        blade.begin_tick();
+        blade.begin_attempt();
+        blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+        let gap = |blade: &mut BladeBody| {
+            let (n, offset) = blade.constraint(0, &p, |_| true).expect("held");
+            n.dot(&p[0]) - offset
+        };
+        assert!(gap(&mut blade).abs() < 1e-15, "met: no push");
+        blade.take_up_slack(dt);
+        let asked = -gap(&mut blade);
+        assert!(
+            (asked - FRONT_CATCH_UP_M_PER_S * dt).abs() < 1e-12,
+            "{asked}"
+        );
+        // Retried from the tick's start: the slack as it was.
+        blade.begin_attempt();
+        assert!(gap(&mut blade).abs() < 1e-15);
     }
 
     /// Halfway between two slabs: halfway along, axes still orthonormal.

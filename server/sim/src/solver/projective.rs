@@ -65,6 +65,11 @@ impl Solver {
             },
         };
         self.begin_one_step_tick();
+        if pd.contacts.is_some()
+            && let Some(blade) = &mut self.blade
+        {
+            blade.take_up_slack(dt);
+        }
         let report = pd.step(self, dt);
         let in_solve = pd.contacts.is_some();
         self.projective = Some(pd);

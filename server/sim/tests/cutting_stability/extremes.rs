@@ -110,7 +110,13 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     // crack's fracture term faded to nothing, even while cutting on; on the cerebroma Σ
     // grew to and fro around the held blade, 108 → 2796 triangles in 2 s.)
     let held = trace.ticks.force[6999];
-    assert!(held.x < -1.0, "{name}: {held:?}");
+    let force = &scene.spec.force;
+    let cutting = force.toughness_n_per_m * depth_mm * 1e-3
+        + force.friction_n * (depth_mm * 1e-3 / force.friction_depth_m).min(1.0);
+    assert!(
+        held.x < -0.5 * cutting,
+        "{name}: {held:?} against {cutting} N"
+    );
     let hold = &trace.ticks.force[7000..9000];
     let mean = hold.iter().sum::<Vec3>() / hold.len() as f64;
     assert!(
@@ -272,9 +278,11 @@ fn a_device_pose_that_jumps_is_followed_at_a_hands_speed() {
     println!(
         "most sub-steps {most_substeps}, {rolled_back} ticks rolled back, {cut_mm:.0} mm in tissue"
     );
-    // The liver's one sub-step a tick holds through the noise.
+    // The liver's one sub-step a tick holds through the noise, raised only by its own
+    // stiffening where the jumps strain it: at most √(1.5 e² (1 + 4)) = 7.4 times the plan
+    // (`solver::explicit`'s `follow_stiffening`; β = 0: 2).
     assert!(
-        most_substeps <= 2,
+        most_substeps <= 8,
         "{most_substeps} sub-steps, {rolled_back} rolled back"
     );
     // Back on its path once the noise stops, and the cut goes on.
