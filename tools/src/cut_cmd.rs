@@ -277,7 +277,7 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
         let mm = |v: Option<f64>| v.map_or("-".to_string(), |g| format!("{g:.2} mm"));
         let _ = writeln!(
             s,
-            "  the lips stand apart {} at the drawn end nearest the blade, {} a second after it passed (medians)",
+            "  the lips stand apart {} where the blade enters, {} where it entered a second before (medians; 0 where no wound is drawn yet)",
             mm(o.at_blade),
             mm(o.after_1s)
         );

@@ -66,11 +66,11 @@ pub struct TickRow {
     /// When the drawn surface changed this tick (a re-cut landed, a wound deepened), how
     /// far it jumped without the field moving it (mm; `wound_watch::SurfaceWatch`).
     pub surface_jump_mm: Option<f64>,
-    /// While cutting, the lips' gap at the drawn incision's end nearest the blade (mm,
-    /// current positions; `lip_lag_mm` behind the blade's entry).
+    /// While cutting, the lips' gap where the blade enters the tissue (mm, current
+    /// positions, at the nearest wall column within a spacing; 0 where no wound is drawn
+    /// there yet).
     pub gap_at_blade_mm: Option<f64>,
-    /// The lips' gap where the blade's entry was a second earlier (mm), once a lip is
-    /// drawn there.
+    /// The same where the blade's entry was a second earlier.
     pub gap_after_1s_mm: Option<f64>,
 }
 
@@ -222,14 +222,13 @@ fn run_cut_here(
         }
         let lip_lag_mm = entry_rest.map(|at| lip_lag(&sim, at, stroke_entry) * 1e3);
         let surface_jump_mm = watch.jump_m(&sim).map(|j| j * 1e3);
-        let gap_at_blade_mm = entry_rest
-            .and_then(|at| lip_gap_m(&sim, at, f64::INFINITY))
-            .map(|g| g * 1e3);
+        // What the eye sees at that place: no wound drawn within a spacing is intact skin.
+        let gap_mm = |at: Vec3| lip_gap_m(&sim, at, spacing).unwrap_or(0.0) * 1e3;
+        let gap_at_blade_mm = entry_rest.map(gap_mm);
         let gap_after_1s_mm = k
             .checked_sub(TICKS_PER_S)
             .and_then(|then| entries[then])
-            .and_then(|at| lip_gap_m(&sim, at, spacing))
-            .map(|g| g * 1e3);
+            .map(gap_mm);
         entries.push(entry_rest);
         rows.push(TickRow {
             t_s: report.time_s,
@@ -329,8 +328,9 @@ pub struct CutMetrics {
     /// Widest half-opening of a wound's lips in rest space at the end (mm): what the
     /// incision drew, before the field moved it.
     pub rest_opening_mm: Option<f64>,
-    /// The lips' gap in the field (current positions, mm): at the drawn end nearest the
-    /// blade and a second after the blade passed, medians over the ticks measured.
+    /// The lips' gap in the field (current positions, mm): where the blade enters and
+    /// where it entered a second before, medians over the cutting ticks (0 where no wound
+    /// is drawn yet).
     pub opening_mm: Option<Opening>,
     /// The largest jump of the drawn surface that the field did not make, over the run (mm):
     /// a re-cut landing that opens a wound in one frame (`wound_watch`).
@@ -501,7 +501,7 @@ fn sawtooth(steady: &[&TickRow]) -> Option<Sawtooth> {
 /// The lips' gap in the field (mm).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Opening {
-    /// At the drawn incision's end nearest the blade, median over the cutting ticks.
+    /// Where the blade enters, median over the cutting ticks.
     pub at_blade: Option<f64>,
     /// A second after the blade's entry passed, median.
     pub after_1s: Option<f64>,
