@@ -51,8 +51,12 @@ fn the_embedded_default_runs_the_demo_cut_and_replays_bit_for_bit() {
         summary["sim"]["cut_length_mm"].as_f64().unwrap() > 0.0,
         "{summary}"
     );
-    // The liver's mass floor gives it one sub-step per tick, and the cut keeps it.
-    assert_eq!(summary["sim"]["most_substeps"], 1, "{summary}");
+    // The liver's mass floor gives it one sub-step per tick; where the blade strains the
+    // strain-stiffening liver (β = 10) the step follows its tangent, one sub-step more.
+    assert!(
+        summary["sim"]["most_substeps"].as_u64().unwrap() <= 2,
+        "{summary}"
+    );
     // The device felt the cut (the largest force of the status samples: one may fall in a
     // watchdog fade while a slow build re-meshes).
     let felt = status
@@ -112,7 +116,7 @@ fn a_station_whose_stdout_is_closed_runs_on() {
     .unwrap();
     let out = server()
         .arg(&config)
-        .args(["--duration", "2.5", "--journal"])
+        .args(["--duration", "4", "--journal"])
         .arg(&journal)
         .stdout(writer)
         .stderr(std::process::Stdio::piped())

@@ -7,6 +7,7 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use scalpel_client::render::{Camera, RenderOptions, SurfaceView, render};
 use scalpel_sim::cut::FaceKind;
+use scalpel_sim::geometry::TriMesh;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::CutScript;
 use scalpel_sim::scene::{BuiltScene, Features, SceneSpec};
@@ -79,6 +80,7 @@ pub fn run_with_progress(
     scene: &BuiltScene,
     script: &CutScript,
     threads: usize,
+    snapshot_every: usize,
 ) -> anyhow::Result<CutRun> {
     use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let bar = ProgressBar::hidden();
@@ -87,7 +89,7 @@ pub fn run_with_progress(
     let total = script.tick_count(cutrun::TICK_S);
     std::thread::scope(|scope| {
         scope.spawn(|| say_the_pace(&done_ticks, total, &finished, &bar));
-        let run = cutrun::run_cut(scene, script, threads, |done, total| {
+        let run = cutrun::run_cut(scene, script, threads, snapshot_every, |done, total| {
             if done == 1 {
                 bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
                 bar.set_length(total as u64);
@@ -154,7 +156,7 @@ fn say_the_pace(
 }
 
 /// The surface's bounding box as "x0..x1 × y0..y1 × z0..z1" in mm.
-fn bbox_mm(surface: &scalpel_sim::geometry::TriMesh) -> String {
+fn bbox_mm(surface: &TriMesh) -> String {
     let b = surface.bbox();
     (0..3)
         .map(|i| format!("{:.0}..{:.0}", b.min[i] * 1e3, b.max[i] * 1e3))
@@ -197,7 +199,7 @@ pub fn run(
             );
         }
     }
-    let run = run_with_progress(scene, &script, threads)?;
+    let run = run_with_progress(scene, &script, threads, 0)?;
     let metrics = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
     // The figures first: whatever fails later, they are kept.
     let metrics_path = out.join("metrics.json");
@@ -421,6 +423,19 @@ fn plot_force(run: &CutRun, name: &str, path: &Path) -> anyhow::Result<()> {
 /// Draws the final surface from a camera above the wound, looking across it.
 pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
     let (drawn, kinds) = run.sim.current_surface().drawn();
+    let image = render_drawn(
+        &drawn,
+        &kinds,
+        &incision_camera(run),
+        &RenderOptions::default(),
+    )?;
+    export::save_png(&image, path)
+}
+
+/// A camera above the run's wound at its end (or the blade's path, or the whole surface),
+/// looking across it.
+pub fn incision_camera(run: &CutRun) -> Camera {
+    let (drawn, _) = run.sim.current_surface().drawn();
     let walls = run.sim.current_surface().wall_corners();
     // Aim at the wound, or at the blade's path when the surface was not opened.
     let focus: Vec<Vec3> = if walls.is_empty() {
@@ -450,7 +465,16 @@ pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
     let axis_deg = along.y.atan2(along.x).to_degrees();
     let fov = 40.0;
     let distance = 0.9 * extent / (0.5 * f64::to_radians(fov)).tan();
-    let camera = Camera::orbit(centre.into(), distance, 55.0, axis_deg - 70.0, fov);
+    Camera::orbit(centre.into(), distance, 55.0, axis_deg - 70.0, fov)
+}
+
+/// Draws a drawn surface (skin and walls, walls in their own colour).
+pub fn render_drawn(
+    drawn: &TriMesh,
+    kinds: &[FaceKind],
+    camera: &Camera,
+    options: &RenderOptions,
+) -> anyhow::Result<scalpel_client::render::Image> {
     let positions: Vec<[f64; 3]> = drawn.positions.iter().map(|p| (*p).into()).collect();
     let materials: Vec<u8> = kinds
         .iter()
@@ -463,8 +487,8 @@ pub fn render_incision(run: &CutRun, path: &Path) -> anyhow::Result<()> {
             materials: &materials,
         },
         &PALETTE,
-        &camera,
-        &RenderOptions::default(),
+        camera,
+        options,
     )?;
-    export::save_png(&image, path)
+    Ok(image)
 }

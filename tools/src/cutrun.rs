@@ -127,10 +127,22 @@ impl GuardCounts {
     }
 }
 
+/// The drawn surface at one tick of a run (current positions), kept for renders.
+pub struct SurfaceSnapshot {
+    /// The tick (0-based) it is the surface after.
+    pub tick: usize,
+    /// Skin and walls, no lids.
+    pub mesh: scalpel_sim::geometry::TriMesh,
+    /// What each triangle is.
+    pub kinds: Vec<scalpel_sim::cut::FaceKind>,
+}
+
 /// A finished run.
 pub struct CutRun {
     /// Every tick.
     pub rows: Vec<TickRow>,
+    /// The drawn surface every `snapshot_every` ticks and after the last (none when 0).
+    pub snapshots: Vec<SurfaceSnapshot>,
     /// The solver guard's rollbacks by reason.
     pub guard: GuardCounts,
     /// The simulation at the end.
@@ -145,10 +157,11 @@ pub fn run_cut(
     scene: &BuiltScene,
     script: &CutScript,
     threads: usize,
+    snapshot_every: usize,
     tick: impl FnMut(usize, usize) + Send,
 ) -> anyhow::Result<CutRun> {
     if threads <= 1 {
-        return Ok(run_cut_here(scene, script, None, tick));
+        return Ok(run_cut_here(scene, script, None, snapshot_every, tick));
     }
     std::thread::scope(|scope| {
         std::thread::Builder::new()
@@ -162,7 +175,13 @@ pub fn run_cut(
                 };
                 let pool = scalpel_server::sim_pool::join_new_pool(&plan, || {})
                     .map_err(anyhow::Error::msg)?;
-                Ok(run_cut_here(scene, script, pool.map(|p| p.pool), tick))
+                Ok(run_cut_here(
+                    scene,
+                    script,
+                    pool.map(|p| p.pool),
+                    snapshot_every,
+                    tick,
+                ))
             })?
             .join()
             .map_err(|_| anyhow::anyhow!("the cut's thread panicked"))?
@@ -174,6 +193,7 @@ fn run_cut_here(
     scene: &BuiltScene,
     script: &CutScript,
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
+    snapshot_every: usize,
     mut tick: impl FnMut(usize, usize),
 ) -> CutRun {
     let mut sim = Simulation::new(scene);
@@ -192,6 +212,15 @@ fn run_cut_here(
     let mut stroke_entry: Option<Vec3> = None;
     let mut guard = GuardCounts::default();
     let mut watch = SurfaceWatch::new(&sim);
+    let mut snapshots = Vec::new();
+    let keep = |k: usize, sim: &Simulation, snapshots: &mut Vec<SurfaceSnapshot>| {
+        let (mesh, kinds) = sim.current_surface().drawn();
+        snapshots.push(SurfaceSnapshot {
+            tick: k,
+            mesh,
+            kinds,
+        });
+    };
     let mut entries: Vec<Option<Vec3>> = Vec::with_capacity(ticks);
     let spacing = scene.model.lattice.spacing;
     for k in 0..ticks {
@@ -259,6 +288,9 @@ fn run_cut_here(
             gap_at_blade_mm,
             gap_after_1s_mm,
         });
+        if snapshot_every > 0 && k % snapshot_every == 0 {
+            keep(k, &sim, &mut snapshots);
+        }
         tick(k + 1, ticks);
     }
     // A script that ends within a re-cut's hand-over of the blade leaving: its output is
@@ -272,7 +304,15 @@ fn run_cut_here(
             last.surface_jump_mm = Some(last.surface_jump_mm.map_or(jump, |j| j.max(jump)));
         }
     }
-    CutRun { rows, guard, sim }
+    if snapshot_every > 0 {
+        keep(ticks.saturating_sub(1), &sim, &mut snapshots);
+    }
+    CutRun {
+        rows,
+        snapshots,
+        guard,
+        sim,
+    }
 }
 
 /// How far `entry` (rest) is from the drawn incision: the nearest top of any wound's wall

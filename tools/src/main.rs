@@ -312,6 +312,14 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The physical cut's force curve on each organ beside the formula's (grey), and the
+    /// incision at a quarter, half, three quarters and the end of the stroke and 2 s after
+    /// (issue 41): cut-force-ORGAN.png and cut-sequence-ORGAN.png.
+    CutFigures {
+        /// Where the figures go.
+        #[arg(long, default_value = "docs/figures")]
+        out: PathBuf,
+    },
     /// The default liver cut at several resolutions: cost per cut step against points.
     Scaling {
         /// Target interior point counts.
@@ -683,6 +691,7 @@ fn run_bench(what: BenchCommand) -> anyhow::Result<()> {
             fracture,
             json,
         } => bench::cutting::table1(threads as usize, fracture, json),
+        BenchCommand::CutFigures { out } => bench::cut_figures::cut_figures(&out),
         BenchCommand::Scaling {
             points,
             threads,

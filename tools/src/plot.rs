@@ -140,10 +140,26 @@ pub fn lines(
     y_label: &str,
     series: &[Series],
 ) -> anyhow::Result<()> {
+    let coloured: Vec<(&Series, RGBColor)> = series
+        .iter()
+        .enumerate()
+        .map(|(k, s)| (s, PALETTE[k % PALETTE.len()]))
+        .collect();
+    lines_coloured(path, title, x_label, y_label, &coloured)
+}
+
+/// [`lines`] with a colour for each series, drawn in order (the last on top).
+pub fn lines_coloured(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[(&Series, RGBColor)],
+) -> anyhow::Result<()> {
     ensure_font()?;
     let all: Vec<(f64, f64)> = series
         .iter()
-        .flat_map(|s| s.points.iter().copied())
+        .flat_map(|(s, _)| s.points.iter().copied())
         .filter(|(x, y)| x.is_finite() && y.is_finite())
         .collect();
     anyhow::ensure!(!all.is_empty(), "nothing to plot");
@@ -173,8 +189,7 @@ pub fn lines(
         .label_style(("sans-serif", 16))
         .draw()
         .context("drawing the axes")?;
-    for (k, s) in series.iter().enumerate() {
-        let colour = PALETTE[k % PALETTE.len()];
+    for &(s, colour) in series {
         chart
             .draw_series(LineSeries::new(
                 s.points.iter().copied(),

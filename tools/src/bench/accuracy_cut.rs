@@ -64,7 +64,7 @@ pub fn run_at(points: usize, script: &mut Option<CutScript>) -> anyhow::Result<C
         )?),
     };
     let start = process_cpu_s();
-    let run = cutrun::run_cut(&scene, script, 1, |_, _| {})?;
+    let run = cutrun::run_cut(&scene, script, 1, 0, |_, _| {})?;
     let cpu_s = process_cpu_s() - start;
     Ok(CutSample {
         points: scene.model.points.len(),

@@ -87,7 +87,7 @@ pub fn table1(threads: usize, fracture: Option<Option<f64>>, json: bool) -> anyh
         };
         let scene = build(&spec)?;
         let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?;
-        let run = cut_cmd::run_with_progress(&scene, &script, threads)?;
+        let run = cut_cmd::run_with_progress(&scene, &script, threads, 0)?;
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let paper_total = paper_surface + paper_internal;
         rows.push(Table1Row {
@@ -222,7 +222,7 @@ pub fn scaling(targets: &[usize], threads: usize, json: bool) -> anyhow::Result<
         let script = script.get_or_insert(CutScript::default_for(
             &scalpel_sim::pipeline::start_surface(&scene),
         )?);
-        let run = cut_cmd::run_with_progress(&scene, script, threads)?;
+        let run = cut_cmd::run_with_progress(&scene, script, threads, 0)?;
         let m = cutrun::metrics(&scene, &run, spec.force.ripple_wavelength_m);
         let base = rows.first().map_or(m.total_ms.p50, |r| r.total_ms.p50);
         rows.push(ScalingRow {

@@ -3,6 +3,7 @@
 pub mod accuracy;
 mod accuracy_cut;
 pub mod admission;
+pub mod cut_figures;
 pub mod cutting;
 pub mod loop_bench;
 pub mod net;

@@ -67,7 +67,7 @@ pub fn run(target: &TargetArgs, strokes: usize, seed: u64, json: bool) -> anyhow
     let timed = load::build_with_progress(&spec)?;
     let scene = &timed.scene;
     let script = cut_cmd::script_for(scene, &ScriptChoice::Session { strokes, seed })?;
-    let run = cut_cmd::run_with_progress(scene, &script, 1)?;
+    let run = cut_cmd::run_with_progress(scene, &script, 1, 0)?;
     let m = cutrun::metrics(scene, &run, spec.force.ripple_wavelength_m);
     let rows: Vec<StrokeRow> = split_strokes(&run.rows)
         .iter()
