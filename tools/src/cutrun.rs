@@ -54,6 +54,8 @@ pub struct TickRow {
     pub rollbacks: u32,
     /// Explicit sub-steps of the tick's last attempt.
     pub substeps: u32,
+    /// The sub-steps the explicit mode plans (what it relaxes back to).
+    pub planned_substeps: u32,
     /// The crack front jumped by fracture this tick (`[force] fracture_by_energy`).
     pub fractured: bool,
     /// Re-cut work done on the worker for this tick (ms): the re-cuts that landed in it, as
@@ -281,6 +283,7 @@ fn run_cut_here(
             diverged: report.solver.diverged,
             rollbacks: report.solver.rollbacks,
             substeps: report.solver.substeps,
+            planned_substeps: sim.solver().planned_substeps(),
             fractured: cut.is_some_and(|c| c.fractured),
             recut_worker_ms: (worker_s(&sim) - worker_before) * 1e3,
             lip_lag_mm,
@@ -739,6 +742,7 @@ mod tests {
             diverged: false,
             rollbacks: 0,
             substeps: 1,
+            planned_substeps: 1,
             fractured,
         }
     }

@@ -22,6 +22,9 @@ struct StrokeRow {
     total_ms: Quantiles,
     max_active_points: usize,
     max_substeps: u32,
+    /// The sub-steps the explicit mode planned at the stroke's end (what it relaxes back
+    /// to once a rollback or the stiffening's rise has passed).
+    planned_substeps: u32,
     rollback_ticks: usize,
     diverged_ticks: usize,
     peak_force_n: f64,
@@ -146,6 +149,7 @@ fn stroke_row(stroke: usize, ticks: &[&TickRow]) -> StrokeRow {
         total_ms: Quantiles::or_zero(&total),
         max_active_points: ticks.iter().map(|r| r.active_points).max().unwrap_or(0),
         max_substeps: ticks.iter().map(|r| r.substeps).max().unwrap_or(0),
+        planned_substeps: ticks.last().map_or(0, |r| r.planned_substeps),
         rollback_ticks: ticks.iter().filter(|r| r.rollbacks > 0).count(),
         diverged_ticks: ticks.iter().filter(|r| r.diverged).count(),
         peak_force_n: ticks.iter().map(|r| r.force_mag_n).fold(0.0, f64::max),

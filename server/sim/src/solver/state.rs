@@ -59,6 +59,12 @@ impl Solver {
         self.substeps
     }
 
+    /// Sub-steps per tick the explicit mode plans from dt_crit (and keeps through cuts):
+    /// what it returns to once rollbacks and the stiffening's rise relax.
+    pub fn planned_substeps(&self) -> u32 {
+        self.planned_substeps
+    }
+
     /// Overwrites positions (e.g. an initial deformation); velocities are kept.
     pub fn set_positions(&mut self, p: &[Vec3]) {
         self.p.copy_from_slice(p);
