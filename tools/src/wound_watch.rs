@@ -2,7 +2,6 @@
 //! when an incision lands, and how wide the lips stand apart (issue 41's
 //! `max_vertex_jump_mm` and `opening_mm`).
 
-use scalpel_sim::cut::FaceKind;
 use scalpel_sim::geometry::TriMesh;
 use scalpel_sim::geometry::parry_adapter::TriangleBvh;
 use scalpel_sim::geometry::predicates::closest_point_on_triangle;
@@ -15,16 +14,7 @@ const MOST_JUMP_M: f64 = 0.064;
 
 /// The drawn surface (skin and walls, no lids) in rest space.
 fn drawn_rest(sim: &Simulation) -> TriMesh {
-    let s = sim.current_surface();
-    let triangles = s
-        .mesh
-        .triangles
-        .iter()
-        .zip(&s.kinds)
-        .filter(|(_, k)| **k != FaceKind::Lid)
-        .map(|(t, _)| *t)
-        .collect();
-    TriMesh::new(s.rest_positions().to_vec(), triangles)
+    sim.current_surface().drawn_rest()
 }
 
 /// Distance from `x` to `mesh` (m), at most [`MOST_JUMP_M`].

@@ -9,8 +9,9 @@ use plotters::style::RGBColor;
 use scalpel_client::render::{Image, RenderOptions};
 use scalpel_sim::force::CutPhase;
 use scalpel_sim::pipeline::{CutScript, Keyframe, start_surface};
-use scalpel_sim::scene::{BuiltScene, SceneSpec};
+use scalpel_sim::scene::BuiltScene;
 
+use crate::bench::cutting::organ_spec;
 use crate::cut_cmd::{self, incision_camera, render_drawn};
 use crate::cutrun::{self, CutRun};
 use crate::plot::{self, Series};
@@ -28,14 +29,9 @@ const PANEL: (u32, u32) = (480, 360);
 const PHYSICAL: RGBColor = RGBColor(200, 30, 30);
 const FORMULA: RGBColor = RGBColor(160, 160, 160);
 
-/// The built-in organ `name`, with the physical cut or the formula.
+/// The built-in organ `name`, with the physical cut (on its own stiffening) or the formula.
 fn organ(name: &str, fracture: bool) -> anyhow::Result<BuiltScene> {
-    let spec = SceneSpec::from_toml(
-        &format!(
-            "extends = \"{name}\"\nname = \"{name}\"\n[force]\nfracture_by_energy = {fracture}\n"
-        ),
-        Path::new(name),
-    )?;
+    let spec = organ_spec(name, fracture.then_some(None))?;
     Ok(load::build_with_progress(&spec)?.scene)
 }
 

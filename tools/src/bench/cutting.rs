@@ -64,27 +64,32 @@ fn build(spec: &SceneSpec) -> anyhow::Result<BuiltScene> {
     Ok(timed.scene)
 }
 
+/// The built-in organ `name`; with `fracture`, with the physical cut (fracture by energy) on
+/// its own stiffening or on β when given — said as a scene file would say it, so that β is
+/// checked as the file's is. (TOML spells NaN in lower case.)
+pub fn organ_spec(name: &str, fracture: Option<Option<f64>>) -> anyhow::Result<SceneSpec> {
+    let Some(beta) = fracture else {
+        return scene::builtin(name).ok_or_else(|| anyhow::anyhow!("no built-in scene {name}"));
+    };
+    Ok(SceneSpec::from_toml(
+        &format!(
+            "extends = \"{name}\"\nname = \"{name}\"\n[force]\nfracture_by_energy = true\n{}",
+            match beta {
+                None => String::new(),
+                Some(b) if b.is_nan() => "[material]\nstiffening = nan\n".to_string(),
+                Some(b) => format!("[material]\nstiffening = {b:?}\n"),
+            }
+        ),
+        std::path::Path::new("--fracture"),
+    )?)
+}
+
 /// `scalpel bench table1`; with `fracture`, the physical cut (fracture by energy), on the
 /// organ's own stiffening or on β when given.
 pub fn table1(threads: usize, fracture: Option<Option<f64>>, json: bool) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for (name, paper_tris, paper_points, paper_surface, paper_internal) in PAPER_TABLE1 {
-        let spec = match fracture {
-            None => scene::builtin(name).expect("built-in scene"),
-            // As a scene file would say it, so that β is checked as the file's is.
-            // (TOML spells NaN in lower case.)
-            Some(beta) => SceneSpec::from_toml(
-                &format!(
-                    "extends = \"{name}\"\nname = \"{name}\"\n[force]\nfracture_by_energy = true\n{}",
-                    match beta {
-                        None => String::new(),
-                        Some(b) if b.is_nan() => "[material]\nstiffening = nan\n".to_string(),
-                        Some(b) => format!("[material]\nstiffening = {b:?}\n"),
-                    }
-                ),
-                std::path::Path::new("--fracture"),
-            )?,
-        };
+        let spec = organ_spec(name, fracture)?;
         let scene = build(&spec)?;
         let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))?;
         let run = cut_cmd::run_with_progress(&scene, &script, threads, 0)?;

@@ -577,15 +577,25 @@ impl CurrentSurface {
     /// The drawn surface (skin and wound walls, no lids) at the current positions, with the
     /// kind of each triangle.
     pub fn drawn(&self) -> (TriMesh, Vec<FaceKind>) {
-        let (triangles, kinds): (Vec<[u32; 3]>, Vec<FaceKind>) = self
-            .mesh
+        let (triangles, kinds) = self.drawn_triangles();
+        (TriMesh::new(self.mesh.positions.clone(), triangles), kinds)
+    }
+
+    /// The drawn surface in rest space: what the field carries onto the screen, so that
+    /// a change of it is what moves there without the tissue moving it.
+    pub fn drawn_rest(&self) -> TriMesh {
+        TriMesh::new(self.rest.clone(), self.drawn_triangles().0)
+    }
+
+    /// The triangles drawn (skin and wound walls, no lids) and their kinds.
+    fn drawn_triangles(&self) -> (Vec<[u32; 3]>, Vec<FaceKind>) {
+        self.mesh
             .triangles
             .iter()
             .zip(&self.kinds)
             .filter(|(_, k)| **k != FaceKind::Lid)
             .map(|(t, k)| (*t, *k))
-            .unzip();
-        (TriMesh::new(self.mesh.positions.clone(), triangles), kinds)
+            .unzip()
     }
 
     /// Replaces the surface by an incised one. `base_to_current[b]` is the current vertex

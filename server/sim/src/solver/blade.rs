@@ -189,8 +189,9 @@ pub struct BladeBody {
     /// Per sample: 0 for a surface sample; for a crack-front sample (`push_front`), how far
     /// across the flats (m) the edge catches it.
     capture: Vec<f64>,
-    /// Per crack-front sample, how deep in the steel the edge lets it be (m): built where
-    /// the edge has already passed, it is pushed out at [`FRONT_CATCH_UP_M_PER_S`], not in
+    /// Per sample, how deep in the steel its face lets it be (m): a crack-front sample, or
+    /// a surface sample met deeper than the steel moved ([`DEEP_MEET_M`]), was built where
+    /// the blade had already got to and is pushed out at [`FRONT_CATCH_UP_M_PER_S`], not in
     /// one pass. At the tick's start for a retry.
     slack: Vec<f64>,
     slack_at_tick: Vec<f64>,

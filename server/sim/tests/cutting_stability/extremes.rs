@@ -110,9 +110,9 @@ fn noisy_hold(name: &str, x_mm: [f64; 3], depth_mm: f64) {
     // crack's fracture term faded to nothing, even while cutting on; on the cerebroma Σ
     // grew to and fro around the held blade, 108 → 2796 triangles in 2 s.)
     let held = trace.ticks.force[6999];
-    let force = &scene.spec.force;
-    let cutting = force.toughness_n_per_m * depth_mm * 1e-3
-        + force.friction_n * (depth_mm * 1e-3 / force.friction_depth_m).min(1.0);
+    let depth = depth_mm * 1e-3;
+    let model = CuttingForceModel::new(&scene.spec.force, false);
+    let cutting = model.toughness_n_per_m() * depth + model.friction(depth);
     assert!(
         held.x < -0.5 * cutting,
         "{name}: {held:?} against {cutting} N"

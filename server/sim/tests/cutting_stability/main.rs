@@ -6,7 +6,7 @@
 
 use scalpel_sim::cut::corners_of_kind;
 use scalpel_sim::cut::{FaceKind, ToolPose};
-use scalpel_sim::force::CutPhase;
+use scalpel_sim::force::{CutPhase, CuttingForceModel};
 use scalpel_sim::geometry::topology::check_surface;
 use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{CutScript, Keyframe, NoClock, Simulation};
