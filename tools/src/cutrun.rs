@@ -11,7 +11,7 @@ use scalpel_sim::scene::BuiltScene;
 use scalpel_sim::solver::{DivergenceReason, SolverEvent, SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
-use crate::wound_watch::{SurfaceWatch, lip_gap_m};
+use crate::wound_watch::{Jump, SurfaceWatch, lip_gap_m};
 
 /// Time per tick (s): the haptic rate.
 pub const TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
@@ -66,8 +66,10 @@ pub struct TickRow {
     /// stroke entered.
     pub lip_lag_mm: Option<f64>,
     /// When the drawn surface changed this tick (a re-cut landed, a wound deepened), how
-    /// far it jumped without the field moving it (mm; `wound_watch::SurfaceWatch`).
+    /// far what was drawn moved without the field moving it (mm; `wound_watch::Jump`).
     pub surface_jump_mm: Option<f64>,
+    /// ... and how far from it new surface (walls growing with the crack) appeared (mm).
+    pub surface_growth_mm: Option<f64>,
     /// While cutting, the lips' gap where the blade enters the tissue (mm, current
     /// positions, at the nearest wall column within a spacing; 0 where no wound is drawn
     /// there yet).
@@ -252,7 +254,7 @@ fn run_cut_here(
             stroke_entry = entry_rest;
         }
         let lip_lag_mm = entry_rest.map(|at| lip_lag(&sim, at, stroke_entry) * 1e3);
-        let surface_jump_mm = watch.jump_m(&sim).map(|j| j * 1e3);
+        let jump = watch.jump(&sim).map(Jump::mm);
         // What the eye sees at that place: no wound drawn within a spacing is intact skin.
         let gap_mm = |at: Vec3| lip_gap_m(&sim, at, spacing).unwrap_or(0.0) * 1e3;
         let gap_at_blade_mm = entry_rest.map(gap_mm);
@@ -287,7 +289,8 @@ fn run_cut_here(
             fractured: cut.is_some_and(|c| c.fractured),
             recut_worker_ms: (worker_s(&sim) - worker_before) * 1e3,
             lip_lag_mm,
-            surface_jump_mm,
+            surface_jump_mm: jump.map(|j| j.moved_m),
+            surface_growth_mm: jump.map(|j| j.grown_m),
             gap_at_blade_mm,
             gap_after_1s_mm,
         });
@@ -300,11 +303,13 @@ fn run_cut_here(
     // the finished incision (its worker time the last tick's).
     let worker_before = worker_s(&sim);
     sim.settle_incision();
-    let settled_jump = watch.jump_m(&sim).map(|j| j * 1e3);
+    let settled_jump = watch.jump(&sim).map(Jump::mm);
     if let Some(last) = rows.last_mut() {
         last.recut_worker_ms += (worker_s(&sim) - worker_before) * 1e3;
         if let Some(jump) = settled_jump {
-            last.surface_jump_mm = Some(last.surface_jump_mm.map_or(jump, |j| j.max(jump)));
+            let most = |was: Option<f64>, now: f64| Some(was.map_or(now, |j| j.max(now)));
+            last.surface_jump_mm = most(last.surface_jump_mm, jump.moved_m);
+            last.surface_growth_mm = most(last.surface_growth_mm, jump.grown_m);
         }
     }
     if snapshot_every > 0 {
@@ -376,8 +381,11 @@ pub struct CutMetrics {
     /// is drawn yet).
     pub opening_mm: Option<Opening>,
     /// The largest jump of the drawn surface that the field did not make, over the run (mm):
-    /// a re-cut landing that opens a wound in one frame (`wound_watch`).
+    /// how far what was drawn moved when a re-cut landed (`wound_watch::Jump`).
     pub max_vertex_jump_mm: Option<f64>,
+    /// The farthest from the drawn surface that new surface appeared in one frame (mm): a
+    /// wound's walls growing with the crack, or a wound opened at once.
+    pub max_surface_growth_mm: Option<f64>,
     /// Ticks in which the drawn surface jumped more than 0.5 mm (issue 41's bound).
     pub vertex_jumps_over_half_mm: usize,
     /// The drawn surface is closed at the end.
@@ -674,6 +682,11 @@ pub fn metrics(scene: &BuiltScene, run: &CutRun, wavelength_m: f64) -> CutMetric
             .iter()
             .filter_map(|r| r.surface_jump_mm)
             .reduce(f64::max),
+        max_surface_growth_mm: run
+            .rows
+            .iter()
+            .filter_map(|r| r.surface_growth_mm)
+            .reduce(f64::max),
         vertex_jumps_over_half_mm: run
             .rows
             .iter()
@@ -735,6 +748,7 @@ mod tests {
             recut_worker_ms: 0.0,
             lip_lag_mm: None,
             surface_jump_mm: None,
+            surface_growth_mm: None,
             gap_at_blade_mm: None,
             gap_after_1s_mm: None,
             stage_ms: [0.0; Stage::ALL.len()],

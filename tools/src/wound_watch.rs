@@ -1,7 +1,8 @@
 //! What the eye sees of a wound while a scripted cut runs: how far the drawn surface jumps
-//! when an incision lands, and how wide the lips stand apart (issue 41's
-//! `max_vertex_jump_mm` and `opening_mm`).
+//! when an incision lands, how far from it new surface appears, and how wide the lips
+//! stand apart (issue 41's `max_vertex_jump_mm`, `max_surface_growth_mm` and `opening_mm`).
 
+use scalpel_sim::cut::FaceKind;
 use scalpel_sim::geometry::TriMesh;
 use scalpel_sim::geometry::parry_adapter::TriangleBvh;
 use scalpel_sim::geometry::predicates::closest_point_on_triangle;
@@ -15,6 +16,16 @@ const MOST_JUMP_M: f64 = 0.064;
 /// The drawn surface (skin and walls, no lids) in rest space.
 fn drawn_rest(sim: &Simulation) -> TriMesh {
     sim.current_surface().drawn_rest()
+}
+
+/// The drawn surface's skin alone (no walls), in rest space.
+fn skin_rest(sim: &Simulation) -> TriMesh {
+    let s = sim.current_surface();
+    let skin = (s.mesh.triangles.iter().zip(&s.kinds))
+        .filter(|(_, k)| **k == FaceKind::Skin)
+        .map(|(t, _)| *t)
+        .collect();
+    TriMesh::new(s.rest_positions().to_vec(), skin)
 }
 
 /// Distance from `x` to `mesh` (m), at most [`MOST_JUMP_M`].
@@ -75,23 +86,43 @@ impl SurfaceWatch {
         }
     }
 
-    /// If the surface changed since the last call, how far it jumped (m): the Hausdorff
-    /// distance between the two drawn surfaces in rest space (a vertex that appears away
-    /// from the old surface, or an old one left away from the new).
-    pub fn jump_m(&mut self, sim: &Simulation) -> Option<f64> {
+    /// If the surface changed since the last call, how far it jumped, in rest space.
+    pub fn jump(&mut self, sim: &Simulation) -> Option<Jump> {
         let now = signature(sim);
         if now == self.signature {
             return None;
         }
         self.signature = now;
-        let next = drawn_rest(sim);
-        let jump = one_way(&next, &self.last, &TriangleBvh::build(&self.last)).max(one_way(
-            &self.last,
-            &next,
-            &TriangleBvh::build(&next),
-        ));
+        let (next, skin) = (drawn_rest(sim), skin_rest(sim));
+        let old = TriangleBvh::build(&self.last);
+        let jump = Jump {
+            moved_m: one_way(&self.last, &next, &TriangleBvh::build(&next))
+                .max(one_way(&skin, &self.last, &old)),
+            grown_m: one_way(&next, &self.last, &old),
+        };
         self.last = next;
         Some(jump)
+    }
+}
+
+/// How the drawn surface changed without the field changing it (m, rest space).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Jump {
+    /// How far what was drawn moved: the farthest an old vertex is from the new surface,
+    /// or a new skin vertex (a lip, the skin around it) from the old one.
+    pub moved_m: f64,
+    /// How far from the old surface new surface appeared: a wound's walls growing with
+    /// the crack (the one-way Hausdorff distance, new to old).
+    pub grown_m: f64,
+}
+
+impl Jump {
+    /// Both in millimetres.
+    pub fn mm(self) -> Self {
+        Self {
+            moved_m: self.moved_m * 1e3,
+            grown_m: self.grown_m * 1e3,
+        }
     }
 }
 

@@ -6,9 +6,10 @@
 //! path adds no path (a path folded onto itself is no incision), but deepens the samples
 //! it goes deeper than (sawing down in its cut); past the path's start it extends the path
 //! there. The incision of the stroke is recomputed from the surface as it was when the
-//! stroke started, only when the path has grown by more than one edge length since the
-//! last run or its samples have gone a quarter of an edge deeper between them (so the
-//! topology is not edited every tick), and once more when the stroke ends. Parts of the
+//! stroke started, up to the blade's entry, each time the entry has gone a progress step
+//! (0.5 mm) past the last run's end — so the surface opens just behind the blade, each
+//! landing moving the drawn surface by a fraction of a millimetre — when its samples have
+//! gone a quarter of an edge deeper between them, and once more when the stroke ends. Parts of the
 //! path that run over an earlier wound (its lid or walls) open no incision — crossing cuts
 //! split into separate incisions on either side of the earlier one — but take the wound's
 //! walls down where they cut deeper than them (`cut::open_stroke`).
@@ -93,6 +94,11 @@ pub struct StrokeTracker {
     params: IncisionParams,
     sample_step_m: f64,
     rerun_step_m: f64,
+    /// Travel of the blade's entry past the last run's end that runs the incision again
+    /// (the surface follows the crack within it plus the hand-over's travel).
+    progress_step_m: f64,
+    /// Where the last run's path ended (rest space), this stroke.
+    run_end: Option<Vec3>,
     base: Option<Base>,
     samples: Vec<PathSample>,
     /// Whether the incision was computed in this stroke, and the samples added since.
@@ -156,6 +162,13 @@ impl<'a> TrackerInputs<'a> {
     }
 }
 
+/// How far the blade's entry goes past the drawn incision before it is run again: the
+/// lips follow the blade within this plus the hand-over's travel (issue 41: ≤ 1 mm).
+const PROGRESS_STEP_M: f64 = 0.5e-3;
+
+/// The shortest path the first run of a stroke draws.
+const MIN_FIRST_RUN_M: f64 = 1e-3;
+
 /// Path samples preallocated per stroke.
 const PATH_SAMPLE_CAPACITY: usize = 1024;
 
@@ -172,6 +185,8 @@ impl StrokeTracker {
             params,
             sample_step_m: 0.25 * edge_m,
             rerun_step_m: edge_m,
+            progress_step_m: PROGRESS_STEP_M.min(edge_m),
+            run_end: None,
             base: None,
             // A 250 mm stroke at a quarter of a 1 mm edge: the path grows without
             // allocating on the tick.
@@ -338,7 +353,7 @@ impl StrokeTracker {
                         bottom: tip,
                     });
                 }
-                return false;
+                return self.progressed() && self.run_to_front(inputs);
             }
             _ => {}
         }
@@ -424,17 +439,11 @@ impl StrokeTracker {
         // The stroke ended: settle its incision on the final path, up to the most
         // advanced entry past its last sample (past it along the path: a blade that
         // turned round within a sample step leaves no fold).
-        let n = self.samples.len();
-        if let (Some(front), Some(last)) = (self.front.take(), self.samples.last())
-            && (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
-            && (n < 2
-                || (front.surface - last.surface)
-                    .dot(&(last.surface - self.samples[n - 2].surface))
-                    > 0.0)
-        {
+        if let Some(front) = self.front_ahead() {
             self.samples.push(front);
             self.added_since_run += 1;
         }
+        self.front = None;
         let rerun = (self.samples.len() >= 2 || self.slit.is_some())
             && (self.added_since_run > 0 || self.deepened() || self.slit_grew);
         // The last re-cut covers the whole path: one still in flight is superseded (its
@@ -453,6 +462,7 @@ impl StrokeTracker {
             }
         }
         self.samples.clear();
+        self.run_end = None;
         self.ran_this_stroke = false;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
@@ -467,6 +477,31 @@ impl StrokeTracker {
         self.deepened_since_run_m >= 0.25 * self.rerun_step_m
     }
 
+    /// The most advanced entry since the last sample, if it is on past the last sample
+    /// along the path (a blade that turned round within a sample step leaves no fold).
+    fn front_ahead(&self) -> Option<PathSample> {
+        let (front, last) = (self.front?, self.samples.last()?);
+        let n = self.samples.len();
+        let on = (front.surface - last.surface).norm() > 0.1 * self.sample_step_m
+            && (n < 2
+                || (front.surface - last.surface)
+                    .dot(&(last.surface - self.samples[n - 2].surface))
+                    > 0.0);
+        on.then_some(front)
+    }
+
+    /// Whether the blade's entry has gone a progress step on past where the last run's
+    /// path ended (before the first run: the path to it is `MIN_FIRST_RUN_M` long).
+    fn progressed(&self) -> bool {
+        let (Some(front), Some(first)) = (self.front_ahead(), self.samples.first()) else {
+            return false;
+        };
+        match self.run_end {
+            Some(end) => (front.surface - end).norm() >= self.progress_step_m,
+            None => (front.surface - first.surface).norm() >= MIN_FIRST_RUN_M,
+        }
+    }
+
     /// The current stroke's path samples (empty between strokes).
     pub fn path(&self) -> &[PathSample] {
         &self.samples
@@ -476,10 +511,20 @@ impl StrokeTracker {
     /// lands later, and this returns `false`). With a re-cut still in flight it waits: the
     /// samples since keep counting, so the next sample asks again.
     fn run(&mut self, inputs: &TrackerInputs<'_>) -> bool {
+        self.start_run(inputs, false)
+    }
+
+    /// [`Self::run`] with the path drawn up to the blade's entry (the blade going on
+    /// past the last sample).
+    fn run_to_front(&mut self, inputs: &TrackerInputs<'_>) -> bool {
+        self.start_run(inputs, true)
+    }
+
+    fn start_run(&mut self, inputs: &TrackerInputs<'_>, to_front: bool) -> bool {
         if self.in_flight.is_some() {
             return false;
         }
-        let Some(job) = self.job(inputs.sigma) else {
+        let Some(job) = self.job(inputs.sigma, to_front) else {
             return false;
         };
         self.runner.start(job);
@@ -506,7 +551,7 @@ impl StrokeTracker {
     /// The re-cut of the stroke's path so far, with the embedding of its new vertices
     /// against `sigma`; counts it as a run. Its copies of the
     /// samples and of Σ go into buffers an earlier job handed back.
-    fn job(&mut self, sigma: &SweptSurface) -> Option<RecutJob> {
+    fn job(&mut self, sigma: &SweptSurface, to_front: bool) -> Option<RecutJob> {
         let base = self.base.as_ref()?;
         let shape = base.shape.clone();
         let JobBuffers {
@@ -514,6 +559,12 @@ impl StrokeTracker {
             sigma: mut snapshot,
         } = self.spare.pop().unwrap_or_default();
         samples.clone_from(&self.samples);
+        // The blade's entry past the last sample ends the path drawn now (it stays
+        // provisional: the next sample is taken where the step says).
+        if let Some(front) = self.front_ahead().filter(|_| to_front) {
+            samples.push(front);
+        }
+        self.run_end = samples.last().map(|s| s.surface);
         self.ran_this_stroke = true;
         self.added_since_run = 0;
         self.deepened_since_run_m = 0.0;
