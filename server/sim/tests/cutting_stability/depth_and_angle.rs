@@ -173,8 +173,8 @@ fn assert_one_incision(sim: &Simulation) {
 
 #[test]
 fn a_stab_slits_as_wide_as_the_blade() {
-    // The shoulder: the liver's 17.7 mm surface edges are too coarse to draw an 8 mm slit
-    // (an incision must be half an edge long).
+    // The shoulder, whose finer top draws an 8 mm slit with room for its lips (the liver's
+    // 17.7 mm surface edges are coarse for it).
     // Its top is flat behind x = -12 mm.
     let scene = scene("shoulder");
     let (x, top) = (-12.0, top_mm(&scene, -12.0, 0.0));

@@ -83,10 +83,10 @@ pub(super) fn choose_site(
     } else {
         global_edge
     };
-    if path.length < 0.5 * edge {
+    if path.length < 0.1 * edge {
         return Err(IncisionError::TooShort {
             length_mm: path.length * 1e3,
-            min_mm: 0.5 * edge * 1e3,
+            min_mm: 0.1 * edge * 1e3,
         });
     }
     let a3 = samples[0].surface;
