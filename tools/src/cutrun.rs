@@ -11,7 +11,7 @@ use scalpel_sim::scene::BuiltScene;
 use scalpel_sim::solver::{DivergenceReason, SolverEvent, SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
 
-use crate::wound_watch::{Jump, SurfaceWatch, lip_gap_m};
+use crate::wound_watch::{SurfaceWatch, lip_gap_m};
 
 /// Time per tick (s): the haptic rate.
 pub const TICK_S: f64 = scalpel_sim::pipeline::SIMULATION_TICK_S;
@@ -254,7 +254,7 @@ fn run_cut_here(
             stroke_entry = entry_rest;
         }
         let lip_lag_mm = entry_rest.map(|at| lip_lag(&sim, at, stroke_entry) * 1e3);
-        let jump = watch.jump(&sim).map(Jump::mm);
+        let jump = watch.jump(&sim);
         // What the eye sees at that place: no wound drawn within a spacing is intact skin.
         let gap_mm = |at: Vec3| lip_gap_m(&sim, at, spacing).unwrap_or(0.0) * 1e3;
         let gap_at_blade_mm = entry_rest.map(gap_mm);
@@ -289,8 +289,8 @@ fn run_cut_here(
             fractured: cut.is_some_and(|c| c.fractured),
             recut_worker_ms: (worker_s(&sim) - worker_before) * 1e3,
             lip_lag_mm,
-            surface_jump_mm: jump.map(|j| j.moved_m),
-            surface_growth_mm: jump.map(|j| j.grown_m),
+            surface_jump_mm: jump.map(|j| j.moved_m * 1e3),
+            surface_growth_mm: jump.map(|j| j.grown_m * 1e3),
             gap_at_blade_mm,
             gap_after_1s_mm,
         });
@@ -303,13 +303,13 @@ fn run_cut_here(
     // the finished incision (its worker time the last tick's).
     let worker_before = worker_s(&sim);
     sim.settle_incision();
-    let settled_jump = watch.jump(&sim).map(Jump::mm);
+    let settled_jump = watch.jump(&sim);
     if let Some(last) = rows.last_mut() {
         last.recut_worker_ms += (worker_s(&sim) - worker_before) * 1e3;
         if let Some(jump) = settled_jump {
             let most = |was: Option<f64>, now: f64| Some(was.map_or(now, |j| j.max(now)));
-            last.surface_jump_mm = most(last.surface_jump_mm, jump.moved_m);
-            last.surface_growth_mm = most(last.surface_growth_mm, jump.grown_m);
+            last.surface_jump_mm = most(last.surface_jump_mm, jump.moved_m * 1e3);
+            last.surface_growth_mm = most(last.surface_growth_mm, jump.grown_m * 1e3);
         }
     }
     if snapshot_every > 0 {

@@ -2,7 +2,6 @@
 //! when an incision lands, how far from it new surface appears, and how wide the lips
 //! stand apart (issue 41's `max_vertex_jump_mm`, `max_surface_growth_mm` and `opening_mm`).
 
-use scalpel_sim::cut::FaceKind;
 use scalpel_sim::geometry::TriMesh;
 use scalpel_sim::geometry::parry_adapter::TriangleBvh;
 use scalpel_sim::geometry::predicates::closest_point_on_triangle;
@@ -12,21 +11,6 @@ use scalpel_sim::pipeline::Simulation;
 /// Farthest a jump is looked for (m): a vertex farther than this from the other surface
 /// reads as this far.
 const MOST_JUMP_M: f64 = 0.064;
-
-/// The drawn surface (skin and walls, no lids) in rest space.
-fn drawn_rest(sim: &Simulation) -> TriMesh {
-    sim.current_surface().drawn_rest()
-}
-
-/// The drawn surface's skin alone (no walls), in rest space.
-fn skin_rest(sim: &Simulation) -> TriMesh {
-    let s = sim.current_surface();
-    let skin = (s.mesh.triangles.iter().zip(&s.kinds))
-        .filter(|(_, k)| **k == FaceKind::Skin)
-        .map(|(t, _)| *t)
-        .collect();
-    TriMesh::new(s.rest_positions().to_vec(), skin)
-}
 
 /// Distance from `x` to `mesh` (m), at most [`MOST_JUMP_M`].
 fn distance_to(x: &Vec3, mesh: &TriMesh, bvh: &TriangleBvh) -> f64 {
@@ -81,7 +65,7 @@ impl SurfaceWatch {
     /// Starts from the simulation's surface now.
     pub fn new(sim: &Simulation) -> Self {
         Self {
-            last: drawn_rest(sim),
+            last: sim.current_surface().drawn_rest(),
             signature: signature(sim),
         }
     }
@@ -93,7 +77,8 @@ impl SurfaceWatch {
             return None;
         }
         self.signature = now;
-        let (next, skin) = (drawn_rest(sim), skin_rest(sim));
+        let surface = sim.current_surface();
+        let (next, skin) = (surface.drawn_rest(), surface.skin_rest());
         let old = TriangleBvh::build(&self.last);
         let jump = Jump {
             moved_m: one_way(&self.last, &next, &TriangleBvh::build(&next))
@@ -114,16 +99,6 @@ pub struct Jump {
     /// How far from the old surface new surface appeared: a wound's walls growing with
     /// the crack (the one-way Hausdorff distance, new to old).
     pub grown_m: f64,
-}
-
-impl Jump {
-    /// Both in millimetres.
-    pub fn mm(self) -> Self {
-        Self {
-            moved_m: self.moved_m * 1e3,
-            grown_m: self.grown_m * 1e3,
-        }
-    }
 }
 
 /// The lips' current gap (m) across the wound nearest to `at` (rest): at the wall column

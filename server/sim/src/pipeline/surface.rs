@@ -587,13 +587,24 @@ impl CurrentSurface {
         TriMesh::new(self.rest.clone(), self.drawn_triangles().0)
     }
 
+    /// The skin alone (no walls, no lids) in rest space.
+    pub fn skin_rest(&self) -> TriMesh {
+        let skin = self.triangles_where(|k| k == FaceKind::Skin).0;
+        TriMesh::new(self.rest.clone(), skin)
+    }
+
     /// The triangles drawn (skin and wound walls, no lids) and their kinds.
     fn drawn_triangles(&self) -> (Vec<[u32; 3]>, Vec<FaceKind>) {
+        self.triangles_where(|k| k != FaceKind::Lid)
+    }
+
+    /// The triangles whose kind `keep` takes, and their kinds.
+    fn triangles_where(&self, keep: impl Fn(FaceKind) -> bool) -> (Vec<[u32; 3]>, Vec<FaceKind>) {
         self.mesh
             .triangles
             .iter()
             .zip(&self.kinds)
-            .filter(|(_, k)| **k != FaceKind::Lid)
+            .filter(|(_, k)| keep(**k))
             .map(|(t, k)| (*t, *k))
             .unzip()
     }
