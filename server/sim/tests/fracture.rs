@@ -22,8 +22,9 @@ struct Steady {
     frictions: Vec<f64>,
     /// The mean depth (m).
     depth_m: f64,
-    /// Ticks the crack front jumped.
+    /// Ticks the crack front jumped, and whether each steady tick was one.
     fracture_ticks: usize,
+    fractured: Vec<bool>,
     travel_m: f64,
 }
 
@@ -55,7 +56,7 @@ fn cut_at(youngs_pa: f64) -> Steady {
     let dt = 1e-3;
     let ticks = (script.duration_s() / dt).ceil() as usize;
     let (mut forces, mut targets, mut frictions) = (vec![], vec![], vec![]);
-    let (mut depth, mut fracture_ticks) = (0.0, 0);
+    let (mut depth, mut fracture_ticks, mut fractured) = (0.0, 0, vec![]);
     let mut last_tip: Option<scalpel_sim::math::Vec3> = None;
     let (mut travel, mut travel_steady) = (0.0, 0.0);
     for k in 0..ticks {
@@ -78,6 +79,7 @@ fn cut_at(youngs_pa: f64) -> Steady {
             frictions.push(model.friction(cut.depth_m));
             depth += cut.depth_m;
             fracture_ticks += usize::from(cut.fractured);
+            fractured.push(cut.fractured);
             travel_steady = travel - 0.030;
         }
     }
@@ -88,8 +90,27 @@ fn cut_at(youngs_pa: f64) -> Steady {
         frictions,
         depth_m: depth / n,
         fracture_ticks,
+        fractured,
         travel_m: travel_steady,
     }
+}
+
+/// How much the force rings between fractures (N): the RMS of each tick's force less the
+/// mean of the nine ticks around it, over ticks whose nine are all more than five ticks
+/// from a fracture (a jump's drop is the sawtooth, not ringing).
+fn ringing(s: &Steady) -> f64 {
+    let near =
+        |i: usize| (i.saturating_sub(9)..(i + 10).min(s.fractured.len())).any(|k| s.fractured[k]);
+    let (mut sum, mut n) = (0.0, 0);
+    for i in 4..s.forces.len().saturating_sub(4) {
+        if near(i) {
+            continue;
+        }
+        let mean = Steady::mean(&s.forces[i - 4..=i + 4]);
+        sum += (s.forces[i] - mean).powi(2);
+        n += 1;
+    }
+    (sum / n.max(1) as f64).sqrt()
 }
 
 /// Drops of at least 5 % of the mean: a local peak and the least force over the next
@@ -124,14 +145,16 @@ fn the_crack_advances_by_energy_in_a_sawtooth_set_by_toughness() {
         let d = drops(&s.forces);
         println!(
             "{e} kPa: mean {:.3} N against J_c·w + friction {:.3} N ({:+.1} %), {:.3} N/mm \
-             of depth less friction, {} fracture ticks, {:.1} drops per 10 mm of mean {:.3} N",
+             of depth less friction, {} fracture ticks, {:.1} drops per 10 mm of mean {:.3} N, \
+             ringing {:.3} N RMS",
             Steady::mean(&s.forces),
             Steady::mean(&s.targets),
             100.0 * s.error(),
             s.per_depth() * 1e-3,
             s.fracture_ticks,
             d.len() as f64 / (s.travel_m / 0.01),
-            Steady::mean(&d)
+            Steady::mean(&d),
+            ringing(s)
         );
     }
     for s in [&soft, &stiff] {
@@ -141,6 +164,11 @@ fn the_crack_advances_by_energy_in_a_sawtooth_set_by_toughness() {
         assert!(s.fracture_ticks >= 10, "{} fractures", s.fracture_ticks);
         let per_10mm = drops(&s.forces).len() as f64 / (s.travel_m / 0.01);
         assert!(per_10mm >= 1.0, "{per_10mm} drops per 10 mm");
+        // What a jump releases goes into the crack (`solver::crack_sink`), not back into
+        // the tissue's motion: between jumps the force rings by under 3 % of its mean (2.1
+        // and 0.2 % measured; 6.8 and 3.4 % with the released energy left in the field).
+        let rms = ringing(s);
+        assert!(rms <= 0.03 * Steady::mean(&s.forces), "ringing {rms} N RMS");
     }
     // Four times the stiffness: the force per depth within the issue's 10 % (7.0 %
     // measured), the jumps a quarter as long and so about four times as many.

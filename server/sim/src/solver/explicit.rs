@@ -34,16 +34,19 @@ impl Solver {
         if let Some(blade) = &mut self.blade {
             blade.begin_tick();
         }
+        self.crack_sink.begin_tick();
         let mut rollbacks = 0;
         loop {
             if let Some(blade) = &mut self.blade {
                 blade.begin_attempt();
             }
+            self.crack_sink.begin_attempt();
             match self.run_substeps(dt) {
                 Ok((stats, work, kinetic)) => {
                     if let Some(blade) = &mut self.blade {
                         blade.end_tick();
                     }
+                    self.crack_sink.end_tick();
                     self.max_stiffening = stats.max_stiffening;
                     // Slaved nodes where the tick's last positions put them.
                     self.slaves.interpolate(&mut self.p);
@@ -302,7 +305,7 @@ impl Solver {
                 }
             }
             let (gained, done) = self.project_blade(h, true);
-            kinetic += gained;
+            kinetic += gained - self.crack_sink.absorb(&mut self.v, &self.mass, h);
             *work += done;
             *stats = Some(st);
         }

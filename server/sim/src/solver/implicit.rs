@@ -79,6 +79,7 @@ impl Solver {
             // its faces are not in the solve): the contact is not in the linear system.
             self.project_blade(dt, false);
         }
+        self.end_one_step_tick(dt);
         if let Some(blade) = &mut self.blade {
             blade.end_tick();
         }

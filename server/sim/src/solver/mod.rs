@@ -24,6 +24,7 @@
 pub mod blade;
 pub mod contact;
 mod contact_set;
+mod crack_sink;
 pub mod embedded;
 pub mod events;
 mod explicit;
@@ -235,6 +236,8 @@ pub struct Solver {
     contact_force: Vec<Vec3>,
     /// The blade as a kinematic body in the explicit tick, for scenes that cut.
     blade: Option<blade::BladeBody>,
+    /// What the crack takes from the tissue when its front jumps.
+    crack_sink: crack_sink::CrackSink,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
@@ -443,6 +446,7 @@ impl Solver {
             contact: None,
             contact_force: zeros.clone(),
             blade: None,
+            crack_sink: crack_sink::CrackSink::with_room(n),
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n).with_threads(Threads::One),
             #[cfg(feature = "parallel")]

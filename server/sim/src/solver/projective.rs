@@ -78,6 +78,7 @@ impl Solver {
             // velocities updated): weak, the rest of the body does not take part.
             self.project_blade(dt, false);
         }
+        self.end_one_step_tick(dt);
         if let Some(blade) = &mut self.blade {
             blade.end_tick();
         }

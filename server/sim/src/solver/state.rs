@@ -373,5 +373,27 @@ impl Solver {
             blade.begin_attempt();
             blade.begin_substep(0.0, 1.0, &self.p, f64::INFINITY);
         }
+        self.crack_sink.begin_tick();
+    }
+
+    /// A one-step tick (implicit, projective) is done: the crack takes its share of what
+    /// moves, and its sink is one tick older.
+    pub(super) fn end_one_step_tick(&mut self, dt: f64) {
+        self.crack_sink.absorb(&mut self.v, &self.mass, dt);
+        self.crack_sink.end_tick();
+    }
+
+    /// The crack front jumped at a cost of `energy_j`: the crack takes up to that much
+    /// kinetic energy from the points that carried the front over the next ticks
+    /// ([`crack_sink::CrackSink`]).
+    pub fn sink_crack_energy(&mut self, energy_j: f64) {
+        if let Some(blade) = &self.blade {
+            self.crack_sink.open(blade.front_points(), energy_j);
+        }
+    }
+
+    /// What the crack took from the tissue's motion over the last tick (J).
+    pub fn crack_energy_taken_j(&self) -> f64 {
+        self.crack_sink.taken_j()
     }
 }

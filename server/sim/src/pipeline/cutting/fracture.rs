@@ -57,7 +57,7 @@ impl CuttingStage {
         phase: CutPhase,
         blade: Option<&Blade>,
         width_m: f64,
-        solver: &Solver,
+        solver: &mut Solver,
     ) -> Option<f64> {
         let (CutPhase::Cutting, Some(_), Some(body), true) =
             (phase, blade, solver.blade(), self.front.built)
@@ -76,6 +76,7 @@ impl CuttingStage {
             return None;
         }
         self.front.work_j -= cost;
+        solver.sink_crack_energy(cost);
         Some(jump)
     }
 

@@ -1,0 +1,256 @@
+//! The blade's contact: which face holds, momentum balance, retries, slack.
+use super::*;
+
+fn upright() -> Slab {
+    Slab {
+        tip: Vec3::zeros(),
+        edge: Vec3::z(),
+        back: -Vec3::x(),
+        length: 0.025,
+        width: 0.008,
+        thickness: 0.0004,
+    }
+}
+
+/// A point pressed from below the tip is held by the tip's end, one coming in from the
+/// side by the flat it came through, one ahead of the edge by the edge.
+#[test]
+fn a_sample_is_held_by_the_face_it_came_in_through() {
+    let b = upright();
+    let inside = Vec3::new(-0.003, 0.0001, 0.0005);
+    let l = b.local(&inside);
+    assert!(b.inside(&l));
+    let below = b.local(&Vec3::new(-0.003, 0.0001, -0.001));
+    assert_eq!(b.entry_face(&l, &below), Face::Tip);
+    let beside = b.local(&Vec3::new(-0.003, 0.001, 0.0005));
+    let side = b.side();
+    let expected = if side.y > 0.0 {
+        Face::FlatPlus
+    } else {
+        Face::FlatMinus
+    };
+    assert_eq!(b.entry_face(&l, &beside), expected);
+    let ahead = b.local(&Vec3::new(0.001, 0.0001, 0.0005));
+    assert_eq!(b.entry_face(&l, &ahead), Face::Edge);
+    let (gap, n) = b.gap(&l, Face::Tip);
+    assert!((gap + 0.0005).abs() < 1e-15 && n == -Vec3::x());
+}
+
+/// A free-floating block (no supports, no gravity, no damping) with the blade pressed
+/// into its top tick after tick: the momentum the block gains each tick is exactly
+/// the impulse of the force the blade reports, reversed (to 1e-9 of it).
+#[test]
+fn the_blade_gets_what_the_tissue_gets_reversed() {
+    momentum_balance(crate::solver::SolverConfig::default());
+}
+
+/// The same in stiff mode, the faces in the projective global solve: the momentum the
+/// block gains is the contacts' pushes over the step, normal (Σ n λ) and friction.
+#[test]
+fn the_blade_gets_what_the_tissue_gets_reversed_in_stiff_mode() {
+    momentum_balance(crate::solver::SolverConfig {
+        mode: crate::solver::SolverMode::Projective,
+        ..Default::default()
+    });
+}
+
+fn momentum_balance(config: crate::solver::SolverConfig) {
+    use crate::model::SurfaceEmbedding;
+    use crate::scene::Material;
+    use crate::validate::box_body;
+    let undamped = Material {
+        damping_per_s: 0.0,
+        ..Material::LIVER
+    };
+    let size = Vec3::new(0.02, 0.02, 0.02);
+    let mut body = box_body(size, 5, &undamped, 2.0, config);
+    let start = Slab {
+        tip: Vec3::new(0.0045, 0.0, 0.01),
+        ..upright()
+    };
+    let n = body.solver.rest().len();
+    let mut blade = BladeBody::with_room(n, 128, 128 * 512, start);
+    let mut row = Vec::new();
+    for i in -6..=4 {
+        for j in -2..=2 {
+            let x = Vec3::new(i as f64 * 1e-3, j as f64 * 1e-3, 0.01);
+            let model = &body.model;
+            let zero =
+                SurfaceEmbedding::sample_row(&x, &model.points.rest, &model.grid, &model.kernel);
+            body.solver
+                .operator()
+                .linear_row(&zero, &x, body.solver.rest(), &mut row);
+            blade.push(&row, x, body.solver.rest());
+        }
+    }
+    blade.finish(body.solver.positions(), 0.0, 0);
+    body.solver.set_blade(Some(blade));
+    let dt = 1e-3;
+    let momentum = |s: &crate::solver::Solver| -> Vec3 {
+        s.masses()
+            .iter()
+            .zip(s.velocities())
+            .map(|(m, v)| v * *m)
+            .sum()
+    };
+    let mut pressed = 0;
+    for k in 1..=30 {
+        let slab = Slab {
+            tip: start.tip - Vec3::z() * (1e-4 * f64::from(k)),
+            ..start
+        };
+        body.solver.blade_mut().unwrap().move_to(slab);
+        let before = momentum(&body.solver);
+        let report = body.solver.step(dt);
+        assert!(!report.diverged && report.rollbacks == 0, "{report:?}");
+        let gained = momentum(&body.solver) - before;
+        let blade = body.solver.blade().unwrap();
+        let impulse = blade.force_on_blade() * dt;
+        if impulse.norm() > 0.0 {
+            pressed += 1;
+            assert!(
+                (gained + impulse).norm() <= 1e-9 * impulse.norm(),
+                "tick {k}: gained {gained}, blade impulse {impulse}"
+            );
+        }
+    }
+    assert!(pressed > 20, "{pressed} ticks pressed");
+    let blade = body.solver.blade().unwrap();
+    assert!(blade.force_on_blade().z > 0.0 && blade.touching() > 0);
+}
+
+/// A sample that came in while the blade lets go is the crack's for the rest of the
+/// attempt, but a retried tick starts from what the tick started with.
+#[test]
+fn a_retried_tick_starts_from_the_samples_it_started_with() {
+    let b = upright();
+    let mut blade = BladeBody::with_room(1, 4, 4, b);
+    let rest = [Vec3::new(-0.003, 0.0001, 0.0005)];
+    blade.push(&[(0, 1.0)], rest[0], &rest);
+    blade.finish(&[Vec3::new(-0.003, 0.0001, -0.001)], 0.0, 0);
+    assert_eq!(blade.release(0.5), 0.5);
+    blade.begin_tick();
+    blade.begin_attempt();
+    let mut p = [Vec3::new(-0.003, 0.0001, -0.001)];
+    blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+    p[0] = rest[0];
+    let mut v = [Vec3::zeros()];
+    blade.project(&mut p, &mut v, &[1e-3], 1e-3, |_| 1e3);
+    assert!(blade.cut[0], "came in while letting go");
+    blade.begin_attempt();
+    assert!(!blade.cut[0], "restored for the retry");
+}
+
+/// A crack-front sample the edge first meets half a millimetre behind it is taken up
+/// at FRONT_CATCH_UP_M_PER_S, not put out in one pass (which would launch its points
+/// as far again in the next sub-step); one just ahead of the edge is not moved.
+#[test]
+fn a_front_met_behind_the_edge_is_caught_up_not_launched() {
+    let b = upright();
+    let h = 1e-4;
+    for (behind, most_per_substep) in [(5e-4, FRONT_CATCH_UP_M_PER_S * h), (-1e-6, 0.0)] {
+        let mut blade = BladeBody::with_room(1, 4, 4, b);
+        let x = Vec3::new(-behind, 0.0, 0.005);
+        blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+        let mut p = [x];
+        blade.finish(&p, 0.0, 0);
+        blade.begin_tick();
+        blade.begin_attempt();
+        let mut v = [Vec3::zeros()];
+        let mut last = -behind;
+        for _ in 0..20 {
+            // The sub-step's inertial move, then the blade.
+            blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+            p[0] += v[0] * h;
+            blade.project(&mut p, &mut v, &[1e-3], h, |_| 1e3);
+            let moved = p[0].x - last;
+            assert!(moved <= most_per_substep + 1e-12, "{behind}: {moved}");
+            last = p[0].x;
+        }
+        if behind > 0.0 {
+            // Taken up steadily: 20 sub-steps of 5 µm.
+            assert!((p[0].x + behind - 20.0 * most_per_substep).abs() < 1e-9);
+            assert!((v[0].x - FRONT_CATCH_UP_M_PER_S).abs() < 1e-9, "{}", v[0].x);
+        } else {
+            assert_eq!(p[0].x, -behind);
+        }
+    }
+}
+
+/// A surface sample the steel meets half a millimetre deep while it hardly moves was
+/// re-sampled inside it: caught up like a front sample. One the steel runs into (as
+/// deep as the steel moved) is put out at once.
+#[test]
+fn a_surface_sample_met_deep_is_caught_up_one_run_into_is_put_out() {
+    let b = upright();
+    let h = 1e-4;
+    for (deep, most) in [(5e-4, FRONT_CATCH_UP_M_PER_S * h), (1e-6, 1e-6)] {
+        let mut blade = BladeBody::with_room(1, 4, 4, b);
+        // Inside the steel, ahead of the edge, met through the edge.
+        let x = Vec3::new(-deep, 0.0, 0.005);
+        let before = Vec3::new(0.001, 0.0, 0.005);
+        blade.push(&[(0, 1.0)], x, &[x]);
+        let mut p = [before];
+        blade.finish(&p, 0.0, 0);
+        blade.begin_tick();
+        blade.begin_attempt();
+        blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+        p[0] = x;
+        let mut v = [Vec3::zeros()];
+        blade.project(&mut p, &mut v, &[1e-3], h, |_| 1e3);
+        let moved = p[0].x - x.x;
+        assert!(
+            moved <= most + 1e-12 && moved >= 0.0,
+            "{deep}: moved {moved}"
+        );
+        if deep < 1e-5 {
+            assert!((p[0].x).abs() < 1e-12, "put out: {}", p[0].x);
+        }
+    }
+}
+
+/// The projective step's constraint keeps the same slack: a front sample met half a
+/// millimetre behind the edge asks for no push at first, then for what a step's
+/// catch-up takes up.
+#[test]
+fn the_projective_constraint_keeps_a_front_samples_slack() {
+    let b = upright();
+    let behind = 5e-4;
+    let dt = 1e-3;
+    let mut blade = BladeBody::with_room(1, 4, 4, b);
+    let x = Vec3::new(-behind, 0.0, 0.005);
+    blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+    let p = [x];
+    blade.finish(&p, 0.0, 0);
+    blade.begin_tick();
+    blade.begin_attempt();
+    blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+    let gap = |blade: &mut BladeBody| {
+        let (n, offset) = blade.constraint(0, &p, |_| true).expect("held");
+        n.dot(&p[0]) - offset
+    };
+    assert!(gap(&mut blade).abs() < 1e-15, "met: no push");
+    blade.take_up_slack(dt);
+    let asked = -gap(&mut blade);
+    assert!(
+        (asked - FRONT_CATCH_UP_M_PER_S * dt).abs() < 1e-12,
+        "{asked}"
+    );
+    // Retried from the tick's start: the slack as it was.
+    blade.begin_attempt();
+    assert!(gap(&mut blade).abs() < 1e-15);
+}
+
+/// Halfway between two slabs: halfway along, axes still orthonormal.
+#[test]
+fn a_slab_between_two_is_orthonormal() {
+    let a = upright();
+    let b = Slab {
+        tip: Vec3::new(0.01, 0.0, 0.0),
+        edge: Vec3::new(0.0, 0.6, 0.8),
+        ..a
+    };
+    let m = Slab::between(&a, &b, 0.5);
+    assert!((m.tip - Vec3::new(0.005, 0.0, 0.0)).norm() < 1e-15);
+    assert!((m.edge.norm() - 1.0).abs() < 1e-12 && m.edge.dot(&m.back).abs() < 1e-12);
+}
