@@ -46,12 +46,16 @@ impl CrackSink {
     }
 
     /// The front jumped: `budget_j` may be taken from `points` (each once) over the next
-    /// ticks. Replaces a sink still open.
+    /// ticks. A sink still open keeps its points and what it has not taken (the jump
+    /// before's energy is the crack's too).
     pub(crate) fn open(&mut self, points: impl Iterator<Item = u32>, budget_j: f64) {
-        for &k in &self.points {
-            self.marked[k as usize] = false;
+        if self.ticks_left == 0 {
+            for &k in &self.points {
+                self.marked[k as usize] = false;
+            }
+            self.points.clear();
+            self.budget_j = 0.0;
         }
-        self.points.clear();
         for k in points {
             let Some(m) = self.marked.get_mut(k as usize) else {
                 continue;
@@ -61,7 +65,7 @@ impl CrackSink {
                 self.points.push(k);
             }
         }
-        self.budget_j = budget_j.max(0.0);
+        self.budget_j += budget_j.max(0.0);
         self.ticks_left = SINK_TICKS;
     }
 
@@ -145,5 +149,13 @@ mod tests {
         sink.begin_tick();
         sink.open([2].into_iter(), 0.0);
         assert_eq!(sink.absorb(&mut v, &mass, 1.0), 0.0);
+        // A jump while the sink is open adds its energy and its points.
+        let mut v = [Vec3::x(), Vec3::x(), Vec3::x()];
+        sink.open([1].into_iter(), 0.5);
+        assert!((sink.absorb(&mut v, &mass, 1.0) - 0.5).abs() < 1e-15);
+        assert_eq!(v[0], Vec3::x());
+        for k in [1, 2] {
+            assert!((v[k].x - 0.75f64.sqrt()).abs() < 1e-15);
+        }
     }
 }
