@@ -249,6 +249,8 @@ pub struct Simulation {
     virtual_points: Option<VirtualPoints>,
     /// Scratch for the points whose lists virtual points changed.
     vp_changed: Vec<u32>,
+    /// Points and nodes whose lists a placement's second look changed (room made once).
+    vp_again: Vec<u32>,
     /// The pose the tool asks for ...
     tool: Option<ToolPose>,
     /// ... and where the blade is, following it at a hand's speed (blade_motion.rs).
@@ -340,7 +342,7 @@ impl Simulation {
         let incisions = spec.features.cutting.then(|| {
             StrokeTracker::new(
                 model.surface.mean_edge_length(),
-                IncisionParams::default(),
+                IncisionParams::closed(),
                 model,
             )
         });
@@ -351,6 +353,7 @@ impl Simulation {
             incisions,
             virtual_points,
             vp_changed: Vec::with_capacity(4096),
+            vp_again: Vec::with_capacity(4096),
             surface: CurrentSurface::new(model, spare),
             neighbours,
             grid: model.grid.clone(),
@@ -717,6 +720,13 @@ impl Simulation {
             );
         }
         refit_changed(changed, &mut self.solver, &self.neighbours, stage);
+        // A second look: points the nodes left nearly planar do without them.
+        let again = &mut self.vp_again;
+        again.clear();
+        vp.unjoin_ill_conditioned(changed, &mut self.solver, &mut self.neighbours, again);
+        if !again.is_empty() {
+            refit_changed(again, &mut self.solver, &self.neighbours, stage);
+        }
     }
 
     /// Applies a re-cut of the incision still on its worker thread now, instead of at its

@@ -30,6 +30,7 @@ use serde::Serialize;
 use crate::cut::{FaceKind, SweptSurface};
 use crate::geometry::predicates::{distance_sq_to_segment, segment_meets_triangle};
 use crate::math::Vec3;
+use crate::mls::operator::PointRank;
 use crate::model::{Neighbourhoods, RestGrid};
 use crate::solver::Solver;
 
@@ -63,6 +64,15 @@ const INSET_SPACINGS: f64 = 0.05;
 /// spacings of it (it is placed [`INSET_SPACINGS`] from one; a re-cut moves the lips by a
 /// few hundredths of a spacing, more while the path is short).
 const KEEP_SPACINGS: f64 = 0.3;
+
+/// A point whose fit its nodes leave conditioned worse than this (σ_max / σ_min of its
+/// moment matrix; 1 inside the lattice, 2–3 at the surface) is not joined to them. On a
+/// closed incision the walls lie on Σ, and a node on one can be nearly in the plane a cut
+/// point's remaining neighbours span: full rank by a hair, its fit takes the unsampled
+/// direction at 1/σ_min, stiff across it by up to 600/3 times (the cerebroma's session: a
+/// rollback and 5 × the sub-steps; docs/CUTTING-DECISIONS.md, "The incision closed in rest
+/// space").
+const MOST_CONDITION: f64 = 20.0;
 
 /// Figures of the virtual points, for reports and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -412,6 +422,56 @@ impl VirtualPoints {
         self.stats.pairs = (self.nodes.iter())
             .map(|n| neighbours.of(n.node as usize).len())
             .sum();
+    }
+}
+
+impl VirtualPoints {
+    /// Takes the nodes away from the points among `changed` (refitted) whose fit they left
+    /// conditioned worse than [`MOST_CONDITION`], and releases a node left with no point;
+    /// the points and nodes whose lists changed go to `again` (to refit).
+    pub fn unjoin_ill_conditioned(
+        &mut self,
+        changed: &[u32],
+        solver: &mut Solver,
+        neighbours: &mut Neighbourhoods,
+        again: &mut Vec<u32>,
+    ) {
+        let first = self.first as u32;
+        for &i in changed {
+            if i >= first {
+                continue;
+            }
+            let term = solver.operator().point(i as usize);
+            if !matches!(term.rank, PointRank::Full) || term.condition <= MOST_CONDITION {
+                continue;
+            }
+            while let Some(&node) = neighbours
+                .of(i as usize)
+                .iter()
+                .rev()
+                .find(|&&j| j >= first)
+            {
+                neighbours.remove(i as usize, node);
+                neighbours.remove(node as usize, i);
+                again.push(node);
+            }
+            again.push(i);
+        }
+        if again.is_empty() {
+            return;
+        }
+        let mut k = 0;
+        while k < self.nodes.len() {
+            let node = self.nodes[k].node;
+            if neighbours.of(node as usize).is_empty() {
+                release(node, solver, neighbours, again);
+                self.nodes.swap_remove(k);
+                self.stats.not_placed += 1;
+            } else {
+                k += 1;
+            }
+        }
+        self.stats.placed = self.nodes.len();
     }
 }
 

@@ -445,8 +445,9 @@ fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
     // region around the slit is narrow there. The lips' room used to be the path's nearest
     // approach to the region's boundary anywhere, and the narrow start capped the whole
     // wound: half-opening 2.35 mm in this run (2.09 mm in `scalpel cut shoulder`) where
-    // k_open × 10 mm deep is 3 mm (physics.md §5.1, w_o = min(0.15 L, k_open d),
-    // k_open = 0.3).
+    // k_open × 10 mm deep was 3 mm (physics.md §5.1, w_o = min(0.15 L, k_open d)). The
+    // simulation's incisions are closed in rest space now (`IncisionParams::closed`): the
+    // hairline the lips keep is k_open × depth there too.
     let scene = scene("shoulder");
     let script = CutScript::default_for(&scalpel_sim::pipeline::start_surface(&scene))
         .expect("default stroke");
@@ -454,7 +455,7 @@ fn a_stab_on_a_sloping_start_leaves_the_wound_its_full_opening() {
     assert_eq!(trace.ruptures, 1, "{trace:?}");
     assert_one_incision(&sim);
     let incisions = sim.incisions().expect("cutting scene");
-    let wanted = 0.3 * 0.010;
+    let wanted = scalpel_sim::cut::IncisionParams::closed().gape_factor * 0.010;
     assert!(
         incisions.opening_m > 0.9 * wanted,
         "half-opening {} mm, k_open × depth {} mm",

@@ -28,6 +28,20 @@ impl IncisionParams {
     }
 }
 
+impl IncisionParams {
+    /// The incision of the physical cut (cutting-physics.md §4): closed in rest space —
+    /// both lips on Σ within a hairline of 0.1 mm at most (they stay two curves for the
+    /// triangulation) — so the gap the eye sees is the field's: the blade, gravity and the
+    /// supports. [`Self::default`] is physics.md §5.1's lens, drawn open.
+    pub fn closed() -> Self {
+        Self {
+            opening_ratio: 0.005,
+            gape_factor: 0.01,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for IncisionParams {
     fn default() -> Self {
         Self {
