@@ -15,9 +15,10 @@
 //! that one pumped energy into the walls over a few wounds, until the solver's guard
 //! rolled every tick back (docs/CUTTING-DECISIONS.md, "Virtual points slaved to the points they join").
 //!
-//! They sit on the walls as the incision draws them (opened in rest space), a twentieth of
-//! a spacing inside the tissue, so the field they carry is the one the wall already
-//! follows: they support the fit without driving the opening.
+//! They sit on the walls as the incision draws them (closed in rest space: on Σ within a
+//! hairline), a twentieth of a spacing inside the tissue, so the field they carry is the
+//! one the wall already follows: they support the fit without driving the opening. A point
+//! they would leave full rank by a hair does without them ([`MOST_CONDITION`]).
 //!
 //! The incision is re-meshed every few millimetres of a stroke, and every re-mesh renumbers
 //! the surface; the nodes that still stand on the new walls are kept, the others released,
@@ -423,9 +424,7 @@ impl VirtualPoints {
             .map(|n| neighbours.of(n.node as usize).len())
             .sum();
     }
-}
 
-impl VirtualPoints {
     /// Takes the nodes away from the points among `changed` (refitted) whose fit they left
     /// conditioned worse than [`MOST_CONDITION`], and releases a node left with no point;
     /// the points and nodes whose lists changed go to `again` (to refit).

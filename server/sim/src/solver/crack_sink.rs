@@ -28,8 +28,6 @@ pub(crate) struct CrackSink {
     ticks_left: u32,
     /// At the tick's start, for a retry.
     at_tick: (f64, u32),
-    /// What it took over the last tick (J).
-    taken_j: f64,
 }
 
 impl CrackSink {
@@ -41,7 +39,6 @@ impl CrackSink {
             budget_j: 0.0,
             ticks_left: 0,
             at_tick: (0.0, 0),
-            taken_j: 0.0,
         }
     }
 
@@ -72,13 +69,11 @@ impl CrackSink {
     /// A tick starts (kept for its retries).
     pub(crate) fn begin_tick(&mut self) {
         self.at_tick = (self.budget_j, self.ticks_left);
-        self.taken_j = 0.0;
     }
 
     /// A (re)try of the tick starts from its start's budget.
     pub(crate) fn begin_attempt(&mut self) {
         (self.budget_j, self.ticks_left) = self.at_tick;
-        self.taken_j = 0.0;
     }
 
     /// Damps the sink's points (velocities `v`, masses `mass`) over a step of `h` at
@@ -102,7 +97,6 @@ impl CrackSink {
             v[k as usize] *= scale;
         }
         self.budget_j -= take;
-        self.taken_j += take;
         take
     }
 
@@ -112,11 +106,6 @@ impl CrackSink {
         if self.ticks_left == 0 {
             self.budget_j = 0.0;
         }
-    }
-
-    /// What the sink took over the last tick (J).
-    pub(crate) fn taken_j(&self) -> f64 {
-        self.taken_j
     }
 }
 

@@ -391,9 +391,4 @@ impl Solver {
             self.crack_sink.open(blade.front_points(), energy_j);
         }
     }
-
-    /// What the crack took from the tissue's motion over the last tick (J).
-    pub fn crack_energy_taken_j(&self) -> f64 {
-        self.crack_sink.taken_j()
-    }
 }

@@ -26,9 +26,7 @@ impl IncisionParams {
     pub(super) fn opening_for(&self, length: f64, depth: f64) -> f64 {
         (self.opening_ratio * length).min(self.gape_factor * depth)
     }
-}
 
-impl IncisionParams {
     /// The incision of the physical cut (cutting-physics.md §4): closed in rest space —
     /// both lips on Σ within a hairline of 0.1 mm at most (they stay two curves for the
     /// triangulation) — so the gap the eye sees is the field's: the blade, gravity and the
