@@ -707,6 +707,40 @@ fn cut_writes_forces_mesh_render_and_metrics() {
 
 /// A mesh file is cut as a cutting station would cut it (its bare scene has cutting off):
 /// the liver written out as an OBJ in millimetres, the short cut.
+/// cutting-physics.md §4's opening check on the liver without gravity (the default
+/// stroke): with no residual tension the wound closes behind the blade (gap ≤ 0.2 mm a
+/// second after it passed); with `prestrain` the cut releases the layer's tension and the
+/// wound gapes by the field (measured 0.09 and 2.4 mm), calmly.
+#[test]
+fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
+    let dir = tempfile::tempdir().unwrap();
+    let gap = |prestrain: f64| {
+        let scene = dir.path().join(format!("liver_{prestrain}.toml"));
+        std::fs::write(
+            &scene,
+            format!(
+                "extends = \"liver\"\n[material]\nprestrain = {prestrain}\n\
+                 [loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n"
+            ),
+        )
+        .unwrap();
+        let out = dir.path().join(format!("out_{prestrain}"));
+        let m = ok_json(&[
+            "cut",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ]);
+        assert_eq!(m["rollback_ticks"], 0, "{m}");
+        assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
+        m["opening_mm"]["after_1s"].as_f64().unwrap()
+    };
+    let (shut, open) = (gap(0.0), gap(0.1));
+    assert!(shut <= 0.2, "{shut} mm");
+    assert!(open > 1.0 && open > 10.0 * shut, "{open} mm against {shut}");
+}
+
 #[test]
 fn cut_takes_a_bare_mesh_file() {
     let dir = tempfile::tempdir().unwrap();

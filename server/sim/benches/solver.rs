@@ -105,6 +105,7 @@ fn force_evaluation_with(c: &mut Criterion, group_name: &str, scenes: &[&str], t
                 solver.operator(),
                 solver.params(),
                 solver.volumes(),
+                None,
                 &p,
                 None,
                 &mut f,

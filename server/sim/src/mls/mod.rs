@@ -5,7 +5,9 @@
 pub mod forces;
 pub mod material;
 pub mod operator;
+pub mod prestress;
 
 pub use forces::{ForceStats, add_elastic_forces, hourglass_stiffness, stiffness_product};
 pub use material::{ElasticModel, ElasticParams, Lame};
 pub use operator::{MlsOperator, PointRank, RankCounts};
+pub use prestress::Prestress;

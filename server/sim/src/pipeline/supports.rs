@@ -1,5 +1,5 @@
 //! The scene's supports put on the solver (cutting-physics.md §1), and settling a body
-//! under gravity before anything touches it.
+//! under gravity and its surface layer's tension before anything touches it.
 
 use std::borrow::Cow;
 
@@ -7,9 +7,10 @@ use serde::Serialize;
 
 use crate::geometry::TriMesh;
 use crate::math::{Aabb, Vec3};
+use crate::mls::Prestress;
 use crate::model::{CoupledModel, Neighbourhoods, SurfaceEmbedding};
 use crate::scene::supports::StartState;
-use crate::scene::{BuiltScene, SceneSpec};
+use crate::scene::{BuiltScene, Material, SceneSpec};
 use crate::solver::held::{Held, HeldVertex, TrayPlane};
 use crate::solver::{Solver, SolverConfig};
 
@@ -42,7 +43,24 @@ pub(super) fn held_solver(
         Solver::for_model(model, &spec.material, config)
     };
     let counts = apply_supports(spec, model, &mut solver);
+    solver.set_prestress(surface_prestress(&spec.material, model));
     (solver, counts)
+}
+
+/// The residual tension the scene's material puts in the model's surface layer (none
+/// without `prestrain`).
+pub(super) fn surface_prestress(material: &Material, model: &CoupledModel) -> Prestress {
+    if material.prestrain == 0.0 {
+        return Prestress::default();
+    }
+    let sigma = Prestress::tension_pa(
+        material.youngs_modulus_pa,
+        material.poisson_ratio,
+        material.prestrain,
+    );
+    let depth = material.prestrain_depth_m.unwrap_or(model.lattice.spacing);
+    let rest = &model.points.rest;
+    Prestress::surface_layer(rest, rest.len(), &model.surface, depth, sigma)
 }
 
 /// Fixes the points in the scene's fixed regions and hands the attachments and the tray
@@ -267,12 +285,12 @@ pub fn settle_start(solver: &mut Solver, gravity: Vec3, dt: f64, max_s: f64) -> 
     }
 }
 
-/// Where the scene's body starts under gravity (`None` without): settled the first time it
-/// is asked for and kept with the built scene, on a solver of its own so that every
-/// simulation of the scene starts from the same state.
+/// Where the scene's body starts under gravity and its residual tension (`None` with
+/// neither): settled the first time it is asked for and kept with the built scene, on a
+/// solver of its own so that every simulation of the scene starts from the same state.
 pub fn start_state(scene: &BuiltScene) -> Option<&StartState> {
     let gravity = scene.spec.loads.gravity;
-    if gravity == Vec3::zeros() {
+    if gravity == Vec3::zeros() && scene.spec.material.prestrain == 0.0 {
         return None;
     }
     Some(scene.start.get_or_init(|| {

@@ -261,6 +261,12 @@ pub struct Material {
     /// (E/2β)(e^Q − 1), Q = 2βψ₀/E — the same at small strain, about e^(βε²) stiffer at a
     /// stretch ε (docs/SCENES.md).
     pub stiffening: f64,
+    /// Residual tension ε of the surface layer (dimensionless, 0: none): the layer's
+    /// stress-free state is ε shorter in the surface's plane than the mesh
+    /// (`mls::prestress`, docs/SCENES.md).
+    pub prestrain: f64,
+    /// How deep that layer reaches under the surface (m); `None`: one lattice spacing.
+    pub prestrain_depth_m: Option<f64>,
 }
 
 impl Material {
@@ -272,6 +278,8 @@ impl Material {
         density_kg_m3: 1060.0,
         damping_per_s: 10.0,
         stiffening: 0.0,
+        prestrain: 0.0,
+        prestrain_depth_m: None,
     };
     /// Relaxed skeletal muscle (deltoid): E ≈ 10 kPa.
     pub const MUSCLE: Material = Material {
@@ -280,6 +288,8 @@ impl Material {
         density_kg_m3: 1060.0,
         damping_per_s: 10.0,
         stiffening: 0.0,
+        prestrain: 0.0,
+        prestrain_depth_m: None,
     };
     /// Brain tissue around a tumour: E ≈ 3 kPa (physics.md §6.3: brain 1–3 kPa).
     pub const BRAIN: Material = Material {
@@ -288,7 +298,17 @@ impl Material {
         density_kg_m3: 1040.0,
         damping_per_s: 10.0,
         stiffening: 0.0,
+        prestrain: 0.0,
+        prestrain_depth_m: None,
     };
+
+    /// The same material with residual tension `eps` in a surface layer one spacing deep.
+    pub const fn prestrained(self, eps: f64) -> Material {
+        Material {
+            prestrain: eps,
+            ..self
+        }
+    }
 
     /// The same material, strain-stiffening by `beta`.
     pub const fn stiffening_by(self, beta: f64) -> Material {

@@ -168,7 +168,7 @@ impl Solver {
         let decay = (-self.config.damping_per_s * h).exp();
         let max_move = MAX_MOVE_SPACINGS * self.spacing_m;
         let gravity = self.config.gravity;
-        let mut reference: Option<f64> = None;
+        let mut reference: Option<(f64, f64)> = None;
         let mut work = 0.0;
         let mut stats = None;
         let mut kinetic = 0.0;
@@ -212,7 +212,7 @@ impl Solver {
         decay: f64,
         max_move: f64,
         gravity: Vec3,
-        reference: &mut Option<f64>,
+        reference: &mut Option<(f64, f64)>,
         work: &mut f64,
         stats: &mut Option<ForceStats>,
         moved_fixed: &mut [Vec3],
@@ -243,9 +243,12 @@ impl Solver {
                 let i = i as usize;
                 *work -= 0.5 * self.force[i].dot(&moved_fixed[i]);
             }
+            // The growth is measured on the total energy, and allowed in proportion to its
+            // part that cannot be negative: a layer's prestress energy S₀ : E is below zero
+            // where the layer has shortened (without prestress the two are the same).
             let energy = kinetic + st.energy();
-            let e0 = *reference.get_or_insert(energy);
-            let bound = ENERGY_GROWTH * (e0 + *work) + ENERGY_FLOOR;
+            let (e0, scale) = *reference.get_or_insert((energy, kinetic + st.unsigned_energy()));
+            let bound = ENERGY_GROWTH * (scale + *work) + (e0 - scale) + ENERGY_FLOOR;
             if energy.is_nan() || energy > bound {
                 return Err((DivergenceReason::EnergyGrowth, s));
             }

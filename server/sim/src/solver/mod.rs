@@ -52,6 +52,7 @@ pub use statics::StaticReport;
 pub use whole_substeps::WholeStepMass;
 
 use crate::math::{Mat3, Vec3};
+use crate::mls::Prestress;
 use crate::mls::forces::{EvalSet, ForceScratch, ForceStats, Threads, add_elastic_forces};
 use crate::mls::operator::{LatticeOffsets, PointRank, RankCounts};
 use crate::mls::{ElasticModel, ElasticParams, Lame, MlsOperator};
@@ -238,6 +239,8 @@ pub struct Solver {
     blade: Option<blade::BladeBody>,
     /// What the crack takes from the tissue when its front jumps.
     crack_sink: crack_sink::CrackSink,
+    /// Residual tension in the surface layer (`[material] prestrain`); empty for none.
+    prestress: Prestress,
     force: Vec<Vec3>,
     force_scratch: ForceScratch,
     /// Points the explicit mode integrates (all, unless `set_active` restricted them).
@@ -447,6 +450,7 @@ impl Solver {
             contact_force: zeros.clone(),
             blade: None,
             crack_sink: crack_sink::CrackSink::with_room(n),
+            prestress: Prestress::default(),
             force: zeros.clone(),
             force_scratch: ForceScratch::new(n).with_threads(Threads::One),
             #[cfg(feature = "parallel")]
@@ -611,6 +615,7 @@ impl Solver {
                 &self.op,
                 &self.params,
                 &self.volume,
+                Some(&self.prestress),
                 &self.p,
                 set,
                 out,

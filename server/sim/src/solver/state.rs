@@ -70,6 +70,22 @@ impl Solver {
         self.p.copy_from_slice(p);
     }
 
+    /// Puts residual tension into the body (`Prestress::surface_layer`). Not for the
+    /// projective mode, whose local/global iterations know only the elastic law (the
+    /// scene refuses the pair).
+    pub fn set_prestress(&mut self, prestress: Prestress) {
+        assert!(
+            prestress.is_empty() || self.config.mode != SolverMode::Projective,
+            "prestress in the projective mode"
+        );
+        self.prestress = prestress;
+    }
+
+    /// The residual tension's layer.
+    pub fn prestress(&self) -> &Prestress {
+        &self.prestress
+    }
+
     /// Overwrites velocities.
     pub fn set_velocities(&mut self, v: &[Vec3]) {
         self.v.copy_from_slice(v);

@@ -278,6 +278,7 @@ impl Solver {
         for k in 0..MAX_CG {
             iterations = k + 1;
             stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
+            (self.prestress).add_stiffness_product(&self.op, &self.volume, d, q);
             if let Some(held) = &self.held {
                 held.add_stiffness_product(&self.p, d, q, Vertices::All);
             }

@@ -68,6 +68,7 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
         // is the one the masters feel (Pᵀ K P).
         s.slaves.interpolate_vectors(x);
         stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
+        (s.prestress).add_stiffness_product(&s.op, &s.volume, x, y);
         if let Some(held) = &s.held {
             held.add_stiffness_product(&s.p, x, y, super::held::Vertices::All);
         }

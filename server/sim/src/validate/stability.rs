@@ -152,7 +152,7 @@ fn material(e: f64, nu: f64, damping: f64) -> Material {
         poisson_ratio: nu,
         density_kg_m3: 1060.0,
         damping_per_s: damping,
-        stiffening: 0.0,
+        ..Material::LIVER
     }
 }
 

@@ -17,7 +17,7 @@
 mod eval_set;
 mod lane_stvk;
 mod pair_kernel;
-mod stencil_kernel;
+pub(crate) mod stencil_kernel;
 
 use crate::math::{Mat3, Vec3};
 use wide::f64x4;
@@ -27,6 +27,7 @@ use crate::mls::material::{
 };
 use crate::mls::operator::stencil::LatticeStencil;
 use crate::mls::operator::{LANES, MAX_RUN_ROW, MlsOperator, PointRank, complete};
+use crate::mls::prestress::{self, Prestress, Sym};
 use stencil_kernel::{Restriction, StencilFields, StencilInputs};
 
 pub use eval_set::EvalSet;
@@ -42,6 +43,9 @@ pub struct ForceStats {
     pub strain_energy: f64,
     /// Hourglass energy (J).
     pub hourglass_energy: f64,
+    /// The surface layer's prestress energy Σ V S₀ : E (J, `mls::prestress`): negative
+    /// where the layer has shortened.
+    pub prestress_energy: f64,
     /// Smallest det F over points with stress.
     pub min_det_f: f64,
     /// Largest det F.
@@ -60,6 +64,7 @@ impl ForceStats {
     pub const EMPTY: Self = Self {
         strain_energy: 0.0,
         hourglass_energy: 0.0,
+        prestress_energy: 0.0,
         min_det_f: f64::INFINITY,
         max_det_f: f64::NEG_INFINITY,
         clamped_points: 0,
@@ -84,6 +89,7 @@ impl ForceStats {
         Self {
             strain_energy: self.strain_energy + other.strain_energy,
             hourglass_energy: self.hourglass_energy + other.hourglass_energy,
+            prestress_energy: self.prestress_energy + other.prestress_energy,
             min_det_f: self.min_det_f.min(other.min_det_f),
             max_det_f: self.max_det_f.max(other.max_det_f),
             clamped_points: self.clamped_points + other.clamped_points,
@@ -94,6 +100,11 @@ impl ForceStats {
 
     /// Total elastic energy (J).
     pub fn energy(&self) -> f64 {
+        self.unsigned_energy() + self.prestress_energy
+    }
+
+    /// The part of the elastic energy that is never negative: strain and hourglass (J).
+    pub fn unsigned_energy(&self) -> f64 {
         self.strain_energy + self.hourglass_energy
     }
 }
@@ -320,16 +331,18 @@ impl ForceScratch {
 
 /// Adds the elastic forces at positions `p` to `f` (N): of every point, or, with `set`, of
 /// the points in `set.stress` (forces then land only on `set.touched`, and are whole on
-/// `set.active`).
+/// `set.active`). With `prestress`, its layer's `F S₀` is added to their stress.
 ///
 /// Runs of four interior points with identical stencils go through a 4-lane SIMD kernel
 /// (contiguous loads, shared rows); every other point through the single-point kernel.
 /// The work is split in two fixed parts ([`PARTS`]), on one thread or two ([`Threads`]),
 /// with the same bits either way.
+#[allow(clippy::too_many_arguments)]
 pub fn add_elastic_forces(
     op: &MlsOperator,
     params: &ElasticParams,
     volumes: &[f64],
+    prestress: Option<&Prestress>,
     p: &[Vec3],
     set: Option<&EvalSet>,
     f: &mut [Vec3],
@@ -381,11 +394,13 @@ pub fn add_elastic_forces(
         stencil: fields,
         ..
     } = scratch;
+    let prestress = prestress.and_then(Prestress::field);
     let stencil_stats = stencil.map(|stencil| {
         let inputs = StencilInputs {
             stencil,
             params,
             volumes,
+            prestress,
         };
         let restriction = set.map(|s| Restriction {
             chunks: s.stencil_chunks().expect("a set with stencil chunks"),
@@ -399,6 +414,7 @@ pub fn add_elastic_forces(
         op,
         params,
         volumes,
+        prestress,
         pos: [&pos[0][..], &pos[1][..], &pos[2][..]],
         pos4,
         skip: match (set, stencil) {
@@ -581,4 +597,4 @@ pub fn stiffness_product(
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

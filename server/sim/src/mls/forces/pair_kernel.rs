@@ -14,6 +14,7 @@ pub(crate) struct Shared<'a> {
     pub(crate) op: &'a MlsOperator,
     pub(crate) params: &'a ElasticParams,
     pub(crate) volumes: &'a [f64],
+    pub(crate) prestress: Option<&'a [Sym]>,
     pub(crate) pos: [&'a [f64]; 3],
     pub(crate) pos4: &'a [f64x4],
     /// The points the single-point kernel leaves to another.
@@ -49,6 +50,7 @@ impl Shared<'_> {
                 self.op,
                 self.params,
                 self.volumes,
+                self.prestress,
                 self.pos,
                 i as usize,
                 &mut out.soa,
@@ -67,6 +69,7 @@ impl Shared<'_> {
                     self.op,
                     self.params,
                     self.volumes,
+                    self.prestress,
                     self.pos4,
                     i,
                     &mut out.lanes,
@@ -91,6 +94,7 @@ pub(crate) fn point_kernel(
     op: &MlsOperator,
     params: &ElasticParams,
     volumes: &[f64],
+    prestress: Option<&[Sym]>,
     pos4: &[f64x4],
     i: usize,
     force4: &mut [f64x4],
@@ -168,10 +172,11 @@ pub(crate) fn point_kernel(
         PointRank::Full => point_stvk(params, &fpc),
         _ => None,
     };
-    let pc = match fast {
+    // P, and F's columns as the stress saw it (completed where the rank asks for it).
+    let (mut pc, fcols) = match fast {
         Some((pc, psi, check)) => {
             stats.add_point(v * psi, hourglass, check);
-            pc
+            (pc, fpc)
         }
         None => {
             // Planar completion, other models, the clamp fallback: the general code.
@@ -183,9 +188,19 @@ pub(crate) fn point_kernel(
             };
             let st = stress(params, &full);
             stats.add_point(v * st.psi, hourglass, PointCheck::of(&st));
-            std::array::from_fn(|c| f64x4::from([st.p[(0, c)], st.p[(1, c)], st.p[(2, c)], 0.0]))
+            let column = |m: &Mat3, c: usize| f64x4::from([m[(0, c)], m[(1, c)], m[(2, c)], 0.0]);
+            (
+                std::array::from_fn(|c| column(&st.p, c)),
+                std::array::from_fn(|c| column(&full, c)),
+            )
         }
     };
+    if let Some(s0) = prestress
+        .map(|field| &field[i])
+        .filter(|s0| **s0 != [0.0; 6])
+    {
+        stats.prestress_energy += v * prestress::add_to_columns(&fcols, s0, &mut pc);
+    }
     // Pass 2: M = −V P A⁺ + k F_p; g_ij = M (w x) − k w u onto the neighbours, −Σ g onto i.
     let neg_v = f64x4::splat(-v);
     let kk = f64x4::splat(k);
@@ -255,6 +270,7 @@ pub(crate) fn run_kernel(
     op: &MlsOperator,
     params: &ElasticParams,
     volumes: &[f64],
+    prestress: Option<&[Sym]>,
     pos: [&[f64]; 3],
     i: usize,
     force: &mut [Vec<f64>; 3],
@@ -306,10 +322,16 @@ pub(crate) fn run_kernel(
     let k = f64x4::splat(params.hourglass_alpha * params.effective_youngs_modulus() / term.trace_a)
         * volume;
     // Stress: vectorised StVK when every lane is in the ordinary range, else per lane.
-    let (p_stress, psi, checks) = match lane_stvk(params, &fp) {
+    let (mut p_stress, psi, checks) = match lane_stvk(params, &fp) {
         Some(stressed) => stressed,
         None => lane_stress_scalar(params, &fp),
     };
+    if let Some(s0) =
+        prestress.and_then(|f| prestress::gather(f, std::array::from_fn(|l| Some(i + l))))
+    {
+        let e = (prestress::add_to_lanes(&fp, &s0, &mut p_stress) * volume).to_array();
+        stats.prestress_energy += e.iter().sum::<f64>();
+    }
     let strain = (psi * volume).to_array();
     // Hourglass energy ½ k (Σ w|u|² − F_p : B).
     let mut fpb = f64x4::ZERO;

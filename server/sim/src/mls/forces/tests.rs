@@ -5,7 +5,7 @@ use crate::mls::material::ElasticModel;
 use crate::model::{Kernel, Neighbourhoods, RestGrid};
 
 /// A jittered 4³ lattice with unit-ish volumes.
-fn cloud() -> (Vec<Vec3>, MlsOperator, Vec<f64>) {
+pub(crate) fn cloud() -> (Vec<Vec3>, MlsOperator, Vec<f64>) {
     let s = 0.002;
     let mut rest = Vec::new();
     let mut seed = 12345u64;
@@ -36,7 +36,7 @@ fn cloud() -> (Vec<Vec3>, MlsOperator, Vec<f64>) {
     (rest, op, volumes)
 }
 
-fn deformed(rest: &[Vec3]) -> Vec<Vec3> {
+pub(crate) fn deformed(rest: &[Vec3]) -> Vec<Vec3> {
     rest.iter()
         .enumerate()
         .map(|(i, x)| {
@@ -52,6 +52,7 @@ fn energy(op: &MlsOperator, params: &ElasticParams, vol: &[f64], p: &[Vec3]) -> 
         op,
         params,
         vol,
+        None,
         p,
         None,
         &mut f,
@@ -78,6 +79,7 @@ fn forces_are_the_negative_energy_gradient() {
             &op,
             &params,
             &vol,
+            None,
             &p,
             None,
             &mut f,
@@ -123,6 +125,7 @@ fn stiffness_product_matches_finite_differences() {
             &op,
             &params,
             &vol,
+            None,
             &q,
             None,
             &mut f,
@@ -148,6 +151,7 @@ fn momentum_is_conserved_exactly() {
         &op,
         &params,
         &vol,
+        None,
         &p,
         None,
         &mut f,
@@ -171,7 +175,7 @@ fn scratch_buffers_are_clear_between_evaluations() {
     let params = ElasticParams::stvk(5000.0, 0.45);
     let evaluate = |set: Option<&EvalSet>, scratch: &mut ForceScratch| {
         let mut f = vec![Vec3::zeros(); p.len()];
-        add_elastic_forces(&op, &params, &vol, &p, set, &mut f, scratch);
+        add_elastic_forces(&op, &params, &vol, None, &p, set, &mut f, scratch);
         f
     };
     let fresh = evaluate(None, &mut ForceScratch::new(p.len()));
@@ -229,11 +233,21 @@ fn run_kernel_matches_scalar_kernel() {
         let mut scratch = ForceScratch::new(p.len());
         let mut fast = vec![Vec3::zeros(); p.len()];
         let mut slow = vec![Vec3::zeros(); p.len()];
-        let a = add_elastic_forces(&op, &params, &volumes, &p, None, &mut fast, &mut scratch);
+        let a = add_elastic_forces(
+            &op,
+            &params,
+            &volumes,
+            None,
+            &p,
+            None,
+            &mut fast,
+            &mut scratch,
+        );
         let b = add_elastic_forces(
             &op,
             &params,
             &volumes,
+            None,
             &p,
             Some(&scalar),
             &mut slow,

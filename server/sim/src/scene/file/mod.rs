@@ -93,6 +93,8 @@ struct RawMaterial {
     density_kg_m3: Option<f64>,
     damping_per_s: Option<f64>,
     stiffening: Option<f64>,
+    prestrain: Option<f64>,
+    prestrain_depth_mm: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -345,6 +347,14 @@ impl SceneSpec {
         if let Some(s) = &raw.supports {
             supports::apply_supports(&mut spec, s, &check)?;
         }
+        if spec.material.prestrain > 0.0 && spec.features.stiff_mode {
+            return Err(check.fail(
+                "material.prestrain",
+                "residual tension needs the explicit or implicit integrator: the stiff \
+                 mode's projective iterations know only the elastic law (set \
+                 `[features] stiff_mode = false`, or `prestrain = 0`)",
+            ));
+        }
         if let Some(why) = spec.supports.unable_to_hold(&spec.loads.gravity) {
             return Err(check.fail("supports", why));
         }
@@ -408,6 +418,20 @@ fn apply_material(
         Limit::closed(0.0, 100.0, ""),
         1.0,
     )?;
+    // Beyond 30 % the small-strain prestress (`mls::prestress`) is no longer the growth
+    // metric it stands for.
+    check.set(
+        &mut mat.prestrain,
+        m.prestrain,
+        "material.prestrain",
+        Limit::closed(0.0, 0.3, ""),
+        1.0,
+    )?;
+    if let Some(depth) = m.prestrain_depth_mm {
+        let key = "material.prestrain_depth_mm";
+        let depth = check.check(key, depth, Limit::positive(100.0, "mm"))?;
+        mat.prestrain_depth_m = Some(depth * 1e-3);
+    }
     Ok(())
 }
 

@@ -62,6 +62,28 @@ fn the_integrator_is_chosen_by_name() {
 }
 
 #[test]
+fn prestrain_is_range_checked_and_refused_in_the_stiff_mode() {
+    let s = parse("extends = \"liver\"\n[material]\nprestrain = 0.1\nprestrain_depth_mm = 4\n")
+        .unwrap();
+    assert_eq!(s.material.prestrain, 0.1);
+    assert_eq!(s.material.prestrain_depth_m, Some(0.004));
+    let e = parse("extends = \"liver\"\n[material]\nprestrain = 0.5\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("material.prestrain") && e.contains("0.3"), "{e}");
+    let e = parse("extends = \"liver\"\n[material]\nprestrain_depth_mm = 0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("material.prestrain_depth_mm"), "{e}");
+    let stiff = "extends = \"liver\"\n[material]\nprestrain = 0.1\n[features]\nstiff_mode = true\n";
+    let e = parse(stiff).unwrap_err().to_string();
+    assert!(
+        e.contains("material.prestrain") && e.contains("stiff"),
+        "{e}"
+    );
+}
+
+#[test]
 fn file_paths_are_relative_to_the_scene() {
     let s = parse("[mesh]\nfile = \"organ.stl\"\nunits = \"mm\"\n[sampling]\nspacing_mm = 2.5\n")
         .unwrap();
@@ -212,9 +234,14 @@ fn docs_example_is_complete() {
         density_kg_m3,
         damping_per_s,
         stiffening,
+        prestrain,
+        prestrain_depth_mm,
     } = material.expect("[material]");
     assert!(youngs_modulus_kpa.is_some() && poisson_ratio.is_some());
     assert!(density_kg_m3.is_some() && damping_per_s.is_some() && stiffening.is_some());
+    // The layer's depth defaults to the lattice's spacing, which no number in the
+    // example can show; the table documents it.
+    assert!(prestrain.is_some() && prestrain_depth_mm.is_none());
     let RawSampling {
         spacing_mm,
         target_points,

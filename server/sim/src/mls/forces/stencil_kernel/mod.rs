@@ -354,7 +354,9 @@ pub(crate) struct StencilInputs<'a> {
     pub params: &'a ElasticParams,
     /// Rest volumes of the operator's points (m³).
     pub volumes: &'a [f64],
+    /// The surface layer's prestress of every point, if any (`mls::prestress`).
+    pub prestress: Option<&'a [super::Sym]>,
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

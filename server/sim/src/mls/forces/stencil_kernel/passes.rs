@@ -2,6 +2,7 @@
 //! forces gathered at every site.
 
 use super::*;
+use crate::mls::prestress;
 
 /// What the passes keep along one span.
 #[derive(Debug, Clone, Default)]
@@ -226,7 +227,7 @@ pub(super) fn point_stress<const DIAGONAL: bool>(
             };
         }
     }
-    let (p_stress, psi, checks) = match lane_stvk(params, &f) {
+    let (mut p_stress, psi, checks) = match lane_stvk(params, &f) {
         Some(stressed) => stressed,
         None => lane_stress_scalar(params, &f),
     };
@@ -235,6 +236,18 @@ pub(super) fn point_stress<const DIAGONAL: bool>(
         i => inputs.volumes[i as usize],
     };
     let volume = f64x4::from([volume_of(0), volume_of(1), volume_of(2), volume_of(3)]);
+    let points = std::array::from_fn(|l| match t.point[l] {
+        NONE => None,
+        i => mask[l].then_some(i as usize),
+    });
+    if let Some(s0) = inputs.prestress.and_then(|f| prestress::gather(f, points)) {
+        let e = (prestress::add_to_lanes(&f, &s0, &mut p_stress) * volume).to_array();
+        for lane in 0..LANES {
+            if mask[lane] {
+                stats.prestress_energy += e[lane];
+            }
+        }
+    }
     let k = alpha_e * volume * t.inv_trace_a;
     // M' = (k B − V P) A⁻¹.
     let neg_v = -volume;

@@ -11,7 +11,7 @@ const S: f64 = 0.002;
 /// An egg of lattice points, off the origin (every kind of missing neighbour on its
 /// rough boundary), longest along z (so the box's rows run along z, not x), and volumes
 /// that differ from point to point.
-fn ball() -> (Vec<Vec3>, Neighbourhoods, Kernel, LatticeOffsets, Vec<f64>) {
+pub(crate) fn ball() -> (Vec<Vec3>, Neighbourhoods, Kernel, LatticeOffsets, Vec<f64>) {
     let (mut rest, mut coords, mut volumes) = (Vec::new(), Vec::new(), Vec::new());
     for k in 0..15u32 {
         for j in 0..11u32 {
@@ -74,7 +74,7 @@ fn evaluate_in(
     scratch: &mut ForceScratch,
 ) -> (Vec<Vec3>, ForceStats) {
     let mut f = vec![Vec3::zeros(); p.len()];
-    let stats = add_elastic_forces(op, params, volumes, p, set, &mut f, scratch);
+    let stats = add_elastic_forces(op, params, volumes, None, p, set, &mut f, scratch);
     (f, stats)
 }
 
