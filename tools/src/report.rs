@@ -2,8 +2,10 @@
 
 use std::collections::BTreeMap;
 
+use scalpel_sim::mls::Prestress;
 use scalpel_sim::model::ModelSummary;
 use scalpel_sim::pipeline::Simulation;
+use scalpel_sim::pipeline::surface_prestress;
 use scalpel_sim::scene::{self, BuiltinMesh, MeshSource, SamplingPlan};
 use scalpel_sim::solver::{SubstepKeepingMass, WholeStepMass};
 use serde::Serialize;
@@ -107,6 +109,14 @@ pub struct MaterialReport {
     poisson_ratio: f64,
     density_kg_m3: f64,
     damping_per_s: f64,
+    /// Strain-stiffening β (0: none).
+    stiffening: f64,
+    /// Residual tension ε of the surface layer (0: none).
+    prestrain: f64,
+    /// The layer's tension σ = E ε/(1 − ν) (Pa).
+    prestrain_tension_pa: f64,
+    /// Points in the tensioned layer.
+    prestrain_layer_points: usize,
 }
 
 impl SceneReport {
@@ -139,6 +149,14 @@ impl SceneReport {
                 poisson_ratio: m.poisson_ratio,
                 density_kg_m3: m.density_kg_m3,
                 damping_per_s: m.damping_per_s,
+                stiffening: m.stiffening,
+                prestrain: m.prestrain,
+                prestrain_tension_pa: Prestress::tension_pa(
+                    m.youngs_modulus_pa,
+                    m.poisson_ratio,
+                    m.prestrain,
+                ),
+                prestrain_layer_points: surface_prestress(m, &s.model).points().len(),
             },
             time_step: TimeStepReport::plan(timed),
             sampling_plan: s.sampling_plan.clone(),
@@ -188,13 +206,21 @@ pub fn print_scene(timed: &TimedScene, json: bool) -> anyhow::Result<()> {
         "  embedding  {:.1} points per surface vertex (min {}), {} vertices needed a wider support",
         m.embedding.mean_points, m.embedding.min_points, m.embedding.widened
     );
+    let mat = &r.material;
     println!(
-        "  material   E = {:.1} kPa, ν = {}, ρ = {} kg/m³, damping {} /s",
-        r.material.youngs_modulus_kpa,
-        r.material.poisson_ratio,
-        r.material.density_kg_m3,
-        r.material.damping_per_s
+        "  material   E = {:.1} kPa, ν = {}, ρ = {} kg/m³, damping {} /s, stiffening β = {}",
+        mat.youngs_modulus_kpa,
+        mat.poisson_ratio,
+        mat.density_kg_m3,
+        mat.damping_per_s,
+        mat.stiffening
     );
+    if mat.prestrain > 0.0 {
+        println!(
+            "             residual tension ε = {} (σ = {:.0} Pa) on {} surface-layer points",
+            mat.prestrain, mat.prestrain_tension_pa, mat.prestrain_layer_points
+        );
+    }
     match &r.time_step {
         Some(t) => println!(
             "  time step  dt_crit {:.3} ms: {}",

@@ -737,6 +737,16 @@ fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
         m["opening_mm"]["after_1s"].as_f64().unwrap()
     };
     let (shut, open) = (gap(0.0), gap(0.1));
+    // The report names the layer and its tension: σ = E ε/(1 − ν) = 909 Pa.
+    let scene = dir.path().join("liver_0.1.toml");
+    let r = ok_json(&["scene", "inspect", scene.to_str().unwrap(), "--json"]);
+    let m = &r["material"];
+    assert_eq!(m["prestrain"], 0.1, "{r}");
+    assert!(
+        (m["prestrain_tension_pa"].as_f64().unwrap() - 909.09).abs() < 0.1,
+        "{r}"
+    );
+    assert!(m["prestrain_layer_points"].as_u64().unwrap() > 100, "{r}");
     assert!(shut <= 0.2, "{shut} mm");
     assert!(open > 1.0 && open > 10.0 * shut, "{open} mm against {shut}");
 }

@@ -51,7 +51,7 @@ pub use cutting::{Classification, CutTick, CuttingStage};
 pub use recut::{InlineRecuts, RECUT_HANDOVER_TICKS, RecutJob, RecutResult, RecutRunner};
 pub use script::{CSV_HEADER, CutScript, Keyframe, ScriptError, vertical_extent};
 pub use stroke_tracker::{IncisionStats, StrokeTracker};
-pub use supports::start_surface;
+pub use supports::{start_surface, surface_prestress};
 pub use surface::{CurrentSurface, SurfaceContact};
 pub use virtual_points::{VirtualPointStats, VirtualPoints};
 

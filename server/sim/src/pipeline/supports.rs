@@ -49,7 +49,7 @@ pub(super) fn held_solver(
 
 /// The residual tension the scene's material puts in the model's surface layer (none
 /// without `prestrain`).
-pub(super) fn surface_prestress(material: &Material, model: &CoupledModel) -> Prestress {
+pub fn surface_prestress(material: &Material, model: &CoupledModel) -> Prestress {
     if material.prestrain == 0.0 {
         return Prestress::default();
     }
