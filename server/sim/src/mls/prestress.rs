@@ -13,13 +13,13 @@
 //! with the layer in tension (the scene's start state); a cut removes the pairs across the
 //! wound, the lips' layer points lose the neighbours that balanced their tension, and the
 //! wound gapes by itself. The force kernels add `F S₀` to their P where a point has one
-//! (`field`); the whole-body tangent product for static solves and dt_crit is here.
+//! (`field`), and the whole-body tangent product its constant `dF S₀` (`stress_of`).
 
 use crate::geometry::TriMesh;
 use crate::geometry::parry_adapter::TriangleBvh;
 use crate::geometry::predicates::closest_point_on_triangle;
 use crate::math::{Mat3, Vec3};
-use crate::mls::operator::{LANES, MlsOperator, PointRank};
+use crate::mls::operator::LANES;
 use wide::f64x4;
 
 /// The layer's points and their prestress; empty when the material has none.
@@ -27,15 +27,19 @@ use wide::f64x4;
 pub struct Prestress {
     /// Layer points, sorted.
     points: Vec<u32>,
-    /// S₀ of each layer point (Pa), symmetric.
-    stress: Vec<Mat3>,
-    /// S₀ of every point (zero off the layer) as xx, yy, zz, xy, xz, yz: what the force
-    /// kernels read.
+    /// S₀ of every body point (zero off the layer) as xx, yy, zz, xy, xz, yz (Pa): what the
+    /// force kernels read. Nodes after the body points (virtual points) carry none.
     field: Vec<Sym>,
 }
 
 /// A symmetric 3×3 matrix's entries xx, yy, zz, xy, xz, yz.
 pub(crate) type Sym = [f64; 6];
+
+/// Whether a point's S₀ is the layer's (its trace is 2σ > 0) or none.
+#[inline(always)]
+fn carries(s: &Sym) -> bool {
+    s[0] + s[1] + s[2] != 0.0
+}
 
 /// The slot of entry (r, c) in a [`Sym`].
 #[inline(always)]
@@ -56,23 +60,17 @@ impl Prestress {
         e * eps / (1.0 - nu)
     }
 
-    /// The layer of `rest` points (the first `material` of them: spare nodes carry no
-    /// stress) within `depth` (m) of `surface`, each with `S₀ = sigma (I − n nᵀ)`.
-    /// `rest` covers every point the operator has (spare nodes included).
-    pub fn surface_layer(
-        rest: &[Vec3],
-        material: usize,
-        surface: &TriMesh,
-        depth: f64,
-        sigma: f64,
-    ) -> Self {
+    /// The layer of the body points at `rest` within `depth` (m) of `surface`, each with
+    /// `S₀ = sigma (I − n nᵀ)`.
+    pub fn surface_layer(rest: &[Vec3], surface: &TriMesh, depth: f64, sigma: f64) -> Self {
         let mut layer = Self::default();
         if sigma == 0.0 || depth <= 0.0 || surface.triangles.is_empty() {
             return layer;
         }
         let bvh = TriangleBvh::build(surface);
         let reach = Vec3::repeat(depth);
-        for (i, x) in rest.iter().enumerate().take(material) {
+        let mut field = vec![[0.0; 6]; rest.len()];
+        for (i, x) in rest.iter().enumerate() {
             let mut best: Option<(f64, Vec3, usize)> = None;
             bvh.for_each_overlapping(&(x - reach), &(x + reach), |t| {
                 let c = closest_point_on_triangle(x, &surface.corners(t));
@@ -92,24 +90,26 @@ impl Prestress {
             else {
                 continue;
             };
+            let s0 = (Mat3::identity() - n * n.transpose()) * sigma;
             layer.points.push(i as u32);
-            layer
-                .stress
-                .push((Mat3::identity() - n * n.transpose()) * sigma);
+            field[i] = std::array::from_fn(|k| {
+                let (r, c) = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)][k];
+                s0[(r, c)]
+            });
         }
         if !layer.points.is_empty() {
-            layer.field = vec![[0.0; 6]; rest.len()];
-            for (&i, s0) in layer.points.iter().zip(&layer.stress) {
-                layer.field[i as usize] = std::array::from_fn(|k| {
-                    let (r, c) = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)][k];
-                    s0[(r, c)]
-                });
-            }
+            layer.field = field;
         }
         layer
     }
 
-    /// S₀ of every point, for the force kernels; `None` without prestress.
+    /// S₀ of point `i` as a matrix (Pa), `None` off the layer.
+    pub(crate) fn stress_of(&self, i: usize) -> Option<Mat3> {
+        let s = self.field.get(i).filter(|s| carries(s))?;
+        Some(Mat3::from_fn(|r, c| s[slot(r, c)]))
+    }
+
+    /// S₀ of every body point, for the force kernels; `None` without prestress.
     pub(crate) fn field(&self) -> Option<&[Sym]> {
         (!self.is_empty()).then_some(&self.field[..])
     }
@@ -123,46 +123,14 @@ impl Prestress {
     pub fn points(&self) -> &[u32] {
         &self.points
     }
-
-    /// Adds `K v` to `out`, K = −∂f/∂p of the prestress forces (constant: `dP = dF S₀`).
-    pub fn add_stiffness_product(
-        &self,
-        op: &MlsOperator,
-        volumes: &[f64],
-        v: &[Vec3],
-        out: &mut [Vec3],
-    ) {
-        for (&i, s0) in self.points.iter().zip(&self.stress) {
-            let i = i as usize;
-            let term = op.point(i);
-            if let PointRank::Orphan = term.rank {
-                continue;
-            }
-            let ids = op.neighbours(i);
-            let vi = v[i];
-            let mut db = Mat3::zeros();
-            for (j, pair) in ids.iter().zip(op.pair_terms(i)) {
-                db += (v[*j as usize] - vi) * pair.wx.transpose();
-            }
-            let dm = db * term.a_pinv * s0 * (-volumes[i]) * term.a_pinv;
-            let mut own = Vec3::zeros();
-            for (j, pair) in ids.iter().zip(op.pair_terms(i)) {
-                let dg = dm * pair.wx;
-                out[*j as usize] -= dg;
-                own += dg;
-            }
-            out[i] += own;
-        }
-    }
 }
 
 /// S₀ of four points as lanes (zeros where `points` has none), or `None` when none of
 /// them has one (the layer is a shell: most of a thick organ's points are not in it).
 #[inline(always)]
 pub(crate) fn gather(field: &[Sym], points: [Option<usize>; LANES]) -> Option<[f64x4; 6]> {
-    let s = points.map(|i| i.map_or([0.0; 6], |i| field[i]));
-    // A layer point's S₀ has trace 2σ > 0.
-    if s.iter().all(|s| s[0] + s[1] + s[2] == 0.0) {
+    let s = points.map(|i| i.and_then(|i| field.get(i)).copied().unwrap_or([0.0; 6]));
+    if !s.iter().any(carries) {
         return None;
     }
     Some(std::array::from_fn(|k| {
@@ -194,9 +162,13 @@ pub(crate) fn add_to_lanes(f: &[[f64x4; 3]; 3], s: &[f64x4; 6], p: &mut [[f64x4;
     half * (e - s[0] - s[1] - s[2])
 }
 
-/// The same for one point whose F and P are column vectors (x, y, z, 0).
+/// The same for one point whose F and P are column vectors (x, y, z, 0), if `field` gives
+/// it an S₀; its `S₀ : E`, 0 otherwise.
 #[inline(always)]
-pub(crate) fn add_to_columns(fc: &[f64x4; 3], s: &Sym, pc: &mut [f64x4; 3]) -> f64 {
+pub(crate) fn add_to_columns(field: &[Sym], i: usize, fc: &[f64x4; 3], pc: &mut [f64x4; 3]) -> f64 {
+    let Some(s) = field.get(i).filter(|s| carries(s)) else {
+        return 0.0;
+    };
     for c in 0..3 {
         pc[c] = fc[0].mul_add(
             f64x4::splat(s[slot(0, c)]),

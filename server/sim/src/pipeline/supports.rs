@@ -59,8 +59,7 @@ pub fn surface_prestress(material: &Material, model: &CoupledModel) -> Prestress
         material.prestrain,
     );
     let depth = material.prestrain_depth_m.unwrap_or(model.lattice.spacing);
-    let rest = &model.points.rest;
-    Prestress::surface_layer(rest, rest.len(), &model.surface, depth, sigma)
+    Prestress::surface_layer(&model.points.rest, &model.surface, depth, sigma)
 }
 
 /// Fixes the points in the scene's fixed regions and hands the attachments and the tray

@@ -302,14 +302,6 @@ impl Material {
         prestrain_depth_m: None,
     };
 
-    /// The same material with residual tension `eps` in a surface layer one spacing deep.
-    pub const fn prestrained(self, eps: f64) -> Material {
-        Material {
-            prestrain: eps,
-            ..self
-        }
-    }
-
     /// The same material, strain-stiffening by `beta`.
     pub const fn stiffening_by(self, beta: f64) -> Material {
         Material {

@@ -81,11 +81,6 @@ impl Solver {
         self.prestress = prestress;
     }
 
-    /// The residual tension's layer.
-    pub fn prestress(&self) -> &Prestress {
-        &self.prestress
-    }
-
     /// Overwrites velocities.
     pub fn set_velocities(&mut self, v: &[Vec3]) {
         self.v.copy_from_slice(v);

@@ -277,8 +277,8 @@ impl Solver {
         let mut iterations = 0;
         for k in 0..MAX_CG {
             iterations = k + 1;
-            stiffness_product(&self.op, &self.params, &self.volume, &self.p, d, q);
-            (self.prestress).add_stiffness_product(&self.op, &self.volume, d, q);
+            let pre = Some(&self.prestress);
+            stiffness_product(&self.op, &self.params, &self.volume, pre, &self.p, d, q);
             if let Some(held) = &self.held {
                 held.add_stiffness_product(&self.p, d, q, Vertices::All);
             }

@@ -67,8 +67,7 @@ fn largest_eigenvalue(s: &mut Solver) -> f64 {
         // Slaved nodes move with their masters and hand their forces back: the product
         // is the one the masters feel (Pᵀ K P).
         s.slaves.interpolate_vectors(x);
-        stiffness_product(&s.op, &s.params, &s.volume, &s.p, x, y);
-        (s.prestress).add_stiffness_product(&s.op, &s.volume, x, y);
+        stiffness_product(&s.op, &s.params, &s.volume, Some(&s.prestress), &s.p, x, y);
         if let Some(held) = &s.held {
             held.add_stiffness_product(&s.p, x, y, super::held::Vertices::All);
         }

@@ -551,11 +551,14 @@ impl Threads {
 }
 
 /// `out = K v`, where K = −∂f/∂p is the tangent stiffness of the elastic forces at `p`
-/// (the rank-2 completion's dependence on p is left out, as in the force).
+/// (the rank-2 completion's dependence on p is left out, as in the force), `prestress`'s
+/// constant `dF S₀` included.
+#[allow(clippy::too_many_arguments)]
 pub fn stiffness_product(
     op: &MlsOperator,
     params: &ElasticParams,
     volumes: &[f64],
+    prestress: Option<&Prestress>,
     p: &[Vec3],
     v: &[Vec3],
     out: &mut [Vec3],
@@ -582,7 +585,10 @@ pub fn stiffness_product(
         let full = complete(fp, &term.rank);
         let vol = volumes[i];
         let k = hourglass_stiffness(params, vol, term.trace_a);
-        let dp = stress_differential(params, &full, &dfp);
+        let mut dp = stress_differential(params, &full, &dfp);
+        if let Some(s0) = prestress.and_then(|pre| pre.stress_of(i)) {
+            dp += dfp * s0;
+        }
         let dm = dp * (-vol) * term.a_pinv + dfp * k;
         let mut acc = Vec3::zeros();
         for (j, pair) in ids.iter().zip(op.pair_terms(i)) {

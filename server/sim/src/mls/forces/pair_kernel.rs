@@ -195,11 +195,8 @@ pub(crate) fn point_kernel(
             )
         }
     };
-    if let Some(s0) = prestress
-        .map(|field| &field[i])
-        .filter(|s0| **s0 != [0.0; 6])
-    {
-        stats.prestress_energy += v * prestress::add_to_columns(&fcols, s0, &mut pc);
+    if let Some(field) = prestress {
+        stats.prestress_energy += v * prestress::add_to_columns(field, i, &fcols, &mut pc);
     }
     // Pass 2: M = −V P A⁺ + k F_p; g_ij = M (w x) − k w u onto the neighbours, −Σ g onto i.
     let neg_v = f64x4::splat(-v);

@@ -116,7 +116,7 @@ fn stiffness_product_matches_finite_differences() {
         .map(|i| Vec3::new((i as f64).cos(), (i as f64 * 2.1).sin(), 0.3))
         .collect();
     let mut kv = vec![Vec3::zeros(); p.len()];
-    stiffness_product(&op, &params, &vol, &p, &dir, &mut kv);
+    stiffness_product(&op, &params, &vol, None, &p, &dir, &mut kv);
     let h = 1e-7;
     let force_at = |s: f64| {
         let q: Vec<Vec3> = p.iter().zip(&dir).map(|(x, d)| x + d * s).collect();
@@ -284,8 +284,8 @@ fn the_tangent_is_symmetric() {
             params.hourglass_alpha = alpha;
             let mut ku = vec![Vec3::zeros(); rest.len()];
             let mut kw = vec![Vec3::zeros(); rest.len()];
-            stiffness_product(&op, &params, &vol, p, &u, &mut ku);
-            stiffness_product(&op, &params, &vol, p, &w, &mut kw);
+            stiffness_product(&op, &params, &vol, None, p, &u, &mut ku);
+            stiffness_product(&op, &params, &vol, None, p, &w, &mut kw);
             let a: f64 = w.iter().zip(&ku).map(|(x, y)| x.dot(y)).sum();
             let b: f64 = u.iter().zip(&kw).map(|(x, y)| x.dot(y)).sum();
             assert!(

@@ -4,8 +4,9 @@
 use super::*;
 use crate::mls::ElasticParams;
 use crate::mls::forces::tests::{cloud, deformed};
-use crate::mls::forces::{EvalSet, ForceScratch, add_elastic_forces};
+use crate::mls::forces::{EvalSet, ForceScratch, add_elastic_forces, stiffness_product};
 use crate::mls::operator::complete;
+use crate::mls::operator::{MlsOperator, PointRank};
 
 /// The prestress pass on its own, point by point in plain matrices: what the kernels'
 /// fused `F S₀` must equal.
@@ -22,8 +23,9 @@ impl Prestress {
         f: &mut [Vec3],
     ) -> f64 {
         let mut energy = 0.0;
-        for (&i, s0) in self.points.iter().zip(&self.stress) {
+        for &i in &self.points {
             let i = i as usize;
+            let s0 = self.stress_of(i).expect("a layer point");
             if set.is_some_and(|s| !s.has_stress(i)) {
                 continue;
             }
@@ -53,26 +55,11 @@ impl Prestress {
     }
 }
 
-/// A tangent-plane prestress on every other point of the test cloud (normal along z).
+/// A tangent-plane prestress σ (I − z zᵀ) on every point of the test cloud.
 fn everywhere(n: usize, sigma: f64) -> Prestress {
-    let z = Vec3::z();
-    let s0 = (Mat3::identity() - z * z.transpose()) * sigma;
-    let points: Vec<u32> = (0..n as u32).collect();
-    let mut field = vec![[0.0; 6]; n];
-    for f in &mut field {
-        *f = [
-            s0[(0, 0)],
-            s0[(1, 1)],
-            s0[(2, 2)],
-            s0[(0, 1)],
-            s0[(0, 2)],
-            s0[(1, 2)],
-        ];
-    }
     Prestress {
-        stress: vec![s0; n],
-        points,
-        field,
+        points: (0..n as u32).collect(),
+        field: vec![[sigma, sigma, 0.0, 0.0, 0.0, 0.0]; n],
     }
 }
 
@@ -155,17 +142,24 @@ fn forces_are_the_energy_gradient() {
     assert!(net.norm() < 1e-12 * scale);
 }
 
-/// K v matches the change of the forces along v (the tangent is constant, so exactly).
+/// `stiffness_product`'s prestress part (with the layer less without) matches the change
+/// of the layer's forces along v (its tangent is constant, so exactly).
 #[test]
 fn stiffness_product_is_the_forces_differential() {
     let (rest, op, vol) = cloud();
     let pre = everywhere(rest.len(), 450.0);
     let p = deformed(&rest);
+    let params = ElasticParams::stvk(5000.0, 0.45);
     let dir: Vec<Vec3> = (0..p.len())
         .map(|i| Vec3::new((i as f64).cos(), (i as f64 * 2.1).sin(), 0.3))
         .collect();
-    let mut kv = vec![Vec3::zeros(); p.len()];
-    pre.add_stiffness_product(&op, &vol, &dir, &mut kv);
+    let product = |with: Option<&Prestress>| {
+        let mut kv = vec![Vec3::zeros(); p.len()];
+        stiffness_product(&op, &params, &vol, with, &p, &dir, &mut kv);
+        kv
+    };
+    let (with, without) = (product(Some(&pre)), product(None));
+    let kv: Vec<Vec3> = with.iter().zip(&without).map(|(a, b)| a - b).collect();
     let h = 1e-6;
     let moved = |s: f64| -> Vec<Vec3> { p.iter().zip(&dir).map(|(x, d)| x + d * s).collect() };
     let (fp, fm) = (
@@ -213,11 +207,12 @@ fn the_layer_follows_the_surface() {
         .map(|i| Vec3::new((i % 5) as f64, ((i / 5) % 5) as f64, (i / 25) as f64) * s)
         .map(|x| x - Vec3::repeat(0.008))
         .collect();
-    let layer = Prestress::surface_layer(&rest, rest.len(), &cube, 0.0035, 100.0);
+    let layer = Prestress::surface_layer(&rest, &cube, 0.0035, 100.0);
     // A 5³ lattice 4 mm apart in a 20 mm cube: the outer shell (2 mm deep) is the layer,
     // the 3³ core (6 mm deep) is not.
     assert_eq!(layer.points().len(), 125 - 27);
-    for (&i, s0) in layer.points.iter().zip(&layer.stress) {
+    for &i in layer.points() {
+        let s0 = layer.stress_of(i as usize).expect("a layer point");
         let x = rest[i as usize];
         // On a face (not an edge or a corner) the tension is in the face's plane.
         let on: Vec<usize> = (0..3).filter(|&a| x[a].abs() > 0.007).collect();
@@ -226,5 +221,6 @@ fn the_layer_follows_the_surface() {
         assert!(s0[(axis, axis)].abs() < 1e-9, "point {i}");
         assert!((s0.trace() - 200.0).abs() < 1e-9, "point {i}");
     }
-    assert!(Prestress::surface_layer(&rest, rest.len(), &cube, 0.0035, 0.0).is_empty());
+    assert!(layer.stress_of(62).is_none(), "the centre");
+    assert!(Prestress::surface_layer(&rest, &cube, 0.0035, 0.0).is_empty());
 }

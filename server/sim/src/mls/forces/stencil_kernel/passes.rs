@@ -236,11 +236,14 @@ pub(super) fn point_stress<const DIAGONAL: bool>(
         i => inputs.volumes[i as usize],
     };
     let volume = f64x4::from([volume_of(0), volume_of(1), volume_of(2), volume_of(3)]);
-    let points = std::array::from_fn(|l| match t.point[l] {
-        NONE => None,
-        i => mask[l].then_some(i as usize),
+    let layer = inputs.prestress.and_then(|field| {
+        let points = std::array::from_fn(|l| match t.point[l] {
+            NONE => None,
+            i => mask[l].then_some(i as usize),
+        });
+        prestress::gather(field, points)
     });
-    if let Some(s0) = inputs.prestress.and_then(|f| prestress::gather(f, points)) {
+    if let Some(s0) = layer {
         let e = (prestress::add_to_lanes(&f, &s0, &mut p_stress) * volume).to_array();
         for lane in 0..LANES {
             if mask[lane] {
