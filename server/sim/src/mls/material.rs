@@ -6,7 +6,10 @@
 //! * Corotated linear: `F = R S`, `e = S − I`, `P = R (λ tr e I + 2μ e)`. It does not soften
 //!   in compression, which makes it the robust choice for large squashes.
 //!
-//! Optionally Müller's volume term `½ k_v (det F − 1)²` is added. When det F leaves
+//! Optionally strain-stiffening (Fung's exponential on the distortional energy, the bulk
+//! term as it is: the decoupled volumetric–isochoric idea of tissue laws, here as the
+//! additive split of the strain into deviator and trace), and
+//! Müller's volume term `½ k_v (det F − 1)²` is added. When det F leaves
 //! [0.2, 5] the stress is evaluated at F with its singular values clamped to that range (and
 //! an inversion undone): a robust fallback, not an energy gradient, reported as such.
 
@@ -71,7 +74,9 @@ pub struct ElasticParams {
     /// [`DET_RANGE`] (the guard's inversion fallback). Off only to show what plain StVK does.
     pub clamp_inversion: bool,
     /// Strain-stiffening β (dimensionless; 0: none): Fung's exponential on the law's
-    /// energy ψ₀, ψ = (c/2)(e^Q − 1) with Q = 2βψ₀/E and c = E/β (see [`Self::stiffened`]).
+    /// distortional energy ψ₀ (the strain's deviator), ψ = (c/2)(e^Q − 1) + ψ_vol with
+    /// Q = 2βψ₀/E and c = E/β; the volumetric part ψ_vol stays as it is (see
+    /// [`Self::stiffened`]).
     pub stiffening: f64,
 }
 
@@ -113,11 +118,23 @@ impl ElasticParams {
     pub fn wave_modulus(&self) -> f64 {
         self.effective_lame().p_wave_modulus() + self.volume_k
     }
+
+    /// How much faster the fastest wave's ω² is where the stiffening multiplies the
+    /// distortional tangent by `factor`: (K + 4μ·factor/3) / (K + 4μ/3), the bulk modulus K
+    /// unstiffened.
+    #[inline]
+    pub fn wave_factor(&self, factor: f64) -> f64 {
+        let lame = self.effective_lame();
+        let bulk = lame.lambda + 2.0 * lame.mu / 3.0 + self.volume_k;
+        let shear = 4.0 * lame.mu / 3.0;
+        (bulk + shear * factor) / (bulk + shear)
+    }
 }
 
-/// Past this exponent the tissue stiffens no further: the base law e^Q times over (7.4 at
-/// 2), so a point crushed or torn at the blade's edge does not take the explicit step down
-/// with an unbounded tangent. Q = 2 is a stretch of about √(2/β): 45 % at β = 10.
+/// Past this exponent the tissue stiffens no further: the distortional part e^Q times over
+/// (7.4 at 2), so a point crushed or torn at the blade's edge does not take the explicit
+/// step down with an unbounded tangent. Q = 2 is a uniaxial stretch of about √(2/β): 45 %
+/// at β = 10 (ψ₀ is (1 + ν)/3 · Eε² there, 0.97 × the whole law's ½Eε² at ν = 0.45).
 const MOST_STIFFENING_EXPONENT: f64 = 2.0;
 
 /// What the strain-stiffening makes of a point with base energy density ψ₀.
@@ -127,7 +144,8 @@ pub struct Stiffened {
     pub slope: f64,
     /// ψ (J/m³).
     pub psi: f64,
-    /// The factor on the tangent, at most: e^Q (1 + 2Q) below the cap, e^Qmax past it.
+    /// The factor on the distortional tangent, at most: e^Q (1 + 2Q) below the cap,
+    /// e^Qmax past it.
     pub tangent_factor: f64,
 }
 
@@ -191,8 +209,8 @@ pub struct StressSample {
     pub det: f64,
     /// True when the singular values were clamped.
     pub clamped: bool,
-    /// How much stiffer than the base law the stiffening makes the tangent here, at most
-    /// (1 without stiffening): e^Q (1 + 2Q), what a uniaxial stretch sees.
+    /// How much the stiffening raises the fastest wave's ω² here, at most (1 without
+    /// stiffening): [`ElasticParams::wave_factor`] of the distortional tangent's e^Q (1 + 2Q).
     pub stiffening: f64,
 }
 
@@ -211,13 +229,18 @@ pub fn stress(params: &ElasticParams, f: &Mat3) -> StressSample {
     } else {
         (f, false)
     };
-    let (mut p, mut psi) = base_law(params, f_eval);
-    let mut stiffening = 1.0;
-    if params.stiffening > 0.0 {
-        let s = params.stiffened(psi);
-        (psi, stiffening) = (s.psi, s.tangent_factor);
-        p *= s.slope;
-    }
+    let (mut p, mut psi, stiffening) = if params.stiffening > 0.0 {
+        let split = split_law(params, f_eval);
+        let s = params.stiffened(split.psi_dev);
+        (
+            split.p_dev * s.slope + split.p_vol,
+            s.psi + split.psi_vol,
+            params.wave_factor(s.tangent_factor),
+        )
+    } else {
+        let (p, psi) = base_law(params, f_eval);
+        (p, psi, 1.0)
+    };
     if params.volume_k > 0.0 {
         let j = f_eval.determinant();
         p += cofactor(f_eval) * (params.volume_k * (j - 1.0));
@@ -240,6 +263,54 @@ fn base_law(params: &ElasticParams, f: &Mat3) -> (Mat3, f64) {
         ElasticModel::MuellerCompat => mueller(&params.lame, f),
         ElasticModel::Corotated => corotated(&params.lame, f),
     }
+}
+
+/// A base law split by the strain's deviator and trace, which the stiffening needs: tissue
+/// stiffens as its fibres straighten under distortion, while its bulk response (water) does
+/// not; near incompressibility the trace's term is λ/E ≈ 170 times the other at ν = 0.499,
+/// and stiffening it stiffened the whole step for a 1 % volume change at a lip.
+struct SplitLaw {
+    p_dev: Mat3,
+    psi_dev: f64,
+    p_vol: Mat3,
+    psi_vol: f64,
+}
+
+/// The model's law as [`SplitLaw`]: with T(e) = 2μ e + λ tr e I on its strain e (Green's,
+/// Müller's FᵀF − I, or the corotated S − I), T_dev = 2μ dev e and T_vol = K tr e I
+/// (K = λ + 2μ/3), P = G T with G = F, 2F or R, and ψ = μ dev e : dev e + ½ K (tr e)².
+#[inline]
+fn split_law(params: &ElasticParams, f: &Mat3) -> SplitLaw {
+    let lame = params.lame;
+    let (g, e) = match params.model {
+        ElasticModel::StVK => (*f, (f.transpose() * f - Mat3::identity()) * 0.5),
+        ElasticModel::MuellerCompat => (f * 2.0, f.transpose() * f - Mat3::identity()),
+        ElasticModel::Corotated => {
+            let (r, s) = polar(f);
+            (r, s - Mat3::identity())
+        }
+    };
+    let (t_dev, t_vol, psi_dev, psi_vol) = split_measure(&lame, &e);
+    SplitLaw {
+        p_dev: g * t_dev,
+        psi_dev,
+        p_vol: g * t_vol,
+        psi_vol,
+    }
+}
+
+/// T_dev, T_vol, ψ_dev and ψ_vol of a strain `e` (see [`split_law`]).
+#[inline]
+fn split_measure(lame: &Lame, e: &Mat3) -> (Mat3, Mat3, f64, f64) {
+    let tr = e.trace();
+    let dev = e - Mat3::identity() * (tr / 3.0);
+    let bulk = lame.lambda + 2.0 * lame.mu / 3.0;
+    (
+        dev * (2.0 * lame.mu),
+        Mat3::identity() * (bulk * tr),
+        lame.mu * dev.component_mul(&dev).sum(),
+        0.5 * bulk * tr * tr,
+    )
 }
 
 /// StVK stress scaled by `scale` (1 for StVK).
@@ -275,7 +346,26 @@ fn corotated(lame: &Lame, f: &Mat3) -> (Mat3, f64) {
 /// held fixed, which is the symmetric "warped stiffness"). The volume term is included.
 #[inline]
 pub fn stress_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 {
-    let mut dp = match params.model {
+    let mut dp = if params.stiffening > 0.0 {
+        stiffened_differential(params, f, df)
+    } else {
+        base_differential(params, f, df)
+    };
+    if params.volume_k > 0.0 {
+        // d[(J − 1) cof F] = (cof F : dF) cof F + (J − 1) d(cof F).
+        let j = f.determinant();
+        let cof = cofactor(f);
+        let dj = cof.component_mul(df).sum();
+        dp += cof * (params.volume_k * dj)
+            + cofactor_differential(f, df) * (params.volume_k * (j - 1.0));
+    }
+    dp
+}
+
+/// dP of the base law alone.
+#[inline]
+fn base_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 {
+    match params.model {
         ElasticModel::StVK | ElasticModel::MuellerCompat => {
             let lame = params.effective_lame();
             let e = (f.transpose() * f - Mat3::identity()) * 0.5;
@@ -290,24 +380,48 @@ pub fn stress_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 
             let de = (rt_df + rt_df.transpose()) * 0.5;
             r * (Mat3::identity() * (params.lame.lambda * de.trace()) + de * (2.0 * params.lame.mu))
         }
+    }
+}
+
+/// dP of the stiffened law P = g'(Q) P_dev + P_vol, Q = 2βψ_dev/E:
+/// dP = g' dP_dev + g''(Q) (2β/E)(P_dev : dF) P_dev + dP_vol (the same approximations as
+/// [`base_differential`]: exact for StVK and Müller, the rotation held for corotated).
+fn stiffened_differential(params: &ElasticParams, f: &Mat3, df: &Mat3) -> Mat3 {
+    let lame = params.lame;
+    // P_x = G T_x(e): dP_x = dG T_x(e) + G T_x(de), dG = 0 for corotated.
+    let (g, dg, e, de) = match params.model {
+        ElasticModel::StVK => (
+            *f,
+            *df,
+            (f.transpose() * f - Mat3::identity()) * 0.5,
+            (df.transpose() * f + f.transpose() * df) * 0.5,
+        ),
+        ElasticModel::MuellerCompat => (
+            f * 2.0,
+            df * 2.0,
+            f.transpose() * f - Mat3::identity(),
+            df.transpose() * f + f.transpose() * df,
+        ),
+        ElasticModel::Corotated => {
+            let (r, s) = polar(f);
+            let rt_df = r.transpose() * df;
+            (
+                r,
+                Mat3::zeros(),
+                s - Mat3::identity(),
+                (rt_df + rt_df.transpose()) * 0.5,
+            )
+        }
     };
-    if params.stiffening > 0.0 {
-        // P = g'(Q) P₀ with Q = 2βψ₀/E: dP = g' dP₀ + g''(Q) (2β/E)(P₀ : dF) P₀.
-        let (p0, psi0) = base_law(params, f);
-        let q = params.stiffening_exponent(psi0);
-        let dq = 2.0 * params.stiffening / params.effective_youngs_modulus()
-            * p0.component_mul(df).sum();
-        dp = dp * stiffening_slope(q) + p0 * (stiffening_curvature(q) * dq);
-    }
-    if params.volume_k > 0.0 {
-        // d[(J − 1) cof F] = (cof F : dF) cof F + (J − 1) d(cof F).
-        let j = f.determinant();
-        let cof = cofactor(f);
-        let dj = cof.component_mul(df).sum();
-        dp += cof * (params.volume_k * dj)
-            + cofactor_differential(f, df) * (params.volume_k * (j - 1.0));
-    }
-    dp
+    let (t_dev, t_vol, psi_dev, _) = split_measure(&lame, &e);
+    let (dt_dev, dt_vol, _, _) = split_measure(&lame, &de);
+    let p_dev = g * t_dev;
+    let dp_dev = dg * t_dev + g * dt_dev;
+    let dp_vol = dg * t_vol + g * dt_vol;
+    let q = params.stiffening_exponent(psi_dev);
+    let dq =
+        2.0 * params.stiffening / params.effective_youngs_modulus() * p_dev.component_mul(df).sum();
+    dp_dev * stiffening_slope(q) + p_dev * (stiffening_curvature(q) * dq) + dp_vol
 }
 
 /// cof(F) = det(F) F⁻ᵀ, written with rows: rows of cof are r1×r2, r2×r0, r0×r1.
@@ -455,7 +569,11 @@ mod tests {
                 1.0 / x.sqrt(),
             )
         };
-        for model in [ElasticModel::StVK, ElasticModel::Corotated] {
+        for model in [
+            ElasticModel::StVK,
+            ElasticModel::MuellerCompat,
+            ElasticModel::Corotated,
+        ] {
             let mut params = ElasticParams::stvk(5000.0, 0.45);
             params.model = model;
             params.stiffening = 10.0;
@@ -464,35 +582,68 @@ mod tests {
                 assert_energy_gradient(&params, &f, 1e-5);
             }
         }
-        let mut params = ElasticParams::stvk(5000.0, 0.45);
-        params.stiffening = 10.0;
-        params.volume_k = 1000.0;
-        assert_exact_differential(&params, &stretched(1.3));
+        for model in [ElasticModel::StVK, ElasticModel::MuellerCompat] {
+            let mut params = ElasticParams::stvk(5000.0, 0.45);
+            params.model = model;
+            params.stiffening = 10.0;
+            params.volume_k = 1000.0;
+            assert_exact_differential(&params, &stretched(1.3));
+        }
     }
 
-    /// At small strain the stiffened law is the base law; stretched, it is e^Q times the
-    /// base stress (Q = 2βψ₀/E), and no more than e^2 times past the cap; the reported
-    /// factor on the tangent is e^Q (1 + 2Q) below the cap.
+    /// At small strain the stiffened law is the base law. Stretched, its distortional part
+    /// is e^Q times the base law's (Q = 2βψ_dev/E) and no more than e^2 times past the cap,
+    /// while its volumetric part is the base law's: a pure change of volume does not
+    /// stiffen. The reported factor is the fastest wave's: the distortional tangent's
+    /// e^Q (1 + 2Q) on 4μ/3, the bulk modulus as it is.
     #[test]
-    fn stiffening_is_exponential_in_the_base_energy_and_capped() {
+    fn stiffening_is_exponential_in_the_distortional_energy_and_capped() {
         let base = ElasticParams::stvk(5000.0, 0.45);
         let stiff = ElasticParams {
             stiffening: 10.0,
             ..base
+        };
+        let (lambda, mu) = (base.lame.lambda, base.lame.mu);
+        let bulk = lambda + 2.0 * mu / 3.0;
+        // P_dev and P_vol of StVK written out, and ψ_dev.
+        let parts = |f: &Mat3| {
+            let e = (f.transpose() * f - Mat3::identity()) * 0.5;
+            let tr = e.trace();
+            let dev = e - Mat3::identity() * (tr / 3.0);
+            let p_dev = f * dev * (2.0 * mu);
+            let p_vol = f * (bulk * tr);
+            (p_dev, p_vol, mu * dev.norm_squared())
         };
         let small = Mat3::from_diagonal(&crate::math::Vec3::new(1.001, 1.0, 1.0));
         let (a, b) = (stress(&base, &small), stress(&stiff, &small));
         assert!((b.p - a.p).norm() < 1e-3 * a.p.norm());
         let f = Mat3::from_diagonal(&crate::math::Vec3::new(1.2, 1.0, 1.0));
         let (a, b) = (stress(&base, &f), stress(&stiff, &f));
-        let q = 2.0 * 10.0 * a.psi / 5000.0;
-        assert!((b.p - a.p * q.exp()).norm() < 1e-12 * b.p.norm());
-        assert!((b.stiffening - q.exp() * (1.0 + 2.0 * q)).abs() < 1e-12 * b.stiffening);
+        let (p_dev, p_vol, psi_dev) = parts(&f);
+        assert!((a.p - p_dev - p_vol).norm() < 1e-12 * a.p.norm());
+        let q = 2.0 * 10.0 * psi_dev / 5000.0;
+        assert!((b.p - p_dev * q.exp() - p_vol).norm() < 1e-12 * b.p.norm());
+        let tangent = q.exp() * (1.0 + 2.0 * q);
+        let wave = (bulk + 4.0 * mu / 3.0 * tangent) / (lambda + 2.0 * mu);
+        assert!((b.stiffening - wave).abs() < 1e-12 * wave);
         assert_eq!(a.stiffening, 1.0);
         let far = Mat3::from_diagonal(&crate::math::Vec3::new(2.0, 1.0, 1.0));
-        let (a, b) = (stress(&base, &far), stress(&stiff, &far));
-        assert!((b.p - a.p * 2f64.exp()).norm() < 1e-12 * b.p.norm());
-        assert_eq!(b.stiffening, 2f64.exp());
+        let b = stress(&stiff, &far);
+        let (p_dev, p_vol, _) = parts(&far);
+        assert!((b.p - p_dev * 2f64.exp() - p_vol).norm() < 1e-12 * b.p.norm());
+        let wave = (bulk + 4.0 * mu / 3.0 * 2f64.exp()) / (lambda + 2.0 * mu);
+        assert!((b.stiffening - wave).abs() < 1e-12 * wave);
+        // A pure dilation of 5 % in volume: no stiffening at all, even nearly incompressible.
+        let tight = ElasticParams {
+            stiffening: 10.0,
+            ..ElasticParams::stvk(5000.0, 0.499)
+        };
+        let swell = Mat3::identity() * 1.05f64.cbrt();
+        let (a, b) = (
+            stress(&ElasticParams::stvk(5000.0, 0.499), &swell),
+            stress(&tight, &swell),
+        );
+        assert!((b.p - a.p).norm() < 1e-12 * a.p.norm() && b.stiffening == 1.0);
     }
 
     #[test]

@@ -70,14 +70,8 @@ impl Solver {
         self.p.copy_from_slice(p);
     }
 
-    /// Puts residual tension into the body (`Prestress::surface_layer`). Not for the
-    /// projective mode, whose local/global iterations know only the elastic law (the
-    /// scene refuses the pair).
+    /// Puts residual tension into the body (`Prestress::surface_layer`), in every mode.
     pub fn set_prestress(&mut self, prestress: Prestress) {
-        assert!(
-            prestress.is_empty() || self.config.mode != SolverMode::Projective,
-            "prestress in the projective mode"
-        );
         self.prestress = prestress;
     }
 

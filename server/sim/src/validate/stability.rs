@@ -435,8 +435,8 @@ pub fn compression_stvk() -> StabilityResult {
     )
 }
 
-/// Compression to 30 %, StVK strain-stiffened (β = 10: the tangent up to e² × 5 = 37 times
-/// the small-strain one), explicit: the sub-steps follow the stiffening.
+/// Compression to 30 %, StVK strain-stiffened (β = 10: the distortional tangent up to e² × 5
+/// = 37 times the small-strain one), explicit: the sub-steps follow the stiffening.
 pub fn compression_stiffened() -> StabilityResult {
     compression(
         "compression to 30 %, StVK stiffened (β = 10)",

@@ -279,8 +279,9 @@ fn a_device_pose_that_jumps_is_followed_at_a_hands_speed() {
         "most sub-steps {most_substeps}, {rolled_back} ticks rolled back, {cut_mm:.0} mm in tissue"
     );
     // The liver's one sub-step a tick holds through the noise, raised only by its own
-    // stiffening where the jumps strain it: at most √(1.5 e² (1 + 4)) = 7.4 times the plan
-    // (`solver::explicit`'s `follow_stiffening`; β = 0: 2).
+    // stiffening where the jumps strain it: the fastest wave's modulus K + 4μ/3 with the
+    // distortional tangent at most e² (1 + 4) times over, 5.4 times at ν = 0.45, so at most
+    // √(1.5 · 5.4) = 2.8 times the plan (`solver::explicit`'s `follow_stiffening`; β = 0: 2).
     assert!(
         most_substeps <= 8,
         "{most_substeps} sub-steps, {rolled_back} rolled back"

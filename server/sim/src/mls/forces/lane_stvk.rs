@@ -35,16 +35,20 @@ pub(crate) fn point_stvk(
     let tr = e[0][0] + e[1][1] + e[2][2];
     let (lambda, mu) = (params.lame.lambda, params.lame.mu);
     let ee: f64 = e.iter().flatten().map(|x| x * x).sum();
-    let psi = mu * ee + 0.5 * lambda * tr * tr;
-    let (slope, psi, factor) = match params.stiffening > 0.0 {
+    // S = slope · 2μ dev E + K tr E I (`material::split_law`); without stiffening the
+    // plain form, bit for bit the scalar law's.
+    let (psi, factor, two_mu, diagonal) = match params.stiffening > 0.0 {
         true => {
-            let s = params.stiffened(psi);
-            (s.slope, s.psi, s.tangent_factor)
+            let bulk = lambda + 2.0 * mu / 3.0;
+            let s = params.stiffened(mu * (ee - tr * tr / 3.0));
+            let two_mu = 2.0 * mu * s.slope;
+            let psi = s.psi + 0.5 * bulk * tr * tr;
+            let factor = params.wave_factor(s.tangent_factor);
+            (psi, factor, two_mu, bulk * tr - two_mu * tr / 3.0)
         }
-        false => (1.0, psi, 1.0),
+        false => (mu * ee + 0.5 * lambda * tr * tr, 1.0, 2.0 * mu, lambda * tr),
     };
-    let sm =
-        |r: usize, c: usize| slope * (2.0 * mu * e[r][c] + if r == c { lambda * tr } else { 0.0 });
+    let sm = |r: usize, c: usize| two_mu * e[r][c] + if r == c { diagonal } else { 0.0 };
     // P = F S, column by column: P[:, c] = Σ_k F[:, k] S[k][c].
     let pc = std::array::from_fn(|c| {
         fc[0].mul_add(
@@ -89,24 +93,35 @@ pub(crate) fn lane_stvk(
     }
     let tr = e[0][0] + e[1][1] + e[2][2];
     let lambda = f64x4::splat(params.lame.lambda);
-    let two_mu = f64x4::splat(2.0 * params.lame.mu);
-    let mut sm = [[f64x4::ZERO; 3]; 3];
+    let mu = f64x4::splat(params.lame.mu);
     let mut ee = f64x4::ZERO;
-    for r in 0..3 {
-        for c in 0..3 {
-            sm[r][c] = two_mu * e[r][c] + if r == c { lambda * tr } else { f64x4::ZERO };
-            ee = e[r][c].mul_add(e[r][c], ee);
+    for row in &e {
+        for x in row {
+            ee = x.mul_add(*x, ee);
         }
     }
-    let mut psi = f64x4::splat(params.lame.mu) * ee + half * lambda * tr * tr;
+    let mut two_mu = f64x4::splat(2.0 * params.lame.mu);
+    let mut diagonal = lambda * tr;
+    let mut psi = mu * ee + half * lambda * tr * tr;
     let mut factor = [1.0; LANES];
     if params.stiffening > 0.0 {
-        // Per lane: one exponential each, against some 150 multiply-adds of the stress.
-        let s = psi.to_array().map(|p| params.stiffened(p));
+        // S = slope · 2μ dev E + K tr E I (`material::split_law`). Per lane: one exponential
+        // each, against some 150 multiply-adds of the stress.
+        let bulk = lambda + mu * f64x4::splat(2.0 / 3.0);
+        let third = f64x4::splat(1.0 / 3.0);
+        let psi_dev = mu * (ee - tr * tr * third);
+        let s = psi_dev.to_array().map(|p| params.stiffened(p));
         let slope = f64x4::from(s.map(|x| x.slope));
-        psi = f64x4::from(s.map(|x| x.psi));
-        factor = s.map(|x| x.tangent_factor);
-        sm.iter_mut().flatten().for_each(|x| *x *= slope);
+        psi = f64x4::from(s.map(|x| x.psi)) + half * bulk * tr * tr;
+        factor = s.map(|x| params.wave_factor(x.tangent_factor));
+        two_mu *= slope;
+        diagonal = bulk * tr - two_mu * tr * third;
+    }
+    let mut sm = [[f64x4::ZERO; 3]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            sm[r][c] = two_mu * e[r][c] + if r == c { diagonal } else { f64x4::ZERO };
+        }
     }
     let mut p = [[f64x4::ZERO; 3]; 3];
     for r in 0..3 {

@@ -347,14 +347,6 @@ impl SceneSpec {
         if let Some(s) = &raw.supports {
             supports::apply_supports(&mut spec, s, &check)?;
         }
-        if spec.material.prestrain > 0.0 && spec.features.stiff_mode {
-            return Err(check.fail(
-                "material.prestrain",
-                "residual tension needs the explicit or implicit integrator: the stiff \
-                 mode's projective iterations know only the elastic law (set \
-                 `[features] stiff_mode = false`, or `prestrain = 0`)",
-            ));
-        }
         if let Some(why) = spec.supports.unable_to_hold(&spec.loads.gravity) {
             return Err(check.fail("supports", why));
         }
