@@ -43,11 +43,14 @@ fn the_liver_settles_on_its_tray_under_gravity() {
     assert!(p.iter().all(|x| x.iter().all(|c| c.is_finite())));
 }
 
-/// Without gravity nothing settles and nothing moves.
+/// Without gravity and without residual tension nothing settles and nothing moves; with
+/// the organ's tension and no gravity the body settles into it (its layer shortened, its
+/// core compressed) and rests there.
 #[test]
 fn without_gravity_the_body_starts_at_rest() {
+    let weightless = "extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n";
     let built = build_scene(
-        &scene("extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n"),
+        &scene(&format!("{weightless}[material]\nprestrain = 0.0\n")),
         None,
         &mut Silent,
     )
@@ -55,6 +58,11 @@ fn without_gravity_the_body_starts_at_rest() {
     let sim = Simulation::new(&built);
     assert!(sim.settled().is_none());
     assert_eq!(sim.solver().positions(), sim.solver().rest());
+    let tensioned = build_scene(&scene(weightless), None, &mut Silent).expect("builds");
+    let sim = Simulation::new(&tensioned);
+    let r = sim.settled().expect("settled into its tension");
+    assert!(r.settled && r.residual_n < 1e-3, "{r:?}");
+    assert!(r.max_displacement_mm > 0.1, "{r:?}");
 }
 
 /// A fixed region's points do not move under gravity; the rest of a cube hangs from them.
