@@ -114,6 +114,15 @@ impl Prestress {
         (!self.is_empty()).then_some(&self.field[..])
     }
 
+    /// Scales the layer's stress by `ratio` in place (no allocation): the tension is the
+    /// material's stiffness times its prestrain, so a change of E (an instructor's
+    /// stiffness fault) changes it in proportion.
+    pub fn scale(&mut self, ratio: f64) {
+        for s in &mut self.field {
+            s.iter_mut().for_each(|x| *x *= ratio);
+        }
+    }
+
     /// No prestress anywhere.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()

@@ -222,6 +222,8 @@ impl Solver {
             self.omega_sq_cap = self.omega_sq_cap.map(|cap| cap * ratio);
             self.fit_omega_sq.iter_mut().for_each(|w| *w *= ratio);
             self.through_slaves.iter_mut().for_each(|w| *w *= ratio);
+            // The layer's tension σ = Eε/(1 − ν) at its fixed prestrain ε.
+            self.prestress.scale(ratio);
         } else {
             self.precond = statics::diagonal_stiffness(&self.op, &self.params, &self.volume);
             self.dt_crit = None;
