@@ -309,24 +309,7 @@ impl Material {
             ..self
         }
     }
-
-    /// The same material, its surface layer under residual tension `eps`.
-    pub const fn prestrained_by(self, eps: f64) -> Material {
-        Material {
-            prestrain: eps,
-            ..self
-        }
-    }
 }
-
-/// The built-in organs' residual tension ε in a surface layer one lattice spacing deep
-/// (σ = Eε/(1 − ν): liver 455 Pa, muscle 910, brain 270). Brain: white matter carries
-/// 100–1 000 Pa of circumferential tension (Xu, Bayly & Taber 2009) and a tumour's rim is
-/// in tension over its compressed core (Stylianopoulos et al. 2012); muscle is held in situ
-/// beyond its slack length and a transected one retracts; the liver's capsule is tensed by
-/// its perfusion. No figure is known to us for the last two: the same value as the brain's
-/// (docs/CUTTING-DECISIONS.md, "Residual tension").
-pub const ORGAN_PRESTRAIN: f64 = 0.05;
 
 /// The built-in organs' strain-stiffening β: liver, muscle and brain are quasi-linear at
 /// small strain and stiffen steeply beyond (liver: exponential fits, Roan & Vemaganti 2007,
@@ -500,25 +483,19 @@ pub fn builtin(name: &str) -> Option<SceneSpec> {
     let (description, material, spacing, features) = match shape {
         BuiltinMesh::Liver => (
             "liver, 250 × 150 × 50 mm, 508 triangles, ~1526 points (paper Table 1)",
-            Material::LIVER
-                .stiffening_by(ORGAN_STIFFENING)
-                .prestrained_by(ORGAN_PRESTRAIN),
+            Material::LIVER.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(1526),
             Features::CUTTING_STATION,
         ),
         BuiltinMesh::Shoulder => (
             "shoulder muscle (deltoid-like), 1842 triangles, ~4812 points (paper Table 1)",
-            Material::MUSCLE
-                .stiffening_by(ORGAN_STIFFENING)
-                .prestrained_by(ORGAN_PRESTRAIN),
+            Material::MUSCLE.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(4812),
             Features::CUTTING_STATION,
         ),
         BuiltinMesh::Cerebroma => (
             "brain tumour, 50 × 40 × 30 mm, 2600 triangles, ~7086 points (paper Table 1)",
-            Material::BRAIN
-                .stiffening_by(ORGAN_STIFFENING)
-                .prestrained_by(ORGAN_PRESTRAIN),
+            Material::BRAIN.stiffening_by(ORGAN_STIFFENING),
             SpacingRule::TargetPoints(7086),
             Features::CUTTING_STATION,
         ),

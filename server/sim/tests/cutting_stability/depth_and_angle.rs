@@ -5,7 +5,7 @@ use super::*;
 
 #[test]
 fn a_second_deeper_pass_opens_only_what_lies_below_the_first() {
-    let scene = untensioned("liver");
+    let scene = scene("liver");
     let top = top_mm(&scene, -30.0, 0.0);
     let spec = &scene.spec.force;
     // 5 mm deep from x = -30 to 0 mm, out, back over the start, and 10 mm deep along the
@@ -176,7 +176,7 @@ fn a_stab_slits_as_wide_as_the_blade() {
     // The shoulder, whose finer top draws an 8 mm slit with room for its lips (the liver's
     // 17.7 mm surface edges are coarse for it).
     // Its top is flat behind x = -12 mm.
-    let scene = untensioned("shoulder");
+    let scene = scene("shoulder");
     let (x, top) = (-12.0, top_mm(&scene, -12.0, 0.0));
     let width_mm = scene.spec.tool.blade_width_m * 1e3;
     // Straight down 10 mm at 5 mm/s, held, and straight out: the blade's flat (its back
@@ -283,7 +283,7 @@ fn a_stab_then_a_slide_is_one_incision() {
 
 #[test]
 fn sawing_to_and_fro_in_a_cut() {
-    let scene = untensioned("liver");
+    let scene = scene("liver");
     let top = top_mm(&scene, -20.0, 0.0);
     let spec = &scene.spec.force;
     let z = top - 10.0;

@@ -299,7 +299,7 @@ fn a_device_pose_that_jumps_is_followed_at_a_hands_speed() {
 /// re-cut supersedes it (the superseded one never lands) and finishes the incision.
 #[test]
 fn a_quick_stroke_that_ends_while_a_re_cut_is_in_flight_supersedes_it() {
-    let scene = untensioned("liver");
+    let scene = scene("liver");
     let top = top_mm(&scene, -30.0, 0.0);
     let z = top - 8.0;
     // 40 mm at 200 mm/s, out in 30 ms: it ends 20-odd ticks after a re-cut was asked for

@@ -29,22 +29,6 @@ fn scene(name: &str) -> BuiltScene {
     cutting_scene(builtin(name).unwrap())
 }
 
-/// Built-in scene `name` without its surface layer's residual tension (`prestrain = 0`),
-/// for the tests that hold a cut's depth, span and force to the blade's path as measured
-/// on the untensioned organ. The tension moves the settled organ against its rest shape
-/// and releases energy into the crack: with it a shoulder's 10 mm stab draws walls 8.2 mm
-/// deep in rest space (8.6 without; its crack reaches 9.8 either way: the walls' own
-/// shortfall, which the tension deepens by 0.4 mm), a deeper second pass on the liver reads 1.19 N where its depth
-/// gives 1.08, a sawn liver 1.80 N past its slit against ≥ 1.8, and a 200 mm/s stroke's
-/// last re-cut lands instead of superseding one (docs/CUTTING-DECISIONS.md, "The organs'
-/// residual tension by default"). The tension's own effect on the cut is held by the cut
-/// regression and tools/tests/cli.rs.
-fn untensioned(name: &str) -> BuiltScene {
-    let mut spec = builtin(name).unwrap();
-    spec.material.prestrain = 0.0;
-    cutting_scene(spec)
-}
-
 /// `spec` built with cutting on.
 fn cutting_scene(mut spec: SceneSpec) -> BuiltScene {
     spec.features.cutting = true;
