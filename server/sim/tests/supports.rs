@@ -48,23 +48,17 @@ fn the_liver_settles_on_its_tray_under_gravity() {
 /// its core compressed) and rests there.
 #[test]
 fn without_gravity_the_body_starts_at_rest() {
-    let weightless = "extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n";
-    let built = build_scene(
-        &scene(&format!("{weightless}[material]\nprestrain = 0.0\n")),
-        None,
-        &mut Silent,
-    )
-    .expect("builds");
-    let sim = Simulation::new(&built);
+    let weightless = |prestrain: f64| {
+        let text = format!(
+            "extends = \"liver\"\n[loads]\ngravity_m_s2 = [0.0, 0.0, 0.0]\n\
+             [material]\nprestrain = {prestrain}\n"
+        );
+        build_scene(&scene(&text), None, &mut Silent).expect("builds")
+    };
+    let sim = Simulation::new(&weightless(0.0));
     assert!(sim.settled().is_none());
     assert_eq!(sim.solver().positions(), sim.solver().rest());
-    let tensioned = build_scene(
-        &scene(&format!("{weightless}[material]\nprestrain = 0.05\n")),
-        None,
-        &mut Silent,
-    )
-    .expect("builds");
-    let sim = Simulation::new(&tensioned);
+    let sim = Simulation::new(&weightless(0.05));
     let r = sim.settled().expect("settled into its tension");
     assert!(r.settled && r.residual_n < 1e-3, "{r:?}");
     assert!(r.max_displacement_mm > 0.1, "{r:?}");

@@ -123,11 +123,9 @@ fn the_press_force_scales_with_the_tissue_stiffness() {
 /// A tissue-stiffness fault on the liver resting under its weight presses like a liver
 /// that stiff, once the organ has come to rest at its new stiffness (every point is woken
 /// for it). Before, the points asleep held the old sag and the region the blade woke sprang
-/// into it: 0.001 N at 4 × E where that liver gives 0.34 N. The fault scales the layer's
-/// tension with E, as building at that stiffness does. The two differ by the way to rest:
-/// the faulted organ settles again dynamically, on its tray with friction, the built one by
-/// a frictionless static solve — at 0.5 × E the press reads 3.8 % lower faulted without the
-/// tension and 6.5 % with it (1.1–1.2 % at 4 × E), hence the 10 % band.
+/// into it: 0.001 N at 4 × E where that liver gives 0.34 N. (With a residual tension the
+/// two part further, 6.5 % at 0.5 × E against 3.8 % here: the faulted organ settles again
+/// dynamically on its tray with friction, the built one by a frictionless static solve.)
 #[test]
 fn a_stiffness_fault_presses_like_that_stiffness() {
     for factor in [0.5, 4.0] {
@@ -136,7 +134,7 @@ fn a_stiffness_fault_presses_like_that_stiffness() {
         let built = press_then_move(&stiffer, 2.0, [0.0; 3])[0];
         println!("{factor} × E: fault {faulted:?} N, built {built:?} N");
         assert!(
-            (faulted.z / built.z - 1.0).abs() < 0.1,
+            (faulted.z / built.z - 1.0).abs() < 0.05,
             "{factor} × E: {faulted:?} against {built:?}"
         );
     }
