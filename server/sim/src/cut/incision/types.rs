@@ -90,7 +90,9 @@ pub(crate) fn source_through(source: &[Option<u32>], earlier: &[Option<u32>]) ->
 #[non_exhaustive]
 pub enum IncisionError {
     /// Too short to open.
-    #[error("the path is {length_mm:.2} mm long, less than half a local edge ({min_mm:.2} mm)")]
+    #[error(
+        "the path is {length_mm:.2} mm long, shorter than it opens ({min_mm:.2} mm: a tenth of a local edge, a sixteenth of its depth)"
+    )]
     TooShort {
         /// Path length (mm).
         length_mm: f64,
