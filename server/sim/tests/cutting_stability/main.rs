@@ -57,6 +57,8 @@ struct Trace {
     /// Where the largest step happened: tick, phases and magnitudes before and after.
     max_step_at: String,
     ruptures: usize,
+    /// Ticks where the crack advanced by energy (its force's drop is the sawtooth's).
+    fractures: usize,
     /// Ticks where a forward cut came out of the tissue (the last ligament parts).
     breakthroughs: usize,
     diverged_ticks: usize,
@@ -136,6 +138,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             f.norm()
         );
         let ruptured = r.cut.as_ref().is_some_and(|c| c.force.ruptured);
+        let fractured = r.cut.as_ref().is_some_and(|c| c.fractured);
         trace.ruptures += usize::from(ruptured);
         let phase = r
             .cut
@@ -167,6 +170,16 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
                 (f - last).norm() <= cutting + 1e-9,
                 "tick {k}: breakthrough step {} over the cutting force {cutting}",
                 (f - last).norm()
+            );
+        } else if fractured {
+            // The crack advancing by energy lets go of what the edge had loaded: the
+            // sawtooth's drop; a rise there is bounded like any other tick's.
+            trace.fractures += 1;
+            assert!(
+                f.norm() <= last.norm() + MAX_FORCE_STEP_N,
+                "tick {k}: a fracture raised the force {} -> {}",
+                last.norm(),
+                f.norm()
             );
         } else if !ruptured && (f - last).norm() > trace.max_step_n {
             trace.max_step_n = (f - last).norm();

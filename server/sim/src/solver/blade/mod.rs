@@ -30,6 +30,9 @@ const PASSES: usize = 2;
 /// sub-step, past the guard's limit whatever the sub-steps (docs/CUTTING-DECISIONS.md, "a
 /// crack front built inside the edge").
 const FRONT_CATCH_UP_M_PER_S: f64 = 0.05;
+/// The bevel at the edge's tip end for crack-front samples, in capture bands (a capture
+/// band is a sample pitch): half a pitch.
+const TIP_BEVEL_CAPTURES: f64 = 0.5;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -318,9 +321,18 @@ impl BladeBody {
     /// crack-front sample the edge's capture band.
     fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
         match self.capture[s] {
-            capture if capture > 0.0 => at.inside_across(l, capture),
+            capture if capture > 0.0 => at.inside_across(l, capture) && l.y > self.bevel(s, l),
             _ => at.inside(l),
         }
+    }
+
+    /// How far back from the edge line the steel starts at local `l` for crack-front
+    /// sample `s`: the edge's last stretch before the tip is bevelled at 45° over
+    /// [`TIP_BEVEL_CAPTURES`] of the capture band, so that a sample the tip passes (a
+    /// withdrawing blade) is let go over that much of the blade's travel, while the next
+    /// sample up the edge takes the tissue over, not in one tick.
+    fn bevel(&self, s: usize, l: &Vec3) -> f64 {
+        (TIP_BEVEL_CAPTURES * self.capture[s] - l.x).max(0.0)
     }
 
     /// Copies into `into` (cleared first, placed at this blade's slab) every sample a face
@@ -514,6 +526,9 @@ impl BladeBody {
                     continue;
                 };
                 let (mut gap, normal_local) = at.gap(&l, face);
+                if face == Face::Edge {
+                    gap += self.bevel(s, &l);
+                }
                 if newly && (self.capture[s] > 0.0 || -gap > 2.0 * self.substep_move + DEEP_MEET_M)
                 {
                     // A crack-front sample the edge first meets already behind it (built
@@ -609,6 +624,9 @@ impl BladeBody {
             return None;
         }
         let (mut gap, normal_local) = at.gap(&l, face);
+        if face == Face::Edge {
+            gap += self.bevel(s, &l);
+        }
         // A crack-front sample met behind the edge keeps its slack as in `project`; the
         // step takes it up (`take_up_slack`), and it is never looser than the sample is.
         if newly && self.capture[s] > 0.0 {
@@ -663,8 +681,13 @@ impl BladeBody {
             self.cut[s] = true;
             return None;
         }
-        let f = if self.capture[s] > 0.0 {
+        // A crack-front sample is the edge's, unless it comes in from beyond the tip's end
+        // (tissue below a withdrawing blade springs back into its track): the tip's end
+        // puts that out, where the edge would take it up across the whole blade.
+        let f = if self.capture[s] > 0.0 && self.start_local[s].x > 0.0 {
             Face::Edge
+        } else if self.capture[s] > 0.0 {
+            Face::Tip
         } else {
             self.at.entry_face(l, &self.start_local[s])
         };
