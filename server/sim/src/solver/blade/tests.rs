@@ -241,6 +241,87 @@ fn the_projective_constraint_keeps_a_front_samples_slack() {
     assert!(gap(&mut blade).abs() < 1e-15);
 }
 
+/// The edge's last half pitch before the tip is bevelled for crack-front samples: a
+/// sample the tip passes is let go as the bevel reaches it, its push falling to nothing
+/// over that travel instead of from its whole depth at once. Surface samples keep the
+/// square tip.
+#[test]
+fn the_tip_lets_a_front_sample_go_over_half_a_pitch() {
+    let b = upright();
+    let pitch = 0.001;
+    let mut blade = BladeBody::with_room(2, 4, 4, b);
+    let x = Vec3::new(-2e-4, 0.0, 0.005);
+    blade.push_front(&[(0, 1.0)], x, &[x], pitch);
+    blade.push(&[(0, 1.0)], x, &[x]);
+    // 0.2 mm behind the edge line (local y), at heights above the tip (local x).
+    let depth = 2e-4;
+    let push_at = |along: f64| {
+        let l = Vec3::new(along, depth, 0.0);
+        blade
+            .contains(&b, 0, &l)
+            .then(|| depth - blade.bevel(0, &l))
+    };
+    assert_eq!(
+        push_at(2e-3),
+        Some(depth),
+        "above the bevel: the whole depth"
+    );
+    assert_eq!(push_at(0.5 * pitch), Some(depth));
+    let mut last = depth;
+    for k in 1..=20 {
+        let along = 0.5 * pitch - 0.2 * pitch * k as f64 / 20.0;
+        let push = push_at(along).unwrap_or(0.0);
+        assert!(
+            push <= last + 1e-15 && last - push <= depth / 20.0 + 1e-12,
+            "{along}: {push}"
+        );
+        last = push;
+    }
+    assert!(
+        last < 1e-12,
+        "let go where the bevel reaches its depth: {last}"
+    );
+    assert_eq!(push_at(0.25 * pitch), None);
+    // A surface sample at the same place is inside the square steel, bevel or not.
+    let l = Vec3::new(0.25 * pitch, depth, 0.0);
+    assert!(blade.contains(&b, 1, &l) && blade.bevel(1, &l) == 0.0);
+}
+
+/// Tissue below a withdrawing blade springs back into its track: a crack-front sample
+/// that comes in from beyond the tip's end is put out through the tip, a little, not
+/// caught up through the edge across the blade's whole width.
+#[test]
+fn a_front_sample_from_below_the_tip_is_put_out_through_it() {
+    let b = upright();
+    let h = 1e-4;
+    let mut blade = BladeBody::with_room(1, 4, 4, b);
+    // Below the tip (world z < 0), 2 mm behind the edge line: it then comes up 0.1 mm
+    // into the steel.
+    let below = Vec3::new(-0.002, 0.0, -1e-4);
+    blade.push_front(&[(0, 1.0)], below, &[below], 0.001);
+    let mut p = [below];
+    blade.finish(&p, 0.0, 0);
+    blade.begin_tick();
+    blade.begin_attempt();
+    let mut v = [Vec3::zeros()];
+    for k in 0..40 {
+        blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
+        if k == 0 {
+            p[0].z = 1e-4;
+        }
+        blade.project(&mut p, &mut v, &[1e-3], h, |_| 1e3);
+        assert_eq!(p[0].x, below.x, "never pushed toward the edge");
+        if k == 0 {
+            assert_eq!(blade.face[0], Some(Face::Tip));
+        }
+    }
+    assert!(
+        p[0].z.abs() < 1e-12,
+        "out through the tip's end: {}",
+        p[0].z
+    );
+}
+
 /// Halfway between two slabs: halfway along, axes still orthonormal.
 #[test]
 fn a_slab_between_two_is_orthonormal() {
