@@ -168,6 +168,32 @@ fn a_fine_mesh_gives_the_lips_their_full_opening() {
     assert!(out.opening_m > 0.97 * wanted, "{}", out.opening_m);
 }
 
+/// A path much shorter than it is deep waits (neither opened nor refused: a later re-cut
+/// opens it) until it is a sixteenth of its depth long. A crack 0.12 mm long under an
+/// 8.2 mm deep blade gave its lips' 9 vertices as wall columns 0.015 mm apart beside rows
+/// 0.13 mm tall: 6.7° cells (the cerebroma's 8-stroke session cut by energy).
+#[test]
+fn a_path_much_shorter_than_it_is_deep_waits() {
+    let cerebroma = BuiltinMesh::Cerebroma.generate();
+    let kinds = vec![FaceKind::Skin; cerebroma.triangles.len()];
+    let depth = 0.008;
+    let cut = |length: f64| {
+        let path = top_path(&cerebroma, [0.0, 0.0], [length, 0.0], depth);
+        incise(&cerebroma, &kinds, &[], &path, &IncisionParams::default())
+    };
+    // 0.4 mm: over a tenth of the 2.1 mm edges, under a sixteenth of 8 mm.
+    match cut(0.0004).err() {
+        Some(IncisionError::TooShort { min_mm, .. }) => {
+            // A sixteenth of the depth square to the path, a little under 8 mm where the
+            // top slopes.
+            assert!(min_mm > 0.48 && min_mm <= 0.5, "{min_mm}")
+        }
+        other => panic!("{other:?}"),
+    }
+    let out = cut(0.0006).expect("0.6 mm opens");
+    check(&out, "0.6 mm, 8 mm deep");
+}
+
 /// The first 2.6 mm of a stroke on the cerebroma, as a session's blade draws it (its
 /// first two samples at the entry, the tissue dented 0.5 mm under the second): the
 /// end column is 0.24 mm deep, its two rows 0.12 mm apart, and the lower lip leaves

@@ -335,6 +335,16 @@ impl BladeBody {
         (TIP_BEVEL_CAPTURES * self.capture[s] - l.x).max(0.0)
     }
 
+    /// Sample `s`'s gap at local `l` to `face` of the slab `at` and the face's normal, as
+    /// [`Slab::gap`] with the edge's bevel for crack-front samples.
+    fn gap_to(&self, at: &Slab, s: usize, l: &Vec3, face: Face) -> (f64, Vec3) {
+        let (gap, normal) = at.gap(l, face);
+        match face {
+            Face::Edge => (gap + self.bevel(s, l), normal),
+            _ => (gap, normal),
+        }
+    }
+
     /// Copies into `into` (cleared first, placed at this blade's slab) every sample a face
     /// holds now, with its face and where it stuck, so that a rebuild around a moving blade
     /// does not drop the tissue it is pushing; `row` is scratch. Returns how many.
@@ -525,15 +535,12 @@ impl BladeBody {
                 let Some(face) = self.take_face(s, &l) else {
                     continue;
                 };
-                let (mut gap, normal_local) = at.gap(&l, face);
-                if face == Face::Edge {
-                    gap += self.bevel(s, &l);
-                }
+                let (mut gap, normal_local) = self.gap_to(&at, s, &l, face);
                 if newly && (self.capture[s] > 0.0 || -gap > 2.0 * self.substep_move + DEEP_MEET_M)
                 {
-                    // A crack-front sample the edge first meets already behind it (built
-                    // where the edge had passed, or come within its reach from beyond the
-                    // tip): as deep as it is, it may stay, and is caught up.
+                    // A crack-front sample first met already inside (built where the edge
+                    // had passed, or come in from beyond the tip, which then holds it): as
+                    // deep as it is, it may stay, and is caught up.
                     self.slack[s] = (-gap).max(0.0);
                 }
                 if self.slack[s] > 0.0 {
@@ -623,10 +630,7 @@ impl BladeBody {
         if !self.mostly_free(s, free) {
             return None;
         }
-        let (mut gap, normal_local) = at.gap(&l, face);
-        if face == Face::Edge {
-            gap += self.bevel(s, &l);
-        }
+        let (mut gap, normal_local) = self.gap_to(&at, s, &l, face);
         // A crack-front sample met behind the edge keeps its slack as in `project`; the
         // step takes it up (`take_up_slack`), and it is never looser than the sample is.
         if newly && self.capture[s] > 0.0 {
@@ -684,12 +688,10 @@ impl BladeBody {
         // A crack-front sample is the edge's, unless it comes in from beyond the tip's end
         // (tissue below a withdrawing blade springs back into its track): the tip's end
         // puts that out, where the edge would take it up across the whole blade.
-        let f = if self.capture[s] > 0.0 && self.start_local[s].x > 0.0 {
-            Face::Edge
-        } else if self.capture[s] > 0.0 {
-            Face::Tip
-        } else {
-            self.at.entry_face(l, &self.start_local[s])
+        let f = match self.capture[s] > 0.0 {
+            true if self.start_local[s].x > 0.0 => Face::Edge,
+            true => Face::Tip,
+            false => self.at.entry_face(l, &self.start_local[s]),
         };
         self.face[s] = Some(f);
         self.anchor[s] = *l;

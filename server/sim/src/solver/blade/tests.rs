@@ -141,6 +141,17 @@ fn a_retried_tick_starts_from_the_samples_it_started_with() {
     assert!(!blade.cut[0], "restored for the retry");
 }
 
+/// A blade holding one crack-front sample built at `at` (its row: point 0 alone, at `at`)
+/// with a capture band of `pitch`, its tick begun.
+fn one_front_sample(b: Slab, at: Vec3, pitch: f64) -> BladeBody {
+    let mut blade = BladeBody::with_room(1, 4, 4, b);
+    blade.push_front(&[(0, 1.0)], at, &[at], pitch);
+    blade.finish(&[at], 0.0, 0);
+    blade.begin_tick();
+    blade.begin_attempt();
+    blade
+}
+
 /// A crack-front sample the edge first meets half a millimetre behind it is taken up
 /// at FRONT_CATCH_UP_M_PER_S, not put out in one pass (which would launch its points
 /// as far again in the next sub-step); one just ahead of the edge is not moved.
@@ -149,13 +160,9 @@ fn a_front_met_behind_the_edge_is_caught_up_not_launched() {
     let b = upright();
     let h = 1e-4;
     for (behind, most_per_substep) in [(5e-4, FRONT_CATCH_UP_M_PER_S * h), (-1e-6, 0.0)] {
-        let mut blade = BladeBody::with_room(1, 4, 4, b);
         let x = Vec3::new(-behind, 0.0, 0.005);
-        blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+        let mut blade = one_front_sample(b, x, 0.001);
         let mut p = [x];
-        blade.finish(&p, 0.0, 0);
-        blade.begin_tick();
-        blade.begin_attempt();
         let mut v = [Vec3::zeros()];
         let mut last = -behind;
         for _ in 0..20 {
@@ -217,13 +224,9 @@ fn the_projective_constraint_keeps_a_front_samples_slack() {
     let b = upright();
     let behind = 5e-4;
     let dt = 1e-3;
-    let mut blade = BladeBody::with_room(1, 4, 4, b);
     let x = Vec3::new(-behind, 0.0, 0.005);
-    blade.push_front(&[(0, 1.0)], x, &[x], 0.001);
+    let mut blade = one_front_sample(b, x, 0.001);
     let p = [x];
-    blade.finish(&p, 0.0, 0);
-    blade.begin_tick();
-    blade.begin_attempt();
     blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
     let gap = |blade: &mut BladeBody| {
         let (n, offset) = blade.constraint(0, &p, |_| true).expect("held");
@@ -255,11 +258,12 @@ fn the_tip_lets_a_front_sample_go_over_half_a_pitch() {
     blade.push(&[(0, 1.0)], x, &[x]);
     // 0.2 mm behind the edge line (local y), at heights above the tip (local x).
     let depth = 2e-4;
+    // What the projection pushes it out by: its gap to the edge, bevel included.
     let push_at = |along: f64| {
         let l = Vec3::new(along, depth, 0.0);
         blade
             .contains(&b, 0, &l)
-            .then(|| depth - blade.bevel(0, &l))
+            .then(|| -blade.gap_to(&b, 0, &l, Face::Edge).0)
     };
     assert_eq!(
         push_at(2e-3),
@@ -284,7 +288,7 @@ fn the_tip_lets_a_front_sample_go_over_half_a_pitch() {
     assert_eq!(push_at(0.25 * pitch), None);
     // A surface sample at the same place is inside the square steel, bevel or not.
     let l = Vec3::new(0.25 * pitch, depth, 0.0);
-    assert!(blade.contains(&b, 1, &l) && blade.bevel(1, &l) == 0.0);
+    assert!(blade.contains(&b, 1, &l) && blade.gap_to(&b, 1, &l, Face::Edge).0 == -depth);
 }
 
 /// Tissue below a withdrawing blade springs back into its track: a crack-front sample
@@ -294,15 +298,11 @@ fn the_tip_lets_a_front_sample_go_over_half_a_pitch() {
 fn a_front_sample_from_below_the_tip_is_put_out_through_it() {
     let b = upright();
     let h = 1e-4;
-    let mut blade = BladeBody::with_room(1, 4, 4, b);
     // Below the tip (world z < 0), 2 mm behind the edge line: it then comes up 0.1 mm
     // into the steel.
     let below = Vec3::new(-0.002, 0.0, -1e-4);
-    blade.push_front(&[(0, 1.0)], below, &[below], 0.001);
+    let mut blade = one_front_sample(b, below, 0.001);
     let mut p = [below];
-    blade.finish(&p, 0.0, 0);
-    blade.begin_tick();
-    blade.begin_attempt();
     let mut v = [Vec3::zeros()];
     for k in 0..40 {
         blade.begin_substep(0.0, 1.0, &p, f64::INFINITY);
