@@ -25,6 +25,12 @@ const MAX_FORCE_STEP_N: f64 = 0.25;
 
 const TICK_S: f64 = 1e-3;
 
+/// Ticks after a crack advance in which the tissue it let go may spring back onto the edge
+/// (the crack sink's life, `solver::crack_sink`): the released tissue rebounds at its own
+/// wave speed, a few millimetres in a few ticks, and meets the rigid edge with what
+/// compression it kept. Part of the fracture's event, bounded by the load before it.
+const REBOUND_TICKS: usize = 20;
+
 fn scene(name: &str) -> BuiltScene {
     cutting_scene(builtin(name).unwrap())
 }
@@ -59,6 +65,9 @@ struct Trace {
     ruptures: usize,
     /// Ticks where the crack advanced by energy (its force's drop is the sawtooth's).
     fractures: usize,
+    /// Largest step within [`REBOUND_TICKS`] after a crack advance (N): the tissue it let
+    /// go springing back onto the edge, never over the load before the advance.
+    max_rebound_n: f64,
     /// Ticks where a forward cut came out of the tissue (the last ligament parts).
     breakthroughs: usize,
     diverged_ticks: usize,
@@ -117,6 +126,8 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
     let mut last_depth = 0.0;
     let mut out_after_cutting = false;
     let mut last_tip = None;
+    // Ticks since the last crack advance, and the force before it.
+    let mut rebound: Option<(usize, f64)> = None;
     for k in 0..ticks + idle_ticks {
         let pose = (k < ticks).then(|| script.pose_at(k as f64 * TICK_S));
         // The force of the last tick is what the hand felt while moving to this pose.
@@ -181,6 +192,17 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
                 last.norm(),
                 f.norm()
             );
+            let before = rebound.map_or(0.0, |(_, b)| b).max(last.norm());
+            rebound = Some((0, before));
+        } else if let Some((_, before)) = rebound.filter(|&(t, _)| t < REBOUND_TICKS) {
+            // The tissue the crack let go springs back onto the edge: passive, it never
+            // pushes harder than it did before the advance.
+            assert!(
+                f.norm() <= before + MAX_FORCE_STEP_N,
+                "tick {k}: a rebound pushed {} N, over the {before} N before the advance",
+                f.norm()
+            );
+            trace.max_rebound_n = trace.max_rebound_n.max((f - last).norm());
         } else if !ruptured && (f - last).norm() > trace.max_step_n {
             trace.max_step_n = (f - last).norm();
             trace.max_step_at = format!(
@@ -191,6 +213,9 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             );
         }
         last = f;
+        rebound = rebound
+            .map(|(t, before)| (t + 1, before))
+            .filter(|&(t, _)| t < REBOUND_TICKS);
         trace.ticks.force.push(f);
         trace.ticks.depth.push(depth);
         trace

@@ -289,7 +289,8 @@ impl CuttingStage {
             _ => 1.0,
         };
         let retracing = phase_before == CutPhase::Cutting && crack == 0.0;
-        let withdrawing = retracing || blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
+        let lifting = blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
+        let withdrawing = retracing || lifting;
         // The force acts against the averaged motion; shortened while it turns round, so
         // that on a reversal the resistance passes through zero over about half a
         // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
@@ -318,6 +319,11 @@ impl CuttingStage {
         };
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
+        // Lifted out along its edge, the blade lets the crack front go at a hand's pace,
+        // not a sample pitch at a time.
+        if let Some(body) = solver.blade_mut() {
+            body.let_go_front(lifting);
+        }
         self.touch_tissue(dt, &force, blade, depth_m, surface, solver, grid);
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
         CutTick {

@@ -81,8 +81,11 @@ impl CuttingStage {
                     Some(last) => {
                         let target = match ahead {
                             Some(ahead) => {
-                                fractured = jump.is_some();
-                                self.front_target(&last, &edge, ahead, jump)
+                                // By energy, or taken to the edge by the slip rule: the
+                                // crack advances either way.
+                                let target = self.front_target(&last, &edge, ahead, jump);
+                                fractured = target.is_some();
+                                target
                             }
                             None => (self.moved_enough(&last, &edge)
                                 && self.moved_steadily_since(self.last_sweep_at))

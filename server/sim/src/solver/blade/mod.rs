@@ -33,6 +33,11 @@ const FRONT_CATCH_UP_M_PER_S: f64 = 0.05;
 /// The bevel at the edge's tip end for crack-front samples, in capture bands (a capture
 /// band is a sample pitch): half a pitch.
 const TIP_BEVEL_CAPTURES: f64 = 0.5;
+/// How fast a blade lifted out along its edge lets go of the crack front (m/s): the tissue it had
+/// pushed ahead springs back into the track the blade leaves, from the tip up, as the
+/// blade rises; the samples, a pitch apart, stand for that edge a pitch at a time, and each
+/// is let go at this pace instead of at once as the tip passes it.
+const FRONT_LET_GO_M_PER_S: f64 = 0.05;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -201,6 +206,9 @@ pub struct BladeBody {
     /// How far the steel moves in the sub-step (m): deeper than this a sample met is one
     /// built where the blade had already got to, not one it ran into.
     substep_move: f64,
+    /// The blade is being lifted out along its edge: it lets go of the crack front
+    /// ([`FRONT_LET_GO_M_PER_S`]).
+    letting_go_front: bool,
 }
 
 impl BladeBody {
@@ -232,6 +240,7 @@ impl BladeBody {
             slack: Vec::with_capacity(samples),
             slack_at_tick: Vec::with_capacity(samples),
             substep_move: 0.0,
+            letting_go_front: false,
         }
     }
 
@@ -248,6 +257,20 @@ impl BladeBody {
             return 0.0;
         }
         self.hold
+    }
+
+    /// Whether the blade is being lifted out along its edge (it lets go of the crack front).
+    pub fn let_go_front(&mut self, on: bool) {
+        self.letting_go_front = on;
+    }
+
+    /// The change of crack-front sample `s`'s slack over a step of `h` (m): let out while
+    /// the blade is lifted out, else taken up.
+    fn slack_step(&self, s: usize, h: f64) -> f64 {
+        match self.letting_go_front && self.capture[s] > 0.0 {
+            true => FRONT_LET_GO_M_PER_S * h,
+            false => -FRONT_CATCH_UP_M_PER_S * h,
+        }
     }
 
     /// Takes every sample away (the blade left the tissue).
@@ -543,12 +566,13 @@ impl BladeBody {
                     // deep as it is, it may stay, and is caught up.
                     self.slack[s] = (-gap).max(0.0);
                 }
-                if self.slack[s] > 0.0 {
-                    // Taken up once a sub-step at a hand's pace, and never looser than it
-                    // now is.
+                if self.slack[s] > 0.0 || self.letting_go_front {
+                    // Taken up (or let out) once a sub-step at a hand's pace, and never
+                    // looser than it now is.
                     if pass == 0 {
-                        let left = (self.slack[s] - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
-                        self.slack[s] = left.min((-gap).max(0.0));
+                        let step = self.slack_step(s, h);
+                        let left = (self.slack[s] + step).max(0.0);
+                        self.slack[s] = left.min((-gap).max(0.0) + step.max(0.0));
                     }
                     gap += self.slack[s];
                 }
@@ -636,7 +660,10 @@ impl BladeBody {
         if newly && self.capture[s] > 0.0 {
             self.slack[s] = (-gap).max(0.0);
         }
-        self.slack[s] = self.slack[s].min((-gap).max(0.0));
+        // (Let out while lifted out: `take_up_slack` bounds it by the lift's time.)
+        if self.slack_step(s, 1.0) < 0.0 {
+            self.slack[s] = self.slack[s].min((-gap).max(0.0));
+        }
         gap += self.slack[s];
         let n = at.world(&normal_local);
         Some((n, n.dot(&x) - gap))
@@ -645,8 +672,8 @@ impl BladeBody {
     /// A step of `h` with the contacts in its solve (projective) takes up the crack-front
     /// samples' slack at [`FRONT_CATCH_UP_M_PER_S`], as `project` does each sub-step.
     pub(super) fn take_up_slack(&mut self, h: f64) {
-        for slack in &mut self.slack {
-            *slack = (*slack - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
+        for s in 0..self.slack.len() {
+            self.slack[s] = (self.slack[s] + self.slack_step(s, h)).max(0.0);
         }
     }
 

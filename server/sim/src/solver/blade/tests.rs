@@ -323,6 +323,43 @@ fn a_front_sample_from_below_the_tip_is_put_out_through_it() {
 }
 
 /// Halfway between two slabs: halfway along, axes still orthonormal.
+/// One sub-step of `h` in which the tissue presses the front sample 20 µm into the edge.
+fn pressed_substep(blade: &mut BladeBody, p: &mut [Vec3; 1], v: &mut [Vec3; 1], h: f64) {
+    blade.begin_substep(0.0, 1.0, p, f64::INFINITY);
+    p[0].x -= 2e-5;
+    blade.project(p, v, &[1e-3], h, |_| 1e3);
+}
+
+/// A lifting blade lets go of the crack front at a hand's pace: where the edge held a
+/// front sample the tissue presses into it, the hold recedes at [`FRONT_LET_GO_M_PER_S`]
+/// (not at once as the tip passes), and is taken up again at the catch-up pace once the
+/// lift stops.
+#[test]
+fn a_lifting_blade_lets_the_front_go_at_a_hands_pace() {
+    let b = upright();
+    let h = 1e-4;
+    let x = Vec3::new(1e-5, 0.0, 0.005);
+    let mut blade = one_front_sample(b, x, 0.001);
+    let (mut p, mut v) = ([x], [Vec3::zeros()]);
+    for _ in 0..10 {
+        pressed_substep(&mut blade, &mut p, &mut v, h);
+    }
+    assert!(p[0].x.abs() < 1e-12, "held at the edge: {}", p[0].x);
+    blade.let_go_front(true);
+    let pace = FRONT_LET_GO_M_PER_S * h;
+    for k in 1..=20 {
+        pressed_substep(&mut blade, &mut p, &mut v, h);
+        assert!((p[0].x + k as f64 * pace).abs() < 1e-12, "{k}: {}", p[0].x);
+    }
+    blade.let_go_front(false);
+    let catch_up = FRONT_CATCH_UP_M_PER_S * h;
+    for k in 1..=5 {
+        pressed_substep(&mut blade, &mut p, &mut v, h);
+        let held = -20.0 * pace + k as f64 * catch_up;
+        assert!((p[0].x - held).abs() < 1e-12, "{k}: {}", p[0].x);
+    }
+}
+
 #[test]
 fn a_slab_between_two_is_orthonormal() {
     let a = upright();
