@@ -319,10 +319,15 @@ impl CuttingStage {
         };
         let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
-        // Lifted out along its edge, the blade lets the crack front go at a hand's pace,
-        // not a sample pitch at a time.
+        // Lifted out along its edge, the blade lets the crack front go over a time, not a
+        // sample pitch at a time.
+        let pace = if lifting {
+            self.let_go_pace(solver)
+        } else {
+            0.0
+        };
         if let Some(body) = solver.blade_mut() {
-            body.let_go_front(lifting);
+            body.let_go_front(pace);
         }
         self.touch_tissue(dt, &force, blade, depth_m, surface, solver, grid);
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);

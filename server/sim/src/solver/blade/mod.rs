@@ -33,11 +33,6 @@ const FRONT_CATCH_UP_M_PER_S: f64 = 0.05;
 /// The bevel at the edge's tip end for crack-front samples, in capture bands (a capture
 /// band is a sample pitch): half a pitch.
 const TIP_BEVEL_CAPTURES: f64 = 0.5;
-/// How fast a blade lifted out along its edge lets go of the crack front (m/s): the tissue it had
-/// pushed ahead springs back into the track the blade leaves, from the tip up, as the
-/// blade rises; the samples, a pitch apart, stand for that edge a pitch at a time, and each
-/// is let go at this pace instead of at once as the tip passes it.
-const FRONT_LET_GO_M_PER_S: f64 = 0.05;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -206,9 +201,9 @@ pub struct BladeBody {
     /// How far the steel moves in the sub-step (m): deeper than this a sample met is one
     /// built where the blade had already got to, not one it ran into.
     substep_move: f64,
-    /// The blade is being lifted out along its edge: it lets go of the crack front
-    /// ([`FRONT_LET_GO_M_PER_S`]).
-    letting_go_front: bool,
+    /// While the blade is lifted out along its edge, how fast it lets go of the crack front
+    /// (m/s; zero otherwise): see [`Self::let_go_front`].
+    letting_go_front: f64,
 }
 
 impl BladeBody {
@@ -240,7 +235,7 @@ impl BladeBody {
             slack: Vec::with_capacity(samples),
             slack_at_tick: Vec::with_capacity(samples),
             substep_move: 0.0,
-            letting_go_front: false,
+            letting_go_front: 0.0,
         }
     }
 
@@ -259,16 +254,20 @@ impl BladeBody {
         self.hold
     }
 
-    /// Whether the blade is being lifted out along its edge (it lets go of the crack front).
-    pub fn let_go_front(&mut self, on: bool) {
-        self.letting_go_front = on;
+    /// The blade is lifted out along its edge and lets go of the crack front at `pace`
+    /// (m/s; zero: it is not). The tissue it had pushed ahead springs back into the track
+    /// the blade leaves, from the tip up, as it rises; the samples, a pitch apart, stand for
+    /// that edge a pitch at a time, so each is let go at this pace instead of at once as
+    /// the tip passes it.
+    pub fn let_go_front(&mut self, pace: f64) {
+        self.letting_go_front = pace.max(0.0);
     }
 
     /// The change of crack-front sample `s`'s slack over a step of `h` (m): let out while
     /// the blade is lifted out, else taken up.
     fn slack_step(&self, s: usize, h: f64) -> f64 {
-        match self.letting_go_front && self.capture[s] > 0.0 {
-            true => FRONT_LET_GO_M_PER_S * h,
+        match self.letting_go_front > 0.0 && self.capture[s] > 0.0 {
+            true => self.letting_go_front * h,
             false => -FRONT_CATCH_UP_M_PER_S * h,
         }
     }
@@ -566,7 +565,7 @@ impl BladeBody {
                     // deep as it is, it may stay, and is caught up.
                     self.slack[s] = (-gap).max(0.0);
                 }
-                if self.slack[s] > 0.0 || self.letting_go_front {
+                if self.slack[s] > 0.0 || self.letting_go_front > 0.0 {
                     // Taken up (or let out) once a sub-step at a hand's pace, and never
                     // looser than it now is.
                     if pass == 0 {
