@@ -126,7 +126,8 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
     let mut last_depth = 0.0;
     let mut out_after_cutting = false;
     let mut last_tip = None;
-    // Ticks since the last crack advance, and the force before it.
+    // Ticks since the last crack advance, and the force before it, while within
+    // REBOUND_TICKS of it.
     let mut rebound: Option<(usize, f64)> = None;
     for k in 0..ticks + idle_ticks {
         let pose = (k < ticks).then(|| script.pose_at(k as f64 * TICK_S));
@@ -194,7 +195,7 @@ fn drive(sim: &mut Simulation, script: &CutScript, idle_ticks: usize, spec: &For
             );
             let before = rebound.map_or(0.0, |(_, b)| b).max(last.norm());
             rebound = Some((0, before));
-        } else if let Some((_, before)) = rebound.filter(|&(t, _)| t < REBOUND_TICKS) {
+        } else if let Some((_, before)) = rebound {
             // The tissue the crack let go springs back onto the edge: passive, it never
             // pushes harder than it did before the advance.
             assert!(

@@ -263,10 +263,15 @@ impl BladeBody {
         self.letting_go_front = pace.max(0.0);
     }
 
-    /// The change of crack-front sample `s`'s slack over a step of `h` (m): let out while
-    /// the blade is lifted out, else taken up.
+    /// Whether sample `s` is a crack-front sample the lifted blade is letting go.
+    fn letting_go(&self, s: usize) -> bool {
+        self.letting_go_front > 0.0 && self.capture[s] > 0.0
+    }
+
+    /// The change of sample `s`'s slack over a step of `h` (m): let out while the lifted
+    /// blade lets it go, else taken up.
     fn slack_step(&self, s: usize, h: f64) -> f64 {
-        match self.letting_go_front > 0.0 && self.capture[s] > 0.0 {
+        match self.letting_go(s) {
             true => self.letting_go_front * h,
             false => -FRONT_CATCH_UP_M_PER_S * h,
         }
@@ -565,7 +570,7 @@ impl BladeBody {
                     // deep as it is, it may stay, and is caught up.
                     self.slack[s] = (-gap).max(0.0);
                 }
-                if self.slack[s] > 0.0 || self.letting_go_front > 0.0 {
+                if self.slack[s] > 0.0 || self.letting_go(s) {
                     // Taken up (or let out) once a sub-step at a hand's pace, and never
                     // looser than it now is.
                     if pass == 0 {
@@ -660,7 +665,7 @@ impl BladeBody {
             self.slack[s] = (-gap).max(0.0);
         }
         // (Let out while lifted out: `take_up_slack` bounds it by the lift's time.)
-        if self.slack_step(s, 1.0) < 0.0 {
+        if !self.letting_go(s) {
             self.slack[s] = self.slack[s].min((-gap).max(0.0));
         }
         gap += self.slack[s];

@@ -322,7 +322,6 @@ fn a_front_sample_from_below_the_tip_is_put_out_through_it() {
     );
 }
 
-/// Halfway between two slabs: halfway along, axes still orthonormal.
 /// One sub-step of `h` in which the tissue presses the front sample 20 µm into the edge.
 fn pressed_substep(blade: &mut BladeBody, p: &mut [Vec3; 1], v: &mut [Vec3; 1], h: f64) {
     blade.begin_substep(0.0, 1.0, p, f64::INFINITY);
@@ -360,6 +359,7 @@ fn a_lifting_blade_lets_the_front_go_at_a_hands_pace() {
     }
 }
 
+/// Halfway between two slabs: halfway along, axes still orthonormal.
 #[test]
 fn a_slab_between_two_is_orthonormal() {
     let a = upright();
