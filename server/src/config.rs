@@ -49,6 +49,11 @@ pub struct ServerConfig {
     pub station: String,
     /// A built-in scene name or a scene file (docs/SCENES.md).
     pub scene: String,
+    /// Who trains at the station: reports name them (empty: not named; never guessed).
+    pub trainee: String,
+    /// The lesson the station's sessions are scored on: a built-in lesson or a lesson file
+    /// (docs/LESSONS.md) for the station's scene; empty: none.
+    pub lesson: String,
     /// The haptic device.
     pub device: DeviceConfig,
     /// Loop rates.
@@ -217,6 +222,8 @@ impl Default for ServerConfig {
         Self {
             station: "station-1".into(),
             scene: "liver".into(),
+            trainee: String::new(),
+            lesson: String::new(),
             device: DeviceConfig::default(),
             rates: RateConfig::default(),
             realtime: RealtimeConfig::default(),
@@ -323,7 +330,41 @@ impl ServerConfig {
         self.check_output(file, &range)?;
         self.check_limits(&range)?;
         self.check_network(file, &range)?;
-        self.check_device(file)
+        self.check_device(file)?;
+        self.check_lesson(file)
+    }
+
+    /// `trainee` and `lesson`: a name a report can print, a lesson for this scene.
+    fn check_lesson(&self, file: &Path) -> Result<(), ConfigError> {
+        let error = |key: &'static str, value: &str, expected: String| ConfigError::Range {
+            file: file.to_owned(),
+            key,
+            value: format!("{value:?}"),
+            expected,
+        };
+        if self.trainee.chars().count() > 64 || self.trainee.chars().any(char::is_control) {
+            return Err(error(
+                "trainee",
+                &self.trainee,
+                "at most 64 characters, none of them a control character".into(),
+            ));
+        }
+        if self.lesson.is_empty() {
+            return Ok(());
+        }
+        let spec = crate::scene_file::load_lesson(&self.lesson)
+            .map_err(|e| error("lesson", &self.lesson, format!("{e:#}")))?;
+        if !crate::scene_file::same_scene(&spec.scene, &self.scene) {
+            return Err(error(
+                "lesson",
+                &self.lesson,
+                format!(
+                    "a lesson for this station's scene ({:?}); it is for {:?}",
+                    self.scene, spec.scene
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// `[rates]`.

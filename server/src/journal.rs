@@ -126,6 +126,20 @@ impl Journal {
     }
 }
 
+impl Journal {
+    /// A top-level string key of the journaled configuration (`trainee`, `lesson`), when
+    /// set and not empty.
+    pub fn config_string(&self, key: &str) -> Option<String> {
+        self.config
+            .parse::<toml::Table>()
+            .ok()?
+            .get(key)?
+            .as_str()
+            .filter(|s| !s.is_empty())
+            .map(str::to_string)
+    }
+}
+
 /// The longest line a journal may have (bytes).
 const MAX_LINE_BYTES: u64 = 1 << 20;
 
@@ -349,16 +363,16 @@ fn pose_of(rest: &[&str], tick: u64, at: &dyn Fn() -> String) -> anyhow::Result<
 /// Plays the journal's inputs through a fresh simulation of `scene`; returns the state hash
 /// at the end.
 pub fn replay(scene: &BuiltScene, journal: &Journal) -> u64 {
-    replay_with(scene, journal, &mut NoClock, |_, _| {})
+    replay_with(scene, journal, &mut NoClock, |_, _, _| {})
 }
 
 /// [`replay`], timing the stages on `clock` and handing each tick's report (with the
-/// journal's index of the tick) to `on_tick`.
+/// journal's index of the tick, and the simulation after it) to `on_tick`.
 pub fn replay_with(
     scene: &BuiltScene,
     journal: &Journal,
     clock: &mut dyn StageClock,
-    mut on_tick: impl FnMut(usize, &TickReport),
+    mut on_tick: impl FnMut(usize, &TickReport, &Simulation),
 ) -> u64 {
     let mut sim = Simulation::new(scene);
     // As the station does before its threads start (the masses it plans depend on the
@@ -367,7 +381,7 @@ pub fn replay_with(
     for (k, r) in journal.ticks.iter().enumerate() {
         r.apply_to(&mut sim);
         let report = sim.tick(crate::station::SIM_TICK_S, clock);
-        on_tick(k, &report);
+        on_tick(k, &report, &sim);
     }
     sim.state_hash()
 }

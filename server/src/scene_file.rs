@@ -115,3 +115,40 @@ pub fn prepare_station_scene(name: &str) -> anyhow::Result<(PreparedSurface, Opt
         note,
     ))
 }
+
+/// A built-in lesson's name or a lesson file (docs/LESSONS.md), its scene resolved as a
+/// station names scenes: a built-in scene's name, or a scene file's path relative to the
+/// lesson file's folder joined onto that folder.
+pub fn load_lesson(name: &str) -> anyhow::Result<scalpel_sim::lesson::LessonSpec> {
+    use scalpel_sim::lesson::{LessonSpec, builtin_lesson};
+    if let Some(spec) = builtin_lesson(name) {
+        return Ok(spec);
+    }
+    let path = Path::new(name);
+    let text = read_text_capped(path, TOML_MAX_BYTES).with_context(|| {
+        format!(
+            "{name} is neither a built-in lesson (scalpel lesson list) nor a readable lesson file"
+        )
+    })?;
+    let mut spec = LessonSpec::from_toml(&text, name)?;
+    if scene::builtin(&spec.scene).is_none() {
+        let scene = Path::new(&spec.scene);
+        if scene.is_relative()
+            && let Some(dir) = path.parent()
+        {
+            spec.scene = dir.join(scene).display().to_string();
+        }
+    }
+    Ok(spec)
+}
+
+/// Whether two scene names a station would take (built-in names or files) are one scene.
+pub fn same_scene(a: &str, b: &str) -> bool {
+    if a == b {
+        return true;
+    }
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}

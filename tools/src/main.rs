@@ -9,6 +9,8 @@ mod cut_cmd;
 mod cutrun;
 mod export;
 mod instruct_cmd;
+mod lesson_cmd;
+mod lesson_report;
 mod load;
 mod mock_cmd;
 mod observe_cmd;
@@ -202,6 +204,26 @@ enum Command {
         #[arg(long)]
         exit_after: Option<u64>,
     },
+    /// Lessons: planned incisions, no-go structures, force limits and pass criteria
+    /// (docs/LESSONS.md), and scripted trainees that perform them.
+    #[command(subcommand)]
+    Lesson(LessonCommand),
+    /// Score a station's session on its lesson: replays the journal and writes report.html
+    /// (the plan against the cut, the depth profile, the force with its limits, the metrics,
+    /// pass or fail) and report.json.
+    Report {
+        /// The session's journal (`scalpel-server --journal FILE`).
+        journal: PathBuf,
+        /// The lesson (built-in or file); default: the one the station ran (`lesson`).
+        #[arg(long)]
+        lesson: Option<String>,
+        /// Output folder (created if missing).
+        #[arg(long, default_value = "report")]
+        out: PathBuf,
+        /// Print report.json on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Replay a station's journal (`scalpel-server --journal FILE`) and print the final
     /// state hash; exit status 1 if it differs from the live run's.
     Replay {
@@ -215,6 +237,54 @@ enum Command {
         /// station's late ticks can be compared with.
         #[arg(long, value_name = "N")]
         slowest: Option<usize>,
+    },
+}
+
+#[derive(Subcommand)]
+enum LessonCommand {
+    /// List the built-in lessons.
+    List {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Lay a lesson on its organ and report its plan.
+    Show {
+        /// A built-in lesson or a lesson file.
+        lesson: String,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a scripted trainee's blade script for a lesson (for `scalpel mock-device
+    /// --script`).
+    Script {
+        /// A built-in lesson or a lesson file.
+        lesson: String,
+        /// careful, hesitant or careless.
+        #[arg(long)]
+        trainee: String,
+        /// The script file to write (TOML).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Run a lesson offline with a scripted trainee or a blade script, score it and write
+    /// its report (as `scalpel report` does for a station's session).
+    Try {
+        /// A built-in lesson or a lesson file.
+        lesson: String,
+        /// careful, hesitant or careless.
+        #[arg(long)]
+        trainee: Option<String>,
+        /// A blade script (TOML or CSV) instead of a scripted trainee.
+        #[arg(long)]
+        script: Option<PathBuf>,
+        /// Output folder (created if missing).
+        #[arg(long, default_value = "report")]
+        out: PathBuf,
+        /// Print report.json on stdout.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -657,6 +727,33 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             json,
             slowest,
         } => replay_cmd::run(&file, json, slowest),
+        Command::Lesson(what) => run_lesson(what),
+        Command::Report {
+            journal,
+            lesson,
+            out,
+            json,
+        } => lesson_cmd::report(&journal, lesson.as_deref(), &out, json),
+    }
+}
+
+/// `scalpel lesson ...`.
+fn run_lesson(what: LessonCommand) -> anyhow::Result<()> {
+    match what {
+        LessonCommand::List { json } => lesson_cmd::list(json),
+        LessonCommand::Show { lesson, json } => lesson_cmd::show(&lesson, json),
+        LessonCommand::Script {
+            lesson,
+            trainee,
+            out,
+        } => lesson_cmd::script(&lesson, &trainee, &out),
+        LessonCommand::Try {
+            lesson,
+            trainee,
+            script,
+            out,
+            json,
+        } => lesson_cmd::try_lesson(&lesson, trainee.as_deref(), script.as_deref(), &out, json),
     }
 }
 

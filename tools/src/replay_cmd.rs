@@ -33,7 +33,7 @@ pub fn run(file: &Path, json: bool, slowest: Option<usize>) -> anyhow::Result<()
     } else {
         &mut no_clock
     };
-    let hash = journal::replay_with(&scene, &recorded, clock, |k, report| {
+    let hash = journal::replay_with(&scene, &recorded, clock, |k, report, _| {
         timing.add(k, report);
     });
     if let Some((ticks, _)) = recorded.end

@@ -24,6 +24,7 @@
 pub mod cut;
 pub mod force;
 pub mod geometry;
+pub mod lesson;
 pub mod math;
 pub mod mls;
 pub mod model;

@@ -499,6 +499,24 @@ impl CutScript {
         (self.duration_s() / dt).ceil() as usize + 1
     }
 
+    /// The script as a TOML script file ([`CutScript::from_toml`] reads it back to within
+    /// the printed digits: nanometres, nanoseconds).
+    pub fn to_toml(&self) -> String {
+        use std::fmt::Write as _;
+        let mut s = format!("# {}\n", self.description.replace('\n', " "));
+        for k in &self.keyframes {
+            let (tip, q) = (k.pose.tip_m * 1e3, k.pose.orientation);
+            let (edge, facing) = (q * Vec3::z(), q * Vec3::x());
+            let _ = writeln!(
+                s,
+                "\n[[keyframe]]\nt_s = {:.9}\ntip_mm = [{:.6}, {:.6}, {:.6}]\n\
+                 edge = [{:.9}, {:.9}, {:.9}]\nfacing = [{:.9}, {:.9}, {:.9}]",
+                k.t_s, tip.x, tip.y, tip.z, edge.x, edge.y, edge.z, facing.x, facing.y, facing.z
+            );
+        }
+        s
+    }
+
     /// The pose at time `t` (held at the ends).
     pub fn pose_at(&self, t: f64) -> ToolPose {
         let k = &self.keyframes;

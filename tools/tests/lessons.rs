@@ -1,0 +1,239 @@
+//! Lessons and their scores (issue 43), with real processes: the scripted trainees on every
+//! built-in lesson score in the order a teacher expects, and a station's session, run with
+//! a real mock device over shared memory and journaled, is scored from its journal with the
+//! trainee the station names.
+
+mod common;
+
+use std::process::Command;
+use std::time::Duration;
+
+use common::station::{self, Running, json, scalpel, unique_station};
+
+/// The tests of this file run simulations; on two cores, one at a time.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// `scalpel lesson try LESSON --trainee WHO --json`, its report.
+fn try_lesson(lesson: &str, who: &str) -> serde_json::Value {
+    let out = station::scratch(&format!("lesson-{lesson}-{who}"));
+    let run = scalpel()
+        .args(["lesson", "try", lesson, "--trainee", who, "--json", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{lesson} {who}: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let page = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for id in ["top-view", "depth-profile", "force-plot", "metrics"] {
+        assert!(
+            page.contains(&format!("id=\"{id}\"")),
+            "{lesson} {who}: no {id}"
+        );
+    }
+    serde_json::from_slice(&run.stdout).unwrap()
+}
+
+fn reasons(report: &serde_json::Value) -> String {
+    report["reasons"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r.as_str().unwrap())
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+#[test]
+fn scripted_trainees_score_in_order_on_every_built_in_lesson() {
+    let _one = one_at_a_time();
+    // The shoulder's hesitant trainee is left out: its solver diverges at the lift (tick
+    // 11 136) and the tick stays at 500 ms (docs/LESSONS.md, "Known limits").
+    for (lesson, hesitant) in [
+        ("liver-straight", true),
+        ("shoulder-curved", false),
+        ("cerebroma-margin", true),
+    ] {
+        let careful = try_lesson(lesson, "careful");
+        let careless = try_lesson(lesson, "careless");
+        assert!(
+            careful["passed"].as_bool().unwrap(),
+            "{lesson}: the careful trainee fails: {}",
+            reasons(&careful)
+        );
+        assert!(
+            !careless["passed"].as_bool().unwrap(),
+            "{lesson}: careless passes"
+        );
+        // The careless trainee fails for what it did: too deep, into the structure, not
+        // finished.
+        let why = reasons(&careless);
+        for cause in ["depth off by", "cut into", "completed"] {
+            assert!(
+                why.contains(cause),
+                "{lesson}: careless fails without {cause:?}: {why}"
+            );
+        }
+        assert_eq!(careful["metrics"]["no_go_cuts"], 0, "{lesson}");
+        assert!(careful["metrics"]["completed_percent"].as_f64().unwrap() >= 95.0);
+        let (good, bad) = (
+            careful["score"].as_f64().unwrap(),
+            careless["score"].as_f64().unwrap(),
+        );
+        assert!(
+            good >= 90.0 && bad < 60.0,
+            "{lesson}: careful {good}, careless {bad}"
+        );
+        if hesitant {
+            let h = try_lesson(lesson, "hesitant");
+            let score = h["score"].as_f64().unwrap();
+            assert!(
+                bad < score && score < good,
+                "{lesson}: hesitant {score} not between careless {bad} and careful {good}"
+            );
+            // Two strokes, slower: more time and more tool path for the same cut.
+            assert_eq!(h["metrics"]["strokes"], 2, "{lesson}");
+            assert!(
+                h["metrics"]["economy"].as_f64() > careful["metrics"]["economy"].as_f64()
+                    && h["metrics"]["time_s"].as_f64() > careful["metrics"]["time_s"].as_f64(),
+                "{lesson}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_station_session_is_scored_from_its_journal_with_its_trainee() {
+    let _one = one_at_a_time();
+    let dir = station::scratch("lesson-station");
+    let script = dir.join("careful.toml");
+    let made = scalpel()
+        .args([
+            "lesson",
+            "script",
+            "liver-straight",
+            "--trainee",
+            "careful",
+            "--out",
+        ])
+        .arg(&script)
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let name = unique_station("lesson");
+    let config = dir.join("server.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "station = \"{name}\"\ntrainee = \"Ann Example\"\nlesson = \"liver-straight\"\n\
+             [device]\nkind = \"shared_memory\"\n[rates]\nstatus_interval_s = 0.25\n"
+        ),
+    )
+    .unwrap();
+    let journal = dir.join("session.journal");
+    let mut command = Command::new(station::server_binary());
+    command
+        .arg(&config)
+        .args(["--json", "--duration", "120", "--journal"])
+        .arg(&journal);
+    let mut server = Running::start(command);
+    server.wait_for(Duration::from_secs(60), |l| l.contains("\"haptic\""));
+    let device = scalpel()
+        .args(["mock-device", "--station", &name, "--script"])
+        .arg(&script)
+        .output()
+        .unwrap();
+    assert!(
+        device.status.success(),
+        "{}",
+        String::from_utf8_lossy(&device.stderr)
+    );
+    let (status, out) = server.interrupt();
+    assert!(status.success(), "{}", out.join("\n"));
+    let report_dir = dir.join("report");
+    let scored = scalpel()
+        .arg("report")
+        .arg(&journal)
+        .args(["--json", "--out"])
+        .arg(&report_dir)
+        .output()
+        .unwrap();
+    assert!(
+        scored.status.success(),
+        "{}",
+        String::from_utf8_lossy(&scored.stderr)
+    );
+    let report = json(&String::from_utf8_lossy(&scored.stdout).replace('\n', " "));
+    assert_eq!(report["lesson"], "liver-straight");
+    assert_eq!(report["trainee"], "Ann Example");
+    assert!(
+        report["passed"].as_bool().unwrap(),
+        "the careful trainee at a station: {}",
+        reasons(&report)
+    );
+    assert!(report["metrics"]["completed_percent"].as_f64().unwrap() >= 95.0);
+    assert!(report_dir.join("report.html").exists());
+    // Scored on another lesson's organ: refused with both scenes named.
+    let wrong = scalpel()
+        .arg("report")
+        .arg(&journal)
+        .args(["--lesson", "cerebroma-margin", "--out"])
+        .arg(dir.join("wrong"))
+        .output()
+        .unwrap();
+    let message = String::from_utf8_lossy(&wrong.stderr);
+    assert!(
+        !wrong.status.success()
+            && message.contains("the session ran scene \"liver\"")
+            && message.contains("\"cerebroma\""),
+        "{message}"
+    );
+}
+
+#[test]
+fn a_bad_lesson_file_is_refused_with_its_place() {
+    let dir = station::scratch("lesson-bad");
+    let file = dir.join("bad.toml");
+    std::fs::write(
+        &file,
+        "name = \"x\"\nscene = \"liver\"\n[[incision]]\npoints_mm = [[-30.0, 0.0, 25.0], [30.0, 0.0, 25.0]]\ndepth_mm = 10.0\ndeviaton_mm = 2.0\n",
+    )
+    .unwrap();
+    let run = scalpel()
+        .args(["lesson", "show"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let message = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && message.contains("bad.toml") && message.contains("deviaton_mm"),
+        "{message}"
+    );
+    // A station refuses a lesson for another organ before it starts.
+    let config = dir.join("server.toml");
+    std::fs::write(&config, "scene = \"liver\"\nlesson = \"shoulder-curved\"\n").unwrap();
+    let run = Command::new(station::server_binary())
+        .arg(&config)
+        .arg("--check")
+        .output()
+        .unwrap();
+    let message = format!(
+        "{}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(
+        !run.status.success() && message.contains("lesson") && message.contains("shoulder"),
+        "{message}"
+    );
+}
