@@ -10,6 +10,9 @@ use anyhow::Context;
 use scalpel_sim::lesson::{LessonEvent, LessonEventKind, Metrics, Plan, Scorer};
 use scalpel_sim::pipeline::{Simulation, TickReport};
 use serde::Serialize;
+use std::time::Instant;
+
+use crate::stats::Quantiles;
 
 /// Ticks a trace point stands for (the plots' resolution: 10 ms).
 const TRACE_EVERY: usize = 10;
@@ -27,6 +30,12 @@ pub struct ScoredSession {
     /// Ticks seen.
     pub ticks: usize,
     window_peak: f64,
+    /// Wall time of each tick's scoring (s), and of the simulation's tick before it (the
+    /// time from the last scoring's end to this one's start).
+    scoring_s: Vec<f64>,
+    tick_s: Vec<f64>,
+    last_end: Option<Instant>,
+    started: Instant,
 }
 
 impl ScoredSession {
@@ -39,12 +48,23 @@ impl ScoredSession {
             events: Vec::new(),
             ticks: 0,
             window_peak: 0.0,
+            scoring_s: Vec::new(),
+            tick_s: Vec::new(),
+            last_end: None,
+            started: Instant::now(),
         }
     }
 
     /// Reads the tick `sim` has just made.
     pub fn observe(&mut self, sim: &Simulation, report: &TickReport, dt: f64) {
+        let start = Instant::now();
+        if let Some(end) = self.last_end {
+            self.tick_s.push((start - end).as_secs_f64());
+        }
         self.scorer.observe(sim, report, dt);
+        let scored = Instant::now();
+        self.scoring_s.push((scored - start).as_secs_f64());
+        self.last_end = Some(scored);
         while let Some(e) = self.scorer.poll_event() {
             self.events.push(e);
         }
@@ -101,6 +121,15 @@ impl ScoredSession {
                 .map(|e| EventJson::from_event(e, plan))
                 .collect(),
             events_lost: self.scorer.events_lost(),
+            timing: TimingJson {
+                scoring_us: Quantiles::or_zero(
+                    &self.scoring_s.iter().map(|s| s * 1e6).collect::<Vec<_>>(),
+                ),
+                tick_ms: Quantiles::or_zero(
+                    &self.tick_s.iter().map(|s| s * 1e3).collect::<Vec<_>>(),
+                ),
+                total_s: self.started.elapsed().as_secs_f64(),
+            },
         }
     }
 
@@ -151,6 +180,17 @@ pub struct LessonReport {
     pub events: Vec<EventJson>,
     /// Events the scorer overwrote before they were read (0 unless a session floods it).
     pub events_lost: u64,
+    /// What scoring cost, on this machine.
+    pub timing: TimingJson,
+}
+
+/// What scoring cost: each tick's scoring (µs), the simulation's tick it scored (ms), and
+/// the whole run or replay with its scoring (s), on the machine that made the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct TimingJson {
+    pub scoring_us: Quantiles,
+    pub tick_ms: Quantiles,
+    pub total_s: f64,
 }
 
 /// The metrics in the units people read (mm, s, N).
@@ -277,7 +317,8 @@ pub fn summary(r: &LessonReport) -> String {
     );
     s += &format!(
         "  {} strokes in {:.1} s, economy {:.2}, peak force {:.2} N ({} warning, {} critical), \
-         no-go {} contacts {} cuts, {} wounds, lip turn {:.0}°, {:.0} mm² cut off the band",
+         no-go {} contacts {} cuts, {} wounds, lip turn {:.0}°, {:.0} mm² cut off the band\n  \
+         scoring {:.1} µs a tick (p99 {:.1}) beside the simulation's {:.2} ms (p99 {:.2}); {:.1} s in all",
         m.strokes,
         m.time_s,
         m.economy,
@@ -288,7 +329,12 @@ pub fn summary(r: &LessonReport) -> String {
         m.no_go_cuts,
         m.wounds,
         m.lip_turn_deg,
-        m.off_band_area_mm2
+        m.off_band_area_mm2,
+        r.timing.scoring_us.p50,
+        r.timing.scoring_us.p99,
+        r.timing.tick_ms.p50,
+        r.timing.tick_ms.p99,
+        r.timing.total_s
     );
     s
 }
