@@ -12,8 +12,8 @@ use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use scalpel_proto::codec::{CLIENT_LIMIT, CodecError, SERVER_LIMIT, read_frame, write_frame};
 use scalpel_proto::wire::{
-    ALPN, Action, ClientMessage, Command, DecodedFrame, Event, FaultSpec, FrameDecoder, Metrics,
-    Outcome, PROTOCOL_VERSION, Role, ScheduledFault, ServerMessage,
+    ALPN, Action, ClientMessage, Command, DecodedFrame, Event, FaultSpec, FrameDecoder, LessonPlan,
+    LessonScore, Metrics, Outcome, PROTOCOL_VERSION, Role, ScheduledFault, ServerMessage,
 };
 use thiserror::Error;
 use tokio::sync::mpsc;
@@ -185,6 +185,10 @@ pub enum Update {
     Event(Event),
     /// A frame, rebuilt from the keyframe.
     Frame(DecodedFrame),
+    /// The lesson the station runs (first, when it runs one).
+    Lesson(Box<LessonPlan>),
+    /// The trainee's running score (10 Hz, with a lesson).
+    Score(LessonScore),
 }
 
 /// A failed handshake as the client error. QUIC's refusal of a connection has no room for
@@ -440,6 +444,8 @@ async fn receive_streams(connection: quinn::Connection, tx: mpsc::Sender<Update>
                 let update = match message {
                     ServerMessage::Metrics(m) => Update::Metrics(m),
                     ServerMessage::Event(e) => Update::Event(e),
+                    ServerMessage::Lesson(l) => Update::Lesson(Box::new(l)),
+                    ServerMessage::Score(s) => Update::Score(s),
                     ServerMessage::Frame(f) => {
                         let decoded = decoder.lock().unwrap_or_else(|e| e.into_inner()).decode(&f);
                         match decoded {
@@ -451,7 +457,7 @@ async fn receive_streams(connection: quinn::Connection, tx: mpsc::Sender<Update>
                 };
                 // A full queue drops metrics (the next come in 0.1 s), never events.
                 match &update {
-                    Update::Metrics(_) => {
+                    Update::Metrics(_) | Update::Score(_) => {
                         let _ = tx.try_send(update);
                     }
                     _ => {

@@ -6,8 +6,9 @@
 //! Streams of one connection:
 //! - **control** (bidirectional, opened by the client): `Hello` → `Welcome` (or `Refused`),
 //!   then the client's `Subscribe` / `Command`s and the server's `Ack`s and `Faults`.
-//! - **telemetry** (unidirectional, opened by the server after `Welcome`): `Metrics` at
-//!   10 Hz and `Event`s as they happen.
+//! - **telemetry** (unidirectional, opened by the server after `Welcome`): the station's
+//!   `Lesson` first when it runs one, then `Metrics` (and with a lesson, `Score`) at 10 Hz
+//!   and `Event`s as they happen.
 //! - **frames** (one unidirectional stream per frame, opened by the server): one
 //!   `ObserverFrame` each; a frame still in flight when the next is due makes the server
 //!   skip the new one (latest wins, nothing queues).
@@ -15,8 +16,9 @@
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; `Hello` and `Welcome` carry it and a mismatch is refused. 2 added
-/// `Metrics::station_tick` and `ObserverFrame::server_time_ns` and made faults real.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// `Metrics::station_tick` and `ObserverFrame::server_time_ns` and made faults real; 3
+/// added the lesson (`Lesson`, `Score`, and the force-limit and no-go event kinds).
+pub const PROTOCOL_VERSION: u16 = 3;
 /// TLS application protocol (ALPN).
 pub const ALPN: &[u8] = b"scalpel/1";
 /// Longest free text a client may send (client names).
@@ -252,6 +254,106 @@ pub enum ServerMessage {
     Event(Event),
     /// A frame of the surface (on its own stream).
     Frame(ObserverFrame),
+    /// The lesson the station runs: first on the telemetry stream (protocol 3).
+    Lesson(LessonPlan),
+    /// The trainee's running metrics and score, 10 Hz while a lesson runs (protocol 3).
+    Score(LessonScore),
+}
+
+/// A lesson as observers see it (docs/LESSONS.md): lengths in mm, mesh coordinates.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LessonPlan {
+    /// The lesson's name.
+    pub name: String,
+    /// What the trainee is asked.
+    pub description: String,
+    /// Who trains at the station (empty: not named).
+    pub trainee: String,
+    /// The planned incisions.
+    pub incisions: Vec<PlannedPath>,
+    /// Structures that must not be cut.
+    pub no_go: Vec<NoGoStructure>,
+    /// Force limits on the force sent to the device (N).
+    pub warning_n: f32,
+    /// Critical limit (N).
+    pub critical_n: f32,
+    /// Time limit (s).
+    pub time_limit_s: f32,
+    /// Lowest passing score.
+    pub min_score: f32,
+}
+
+/// A planned incision on the organ's rest surface.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlannedPath {
+    /// Its name.
+    pub name: String,
+    /// Points along it every 2 mm or so, on the surface (mm).
+    pub points_mm: Vec<[f32; 3]>,
+    /// Target depth (mm).
+    pub depth_mm: f32,
+    /// Allowed depth error (mm).
+    pub depth_tolerance_mm: f32,
+    /// Allowed distance from the path (mm).
+    pub deviation_mm: f32,
+}
+
+/// A no-go structure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NoGoStructure {
+    /// Its name.
+    pub name: String,
+    /// A ball (`from == to`) or a capsule round the segment `from`–`to` (mm).
+    pub from_mm: [f32; 3],
+    /// The segment's other end (mm).
+    pub to_mm: [f32; 3],
+    /// Radius (mm).
+    pub radius_mm: f32,
+}
+
+/// The trainee's metrics and score now (docs/LESSONS.md, "Metrics").
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LessonScore {
+    /// Simulation tick of the figures.
+    pub sim_tick: u64,
+    /// From the blade's first entry to its last exit (s).
+    pub time_s: f32,
+    /// RMS distance of the cut from the path (mm).
+    pub rms_deviation_mm: f32,
+    /// Largest distance (mm).
+    pub max_deviation_mm: f32,
+    /// RMS depth error (mm).
+    pub rms_depth_error_mm: f32,
+    /// Depth error of largest size, + too deep (mm).
+    pub max_depth_error_mm: f32,
+    /// Share of the plan cut (%).
+    pub completed_percent: f32,
+    /// Strokes.
+    pub strokes: u32,
+    /// Tool path over planned length.
+    pub economy: f32,
+    /// Times over the warning force.
+    pub warning_events: u32,
+    /// Times over the critical force.
+    pub critical_events: u32,
+    /// Largest force sent (N).
+    pub peak_force_n: f32,
+    /// Contacts with no-go structures.
+    pub no_go_contacts: u32,
+    /// No-go structures cut into.
+    pub no_go_cuts: u32,
+    /// Largest lip turn (degrees).
+    pub lip_turn_deg: f32,
+    /// Separate wounds.
+    pub wounds: u32,
+    /// Cut area outside the planned band (mm²).
+    pub off_band_area_mm2: f32,
+    /// Score, 0–100.
+    pub score: f32,
+    /// Every pass criterion holds.
+    pub passed: bool,
+    /// The criteria missed, a bit each (docs/LESSONS.md, "Score").
+    pub shortfalls: u16,
 }
 
 /// What became of a command.
@@ -347,6 +449,14 @@ pub enum EventKind {
     FaultCleared,
     /// Anything else worth a line (warnings).
     Notice,
+    /// The force went over the lesson's warning limit (protocol 3).
+    ForceWarning,
+    /// The force went over the lesson's critical limit.
+    ForceCritical,
+    /// The blade's edge touched a no-go structure.
+    NoGoContact,
+    /// The cut reached into a no-go structure.
+    NoGoCut,
 }
 
 /// A surface frame for an observer: positions quantized to 16 bits over the frame's box.

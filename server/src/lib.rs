@@ -13,6 +13,7 @@ pub mod grid_clock;
 pub mod host_check;
 pub mod input_file;
 pub mod journal;
+pub mod lesson_feed;
 pub mod net;
 pub mod output;
 pub mod realtime;

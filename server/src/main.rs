@@ -157,6 +157,7 @@ fn station_params(
     device_gate: Arc<DeviceGate>,
 ) -> anyhow::Result<StationParams> {
     let o = &config.output;
+    let lesson = lesson_plan(config, scene)?;
     Ok(StationParams {
         haptic_hz: config.rates.haptic_hz,
         fifo_priority: config.realtime.fifo_priority,
@@ -197,8 +198,26 @@ fn station_params(
         monitor_device: config.device.kind == DeviceKind::SharedMemory,
         device_gate,
         haptics: scene.spec.features.haptics,
-        network: network_params(config, scene)?,
+        network: network_params(config, scene, lesson.as_ref())?,
+        lesson,
     })
+}
+
+/// The station's lesson laid on its scene (checked with the configuration; laid here on
+/// the scene as built).
+fn lesson_plan(
+    config: &ServerConfig,
+    scene: &scalpel_sim::scene::BuiltScene,
+) -> anyhow::Result<Option<scalpel_sim::lesson::Plan>> {
+    if config.lesson.is_empty() {
+        return Ok(None);
+    }
+    let spec = scene_file::load_lesson(&config.lesson)?;
+    Ok(Some(scalpel_sim::lesson::Plan::new(
+        spec,
+        &scene.model.surface,
+        &config.lesson,
+    )?))
 }
 
 /// The station's first lines: what runs, and what the scene's loading noted.
@@ -498,6 +517,7 @@ fn check_host(config: &ServerConfig, timing: bool, json: bool) -> anyhow::Result
 fn network_params(
     config: &ServerConfig,
     scene: &scalpel_sim::scene::BuiltScene,
+    lesson: Option<&scalpel_sim::lesson::Plan>,
 ) -> anyhow::Result<Option<scalpel_server::net::NetworkParams>> {
     let n = &config.network;
     if n.listen.is_empty() {
@@ -524,5 +544,6 @@ fn network_params(
         scene: scene.spec.name.clone(),
         // The station sets them (away from the haptic thread's CPU).
         cpus: Vec::new(),
+        lesson: lesson.map(|p| scalpel_server::lesson_feed::plan_message(p, &config.trainee)),
     }))
 }

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use scalpel_client::remote::{Observer, Update};
+use scalpel_proto::wire::{LessonPlan, LessonScore};
 
 use crate::remote_target::RemoteTarget;
 
@@ -66,6 +67,8 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
     let end = args.seconds.map(|s| started + Duration::from_secs_f64(s));
     let mut frames = 0u64;
     let mut last_line = Instant::now() - Duration::from_secs(1);
+    let mut last_score = last_line;
+    let mut lesson = None;
     loop {
         let left = end.map(|e| e.saturating_duration_since(Instant::now()));
         if left == Some(Duration::ZERO) {
@@ -115,6 +118,30 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
                     println!("{:7.1} s  event {:?}: {}", e.uptime_s, e.kind, e.detail);
                 }
             }
+            Update::Lesson(plan) => {
+                if args.json {
+                    println!("{}", serde_json::json!({ "lesson": plan }));
+                } else {
+                    println!("{}", lesson_line(&plan));
+                }
+                lesson = Some(plan);
+            }
+            Update::Score(s) => {
+                if args.json {
+                    println!("{}", serde_json::json!({ "score": s }));
+                } else if let Some(plan) = &lesson
+                    && last_score.elapsed() >= Duration::from_secs(1)
+                {
+                    last_score = Instant::now();
+                    println!(
+                        "{:7.1} s  score {:.0} {}  {}",
+                        started.elapsed().as_secs_f64(),
+                        s.score,
+                        if s.passed { "pass" } else { "not passing" },
+                        score_line(plan, &s)
+                    );
+                }
+            }
             Update::Frame(f) => {
                 frames += 1;
                 if args.json {
@@ -129,4 +156,64 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
     }
     observer.0.close_and_wait().await;
     Ok(())
+}
+
+/// The lesson in a line: its name, trainee, incisions and limits.
+fn lesson_line(plan: &LessonPlan) -> String {
+    let incisions: Vec<String> = plan
+        .incisions
+        .iter()
+        .map(|c| {
+            let length: f32 = c
+                .points_mm
+                .windows(2)
+                .map(|w| {
+                    (0..3)
+                        .map(|k| (w[1][k] - w[0][k]).powi(2))
+                        .sum::<f32>()
+                        .sqrt()
+                })
+                .sum();
+            format!(
+                "{} {:.0} mm, {:.1} ± {:.1} mm deep, within {:.1} mm",
+                c.name, length, c.depth_mm, c.depth_tolerance_mm, c.deviation_mm
+            )
+        })
+        .collect();
+    let no_go: Vec<&str> = plan.no_go.iter().map(|g| g.name.as_str()).collect();
+    format!(
+        "lesson {} (trainee {}): {}; no-go: {}; force {:.1}/{:.1} N; {:.0} s",
+        plan.name,
+        if plan.trainee.is_empty() {
+            "not named"
+        } else {
+            &plan.trainee
+        },
+        incisions.join("; "),
+        if no_go.is_empty() {
+            "none".to_string()
+        } else {
+            no_go.join(", ")
+        },
+        plan.warning_n,
+        plan.critical_n,
+        plan.time_limit_s
+    )
+}
+
+/// The running metrics in a line (docs/LESSONS.md, "Metrics").
+pub fn score_line(_plan: &LessonPlan, s: &LessonScore) -> String {
+    format!(
+        "path {:.1} mm RMS, depth {:.1} mm RMS, {:.0} % done, {} strokes, {:.1} s, \
+         force over limits {}/{}, no-go {} touched {} cut",
+        s.rms_deviation_mm,
+        s.rms_depth_error_mm,
+        s.completed_percent,
+        s.strokes,
+        s.time_s,
+        s.warning_events,
+        s.critical_events,
+        s.no_go_contacts,
+        s.no_go_cuts
+    )
 }

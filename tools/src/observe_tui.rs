@@ -13,7 +13,7 @@ use ratatui::symbols::Marker;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Axis, Block, Chart, Dataset, GraphType, List, ListItem, Paragraph};
 use scalpel_client::remote::{Observer, Update, Welcome};
-use scalpel_proto::wire::{Event, EventKind, Metrics};
+use scalpel_proto::wire::{Event, EventKind, LessonPlan, LessonScore, Metrics};
 
 /// Seconds of history in the charts.
 const HISTORY_S: f64 = 20.0;
@@ -39,7 +39,16 @@ pub struct Dashboard {
     pub frames_per_s: f64,
     /// The connection's end, when it ended.
     pub closed: Option<String>,
+    /// The lesson the station runs, and the trainee's running score.
+    pub lesson: Option<Box<LessonPlan>>,
+    /// See `lesson`.
+    pub score: Option<LessonScore>,
+    /// The blade tip seen from above (mm), from the frames, for the plan's view.
+    pub tool_path: VecDeque<(f64, f64)>,
 }
+
+/// Tool positions kept for the plan's view.
+const TOOL_PATH: usize = 4000;
 
 impl Dashboard {
     /// An empty view for a new connection.
@@ -53,6 +62,9 @@ impl Dashboard {
             frames: 0,
             frames_per_s: 0.0,
             closed: None,
+            lesson: None,
+            score: None,
+            tool_path: VecDeque::new(),
         }
     }
 
@@ -80,7 +92,18 @@ impl Dashboard {
                     self.events.pop_front();
                 }
             }
-            Update::Frame(_) => self.frames += 1,
+            Update::Frame(f) => {
+                self.frames += 1;
+                if let Some(t) = &f.tool {
+                    self.tool_path
+                        .push_back((f64::from(t.tip_m[0]) * 1e3, f64::from(t.tip_m[1]) * 1e3));
+                    if self.tool_path.len() > TOOL_PATH {
+                        self.tool_path.pop_front();
+                    }
+                }
+            }
+            Update::Lesson(l) => self.lesson = Some(l.clone()),
+            Update::Score(s) => self.score = Some(*s),
         }
     }
 }
@@ -93,6 +116,10 @@ fn event_style(kind: EventKind) -> Style {
         EventKind::DeviceConnected => Style::new().fg(Color::Green),
         EventKind::Rupture | EventKind::CutStarted => Style::new().fg(Color::Yellow),
         EventKind::Notice => Style::new().fg(Color::Gray),
+        EventKind::ForceWarning | EventKind::NoGoContact => Style::new().fg(Color::Yellow),
+        EventKind::ForceCritical | EventKind::NoGoCut => {
+            Style::new().fg(Color::Red).add_modifier(Modifier::BOLD)
+        }
     }
 }
 
@@ -100,8 +127,8 @@ fn event_style(kind: EventKind) -> Style {
 pub fn draw(frame: &mut Frame, d: &Dashboard) {
     let [header, figures, charts, events] = Layout::vertical([
         Constraint::Length(1),
-        // Three lines of figures in a border.
-        Constraint::Length(5),
+        // Three lines of figures (four with a lesson) in a border.
+        Constraint::Length(if d.lesson.is_some() { 6 } else { 5 }),
         Constraint::Min(8),
         Constraint::Length(8),
     ])
@@ -126,14 +153,17 @@ pub fn draw(frame: &mut Frame, d: &Dashboard) {
     let [force, jitter] =
         Layout::horizontal([Constraint::Percentage(60), Constraint::Percentage(40)]).areas(charts);
     draw_series(frame, force, "force sent (N)", &d.force, Color::Cyan, 1.0);
-    draw_series(
-        frame,
-        jitter,
-        "jitter p99 (ms)",
-        &d.jitter,
-        Color::Magenta,
-        0.05,
-    );
+    match &d.lesson {
+        Some(plan) => draw_plan(frame, jitter, plan, &d.tool_path),
+        None => draw_series(
+            frame,
+            jitter,
+            "jitter p99 (ms)",
+            &d.jitter,
+            Color::Magenta,
+            0.05,
+        ),
+    }
     let items: Vec<ListItem> = d
         .events
         .iter()
@@ -201,10 +231,87 @@ fn draw_figures(frame: &mut Frame, area: Rect, d: &Dashboard) {
             ]
         }
     };
+    let mut lines = lines;
+    if let (Some(plan), Some(s)) = (&d.lesson, &d.score) {
+        lines.push(Line::from(vec![
+            Span::styled(
+                format!(
+                    "score {:3.0} {}",
+                    s.score,
+                    if s.passed { "pass" } else { "not passing" }
+                ),
+                if s.passed {
+                    Style::new().fg(Color::Green).add_modifier(Modifier::BOLD)
+                } else {
+                    Style::new().fg(Color::Yellow)
+                },
+            ),
+            Span::raw(format!("   {}", crate::observe_cmd::score_line(plan, s))),
+        ]));
+    }
     frame.render_widget(
         Paragraph::new(lines).block(Block::bordered().title("station")),
         area,
     );
+}
+
+/// The plan from above (grey) and where the blade went (yellow), mm.
+fn draw_plan(frame: &mut Frame, area: Rect, plan: &LessonPlan, tool: &VecDeque<(f64, f64)>) {
+    let paths: Vec<Vec<(f64, f64)>> = plan
+        .incisions
+        .iter()
+        .map(|c| {
+            c.points_mm
+                .iter()
+                .map(|p| (f64::from(p[0]), f64::from(p[1])))
+                .collect()
+        })
+        .collect();
+    let tool: Vec<(f64, f64)> = tool.iter().copied().collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in paths.iter().flatten() {
+        lo = [lo[0].min(p.0), lo[1].min(p.1)];
+        hi = [hi[0].max(p.0), hi[1].max(p.1)];
+    }
+    // Room round the plan for a hand that strays; the tool's points beyond it are cut off.
+    let margin = 0.25 * (hi[0] - lo[0]).max(hi[1] - lo[1]).max(10.0);
+    let (x, y) = (
+        [lo[0] - margin, hi[0] + margin],
+        [lo[1] - margin, hi[1] + margin],
+    );
+    let mut data: Vec<Dataset> = paths
+        .iter()
+        .map(|p| {
+            Dataset::default()
+                .marker(Marker::Braille)
+                .graph_type(GraphType::Line)
+                .style(Style::new().fg(Color::Gray))
+                .data(p)
+        })
+        .collect();
+    data.push(
+        Dataset::default()
+            .marker(Marker::Braille)
+            .graph_type(GraphType::Scatter)
+            .style(Style::new().fg(Color::Yellow))
+            .data(&tool),
+    );
+    let chart = Chart::new(data)
+        .block(Block::bordered().title(format!(
+            "lesson {}: plan (grey), blade (yellow), mm",
+            plan.name
+        )))
+        .x_axis(
+            Axis::default()
+                .bounds(x)
+                .labels([format!("{:.0}", x[0]), format!("{:.0}", x[1])]),
+        )
+        .y_axis(
+            Axis::default()
+                .bounds(y)
+                .labels([format!("{:.0}", y[0]), format!("{:.0}", y[1])]),
+        );
+    frame.render_widget(chart, area);
 }
 
 fn draw_series(

@@ -83,6 +83,7 @@ fn conformance_of_the_in_process_scripted_device() {
         }) as Box<dyn HapticDevice>)
     });
     let params = StationParams {
+        lesson: None,
         haptic_hz: 1000.0,
         fifo_priority: 80,
         sim_fifo_priority: 0,

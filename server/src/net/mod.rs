@@ -60,6 +60,8 @@ pub struct NetworkParams {
     /// CPUs for the network threads (empty: any); the station keeps them off the haptic
     /// thread's CPU.
     pub cpus: Vec<usize>,
+    /// The lesson the station runs, sent first to every observer.
+    pub lesson: Option<scalpel_proto::wire::LessonPlan>,
 }
 
 /// What the station hands the endpoint; the station keeps the senders.
@@ -70,6 +72,8 @@ pub struct NetworkFeeds {
     pub events: broadcast::Sender<Event>,
     /// An observer-stream-loss fault is in effect: no frames, no metrics.
     pub stream_lost: watch::Sender<bool>,
+    /// The lesson's running score (none until the station has one).
+    pub score: watch::Sender<Option<scalpel_proto::wire::LessonScore>>,
 }
 
 /// An instructor's command on its way to the station's fault book (main thread), and
@@ -133,6 +137,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
     });
     let (events_tx, _) = broadcast::channel(EVENT_QUEUE);
     let (lost_tx, lost_rx) = watch::channel(false);
+    let (score_tx, score_rx) = watch::channel(None);
     let (commands_tx, commands_rx) = std::sync::mpsc::channel();
     let (log_tx, log_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -175,6 +180,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
                     events,
                     frames: frames_rx,
                     stream_lost: lost_rx,
+                    score: score_rx,
                     commands: commands_tx,
                 };
                 accept_loop(&endpoint, &params, feeds, log_tx, stop_rx).await;
@@ -193,6 +199,7 @@ pub fn start(params: NetworkParams) -> anyhow::Result<Network> {
             metrics: metrics_tx,
             events: events_tx,
             stream_lost: lost_tx,
+            score: score_tx,
         },
         commands: commands_rx,
         log: log_rx,
@@ -237,6 +244,7 @@ struct SessionFeeds {
     events: broadcast::Sender<Event>,
     frames: watch::Receiver<Option<Arc<SourceFrame>>>,
     stream_lost: watch::Receiver<bool>,
+    score: watch::Receiver<Option<scalpel_proto::wire::LessonScore>>,
     commands: std::sync::mpsc::Sender<CommandRequest>,
 }
 
@@ -302,6 +310,8 @@ async fn accept_loop(
             events: feeds.events.subscribe(),
             frames: feeds.frames.clone(),
             stream_lost: feeds.stream_lost.clone(),
+            lesson: params.lesson.clone().map(Arc::new),
+            score: feeds.score.clone(),
             commands: feeds.commands.clone(),
             stop: stop.clone(),
         };

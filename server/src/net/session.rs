@@ -9,8 +9,8 @@ use std::time::Duration;
 use rustls::pki_types::CertificateDer;
 use scalpel_proto::codec::{CLIENT_LIMIT, SERVER_LIMIT, read_frame, write_frame};
 use scalpel_proto::wire::{
-    ClientMessage, Command, Event, EventKind, MAX_TEXT, Metrics, Outcome, PROTOCOL_VERSION, Role,
-    ServerMessage,
+    ClientMessage, Command, Event, EventKind, LessonPlan, LessonScore, MAX_TEXT, Metrics, Outcome,
+    PROTOCOL_VERSION, Role, ServerMessage,
 };
 use tokio::sync::{broadcast, watch};
 
@@ -58,6 +58,10 @@ pub struct SessionContext {
     pub frames: watch::Receiver<Option<Arc<SourceFrame>>>,
     /// An observer-stream-loss fault is in effect.
     pub stream_lost: watch::Receiver<bool>,
+    /// The lesson the station runs, if any.
+    pub lesson: Option<Arc<LessonPlan>>,
+    /// Its running score.
+    pub score: watch::Receiver<Option<LessonScore>>,
     /// Instructors' commands to the station.
     pub commands: std::sync::mpsc::Sender<super::CommandRequest>,
     /// Server stopping.
@@ -155,9 +159,13 @@ async fn serve(conn: &quinn::Connection, ctx: &mut SessionContext) -> Result<(),
     let (frame_hz_tx, frame_hz_rx) = watch::channel(0.0f64);
     let telemetry = telemetry(
         conn,
-        ctx.metrics.clone(),
-        ctx.events.resubscribe(),
-        ctx.stream_lost.clone(),
+        Feeds {
+            metrics: ctx.metrics.clone(),
+            events: ctx.events.resubscribe(),
+            stream_lost: ctx.stream_lost.clone(),
+            lesson: ctx.lesson.clone(),
+            score: ctx.score.clone(),
+        },
     );
     let frames = frames(
         conn,
@@ -284,16 +292,36 @@ async fn control(
 
 /// Metrics at 10 Hz and events as they come, on one stream (no metrics while an
 /// observer-stream-loss fault is in effect; events still go out).
-async fn telemetry(
-    conn: &quinn::Connection,
+/// What the telemetry stream carries.
+struct Feeds {
     metrics: watch::Receiver<Metrics>,
-    mut events: broadcast::Receiver<Event>,
+    events: broadcast::Receiver<Event>,
     stream_lost: watch::Receiver<bool>,
-) -> Result<(), Closed> {
+    lesson: Option<Arc<LessonPlan>>,
+    score: watch::Receiver<Option<LessonScore>>,
+}
+
+async fn telemetry(conn: &quinn::Connection, feeds: Feeds) -> Result<(), Closed> {
+    let Feeds {
+        metrics,
+        mut events,
+        stream_lost,
+        lesson,
+        score,
+    } = feeds;
     let mut stream = conn
         .open_uni()
         .await
         .map_err(|e| Closed(close::PROTOCOL, format!("telemetry stream: {e}")))?;
+    let write = async |stream: &mut quinn::SendStream, message: &ServerMessage| {
+        write_frame::<_, SERVER_LIMIT>(stream, message)
+            .await
+            .map_err(|e| Closed(close::PROTOCOL, format!("telemetry stream: {e}")))
+    };
+    // The lesson first: an observer reads every score against it.
+    if let Some(plan) = &lesson {
+        write(&mut stream, &ServerMessage::Lesson((**plan).clone())).await?;
+    }
     let mut tick = tokio::time::interval(METRICS_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
@@ -304,6 +332,10 @@ async fn telemetry(
                 // connects in its first tenth of a second).
                 if m.uptime_s <= 0.0 || *stream_lost.borrow() {
                     continue;
+                }
+                let s = *score.borrow();
+                if let Some(s) = s {
+                    write(&mut stream, &ServerMessage::Score(s)).await?;
                 }
                 ServerMessage::Metrics(m)
             }
@@ -318,9 +350,7 @@ async fn telemetry(
                 Err(broadcast::error::RecvError::Closed) => return Ok(()),
             },
         };
-        write_frame::<_, SERVER_LIMIT>(&mut stream, &message)
-            .await
-            .map_err(|e| Closed(close::PROTOCOL, format!("telemetry stream: {e}")))?;
+        write(&mut stream, &message).await?;
     }
 }
 

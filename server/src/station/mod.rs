@@ -111,6 +111,8 @@ pub struct StationParams {
     pub haptics: bool,
     /// The QUIC endpoint for remote observers and instructors, if any.
     pub network: Option<crate::net::NetworkParams>,
+    /// The lesson the station's sessions are scored on, laid on its scene (docs/LESSONS.md).
+    pub lesson: Option<scalpel_sim::lesson::Plan>,
 }
 
 /// The live server among a station's nodes (one server per station).

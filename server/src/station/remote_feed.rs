@@ -16,6 +16,7 @@ pub(super) struct RemoteFeed {
     last_publish: f64,
     entries: u64,
     ruptures: u64,
+    lesson: crate::lesson_feed::LessonEvents,
 }
 
 /// Sends an event to the observers (none connected is not an error).
@@ -71,10 +72,21 @@ impl RemoteFeed {
                 ),
             );
         }
+        if let Some(m) = &sim.lesson {
+            for (kind, detail) in self.lesson.since(m) {
+                send(kind, detail);
+            }
+        }
         if uptime_s - self.last_publish < 0.1 {
             return;
         }
         self.last_publish = uptime_s;
+        if let Some(m) = &sim.lesson {
+            let _ = network
+                .feeds
+                .score
+                .send(Some(crate::lesson_feed::score_message(m, sim.ticks)));
+        }
         let w = self.window;
         let metrics = Metrics {
             sim_tick: sim.ticks,

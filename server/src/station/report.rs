@@ -50,6 +50,8 @@ pub struct SimStatus {
     pub rupture_force_n: f64,
     /// Factor on the tissue's stiffness in effect (1: the scene's; an instructor's fault).
     pub stiffness_factor: f64,
+    /// The lesson's metrics, when the station runs one (every 10 ticks).
+    pub lesson: Option<scalpel_sim::lesson::Metrics>,
 }
 
 /// One simulation tick's cost, stage by stage (`scalpel_sim::pipeline::Stage`, in tick
@@ -102,6 +104,7 @@ impl Default for SimStatus {
             ruptures: 0,
             rupture_force_n: 0.0,
             stiffness_factor: 1.0,
+            lesson: None,
         }
     }
 }

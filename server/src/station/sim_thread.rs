@@ -144,7 +144,14 @@ pub(super) struct SimThread {
     /// The device's stable stiffness (N/m): each local model's K is bounded by it here,
     /// off the haptic thread.
     pub(super) max_stiffness_n_per_m: f64,
+    /// The lesson's scorer, when the station runs one: it reads every tick (no
+    /// allocation) and its metrics go out with the figures.
+    pub(super) scorer: Option<scalpel_sim::lesson::Scorer>,
 }
+
+/// Ticks between the lesson's metrics handed to the main thread (which sends them at
+/// 10 Hz): a pass over the plan's samples, a few microseconds.
+const LESSON_METRICS_EVERY: u64 = 10;
 
 /// How the simulation thread started.
 pub(super) struct SimStart {
@@ -204,7 +211,7 @@ pub(super) fn spawn_sim(
     frames: SimFrames,
     stop: Arc<AtomicBool>,
     t0: f64,
-    thread: SimThread,
+    mut thread: SimThread,
     haptic: Option<Arc<SimWake>>,
 ) -> std::io::Result<JoinHandle<u64>> {
     std::thread::Builder::new()
@@ -366,6 +373,14 @@ pub(super) fn spawn_sim(
                 let cpu_ms = (realtime::thread_cpu_s() - started_cpu) * 1e3;
                 counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms, cpu_ms);
                 counted.figures.recuts_waited = sim.incisions().map_or(0, |s| s.late_recuts as u64);
+                if let Some(scorer) = &mut thread.scorer {
+                    scorer.observe(&sim, &report, SIM_TICK_S);
+                    // The main thread sees its events in the metrics' counters.
+                    while scorer.poll_event().is_some() {}
+                    if counted.figures.ticks % LESSON_METRICS_EVERY == 0 {
+                        counted.figures.lesson = Some(scorer.metrics());
+                    }
+                }
                 let figures = counted.figures;
                 models.write(ModelUpdate {
                     model: sim

@@ -323,6 +323,10 @@ impl Threads {
                 nice: params.sim_nice,
                 started: sim_started_tx,
                 max_stiffness_n_per_m: params.limits.max_stiffness_n_per_m,
+                scorer: params
+                    .lesson
+                    .as_ref()
+                    .map(|plan| scalpel_sim::lesson::Scorer::new(plan.clone())),
             },
             sim_wake.clone(),
         )?;

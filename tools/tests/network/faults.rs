@@ -304,6 +304,8 @@ fn start_observers(
                                     f.tool.map(|t| f64::from(t.tip_m[1]) * 1e3),
                                 )),
                                 Update::Event(e) => s.events.push(e),
+                                // This station runs no lesson.
+                                Update::Lesson(_) | Update::Score(_) => {}
                             }
                         }
                     });

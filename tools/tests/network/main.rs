@@ -51,12 +51,23 @@ fn start(dir: &Path, station: &str) -> (Running, SocketAddr) {
 
 /// [`start`] with more configuration (TOML sections) and arguments.
 fn start_with(dir: &Path, station: &str, more: &str, args: &[&str]) -> (Running, SocketAddr) {
+    start_with_keys(dir, station, "", more, args)
+}
+
+/// [`start_with`] with more top-level keys (`top`, TOML lines).
+fn start_with_keys(
+    dir: &Path,
+    station: &str,
+    top: &str,
+    more: &str,
+    args: &[&str],
+) -> (Running, SocketAddr) {
     let scene = station::write_observed_scene(dir);
     let config = dir.join("server.toml");
     std::fs::write(
         &config,
         format!(
-            "station = \"{station}\"\nscene = \"{}\"\n[rates]\nstatus_interval_s = 0.25\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\n{more}",
+            "station = \"{station}\"\nscene = \"{}\"\n{top}[rates]\nstatus_interval_s = 0.25\n[network]\nlisten = \"127.0.0.1:0\"\ncerts = \"{}\"\n{more}",
             scene.display(),
             dir.display()
         ),
@@ -113,6 +124,62 @@ fn a_client_with_no_station_at_its_address_gives_up_and_says_why() {
         // a busy machine).
         assert!(asked.elapsed() < Duration::from_secs(25), "{args:?}");
     }
+}
+
+/// A station running a lesson: an observer gets the lesson first, then the trainee's score
+/// at 10 Hz beside the metrics, and the force-limit and no-go events as they happen
+/// (protocol 3, docs/PROTOCOL.md). The station's in-process scripted device plays the
+/// liver's demo cut (10 mm deep along the long axis), which the lesson plans deeper and
+/// with its warning force below the cut's, so the score and the events move.
+#[test]
+fn an_observer_follows_a_lesson_and_its_score() {
+    let dir = station::scratch("network-lesson");
+    make_certs(&dir);
+    let lesson = dir.join("lesson.toml");
+    std::fs::write(
+        &lesson,
+        "name = \"demo-line\"\nscene = \"observed.toml\"\n[[incision]]\n\
+         points_mm = [[-30.0, 0.0, 25.0], [30.0, 0.0, 25.0]]\ndepth_mm = 10.0\n\
+         [force]\nwarning_n = 0.3\ncritical_n = 3.2\n",
+    )
+    .unwrap();
+    let name = unique_station("lesson");
+    let top = format!(
+        "trainee = \"Ann Example\"\nlesson = \"{}\"\n",
+        lesson.display()
+    );
+    let (mut server, addr) = start_with_keys(&dir, &name, &top, "", &[]);
+    let out = scalpel()
+        .args(["observe", &addr.to_string(), "--certs"])
+        .arg(&dir)
+        .args(["--name", "obs1", "--seconds", "8", "--json"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    let lines: Vec<serde_json::Value> = stdout.lines().map(json).collect();
+    // The lesson comes first on the telemetry stream, before any metrics.
+    let plan = &lines[1]["lesson"];
+    assert_eq!(plan["name"], "demo-line", "{stdout}");
+    assert_eq!(plan["trainee"], "Ann Example");
+    assert!(plan["incisions"][0]["points_mm"].as_array().unwrap().len() >= 30);
+    let scores: Vec<&serde_json::Value> = lines.iter().filter_map(|l| l.get("score")).collect();
+    assert!(scores.len() >= 40, "{} scores in 8 s (10 Hz)", scores.len());
+    // The demo cut enters about 2 s in and goes on along the plan at 5 mm/s.
+    let last = scores.last().unwrap();
+    assert!(
+        last["completed_percent"].as_f64().unwrap() > 10.0
+            && last["rms_deviation_mm"].as_f64().unwrap() < 3.0
+            && last["score"].as_f64().unwrap() > 0.0,
+        "{last}"
+    );
+    assert!(
+        lines.iter().any(|l| l["event"]["kind"] == "ForceWarning"),
+        "no force-warning event: {stdout}"
+    );
+    server.assert_ticking();
+    server.kill_9();
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A third-party QUIC stack (Python aioquic, which `.ci/run` installs in its venv) completes

@@ -73,8 +73,8 @@ def frame(payload: bytes) -> bytes:
 
 
 def hello(name: str) -> bytes:
-    # ClientMessage::Hello { protocol_version: 2, client }
-    return frame(varint(0) + varint(2) + varint(len(name)) + name.encode())
+    # ClientMessage::Hello { protocol_version: 3, client }
+    return frame(varint(0) + varint(3) + varint(len(name)) + name.encode())
 
 
 def subscribe(hz: float) -> bytes:

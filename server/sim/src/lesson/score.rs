@@ -34,7 +34,7 @@ pub struct LessonEvent {
 }
 
 /// Why a trainee has not passed (yet): one bit a criterion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct Shortfalls(pub u16);
 
 impl Shortfalls {
@@ -62,7 +62,7 @@ impl Shortfalls {
 }
 
 /// The metrics at one moment (docs/LESSONS.md, "Metrics"). Lengths in m, times in s.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct Metrics {
     /// The blade has entered the tissue.
     pub started: bool,
