@@ -237,3 +237,121 @@ fn a_bad_lesson_file_is_refused_with_its_place() {
         "{message}"
     );
 }
+
+/// The report as a browser shows it: Debian's Chromium, headless, loads report.html (no
+/// error on its console, nothing fetched) and draws its three plots: each plot's frame
+/// (#fbfbfb) holds pixels of its data colour.
+#[test]
+#[ignore = "needs Debian's chromium; .ci/run installs it and runs this"]
+fn chromium_draws_every_plot_of_a_report() {
+    let _one = one_at_a_time();
+    let careless = try_lesson("liver-straight", "careless");
+    assert!(!careless["passed"].as_bool().unwrap());
+    let out = station::scratch("lesson-liver-straight-careless");
+    let page = out.join("report.html");
+    let shot = out.join("report.png");
+    let profile = tempfile::tempdir().unwrap();
+    let run = Command::new("chromium")
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--enable-logging=stderr",
+            "--v=0",
+            "--hide-scrollbars",
+            "--window-size=1400,1600",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .expect("chromium runs (apt-get install chromium)");
+    let log = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{log}");
+    for bad in ["Uncaught", "net::ERR_", "Failed to load"] {
+        assert!(!log.contains(bad), "{bad} on the console: {log}");
+    }
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&shot).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let (w, h, channels) = (
+        info.width as usize,
+        info.height as usize,
+        info.color_type.samples(),
+    );
+    let at = |x: usize, y: usize| {
+        let i = (y * w + x) * channels;
+        (buf[i], buf[i + 1], buf[i + 2])
+    };
+    // The plots' frames: their borders (#888, a 1 px line the rasterizer may spread over
+    // two rows of lighter grey) are lines at least 300 px long; a frame is the top and
+    // bottom line with the same ends.
+    let border = |p: (u8, u8, u8)| p.0 == p.1 && p.1 == p.2 && p.0 <= 200;
+    let mut lines: Vec<(usize, usize, usize)> = Vec::new(); // x0, x1, y
+    for y in 0..h {
+        let mut x = 0;
+        while x < w {
+            let start = x;
+            while x < w && border(at(x, y)) {
+                x += 1;
+            }
+            if x - start >= 300 {
+                lines.push((start, x, y));
+            }
+            x += 1;
+        }
+    }
+    // One line per border (an antialiased one covers two rows), then a column's borders
+    // in pairs from the top: each plot's top and bottom.
+    let same = |a: &(usize, usize, usize), b: &(usize, usize, usize)| {
+        a.0.abs_diff(b.0) <= 1 && a.1.abs_diff(b.1) <= 1
+    };
+    let mut kept: Vec<(usize, usize, usize)> = Vec::new();
+    for l in &lines {
+        if !kept.iter().any(|k| same(k, l) && k.2.abs_diff(l.2) <= 3) {
+            kept.push(*l);
+        }
+    }
+    let lines = kept;
+    let mut boxes: Vec<(usize, usize, usize, usize)> = Vec::new(); // x0, x1, y0, y1
+    let mut open: Vec<(usize, usize, usize)> = Vec::new();
+    for &(x0, x1, y) in &lines {
+        match open
+            .iter()
+            .position(|o| o.0.abs_diff(x0) <= 1 && o.1.abs_diff(x1) <= 1)
+        {
+            Some(k) => {
+                let top = open.swap_remove(k);
+                boxes.push((x0, x1, top.2, y));
+            }
+            None => open.push((x0, x1, y)),
+        }
+    }
+    boxes.retain(|b| b.3 - b.2 >= 100);
+    assert_eq!(
+        boxes.len(),
+        3,
+        "plot frames found: {boxes:?} ({:?}, {:?}, {w} × {h}; borders {lines:?})",
+        info.color_type,
+        info.bit_depth
+    );
+    // Data colours: the cut's red (#c0392b), the force's blue (#2c3e80).
+    let near = |p: (u8, u8, u8), c: (u8, u8, u8)| {
+        p.0.abs_diff(c.0) < 40 && p.1.abs_diff(c.1) < 40 && p.2.abs_diff(c.2) < 40
+    };
+    for (k, b) in boxes.iter().enumerate() {
+        let drawn = (b.2..=b.3)
+            .flat_map(|y| (b.0..b.1).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                near(at(x, y), (0xc0, 0x39, 0x2b)) || near(at(x, y), (0x2c, 0x3e, 0x80))
+            })
+            .count();
+        assert!(drawn > 50, "plot {k} {b:?}: {drawn} data pixels");
+    }
+}

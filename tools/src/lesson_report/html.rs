@@ -7,6 +7,9 @@ use std::fmt::Write as _;
 use super::{LessonReport, ScoredSession};
 
 const W: f64 = 640.0;
+/// Most points a plot draws (a 10-minute session has 60 000 force samples; the plot is
+/// 544 pixels wide): more are merged, a bucket's largest force kept.
+const MOST_POINTS: usize = 2000;
 const H: f64 = 300.0;
 const PAD: f64 = 48.0;
 
@@ -64,13 +67,13 @@ impl Frame {
         (W - 2.0 * PAD) / (self.x.1 - self.x.0)
     }
 
-    /// The axes with their labels and a few ticks.
-    fn axes(&self, svg: &mut String, x_label: &str, y_label: &str) {
+    /// The axes with their labels and a few ticks, then the plot area clipped for its data
+    /// (`id` names the clip; [`Frame::close`] ends it and draws the frame's border over it).
+    fn axes(&self, svg: &mut String, id: &str, x_label: &str, y_label: &str) {
+        let (w, h) = (W - 2.0 * PAD, H - 2.0 * PAD);
         let _ = write!(
             svg,
-            r##"<rect x="{PAD}" y="{PAD}" width="{}" height="{}" fill="#fbfbfb" stroke="#888"/>"##,
-            W - 2.0 * PAD,
-            H - 2.0 * PAD
+            r##"<rect x="{PAD}" y="{PAD}" width="{w}" height="{h}" fill="#fbfbfb"/><clipPath id="clip-{id}"><rect x="{PAD}" y="{PAD}" width="{w}" height="{h}"/></clipPath>"##
         );
         for k in 0..=4 {
             let f = k as f64 / 4.0;
@@ -100,6 +103,17 @@ impl Frame {
             esc(y_label)
         );
         let _ = self.equal;
+        let _ = write!(svg, r##"<g clip-path="url(#clip-{id})">"##);
+    }
+
+    /// Ends the clipped data and draws the frame's border.
+    fn close(&self, svg: &mut String) {
+        let _ = write!(
+            svg,
+            r##"</g><rect x="{PAD}" y="{PAD}" width="{}" height="{}" fill="none" stroke="#888"/></svg></figure>"##,
+            W - 2.0 * PAD,
+            H - 2.0 * PAD
+        );
     }
 
     fn polyline(&self, svg: &mut String, points: &[(f64, f64)], style: &str) {
@@ -112,6 +126,20 @@ impl Frame {
         }
         let _ = write!(svg, r#"<polyline fill="none" {style} points="{d}"/>"#);
     }
+}
+
+/// `points` in at most `most` buckets, each its last time and largest value.
+fn peaks(points: &[(f64, f64)], most: usize) -> Vec<(f64, f64)> {
+    let per = points.len().div_ceil(most).max(1);
+    points
+        .chunks(per)
+        .map(|c| {
+            (
+                c[c.len() - 1].0,
+                c.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max),
+            )
+        })
+        .collect()
 }
 
 /// A tick label.
@@ -156,7 +184,7 @@ fn top_view(session: &ScoredSession) -> String {
         "The plan (grey: the allowed band) and the cut (red), from above",
         "top-view",
     );
-    frame.axes(&mut svg, "x (mm)", "y (mm)");
+    frame.axes(&mut svg, "top", "x (mm)", "y (mm)");
     for g in &plan.spec.no_go {
         use scalpel_sim::lesson::NoGoShape;
         match g.shape {
@@ -199,7 +227,8 @@ fn top_view(session: &ScoredSession) -> String {
             r##"stroke="#555" stroke-width="1.5" stroke-dasharray="4 3""##,
         );
     }
-    for e in &session.entries {
+    let every = session.entries.len().div_ceil(MOST_POINTS).max(1);
+    for e in session.entries.iter().step_by(every) {
         let _ = write!(
             svg,
             r##"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="#c0392b"/>"##,
@@ -207,7 +236,7 @@ fn top_view(session: &ScoredSession) -> String {
             frame.py(e[1] * 1e3)
         );
     }
-    svg += "</svg></figure>";
+    frame.close(&mut svg);
     svg
 }
 
@@ -246,7 +275,7 @@ fn depth_profile(session: &ScoredSession) -> String {
         "Depth reached along the plan (red) against the target (dashed) and its tolerance (green)",
         "depth-profile",
     );
-    frame.axes(&mut svg, "along the plan (mm)", "depth (mm)");
+    frame.axes(&mut svg, "depth", "along the plan (mm)", "depth (mm)");
     for (a, b, depth, tol) in targets {
         let (top, bottom) = (-(depth - tol) * 1e3, -(depth + tol) * 1e3);
         let _ = write!(
@@ -266,7 +295,7 @@ fn depth_profile(session: &ScoredSession) -> String {
     for run in &reached {
         frame.polyline(&mut svg, run, r##"stroke="#c0392b" stroke-width="2""##);
     }
-    svg += "</svg></figure>";
+    frame.close(&mut svg);
     svg
 }
 
@@ -280,7 +309,7 @@ fn force_plot(session: &ScoredSession, report: &LessonReport) -> String {
         "Force on the device against time, with the warning (orange) and critical (red) limits",
         "force-plot",
     );
-    frame.axes(&mut svg, "time (s)", "force (N)");
+    frame.axes(&mut svg, "force", "time (s)", "force (N)");
     for (limit, colour) in [
         (report.limits.warning_n, "#e67e22"),
         (report.limits.critical_n, "#c0392b"),
@@ -293,10 +322,10 @@ fn force_plot(session: &ScoredSession, report: &LessonReport) -> String {
     }
     frame.polyline(
         &mut svg,
-        &session.force,
+        &peaks(&session.force, MOST_POINTS),
         r##"stroke="#2c3e80" stroke-width="1.5""##,
     );
-    svg += "</svg></figure>";
+    frame.close(&mut svg);
     svg
 }
 

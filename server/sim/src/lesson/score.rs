@@ -573,8 +573,13 @@ fn reasons(m: &Metrics, plan: &Plan, cut: impl Fn(usize) -> bool) -> Vec<String>
     }
     if f.has(Shortfalls::CRITICAL_FORCE) {
         out.push(format!(
-            "the force went over the critical {:.1} N {} times (peak {:.1} N)",
-            plan.spec.force.critical_n, m.critical_events, m.peak_force_n
+            "the force went over the critical {:.1} N {} (peak {:.1} N)",
+            plan.spec.force.critical_n,
+            match m.critical_events {
+                1 => "once".to_string(),
+                n => format!("{n} times"),
+            },
+            m.peak_force_n
         ));
     }
     if f.has(Shortfalls::NO_GO_CUT) {
