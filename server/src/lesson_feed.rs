@@ -94,18 +94,40 @@ pub fn score_message(m: &Metrics, sim_tick: u64) -> LessonScore {
 #[derive(Default)]
 pub struct LessonEvents {
     last: Metrics,
+    /// The lesson's no-go structures, by index.
+    no_go: Vec<String>,
 }
 
 impl LessonEvents {
+    /// The events of `plan`'s metrics.
+    pub fn new(plan: Option<&Plan>) -> Self {
+        Self {
+            last: Metrics::default(),
+            no_go: plan.map_or_else(Vec::new, |p| {
+                p.spec.no_go.iter().map(|g| g.name.clone()).collect()
+            }),
+        }
+    }
+
+    /// The name of no-go structure `g`.
+    fn structure(&self, g: Option<u16>) -> &str {
+        g.and_then(|g| self.no_go.get(usize::from(g)))
+            .map_or("a no-go structure", String::as_str)
+    }
+
     /// The events `now` brings over the last metrics, with a line each for people.
     pub fn since(&mut self, now: &Metrics) -> Vec<(EventKind, String)> {
         let was = std::mem::replace(&mut self.last, *now);
+        // Counters read every 10 ticks: several rises between two reads are said as one
+        // event with how many.
+        let times = |n: u32| if n == 1 { String::new() } else { format!(" ({n} times)") };
         let mut out = Vec::new();
         if now.warning_events > was.warning_events {
             out.push((
                 EventKind::ForceWarning,
                 format!(
-                    "force over the lesson's warning limit (peak so far {:.2} N)",
+                    "force over the lesson's warning limit{} (peak so far {:.2} N)",
+                    times(now.warning_events - was.warning_events),
                     now.peak_force_n
                 ),
             ));
@@ -114,7 +136,8 @@ impl LessonEvents {
             out.push((
                 EventKind::ForceCritical,
                 format!(
-                    "force over the lesson's critical limit (peak so far {:.2} N)",
+                    "force over the lesson's critical limit{} (peak so far {:.2} N)",
+                    times(now.critical_events - was.critical_events),
                     now.peak_force_n
                 ),
             ));
@@ -123,8 +146,9 @@ impl LessonEvents {
             out.push((
                 EventKind::NoGoContact,
                 format!(
-                    "the blade touched a no-go structure ({} contacts)",
-                    now.no_go_contacts
+                    "the blade touched {}{}",
+                    self.structure(now.last_no_go_contact),
+                    times(now.no_go_contacts - was.no_go_contacts)
                 ),
             ));
         }
@@ -132,8 +156,9 @@ impl LessonEvents {
             out.push((
                 EventKind::NoGoCut,
                 format!(
-                    "the cut reached into a no-go structure ({} cut)",
-                    now.no_go_cuts
+                    "the cut reached into {}{}",
+                    self.structure(now.last_no_go_cut),
+                    times(now.no_go_cuts - was.no_go_cuts)
                 ),
             ));
         }

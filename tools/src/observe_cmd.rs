@@ -129,8 +129,7 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
             Update::Score(s) => {
                 if args.json {
                     println!("{}", serde_json::json!({ "score": s }));
-                } else if let Some(plan) = &lesson
-                    && last_score.elapsed() >= Duration::from_secs(1)
+                } else if lesson.is_some() && last_score.elapsed() >= Duration::from_secs(1)
                 {
                     last_score = Instant::now();
                     println!(
@@ -138,7 +137,7 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
                         started.elapsed().as_secs_f64(),
                         s.score,
                         if s.passed { "pass" } else { "not passing" },
-                        score_line(plan, &s)
+                        score_line(&s)
                     );
                 }
             }
@@ -202,7 +201,7 @@ fn lesson_line(plan: &LessonPlan) -> String {
 }
 
 /// The running metrics in a line (docs/LESSONS.md, "Metrics").
-pub fn score_line(_plan: &LessonPlan, s: &LessonScore) -> String {
+pub fn score_line(s: &LessonScore) -> String {
     format!(
         "path {:.1} mm RMS, depth {:.1} mm RMS, {:.0} % done, {} strokes, {:.1} s, \
          force over limits {}/{}, no-go {} touched {} cut",

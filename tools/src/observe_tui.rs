@@ -232,7 +232,7 @@ fn draw_figures(frame: &mut Frame, area: Rect, d: &Dashboard) {
         }
     };
     let mut lines = lines;
-    if let (Some(plan), Some(s)) = (&d.lesson, &d.score) {
+    if let (Some(_), Some(s)) = (&d.lesson, &d.score) {
         lines.push(Line::from(vec![
             Span::styled(
                 format!(
@@ -246,7 +246,7 @@ fn draw_figures(frame: &mut Frame, area: Rect, d: &Dashboard) {
                     Style::new().fg(Color::Yellow)
                 },
             ),
-            Span::raw(format!("   {}", crate::observe_cmd::score_line(plan, s))),
+            Span::raw(format!("   {}", crate::observe_cmd::score_line(s))),
         ]));
     }
     frame.render_widget(

@@ -341,17 +341,19 @@ fn chromium_draws_every_plot_of_a_report() {
         info.color_type,
         info.bit_depth
     );
-    // Data colours: the cut's red (#c0392b), the force's blue (#2c3e80).
+    // Each plot's own data colour (its frames close in page order: the plan from above,
+    // the depth profile, then the force): the cut's red (#c0392b) in the first two, the
+    // force trace's blue (#2c3e80) in the third (its limits are dashed orange and red).
     let near = |p: (u8, u8, u8), c: (u8, u8, u8)| {
         p.0.abs_diff(c.0) < 40 && p.1.abs_diff(c.1) < 40 && p.2.abs_diff(c.2) < 40
     };
-    for (k, b) in boxes.iter().enumerate() {
+    let red = (0xc0, 0x39, 0x2b);
+    let blue = (0x2c, 0x3e, 0x80);
+    for (k, (b, colour)) in boxes.iter().zip([red, red, blue]).enumerate() {
         let drawn = (b.2..=b.3)
             .flat_map(|y| (b.0..b.1).map(move |x| (x, y)))
-            .filter(|&(x, y)| {
-                near(at(x, y), (0xc0, 0x39, 0x2b)) || near(at(x, y), (0x2c, 0x3e, 0x80))
-            })
+            .filter(|&(x, y)| near(at(x, y), colour))
             .count();
-        assert!(drawn > 50, "plot {k} {b:?}: {drawn} data pixels");
+        assert!(drawn > 50, "plot {k} {b:?}: {drawn} pixels of {colour:?}");
     }
 }

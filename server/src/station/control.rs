@@ -161,7 +161,7 @@ impl Station<'_> {
         let t0 = *t0;
         let mut next = t0 + params.status_interval_s;
         let mut window_start = t0;
-        let mut remote = RemoteFeed::default();
+        let mut remote = RemoteFeed::for_lesson(params.lesson.as_ref());
         let mut desk = CommandDesk::new(scene.spec.features.stiff_mode);
         let mut stream_lost = false;
         // The table the threads have (rebuilt only when the book changes).

@@ -36,6 +36,14 @@ fn send_event(
 }
 
 impl RemoteFeed {
+    /// The feed of a station running `lesson` (its events name its structures).
+    pub(super) fn for_lesson(lesson: Option<&scalpel_sim::lesson::Plan>) -> Self {
+        Self {
+            lesson: crate::lesson_feed::LessonEvents::new(lesson),
+            ..Self::default()
+        }
+    }
+
     pub(super) fn event(
         &self,
         network: &Option<crate::net::Network>,

@@ -367,19 +367,22 @@ pub(super) fn spawn_sim(
                 sim.set_sharing(share);
                 let shared = eligible && share;
                 let report = sim.tick(SIM_TICK_S, &mut Monotonic);
+                // The lesson's scoring is this tick's work too: a late tick counts it.
+                let lesson = thread.scorer.as_mut().and_then(|scorer| {
+                    scorer.observe(&sim, &report, SIM_TICK_S);
+                    // The main thread sees its events in the metrics' counters.
+                    while scorer.poll_event().is_some() {}
+                    let tick = counted.figures.ticks + 1;
+                    (tick % LESSON_METRICS_EVERY == 0).then(|| scorer.metrics())
+                });
                 let took_ms = (realtime::monotonic_s() - started) * 1e3;
                 sharing.record(eligible, shared, took_ms);
                 counted.figures.shared_ticks += u64::from(shared);
                 let cpu_ms = (realtime::thread_cpu_s() - started_cpu) * 1e3;
                 counted.record(&report, sim.blade_pose().map(|p| p.tip_m), took_ms, cpu_ms);
                 counted.figures.recuts_waited = sim.incisions().map_or(0, |s| s.late_recuts as u64);
-                if let Some(scorer) = &mut thread.scorer {
-                    scorer.observe(&sim, &report, SIM_TICK_S);
-                    // The main thread sees its events in the metrics' counters.
-                    while scorer.poll_event().is_some() {}
-                    if counted.figures.ticks % LESSON_METRICS_EVERY == 0 {
-                        counted.figures.lesson = Some(scorer.metrics());
-                    }
+                if lesson.is_some() {
+                    counted.figures.lesson = lesson;
                 }
                 let figures = counted.figures;
                 models.write(ModelUpdate {

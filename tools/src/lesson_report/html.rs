@@ -25,8 +25,6 @@ fn esc(s: &str) -> String {
 struct Frame {
     x: (f64, f64),
     y: (f64, f64),
-    /// Keep one data unit the same length on both axes (a map).
-    equal: bool,
 }
 
 impl Frame {
@@ -52,7 +50,7 @@ impl Frame {
                 x = (x.0 - grow, x.1 + grow);
             }
         }
-        Self { x, y, equal }
+        Self { x, y }
     }
 
     fn px(&self, x: f64) -> f64 {
@@ -102,7 +100,6 @@ impl Frame {
             H / 2.0,
             esc(y_label)
         );
-        let _ = self.equal;
         let _ = write!(svg, r##"<g clip-path="url(#clip-{id})">"##);
     }
 

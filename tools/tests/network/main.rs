@@ -129,8 +129,9 @@ fn a_client_with_no_station_at_its_address_gives_up_and_says_why() {
 /// A station running a lesson: an observer gets the lesson first, then the trainee's score
 /// at 10 Hz beside the metrics, and the force-limit and no-go events as they happen
 /// (protocol 3, docs/PROTOCOL.md). The station's in-process scripted device plays the
-/// liver's demo cut (10 mm deep along the long axis), which the lesson plans deeper and
-/// with its warning force below the cut's, so the score and the events move.
+/// liver's demo cut (10 mm deep along the long axis), which the lesson plans, with a vessel
+/// crossing 6–9 mm under its first third and its warning force below the cut's, so the
+/// score moves and the events come.
 #[test]
 fn an_observer_follows_a_lesson_and_its_score() {
     let dir = station::scratch("network-lesson");
@@ -140,6 +141,8 @@ fn an_observer_follows_a_lesson_and_its_score() {
         &lesson,
         "name = \"demo-line\"\nscene = \"observed.toml\"\n[[incision]]\n\
          points_mm = [[-30.0, 0.0, 25.0], [30.0, 0.0, 25.0]]\ndepth_mm = 10.0\n\
+         [[no_go]]\nname = \"test vessel\"\n\
+         tube_mm = { from = [-20.0, -40.0, 13.5], to = [-20.0, 40.0, 13.5], radius = 1.5 }\n\
          [force]\nwarning_n = 0.3\ncritical_n = 3.2\n",
     )
     .unwrap();
@@ -173,9 +176,18 @@ fn an_observer_follows_a_lesson_and_its_score() {
             && last["score"].as_f64().unwrap() > 0.0,
         "{last}"
     );
+    // The force-limit and no-go events cross the wire with what they concern.
+    for kind in ["ForceWarning", "NoGoContact"] {
+        assert!(
+            lines.iter().any(|l| l["event"]["kind"] == kind),
+            "no {kind} event: {stdout}"
+        );
+    }
     assert!(
-        lines.iter().any(|l| l["event"]["kind"] == "ForceWarning"),
-        "no force-warning event: {stdout}"
+        lines.iter().any(|l| l["event"]["detail"]
+            .as_str()
+            .is_some_and(|d| d.contains("test vessel"))),
+        "no event names the vessel: {stdout}"
     );
     server.assert_ticking();
     server.kill_9();

@@ -13,6 +13,10 @@ pub const SAMPLE_M: f64 = 0.5e-3;
 const MAX_OFF_SURFACE_M: f64 = 0.020;
 /// Longest planned incision (m).
 const MAX_LENGTH_M: f64 = 1.0;
+/// Longest plan, all incisions together (m): 2 000 samples, the scorer's pass over them
+/// (the nearest piece of path each cutting tick, the band for each new Σ triangle) tens of
+/// microseconds at most.
+pub const MAX_TOTAL_LENGTH_M: f64 = 1.0;
 /// Samples each side averaged into a sample's normal: the surface's facets smoothed over
 /// about 4 mm, so a path over a coarse mesh does not turn its blade at every edge.
 const NORMAL_SMOOTHING: usize = 8;
@@ -71,7 +75,7 @@ pub struct PlannedIncision {
 pub struct OnPlan {
     /// Which incision.
     pub incision: usize,
-    /// The sample at or just before the nearest point.
+    /// The sample nearest the nearest point of the path (the nearer end of its piece).
     pub sample: usize,
     /// Distance from the path (m).
     pub distance_m: f64,
@@ -112,8 +116,9 @@ impl Plan {
             let inside_box =
                 |p: &Vec3| (0..3).all(|a| p[a] >= lo[a] - 1e-3 && p[a] <= hi[a] + 1e-3);
             let touches = match n.shape {
+                // The ball reaches within the box's circumscribed ball.
                 NoGoShape::Sphere { centre: c, radius } => {
-                    inside_box(&c) || n.shape.distance(&centre) < (hi - lo).norm() * 0.5 - radius
+                    inside_box(&c) || (c - centre).norm() < (hi - lo).norm() * 0.5 + radius
                 }
                 NoGoShape::Tube { from, to, .. } => {
                     inside_box(&from)
@@ -138,7 +143,17 @@ impl Plan {
                 ));
             }
         }
-        let length_m = incisions.iter().map(|c| c.length_m).sum();
+        let length_m: f64 = incisions.iter().map(|c| c.length_m).sum();
+        if length_m > MAX_TOTAL_LENGTH_M {
+            return Err(invalid(
+                "incision".into(),
+                format!(
+                    "the incisions are {:.0} mm long in all (at most {:.0} mm)",
+                    length_m * 1e3,
+                    MAX_TOTAL_LENGTH_M * 1e3
+                ),
+            ));
+        }
         Ok(Self {
             spec,
             incisions,
@@ -290,6 +305,21 @@ fn lay(
             ));
         }
     }
+    let projected_length: f64 = projected.windows(2).map(|w| (w[1].0 - w[0].0).norm()).sum();
+    if projected_length < 2.0 * SAMPLE_M {
+        return Err(invalid(
+            key,
+            format!(
+                "the path lands on the surface {:.2} mm long: too short to cut (a path drawn \
+                 across the surface, not into it)",
+                projected_length * 1e3
+            ),
+        ));
+    }
+    // Where two samples land on one point (a fold), the path's direction is the written
+    // one's, square to the normal; failing that, any direction square to it.
+    let written_along = written[written.len() - 1] - written[0];
+    let square_to = |out: &Vec3, v: Vec3| (v - out * v.dot(out)).try_normalize(1e-12);
     let mut samples = Vec::with_capacity(projected.len());
     let mut s_m = 0.0;
     for k in 0..projected.len() {
@@ -311,9 +341,10 @@ fn lay(
             projected[(k + 1).min(projected.len() - 1)].0,
         );
         let along = b - a;
-        let tangent = (along - out * along.dot(&out))
-            .try_normalize(1e-12)
-            .unwrap_or_else(|| along.normalize());
+        let tangent = square_to(&out, along)
+            .or_else(|| square_to(&out, written_along))
+            .or_else(|| square_to(&out, Vec3::x()))
+            .unwrap_or_else(Vec3::y);
         let (at, _, triangle) = projected[k];
         samples.push(PlanSample {
             at,

@@ -472,7 +472,7 @@ impl LessonSpec {
             "force.critical_n",
             force_raw
                 .and_then(|f| f.critical_n)
-                .unwrap_or(DEFAULT_CRITICAL_N.max(1.5 * warning_n)),
+                .unwrap_or(DEFAULT_CRITICAL_N.max(1.5 * warning_n).min(50.0)),
             0.0,
             50.0,
             "N",

@@ -201,3 +201,20 @@ fn a_cut_triangle_reaches_a_structure_by_its_nearest_point() {
     // The vertices alone would have missed the first tube by 1.3 mm.
     assert!(tri.iter().all(|v| tube.distance(v) > 0.001));
 }
+
+#[test]
+fn a_path_drawn_into_the_organ_instead_of_along_it_is_refused() {
+    let liver = BuiltinMesh::Liver.generate();
+    // Straight down through the top at the liver's middle: it lands on one point.
+    let down = parse(&MINIMAL.replace(
+        "[[-30.0, 0.0, 25.0], [30.0, 0.0, 25.0]]",
+        "[[0.0, 0.0, 30.0], [0.0, 0.0, 40.0]]",
+    ))
+    .unwrap();
+    let e = Plan::new(down, &liver, "test.toml").unwrap_err();
+    assert!(
+        e.to_string().contains("incision[0].points_mm")
+            && e.to_string().contains("lands on the surface"),
+        "{e}"
+    );
+}
