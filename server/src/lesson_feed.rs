@@ -120,7 +120,13 @@ impl LessonEvents {
         let was = std::mem::replace(&mut self.last, *now);
         // Counters read every 10 ticks: several rises between two reads are said as one
         // event with how many.
-        let times = |n: u32| if n == 1 { String::new() } else { format!(" ({n} times)") };
+        let times = |n: u32| {
+            if n == 1 {
+                String::new()
+            } else {
+                format!(" ({n} times)")
+            }
+        };
         let mut out = Vec::new();
         if now.warning_events > was.warning_events {
             out.push((

@@ -129,8 +129,7 @@ async fn observe(args: &ObserveArgs<'_>, addr: std::net::SocketAddr) -> anyhow::
             Update::Score(s) => {
                 if args.json {
                     println!("{}", serde_json::json!({ "score": s }));
-                } else if lesson.is_some() && last_score.elapsed() >= Duration::from_secs(1)
-                {
+                } else if lesson.is_some() && last_score.elapsed() >= Duration::from_secs(1) {
                     last_score = Instant::now();
                     println!(
                         "{:7.1} s  score {:.0} {}  {}",

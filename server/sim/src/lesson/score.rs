@@ -509,11 +509,8 @@ fn score(m: &Metrics, plan: &Plan) -> f64 {
     let damage = part(1.0 - m.off_band_area_m2 / band_area.max(1e-12));
     // How well is worth as much as how much was done: a poke beside the plan (nothing
     // reached, a short path, no force) is not a good cut.
-    let how_well = W_PATH * path
-        + W_DEPTH * depth
-        + W_ECONOMY * economy
-        + W_FORCE * force
-        + W_DAMAGE * damage;
+    let how_well =
+        W_PATH * path + W_DEPTH * depth + W_ECONOMY * economy + W_FORCE * force + W_DAMAGE * damage;
     let whole = W_COMPLETED * m.completed + m.completed * how_well;
     let no_go = if m.no_go_cuts > 0 { 0.5 } else { 1.0 };
     100.0 * whole * no_go
