@@ -128,45 +128,57 @@ impl LessonEvents {
             }
         };
         let mut out = Vec::new();
-        if now.warning_events > was.warning_events {
-            out.push((
+        for (kind, limit, before, after) in [
+            (
                 EventKind::ForceWarning,
-                format!(
-                    "force over the lesson's warning limit{} (peak so far {:.2} N)",
-                    times(now.warning_events - was.warning_events),
-                    now.peak_force_n
-                ),
-            ));
-        }
-        if now.critical_events > was.critical_events {
-            out.push((
+                "warning",
+                was.warning_events,
+                now.warning_events,
+            ),
+            (
                 EventKind::ForceCritical,
-                format!(
-                    "force over the lesson's critical limit{} (peak so far {:.2} N)",
-                    times(now.critical_events - was.critical_events),
-                    now.peak_force_n
-                ),
-            ));
+                "critical",
+                was.critical_events,
+                now.critical_events,
+            ),
+        ] {
+            if after > before {
+                out.push((
+                    kind,
+                    format!(
+                        "force over the lesson's {limit} limit{} (peak so far {:.2} N)",
+                        times(after - before),
+                        now.peak_force_n
+                    ),
+                ));
+            }
         }
-        if now.no_go_contacts > was.no_go_contacts {
-            out.push((
+        for (kind, what, before, after, structure) in [
+            (
                 EventKind::NoGoContact,
-                format!(
-                    "the blade touched {}{}",
-                    self.structure(now.last_no_go_contact),
-                    times(now.no_go_contacts - was.no_go_contacts)
-                ),
-            ));
-        }
-        if now.no_go_cuts > was.no_go_cuts {
-            out.push((
+                "the blade touched",
+                was.no_go_contacts,
+                now.no_go_contacts,
+                now.last_no_go_contact,
+            ),
+            (
                 EventKind::NoGoCut,
-                format!(
-                    "the cut reached into {}{}",
-                    self.structure(now.last_no_go_cut),
-                    times(now.no_go_cuts - was.no_go_cuts)
-                ),
-            ));
+                "the cut reached into",
+                was.no_go_cuts,
+                now.no_go_cuts,
+                now.last_no_go_cut,
+            ),
+        ] {
+            if after > before {
+                out.push((
+                    kind,
+                    format!(
+                        "{what} {}{}",
+                        self.structure(structure),
+                        times(after - before)
+                    ),
+                ));
+            }
         }
         out
     }
