@@ -4,7 +4,9 @@
 
 use super::spec::{IncisionSpec, LessonError, LessonSpec, NoGoShape, PathSpec};
 use crate::geometry::TriMesh;
-use crate::geometry::predicates::closest_point_on_triangle;
+use crate::geometry::predicates::{
+    closest_point_on_triangle, distance_sq_to_segment, nearest_on_segment,
+};
 use crate::math::Vec3;
 
 /// Spacing of a plan's samples along its path (m).
@@ -90,6 +92,10 @@ pub struct Plan {
     pub incisions: Vec<PlannedIncision>,
     /// Total planned length (m).
     pub length_m: f64,
+    /// The widest allowed deviation of its incisions (m): the band Σ is judged against.
+    pub widest_deviation_m: f64,
+    /// The planned band's area, Σ length × deviation (m²): the scale of cut area off it.
+    pub band_area_m2: f64,
 }
 
 impl Plan {
@@ -123,7 +129,9 @@ impl Plan {
                 NoGoShape::Tube { from, to, .. } => {
                     inside_box(&from)
                         || inside_box(&to)
-                        || inside_box(&super::spec::closest_on_segment(&centre, &from, &to))
+                        || inside_box(
+                            &(from + (to - from) * nearest_on_segment(&centre, &from, &to)),
+                        )
                 }
             };
             if !touches {
@@ -154,10 +162,14 @@ impl Plan {
                 ),
             ));
         }
+        let widest_deviation_m = incisions.iter().map(|c| c.deviation_m).fold(0.0, f64::max);
+        let band_area_m2 = incisions.iter().map(|c| c.length_m * c.deviation_m).sum();
         Ok(Self {
             spec,
             incisions,
             length_m,
+            widest_deviation_m,
+            band_area_m2,
         })
     }
 
@@ -166,7 +178,7 @@ impl Plan {
         let mut best: Option<OnPlan> = None;
         for (i, inc) in self.incisions.iter().enumerate() {
             for (k, w) in inc.samples.windows(2).enumerate() {
-                let q = super::spec::closest_on_segment(p, &w[0].at, &w[1].at);
+                let q = w[0].at + (w[1].at - w[0].at) * nearest_on_segment(p, &w[0].at, &w[1].at);
                 let d = (p - q).norm();
                 if best.is_none_or(|b| d < b.distance_m) {
                     let sample = if (q - w[1].at).norm() < (q - w[0].at).norm() {
@@ -193,7 +205,7 @@ impl Plan {
             let reach = inc.depth_m + inc.depth_tolerance_m;
             for s in &inc.samples {
                 let bottom = s.at - s.out * reach;
-                let d = (p - super::spec::closest_on_segment(p, &s.at, &bottom)).norm();
+                let d = distance_sq_to_segment(p, &s.at, &bottom).sqrt();
                 best = best.min(d);
             }
         }

@@ -335,13 +335,7 @@ impl Scorer {
     fn observe_sigma(&mut self, tri: &[Vec3; 3], now: f64) {
         let area = 0.5 * (tri[1] - tri[0]).cross(&(tri[2] - tri[0])).norm();
         let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
-        let allowed = self
-            .plan
-            .incisions
-            .iter()
-            .map(|c| c.deviation_m)
-            .fold(0.0, f64::max);
-        if self.plan.distance_to_band(&centre) > allowed {
+        if self.plan.distance_to_band(&centre) > self.plan.widest_deviation_m {
             self.off_band_area_m2 += area;
         }
         for g in 0..self.no_go.len() {
@@ -501,12 +495,7 @@ fn score(m: &Metrics, plan: &Plan) -> f64 {
     } else {
         part(1.0 - m.warning_s / WARNING_S_TO_ZERO)
     };
-    let band_area: f64 = plan
-        .incisions
-        .iter()
-        .map(|c| c.length_m * c.deviation_m)
-        .sum();
-    let damage = part(1.0 - m.off_band_area_m2 / band_area.max(1e-12));
+    let damage = part(1.0 - m.off_band_area_m2 / plan.band_area_m2.max(1e-12));
     // How well is worth as much as how much was done: a poke beside the plan (nothing
     // reached, a short path, no force) is not a good cut.
     let how_well =

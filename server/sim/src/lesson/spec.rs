@@ -5,6 +5,7 @@
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::geometry::predicates::distance_sq_to_segment;
 use crate::math::Vec3;
 
 /// Why a lesson was rejected.
@@ -115,7 +116,7 @@ impl NoGoShape {
         match *self {
             Self::Sphere { centre, radius } => (p - centre).norm() - radius,
             Self::Tube { from, to, radius } => {
-                (p - closest_on_segment(p, &from, &to)).norm() - radius
+                distance_sq_to_segment(p, &from, &to).sqrt() - radius
             }
         }
     }
@@ -125,7 +126,7 @@ impl NoGoShape {
     pub fn segment_distance(&self, a: &Vec3, b: &Vec3) -> f64 {
         match *self {
             Self::Sphere { centre, radius } => {
-                (centre - closest_on_segment(&centre, a, b)).norm() - radius
+                distance_sq_to_segment(&centre, a, b).sqrt() - radius
             }
             Self::Tube { from, to, radius } => segment_segment_distance(a, b, &from, &to) - radius,
         }
@@ -165,16 +166,6 @@ fn segment_triangle_distance(a: &Vec3, b: &Vec3, tri: &[Vec3; 3]) -> f64 {
     (0..3)
         .map(|k| segment_segment_distance(a, b, &tri[k], &tri[(k + 1) % 3]))
         .fold(ends, f64::min)
-}
-
-/// The closest point to `p` on the segment `a`–`b`.
-pub fn closest_on_segment(p: &Vec3, a: &Vec3, b: &Vec3) -> Vec3 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    if len2 <= 0.0 {
-        return *a;
-    }
-    a + ab * ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
 }
 
 /// Shortest distance between two segments (Ericson, Real-Time Collision Detection §5.1.9).
