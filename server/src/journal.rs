@@ -3,11 +3,15 @@
 //! f64 bits (exact, and readable with any tool):
 //!
 //! ```text
-//! scalpel-journal 1
+//! scalpel-journal 2
 //! scene liver
+//! started 1796660370                         (when the session began, Unix seconds)
 //! config station = "station-1"               (the server's effective configuration, TOML,
 //! config [device]                             one line per line; the simulation does not
 //! ...                                         read it, a reader of the journal does)
+//! lesson name = "Straight incision"          (the lesson's TOML as the station read it,
+//! ...                                         when it ran one: a report scores the lesson
+//!                                             the trainee had, not today's file)
 //! tick 1 -                                   (no tool)
 //! tick 2 <tip x y z> <orientation w i j k>   (seven f64 bit patterns in hex)
 //! command {"station_tick":2,"sim_tick":1,"by":"ann","seq":1,"action":...,"outcome":...}
@@ -33,8 +37,9 @@ use scalpel_sim::math::Vec3;
 use scalpel_sim::pipeline::{NoClock, Simulation, StageClock, TickReport};
 use scalpel_sim::scene::BuiltScene;
 
-/// Format version written on the first line.
-pub const JOURNAL_VERSION: u32 = 1;
+/// Format version written on the first line. Version 1 (no `started`, no `lesson` lines)
+/// still reads.
+pub const JOURNAL_VERSION: u32 = 2;
 
 /// One tick's input.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,11 +64,16 @@ impl TickRecord {
     }
 }
 
-/// The header lines for a session on `scene` with the server configuration `config` (TOML).
-pub fn header(scene: &str, config: &str) -> String {
-    let mut s = format!("scalpel-journal {JOURNAL_VERSION}\nscene {scene}\n");
+/// The header lines for a session on `scene` begun at `started_unix_s`, with the server
+/// configuration `config` (TOML) and the text of the lesson it runs (TOML, empty for none).
+pub fn header(scene: &str, started_unix_s: u64, config: &str, lesson: &str) -> String {
+    let mut s =
+        format!("scalpel-journal {JOURNAL_VERSION}\nscene {scene}\nstarted {started_unix_s}\n");
     for line in config.lines() {
         let _ = writeln!(s, "config {line}");
+    }
+    for line in lesson.lines() {
+        let _ = writeln!(s, "lesson {line}");
     }
     s
 }
@@ -103,8 +113,12 @@ pub fn footer(ticks: u64, state_hash: u64) -> String {
 pub struct Journal {
     /// The scene the session ran.
     pub scene: String,
+    /// When the session began (Unix seconds; `None` in a version 1 journal).
+    pub started_unix_s: Option<u64>,
     /// The server's configuration (TOML), as journaled.
     pub config: String,
+    /// The lesson the station ran (TOML, as it read it; empty for none or version 1).
+    pub lesson: String,
     /// Every tick's input, in order.
     pub ticks: Vec<TickRecord>,
     /// Instructor commands (JSON objects), in the order the server took them.
@@ -216,9 +230,10 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
     };
     let ends_before = |what: &str| anyhow::anyhow!("{}: ends before {what}", path.display());
     let (n, first, _) = next()?.ok_or_else(|| ends_before("the header"))?;
-    if first != format!("scalpel-journal {JOURNAL_VERSION}") {
+    if !(1..=JOURNAL_VERSION).any(|v| first == format!("scalpel-journal {v}")) {
         bail!(
-            "{}:{n}: not a scalpel journal of version {JOURNAL_VERSION} (starts with {first:?})",
+            "{}:{n}: not a scalpel journal of version 1 to {JOURNAL_VERSION} (starts with \
+             {first:?})",
             path.display()
         );
     }
@@ -229,7 +244,9 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
         .to_string();
     let mut journal = Journal {
         scene,
+        started_unix_s: None,
         config: String::new(),
+        lesson: String::new(),
         ticks: Vec::new(),
         commands: Vec::new(),
         end: None,
@@ -246,6 +263,20 @@ fn read_lines(path: &Path) -> anyhow::Result<Journal> {
         {
             journal.config.push_str(c);
             journal.config.push('\n');
+            continue;
+        }
+        if let Some(c) = line
+            .strip_prefix("lesson ")
+            .or((line == "lesson").then_some(""))
+        {
+            journal.lesson.push_str(c);
+            journal.lesson.push('\n');
+            continue;
+        }
+        if let Some(t) = line.strip_prefix("started ") {
+            journal.started_unix_s = Some(t.parse().with_context(|| {
+                format!("{}:{n}: 'started' wants Unix seconds", path.display())
+            })?);
             continue;
         }
         // ... even when the kill cut its last line short.

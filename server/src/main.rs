@@ -273,9 +273,16 @@ fn open_journal(
         Some(_) => config.scene.clone(),
         None => std::fs::canonicalize(&config.scene)?.display().to_string(),
     };
+    let lesson = match config.lesson.as_str() {
+        "" => String::new(),
+        name => scene_file::lesson_text(name)?,
+    };
+    let started = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
     std::io::Write::write_all(
         &mut file,
-        journal::header(&scene_name, &config.to_toml()).as_bytes(),
+        journal::header(&scene_name, started, &config.to_toml(), &lesson).as_bytes(),
     )?;
     Ok(Some(file))
 }

@@ -125,12 +125,7 @@ pub fn load_lesson(name: &str) -> anyhow::Result<scalpel_sim::lesson::LessonSpec
         return Ok(spec);
     }
     let path = Path::new(name);
-    let text = read_text_capped(path, TOML_MAX_BYTES).with_context(|| {
-        format!(
-            "{name} is neither a built-in lesson (scalpel lesson list) nor a readable lesson file"
-        )
-    })?;
-    let mut spec = LessonSpec::from_toml(&text, name)?;
+    let mut spec = LessonSpec::from_toml(&lesson_text(name)?, name)?;
     if scene::builtin(&spec.scene).is_none() {
         let scene = Path::new(&spec.scene);
         if scene.is_relative()
@@ -140,6 +135,21 @@ pub fn load_lesson(name: &str) -> anyhow::Result<scalpel_sim::lesson::LessonSpec
         }
     }
     Ok(spec)
+}
+
+/// The TOML text of the lesson `name` (built-in, or a file), as a station journals it.
+pub fn lesson_text(name: &str) -> anyhow::Result<String> {
+    if let Some((_, text)) = scalpel_sim::lesson::BUILTIN
+        .iter()
+        .find(|(n, _)| *n == name)
+    {
+        return Ok(text.to_string());
+    }
+    read_text_capped(Path::new(name), TOML_MAX_BYTES).with_context(|| {
+        format!(
+            "{name} is neither a built-in lesson (scalpel lesson list) nor a readable lesson file"
+        )
+    })
 }
 
 /// Whether two scene names a station would take (built-in names or files) are one scene.

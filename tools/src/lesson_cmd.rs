@@ -173,31 +173,30 @@ fn finish(
 }
 
 /// `scalpel report JOURNAL [--lesson L] --out DIR`: replays a station's session and scores
-/// it on its lesson (the station's `lesson`, or `--lesson`).
+/// it on its lesson (the one it journaled, or `--lesson`).
 pub fn report(file: &Path, lesson: Option<&str>, out: &Path, json: bool) -> anyhow::Result<()> {
+    let (session, recorded) = score_journal(file, lesson)?;
+    let trainee = recorded.config_string("trainee");
+    finish(
+        &session,
+        trainee,
+        format!("journal {}", file.display()),
+        out,
+        json,
+    )
+}
+
+/// Replays the journal `file` and scores it on `lesson` (default: the lesson the station
+/// journaled; for a version 1 journal, the station's `lesson` read as it is now). Refused
+/// when the replay does not end in the live run's state.
+pub fn score_journal(
+    file: &Path,
+    lesson: Option<&str>,
+) -> anyhow::Result<(ScoredSession, journal::Journal)> {
     let recorded = journal::read(file)?;
-    let lesson = match lesson.map(str::to_string) {
-        Some(l) => l,
-        None => recorded.config_string("lesson").with_context(|| {
-            format!(
-                "{}: the station ran no lesson (its `lesson` key is empty): give --lesson",
-                file.display()
-            )
-        })?,
-    };
-    let spec = scene_file::load_lesson(&lesson)?;
-    if !scene_file::same_scene(&spec.scene, &recorded.scene) {
-        bail!(
-            "{}: the session ran scene {:?}, lesson {} is for {:?}",
-            file.display(),
-            recorded.scene,
-            spec.name,
-            spec.scene
-        );
-    }
     let scene = scene_file::load_scene(&recorded.scene)
         .with_context(|| format!("{}: the scene it names", file.display()))?;
-    let plan = Plan::new(spec, &scene.model.surface, &lesson)?;
+    let plan = journal_plan(file, &recorded, lesson, &scene)?;
     let mut session = ScoredSession::new(plan);
     let hash = journal::replay_with(
         &scene,
@@ -214,12 +213,44 @@ pub fn report(file: &Path, lesson: Option<&str>, out: &Path, json: bool) -> anyh
             file.display()
         );
     }
-    let trainee = recorded.config_string("trainee");
-    finish(
-        &session,
-        trainee,
-        format!("journal {}", file.display()),
-        out,
-        json,
-    )
+    Ok((session, recorded))
+}
+
+/// The plan a journaled session is scored on.
+fn journal_plan(
+    file: &Path,
+    recorded: &journal::Journal,
+    lesson: Option<&str>,
+    scene: &BuiltScene,
+) -> anyhow::Result<Plan> {
+    let named = recorded.config_string("lesson");
+    if lesson.is_none() && !recorded.lesson.is_empty() {
+        // The lesson as the station read it, on the scene it ran (the station checked that
+        // the lesson is for it).
+        let name = named.unwrap_or_else(|| "journaled".into());
+        let mut spec = LessonSpec::from_toml(
+            &recorded.lesson,
+            &format!("{} (its lesson {name})", file.display()),
+        )?;
+        spec.scene = recorded.scene.clone();
+        return Ok(Plan::new(spec, &scene.model.surface, &name)?);
+    }
+    let lesson = match lesson.map(str::to_string).or(named) {
+        Some(l) => l,
+        None => bail!(
+            "{}: the station ran no lesson (its `lesson` key is empty): give --lesson",
+            file.display()
+        ),
+    };
+    let spec = scene_file::load_lesson(&lesson)?;
+    if !scene_file::same_scene(&spec.scene, &recorded.scene) {
+        bail!(
+            "{}: the session ran scene {:?}, lesson {} is for {:?}",
+            file.display(),
+            recorded.scene,
+            spec.name,
+            spec.scene
+        );
+    }
+    Ok(Plan::new(spec, &scene.model.surface, &lesson)?)
 }

@@ -3,12 +3,14 @@
 //! Scenes (list, inspect, export), the demo, and benchmarks. Every report has a `--json`
 //! form for scripts; errors go to stderr with a non-zero exit status.
 
+mod archive;
 mod bench;
 mod certs_cmd;
 mod cut_cmd;
 mod cutrun;
 mod export;
 mod instruct_cmd;
+mod lab_cmd;
 mod lesson_cmd;
 mod lesson_report;
 mod load;
@@ -210,20 +212,33 @@ enum Command {
     Lesson(LessonCommand),
     /// Score a station's session on its lesson: replays the journal and writes report.html
     /// (the plan against the cut, the depth profile, the force with its limits, the metrics,
-    /// pass or fail) and report.json.
+    /// pass or fail) and report.json. With --lab DIR instead: archives the lab's new
+    /// journals (every *.journal under DIR) and writes the learning curves per trainee
+    /// (lab.html, lab.csv, lab.json).
     Report {
         /// The session's journal (`scalpel-server --journal FILE`).
-        journal: PathBuf,
-        /// The lesson (built-in or file); default: the one the station ran (`lesson`).
-        #[arg(long)]
+        #[arg(required_unless_present = "lab", conflicts_with = "lab")]
+        journal: Option<PathBuf>,
+        /// The lesson (built-in or file); default: the one the station ran and journaled.
+        #[arg(long, conflicts_with = "lab")]
         lesson: Option<String>,
+        /// Summarise the lab whose journals are under this folder.
+        #[arg(long, value_name = "DIR")]
+        lab: Option<PathBuf>,
+        /// With --lab: the archive, a SQLite file or a `postgres://` URL (default:
+        /// DIR/lab.sqlite).
+        #[arg(long, value_name = "URL", requires = "lab")]
+        db: Option<String>,
         /// Output folder (created if missing).
         #[arg(long, default_value = "report")]
         out: PathBuf,
-        /// Print report.json on stdout.
+        /// Print report.json (lab.json with --lab) on stdout.
         #[arg(long)]
         json: bool,
     },
+    /// The lab's archive of sessions, trainees, lessons and scores (docs/LESSONS.md).
+    #[command(subcommand)]
+    Archive(ArchiveCommand),
     /// Replay a station's journal (`scalpel-server --journal FILE`) and print the final
     /// state hash; exit status 1 if it differs from the live run's.
     Replay {
@@ -237,6 +252,26 @@ enum Command {
         /// station's late ticks can be compared with.
         #[arg(long, value_name = "N")]
         slowest: Option<usize>,
+    },
+}
+
+/// `scalpel archive ...`.
+#[derive(Subcommand)]
+enum ArchiveCommand {
+    /// Empty the archive and archive every journal under DIR again (the journals are the
+    /// source of truth), then write the lab summary as `scalpel report --lab` does.
+    Rebuild {
+        /// The lab's folder of journals.
+        dir: PathBuf,
+        /// The archive, a SQLite file or a `postgres://` URL (default: DIR/lab.sqlite).
+        #[arg(long, value_name = "URL")]
+        db: Option<String>,
+        /// Output folder for the summary (created if missing).
+        #[arg(long, default_value = "report")]
+        out: PathBuf,
+        /// Print lab.json on stdout.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -731,9 +766,18 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Report {
             journal,
             lesson,
+            lab,
+            db,
             out,
             json,
-        } => lesson_cmd::report(&journal, lesson.as_deref(), &out, json),
+        } => match (lab, journal) {
+            (Some(dir), _) => lab_cmd::report(&dir, db.as_deref(), &out, json),
+            (None, Some(journal)) => lesson_cmd::report(&journal, lesson.as_deref(), &out, json),
+            (None, None) => anyhow::bail!("give a journal or --lab DIR"),
+        },
+        Command::Archive(ArchiveCommand::Rebuild { dir, db, out, json }) => {
+            lab_cmd::rebuild(&dir, db.as_deref(), &out, json)
+        }
     }
 }
 

@@ -234,7 +234,9 @@ fn a_scene_over_the_memory_budget_is_refused_before_it_is_built() {
         &journal,
         scalpel_server::journal::header(
             dir.join("huge.toml").to_str().unwrap(),
+            0,
             "[limits]\nmemory_mb = 4096.0\n",
+            "",
         ),
     )
     .unwrap();

@@ -14,7 +14,7 @@ const H: f64 = 300.0;
 const PAD: f64 = 48.0;
 
 /// Escapes text for HTML.
-fn esc(s: &str) -> String {
+pub(super) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -22,13 +22,15 @@ fn esc(s: &str) -> String {
 }
 
 /// A plot's frame: data ranges mapped onto the SVG's area.
-struct Frame {
+pub(super) struct Frame {
     x: (f64, f64),
     y: (f64, f64),
+    /// x counts something: ticks at whole numbers.
+    pub(super) whole_x: bool,
 }
 
 impl Frame {
-    fn new(x: (f64, f64), y: (f64, f64), equal: bool) -> Self {
+    pub(super) fn new(x: (f64, f64), y: (f64, f64), equal: bool) -> Self {
         let widen = |(lo, hi): (f64, f64)| {
             if hi - lo < 1e-9 {
                 (lo - 1.0, hi + 1.0)
@@ -50,14 +52,18 @@ impl Frame {
                 x = (x.0 - grow, x.1 + grow);
             }
         }
-        Self { x, y }
+        Self {
+            x,
+            y,
+            whole_x: false,
+        }
     }
 
-    fn px(&self, x: f64) -> f64 {
+    pub(super) fn px(&self, x: f64) -> f64 {
         PAD + (x - self.x.0) / (self.x.1 - self.x.0) * (W - 2.0 * PAD)
     }
 
-    fn py(&self, y: f64) -> f64 {
+    pub(super) fn py(&self, y: f64) -> f64 {
         H - PAD - (y - self.y.0) / (self.y.1 - self.y.0) * (H - 2.0 * PAD)
     }
 
@@ -67,28 +73,34 @@ impl Frame {
 
     /// The axes with their labels and a few ticks, then the plot area clipped for its data
     /// (`id` names the clip; [`Frame::close`] ends it and draws the frame's border over it).
-    fn axes(&self, svg: &mut String, id: &str, x_label: &str, y_label: &str) {
+    pub(super) fn axes(&self, svg: &mut String, id: &str, x_label: &str, y_label: &str) {
         let (w, h) = (W - 2.0 * PAD, H - 2.0 * PAD);
         let _ = write!(
             svg,
             r##"<rect x="{PAD}" y="{PAD}" width="{w}" height="{h}" fill="#fbfbfb"/><clipPath id="clip-{id}"><rect x="{PAD}" y="{PAD}" width="{w}" height="{h}"/></clipPath>"##
         );
-        for k in 0..=4 {
-            let f = k as f64 / 4.0;
-            let (xv, yv) = (
-                self.x.0 + f * (self.x.1 - self.x.0),
-                self.y.0 + f * (self.y.1 - self.y.0),
-            );
+        let mut label = |x: f64, y: f64, text: String, anchor: &str| {
             let _ = write!(
                 svg,
-                r##"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text><text x="{:.1}" y="{:.1}" font-size="11" text-anchor="end">{}</text>"##,
-                self.px(xv),
-                H - PAD + 14.0,
-                short(xv),
-                PAD - 4.0,
-                self.py(yv) + 4.0,
-                short(yv)
+                r##"<text x="{x:.1}" y="{y:.1}" font-size="11" text-anchor="{anchor}">{text}</text>"##
             );
+        };
+        for k in 0..=4 {
+            let f = k as f64 / 4.0;
+            let yv = self.y.0 + f * (self.y.1 - self.y.0);
+            label(PAD - 4.0, self.py(yv) + 4.0, short(yv), "end");
+            if !self.whole_x {
+                let xv = self.x.0 + f * (self.x.1 - self.x.0);
+                label(self.px(xv), H - PAD + 14.0, short(xv), "middle");
+            }
+        }
+        if self.whole_x {
+            // Counts (sessions) are labelled at whole numbers only, at most ten of them.
+            let (first, last) = (self.x.0.ceil() as i64, self.x.1.floor() as i64);
+            let step = ((last - first) / 10 + 1).max(1);
+            for v in (first..=last).step_by(step as usize) {
+                label(self.px(v as f64), H - PAD + 14.0, v.to_string(), "middle");
+            }
         }
         let _ = write!(
             svg,
@@ -104,7 +116,7 @@ impl Frame {
     }
 
     /// Ends the clipped data and draws the frame's border.
-    fn close(&self, svg: &mut String) {
+    pub(super) fn close(&self, svg: &mut String) {
         let _ = write!(
             svg,
             r##"</g><rect x="{PAD}" y="{PAD}" width="{}" height="{}" fill="none" stroke="#888"/></svg></figure>"##,
@@ -113,7 +125,7 @@ impl Frame {
         );
     }
 
-    fn polyline(&self, svg: &mut String, points: &[(f64, f64)], style: &str) {
+    pub(super) fn polyline(&self, svg: &mut String, points: &[(f64, f64)], style: &str) {
         if points.is_empty() {
             return;
         }
@@ -148,7 +160,7 @@ fn short(v: f64) -> String {
     }
 }
 
-fn open_svg(title: &str, id: &str) -> String {
+pub(super) fn open_svg(title: &str, id: &str) -> String {
     format!(
         r##"<figure><figcaption>{}</figcaption><svg id="{id}" class="plot" xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}">"##,
         esc(title)

@@ -3,6 +3,7 @@
 //! from them: `report.json` and a self-contained `report.html` (docs/LESSONS.md, "Reports").
 
 mod html;
+pub mod lab;
 
 use std::path::Path;
 
