@@ -439,7 +439,14 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("scalpel-journal-unit-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("cut.journal");
-        let mut text = header("liver", "station = \"a\"\n\n[device]\n").into_bytes();
+        let lesson = "name = \"x\"\nscene = \"liver\"\n";
+        let mut text = header(
+            "liver",
+            1_796_660_370,
+            "station = \"a\"\n\n[device]\n",
+            lesson,
+        )
+        .into_bytes();
         let pose = ToolPose::pointing(Vec3::new(0.01, -0.02, 0.03), Vec3::z());
         record(&mut text, 1, None, None);
         record(&mut text, 2, Some(pose), Some(1.5));
@@ -457,13 +464,15 @@ mod tests {
         assert_eq!(j.ticks[1].stiffness, Some(1.5));
         assert_eq!(j.commands, vec![serde_json::json!({"by": "ann", "seq": 1})]);
         assert_eq!(j.config, "station = \"a\"\n\n[device]\n");
+        assert_eq!(j.lesson, lesson);
+        assert_eq!(j.started_unix_s, Some(1_796_660_370));
         assert_eq!(j.end, None);
         // A bad line that is not the last is an error naming the line.
-        let mut text = header("liver", "station = \"a\"\n\n[device]\n").into_bytes();
+        let mut text = header("liver", 0, "station = \"a\"\n\n[device]\n", "").into_bytes();
         text.extend_from_slice(b"tick 1 zz\ntick 2 -\n");
         std::fs::write(&path, &text).unwrap();
         let e = read(&path).unwrap_err().to_string();
-        assert!(e.contains("cut.journal:6"), "{e}");
+        assert!(e.contains("cut.journal:7"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
@@ -472,7 +481,8 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("scalpel-journal-live-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("live.journal");
-        let mut text = header("liver", "station = \"a\"\n[rates]\nframe_hz = 0.5\n").into_bytes();
+        let mut text =
+            header("liver", 0, "station = \"a\"\n[rates]\nframe_hz = 0.5\n", "").into_bytes();
         // A refused command with a NaN, as the station writes it (serde_json: null), and a
         // last line a kill cut inside a two-byte character.
         text.extend_from_slice(
@@ -510,7 +520,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("scalpel-journal-bad-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("bad.journal");
-        let good = header("liver", "station = \"a\"\n");
+        let good = header("liver", 0, "station = \"a\"\n", "");
         let one = |hex: u64| format!("{hex:016x}");
         let tip = [0.01f64, 0.0, 0.0].map(|c| one(c.to_bits())).join(" ");
         let refused = |body: &str| -> String {
@@ -526,7 +536,7 @@ mod tests {
             let q = q.map(|c| one(c.to_bits())).join(" ");
             let e = refused(&format!("tick 1 {tip} {q}\n"));
             assert!(
-                e.contains("bad.journal:4") && e.contains("unit quaternion"),
+                e.contains("bad.journal:5") && e.contains("unit quaternion"),
                 "{e}"
             );
         }
@@ -534,10 +544,10 @@ mod tests {
             "stiffness 1 {}\ntick 1 -\n",
             one(1.0e308f64.to_bits())
         ));
-        assert!(e.contains("bad.journal:4") && e.contains("0.1–10"), "{e}");
+        assert!(e.contains("bad.journal:5") && e.contains("0.1–10"), "{e}");
         let e = refused("command [1, 2]\n");
         assert!(
-            e.contains("bad.journal:4") && e.contains("not a JSON object"),
+            e.contains("bad.journal:5") && e.contains("not a JSON object"),
             "{e}"
         );
         // Config lines that are not TOML (their values are not checked: the checks change
@@ -554,7 +564,7 @@ mod tests {
         assert!(e.contains("not a file or a pipe"), "{e}");
         std::fs::write(&path, format!("{good}{}\n", "x".repeat(2 << 20))).unwrap();
         let e = format!("{:#}", read(&path).unwrap_err());
-        assert!(e.contains("bad.journal:4") && e.contains("over"), "{e}");
+        assert!(e.contains("bad.journal:5") && e.contains("over"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -248,6 +248,7 @@ impl Archive {
         .fetch_all(&self.pool)
         .await
         .with_context(|| format!("reading {}", self.shown))?;
+        // Sorted here: SQLite and PostgreSQL put NULLs at opposite ends.
         let mut out = rows
             .iter()
             .map(|r| -> Result<ScoredRow, sqlx::Error> {
@@ -275,20 +276,17 @@ impl Archive {
             })
             .collect::<Result<Vec<_>, _>>()
             .with_context(|| format!("reading {}", self.shown))?;
-        // Sorted here: SQLite and PostgreSQL put NULLs at opposite ends.
         out.sort_by(|a, b| {
-            (
-                a.trainee.is_none(),
-                &a.trainee,
-                a.started_unix_s,
-                &a.journal,
-            )
-                .cmp(&(
-                    b.trainee.is_none(),
-                    &b.trainee,
-                    b.started_unix_s,
-                    &b.journal,
-                ))
+            let key = |r: &ScoredRow| {
+                (
+                    r.trainee.is_none(),
+                    r.trainee.clone(),
+                    r.started_unix_s.is_none(),
+                    r.started_unix_s,
+                    r.journal.clone(),
+                )
+            };
+            key(a).cmp(&key(b))
         });
         Ok(out)
     }
