@@ -213,6 +213,17 @@ impl VirtualPoints {
                 *f = true;
             }
         }
+        // A node one of whose masters the cut has left with no fit follows a point no
+        // longer tied to the body (one that falls away under gravity: the shoulder's
+        // hesitant trainee dragged a node 2.6 m down, and the wall's points with it).
+        for n in &self.nodes {
+            if solver
+                .masters_of(n.node as usize)
+                .any(|m| is_orphan(solver, m))
+            {
+                flagged[n.node as usize - first] = true;
+            }
+        }
         self.retain(solver, neighbours, changed, |node, at| {
             let close =
                 edge.is_some_and(|[a, b]| distance_sq_to_segment(at, &a, &b) < radius * radius);
@@ -388,7 +399,9 @@ impl VirtualPoints {
                         &sigma.triangles[t as usize],
                     )
                 });
-                if seen {
+                // A point the cut has left with no fit is not tied to the body: a node
+                // slaved to it would follow it wherever it drifts.
+                if seen && !is_orphan(solver, i) {
                     candidates.push(i);
                 }
             });
@@ -472,6 +485,11 @@ impl VirtualPoints {
         }
         self.stats.placed = self.nodes.len();
     }
+}
+
+/// Whether point `i` has no fit (an orphan: too few neighbours left to span space).
+fn is_orphan(solver: &Solver, i: u32) -> bool {
+    matches!(solver.operator().point(i as usize).rank, PointRank::Orphan)
 }
 
 /// Takes node `node` out of every neighbourhood and unties it.
