@@ -20,7 +20,8 @@ fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
 }
 
 /// A lab's folder: Ann Example's careless then careful session on the liver, a session
-/// with no lesson, and a file that is not a journal.
+/// with no lesson, a file that is not a journal, and a session still running (a journal
+/// with no closing line, just written).
 fn lab(name: &str) -> PathBuf {
     let dir = station::scratch(name);
     let journals = dir.join("journals");
@@ -49,6 +50,10 @@ fn lab(name: &str) -> PathBuf {
         &journals.join("station-2/free.journal"),
     );
     std::fs::write(journals.join("broken.journal"), "not a journal\n").unwrap();
+    let whole = std::fs::read_to_string(journals.join("ann-1.journal")).unwrap();
+    let open = &whole[..whole.trim_end().rfind('\n').unwrap() + 1];
+    assert!(whole[open.len()..].starts_with("end "));
+    std::fs::write(journals.join("running.journal"), open).unwrap();
     journals
 }
 

@@ -60,6 +60,18 @@ fn sha256_of(path: &Path) -> anyhow::Result<String> {
     Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// How long a journal with no closing line must have been left alone before it is taken
+/// for a killed station's (and archived) rather than a session still running.
+const UNFINISHED_WAIT: std::time::Duration = std::time::Duration::from_secs(3600);
+
+/// Whether `path` was written to within `wait` of now.
+fn changed_within(path: &Path, wait: std::time::Duration) -> anyhow::Result<bool> {
+    let modified = std::fs::metadata(path)
+        .and_then(|m| m.modified())
+        .with_context(|| format!("reading {}", path.display()))?;
+    Ok(modified.elapsed().is_ok_and(|age| age < wait))
+}
+
 fn unix_now() -> i64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -90,6 +102,14 @@ async fn ingest_one(archive: &Archive, path: &Path) -> anyhow::Result<Ingested> 
         return Ok(Ingested::Known);
     }
     let recorded = scalpel_server::journal::read(path)?;
+    if recorded.end.is_none() && changed_within(path, UNFINISHED_WAIT)? {
+        // Archived now, it would be archived again when it is finished (another SHA-256).
+        anyhow::bail!(
+            "{}: no closing line and written to in the last hour: a session still running \
+             (a killed station's journal is archived once it has not changed for an hour)",
+            path.display()
+        );
+    }
     let runs_lesson = !recorded.lesson.is_empty() || recorded.config_string("lesson").is_some();
     let shown = path.display().to_string();
     let station = recorded.config_string("station").unwrap_or_default();

@@ -10,8 +10,11 @@ mod ingest;
 use std::path::Path;
 
 use anyhow::Context;
-use sqlx::any::{AnyPoolOptions, install_default_drivers};
+use serde::Serialize;
+use sqlx::any::{AnyPoolOptions, AnyRow, install_default_drivers};
 use sqlx::{AnyPool, Row};
+
+use crate::lesson_report::MetricsJson;
 
 pub use ingest::{Ingested, ingest_dir};
 
@@ -40,6 +43,14 @@ pub struct ScoredRow {
     pub min_score: f64,
     pub score: f64,
     pub passed: bool,
+    pub figures: Figures,
+    pub reasons: String,
+}
+
+/// The figures of a score the archive keeps in columns of `scores`, in their order (the
+/// whole report is in its `report` column).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Figures {
     pub time_s: f64,
     pub rms_deviation_mm: f64,
     pub rms_depth_error_mm: f64,
@@ -49,7 +60,37 @@ pub struct ScoredRow {
     pub critical_events: i64,
     pub no_go_cuts: i64,
     pub off_band_area_mm2: f64,
-    pub reasons: String,
+}
+
+impl Figures {
+    fn of(m: &MetricsJson) -> Self {
+        Self {
+            time_s: m.time_s,
+            rms_deviation_mm: m.rms_deviation_mm,
+            rms_depth_error_mm: m.rms_depth_error_mm,
+            completed_percent: m.completed_percent,
+            economy: m.economy,
+            peak_force_n: m.peak_force_n,
+            critical_events: i64::from(m.critical_events),
+            no_go_cuts: i64::from(m.no_go_cuts),
+            off_band_area_mm2: m.off_band_area_mm2,
+        }
+    }
+
+    /// The figures in a row's columns from `at` on.
+    fn read(r: &AnyRow, at: usize) -> Result<Self, sqlx::Error> {
+        Ok(Self {
+            time_s: r.try_get(at)?,
+            rms_deviation_mm: r.try_get(at + 1)?,
+            rms_depth_error_mm: r.try_get(at + 2)?,
+            completed_percent: r.try_get(at + 3)?,
+            economy: r.try_get(at + 4)?,
+            peak_force_n: r.try_get(at + 5)?,
+            critical_events: r.try_get(at + 6)?,
+            no_go_cuts: r.try_get(at + 7)?,
+            off_band_area_mm2: r.try_get(at + 8)?,
+        })
+    }
 }
 
 /// A session's rows, as [`Archive::put`] writes them in one transaction.
@@ -185,7 +226,7 @@ impl Archive {
         .execute(&mut *tx)
         .await?;
         if let Some(s) = &r.scored {
-            let m = &s.report.metrics;
+            let f = Figures::of(&s.report.metrics);
             sqlx::query(
                 "INSERT INTO scores (session, score, passed, time_s, rms_deviation_mm, \
                  rms_depth_error_mm, completed_percent, economy, peak_force_n, critical_events, \
@@ -195,15 +236,15 @@ impl Archive {
             .bind(r.id)
             .bind(s.report.score)
             .bind(i64::from(s.report.passed))
-            .bind(m.time_s)
-            .bind(m.rms_deviation_mm)
-            .bind(m.rms_depth_error_mm)
-            .bind(m.completed_percent)
-            .bind(m.economy)
-            .bind(m.peak_force_n)
-            .bind(i64::from(m.critical_events))
-            .bind(i64::from(m.no_go_cuts))
-            .bind(m.off_band_area_mm2)
+            .bind(f.time_s)
+            .bind(f.rms_deviation_mm)
+            .bind(f.rms_depth_error_mm)
+            .bind(f.completed_percent)
+            .bind(f.economy)
+            .bind(f.peak_force_n)
+            .bind(f.critical_events)
+            .bind(f.no_go_cuts)
+            .bind(f.off_band_area_mm2)
             .bind(s.report.reasons.join("\n"))
             .bind(s.report_json)
             .execute(&mut *tx)
@@ -262,15 +303,7 @@ impl Archive {
                     min_score: r.try_get(6)?,
                     score: r.try_get(7)?,
                     passed: r.try_get::<i64, _>(8)? != 0,
-                    time_s: r.try_get(9)?,
-                    rms_deviation_mm: r.try_get(10)?,
-                    rms_depth_error_mm: r.try_get(11)?,
-                    completed_percent: r.try_get(12)?,
-                    economy: r.try_get(13)?,
-                    peak_force_n: r.try_get(14)?,
-                    critical_events: r.try_get(15)?,
-                    no_go_cuts: r.try_get(16)?,
-                    off_band_area_mm2: r.try_get(17)?,
+                    figures: Figures::read(r, 9)?,
                     reasons: r.try_get(18)?,
                 })
             })

@@ -10,7 +10,7 @@ use anyhow::Context;
 use serde::Serialize;
 
 use super::html::{Frame, esc, open_svg};
-use crate::archive::ScoredRow;
+use crate::archive::{Figures, ScoredRow};
 
 /// `lab.json`.
 #[derive(Debug, Clone, Serialize)]
@@ -71,15 +71,8 @@ pub struct Attempt {
     pub station: String,
     pub score: f64,
     pub passed: bool,
-    pub time_s: f64,
-    pub rms_deviation_mm: f64,
-    pub rms_depth_error_mm: f64,
-    pub completed_percent: f64,
-    pub economy: f64,
-    pub peak_force_n: f64,
-    pub critical_events: i64,
-    pub no_go_cuts: i64,
-    pub off_band_area_mm2: f64,
+    #[serde(flatten)]
+    pub figures: Figures,
     pub reasons: Vec<String>,
     pub journal: String,
     /// The session's id in the archive (its journal's SHA-256).
@@ -136,15 +129,7 @@ pub fn curves(rows: &[ScoredRow]) -> Vec<TraineeCurve> {
             station: r.station.clone(),
             score: r.score,
             passed: r.passed,
-            time_s: r.time_s,
-            rms_deviation_mm: r.rms_deviation_mm,
-            rms_depth_error_mm: r.rms_depth_error_mm,
-            completed_percent: r.completed_percent,
-            economy: r.economy,
-            peak_force_n: r.peak_force_n,
-            critical_events: r.critical_events,
-            no_go_cuts: r.no_go_cuts,
-            off_band_area_mm2: r.off_band_area_mm2,
+            figures: r.figures,
             reasons: r
                 .reasons
                 .lines()
@@ -184,6 +169,7 @@ pub fn csv(summary: &LabSummary) -> String {
     for c in &summary.trainees {
         for l in &c.lessons {
             for a in &l.attempts {
+                let f = &a.figures;
                 let _ = writeln!(
                     s,
                     "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
@@ -195,15 +181,15 @@ pub fn csv(summary: &LabSummary) -> String {
                     field(&a.station),
                     a.score,
                     a.passed,
-                    a.time_s,
-                    a.rms_deviation_mm,
-                    a.rms_depth_error_mm,
-                    a.completed_percent,
-                    a.economy,
-                    a.peak_force_n,
-                    a.critical_events,
-                    a.no_go_cuts,
-                    a.off_band_area_mm2,
+                    f.time_s,
+                    f.rms_deviation_mm,
+                    f.rms_depth_error_mm,
+                    f.completed_percent,
+                    f.economy,
+                    f.peak_force_n,
+                    f.critical_events,
+                    f.no_go_cuts,
+                    f.off_band_area_mm2,
                     field(&a.journal)
                 );
             }
@@ -365,15 +351,17 @@ mod tests {
             min_score: 70.0,
             score,
             passed: score >= 70.0,
-            time_s: 20.0,
-            rms_deviation_mm: 1.0,
-            rms_depth_error_mm: 1.0,
-            completed_percent: 100.0,
-            economy: 1.2,
-            peak_force_n: 2.0,
-            critical_events: 0,
-            no_go_cuts: 0,
-            off_band_area_mm2: 0.0,
+            figures: Figures {
+                time_s: 20.0,
+                rms_deviation_mm: 1.0,
+                rms_depth_error_mm: 1.0,
+                completed_percent: 100.0,
+                economy: 1.2,
+                peak_force_n: 2.0,
+                critical_events: 0,
+                no_go_cuts: 0,
+                off_band_area_mm2: 0.0,
+            },
             reasons: "first\nsecond".into(),
         }
     }
