@@ -175,7 +175,8 @@ fn finish(
 /// `scalpel report JOURNAL [--lesson L] --out DIR`: replays a station's session and scores
 /// it on its lesson (the one it journaled, or `--lesson`).
 pub fn report(file: &Path, lesson: Option<&str>, out: &Path, json: bool) -> anyhow::Result<()> {
-    let (session, recorded) = score_journal(file, lesson)?;
+    let recorded = journal::read(file)?;
+    let session = score_journal(file, &recorded, lesson)?;
     let trainee = recorded.config_string("trainee");
     finish(
         &session,
@@ -186,21 +187,21 @@ pub fn report(file: &Path, lesson: Option<&str>, out: &Path, json: bool) -> anyh
     )
 }
 
-/// Replays the journal `file` and scores it on `lesson` (default: the lesson the station
-/// journaled; for a version 1 journal, the station's `lesson` read as it is now). Refused
-/// when the replay does not end in the live run's state.
+/// Replays `recorded` (read from the journal `file`) and scores it on `lesson` (default:
+/// the lesson the station journaled; for a version 1 journal, the station's `lesson` read
+/// as it is now). Refused when the replay does not end in the live run's state.
 pub fn score_journal(
     file: &Path,
+    recorded: &journal::Journal,
     lesson: Option<&str>,
-) -> anyhow::Result<(ScoredSession, journal::Journal)> {
-    let recorded = journal::read(file)?;
+) -> anyhow::Result<ScoredSession> {
     let scene = scene_file::load_scene(&recorded.scene)
         .with_context(|| format!("{}: the scene it names", file.display()))?;
-    let plan = journal_plan(file, &recorded, lesson, &scene)?;
+    let plan = journal_plan(file, recorded, lesson, &scene)?;
     let mut session = ScoredSession::new(plan);
     let hash = journal::replay_with(
         &scene,
-        &recorded,
+        recorded,
         &mut scalpel_sim::pipeline::NoClock,
         |_, report, sim| session.observe(sim, report, SIMULATION_TICK_S),
     );
@@ -213,7 +214,7 @@ pub fn score_journal(
             file.display()
         );
     }
-    Ok((session, recorded))
+    Ok(session)
 }
 
 /// The plan a journaled session is scored on.

@@ -2,7 +2,6 @@
 //! lesson it journaled (as `scalpel report` does), and archived once, keyed by the journal's
 //! SHA-256.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -47,17 +46,8 @@ fn sha256_of(path: &Path) -> anyhow::Result<String> {
     let mut file =
         std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut hash = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = file
-            .read(&mut buf)
-            .with_context(|| format!("reading {}", path.display()))?;
-        if n == 0 {
-            break;
-        }
-        hash.update(&buf[..n]);
-    }
-    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    std::io::copy(&mut file, &mut hash).with_context(|| format!("reading {}", path.display()))?;
+    Ok(format!("{:x}", hash.finalize()))
 }
 
 /// How long a journal with no closing line must have been left alone before it is taken
@@ -129,7 +119,7 @@ async fn ingest_one(archive: &Archive, path: &Path) -> anyhow::Result<Ingested> 
         archive.put(&record).await?;
         return Ok(Ingested::Added { scored: false });
     }
-    let (session, _) = score_journal(path, None)?;
+    let session = score_journal(path, &recorded, None)?;
     let report = session.report(trainee.clone(), format!("journal {shown}"));
     let report_json = serde_json::to_string(&report)?;
     let spec = &session.scorer.plan().spec;
