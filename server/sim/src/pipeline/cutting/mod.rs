@@ -27,16 +27,19 @@ use crate::math::{Aabb, Vec3};
 use crate::model::{Kernel, Neighbourhoods, RestGrid};
 use crate::scene::{ForceSpec, ToolSpec};
 use crate::solver::Solver;
+use crate::solver::blade::Slab;
 
 use super::steady_motion::SteadyMotion;
 use super::surface::{CurrentSurface, SurfaceContact};
 
 mod fracture;
+mod lips;
 mod region;
 mod sigma;
 mod touch;
 
 use fracture::CrackFront;
+use lips::Lips;
 use sigma::TransparentPair;
 use touch::TouchScratch;
 pub(crate) use touch::{MAX_BLADE_ENTRIES, MAX_BLADE_SAMPLES, slab_of};
@@ -164,6 +167,8 @@ pub struct CuttingStage {
     material_points: usize,
     /// The crack front and its samples (`fracture`).
     front: CrackFront,
+    /// The lips' columns (`lips`).
+    lips: Lips,
 }
 
 /// What the blade's edge is read from.
@@ -222,6 +227,7 @@ impl CuttingStage {
             pairs_removed_total: 0,
             material_points,
             front: CrackFront::default(),
+            lips: Lips::default(),
         }
     }
 

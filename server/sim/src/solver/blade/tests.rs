@@ -119,6 +119,90 @@ fn momentum_balance(config: crate::solver::SolverConfig) {
     assert!(blade.force_on_blade().z > 0.0 && blade.touching() > 0);
 }
 
+/// The lips pushed by a flat: the blade, in a free-floating block (no supports, no
+/// gravity, no damping), is pushed 1 mm sideways across its flats, into the lip samples on
+/// one side of its plane. The lips push back against the push (a lateral force, bounded by
+/// every lip pressed the whole way in), and the momentum the block gains each tick is the
+/// impulse the blade reports, reversed (to 1e-9 of it).
+#[test]
+fn the_lips_push_back_on_a_flat_pushed_into_them() {
+    use crate::model::SurfaceEmbedding;
+    use crate::scene::Material;
+    use crate::validate::box_body;
+    let undamped = Material {
+        damping_per_s: 0.0,
+        ..Material::LIVER
+    };
+    let size = Vec3::new(0.02, 0.02, 0.02);
+    let mut body = box_body(size, 5, &undamped, 2.0, Default::default());
+    let start = Slab {
+        tip: Vec3::new(0.0045, 0.0, 0.0),
+        ..upright()
+    };
+    let n = body.solver.rest().len();
+    let mut blade = BladeBody::with_room(n, 128, 128 * 512, start);
+    let mut row = Vec::new();
+    let (depth, pitch, stiffness) = (1e-5, 0.002, 40.0);
+    for x in [0.003, 0.001, -0.001, -0.003] {
+        for z in [0.002, 0.005, 0.008] {
+            for y in [depth, -depth] {
+                let at = Vec3::new(x, y, z);
+                let model = &body.model;
+                let zero = SurfaceEmbedding::sample_row(
+                    &at,
+                    &model.points.rest,
+                    &model.grid,
+                    &model.kernel,
+                );
+                body.solver
+                    .operator()
+                    .linear_row(&zero, &at, body.solver.rest(), &mut row);
+                // The flats' normal is −y: a sample at +y is on the −side flat's lip.
+                let side = -y.signum();
+                blade.push_lip(&row, at, body.solver.rest(), side, depth, stiffness, pitch);
+            }
+        }
+    }
+    blade.finish(body.solver.positions(), 0.0, 0);
+    assert_eq!(blade.lips(), 24);
+    body.solver.set_blade(Some(blade));
+    let dt = 1e-3;
+    let momentum = |s: &crate::solver::Solver| -> Vec3 {
+        s.masses()
+            .iter()
+            .zip(s.velocities())
+            .map(|(m, v)| v * *m)
+            .sum()
+    };
+    let mut pushed = 0;
+    for k in 1..=10 {
+        let slab = Slab {
+            tip: start.tip + Vec3::y() * (1e-4 * f64::from(k)),
+            ..start
+        };
+        body.solver.blade_mut().unwrap().move_to(slab);
+        let before = momentum(&body.solver);
+        let report = body.solver.step(dt);
+        assert!(!report.diverged && report.rollbacks == 0, "{report:?}");
+        let gained = momentum(&body.solver) - before;
+        let impulse = body.solver.blade().unwrap().force_on_blade() * dt;
+        if impulse.norm() > 0.0 {
+            pushed += 1;
+            assert!(
+                (gained + impulse).norm() <= 1e-9 * impulse.norm(),
+                "tick {k}: gained {gained}, blade impulse {impulse}"
+            );
+        }
+    }
+    assert!(pushed >= 9, "{pushed} ticks pushed");
+    let blade = body.solver.blade().unwrap();
+    let f = blade.force_on_blade();
+    // Back against the push, and no more than every held lip pressed the whole way in.
+    let most = 12.0 * stiffness * (1e-3 + 0.5 * start.thickness);
+    assert!(f.y < 0.0 && -f.y <= most, "{f}");
+    assert!(f.y.abs() > 5.0 * f.x.abs().max(f.z.abs()), "{f}");
+}
+
 /// A sample that came in while the blade lets go is the crack's for the rest of the
 /// attempt, but a retried tick starts from what the tick started with.
 #[test]
