@@ -14,9 +14,9 @@
 //!    Everything else costs nothing per tick.
 //! 5. The blade is a body the tissue cannot enter (`touch`, `solver::blade`): surface
 //!    samples around it are kept out of its slab in every sub-step, with friction. Before
-//!    rupture its tip's end dents the capsule; once cutting, its flats and spine push the
-//!    lips aside, and what meets the tip or the edge is the crack's. The force on the tool
-//!    is the tissue's reaction, plus the fracture term while cutting.
+//!    rupture its tip's end dents the capsule; once cutting, its flats push the lips aside
+//!    (`lips`), and what meets the tip or the edge is the crack's. The force on the tool is
+//!    the tissue's reaction, plus the fracture term while cutting.
 
 use std::ops::Range;
 

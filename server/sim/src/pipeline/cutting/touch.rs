@@ -159,9 +159,9 @@ impl CuttingStage {
                     if by_energy {
                         self.follow_front(b, depth_m, solver, grid);
                     }
-                    let laid = self.follow_lips(b, depth_m, !by_energy, solver, grid);
+                    self.follow_lips(b, depth_m, !by_energy, solver, grid);
                     if !by_energy {
-                        self.wake_under_blade(solver, laid);
+                        self.wake_held(solver);
                     }
                 }
                 _ => {
@@ -250,6 +250,22 @@ impl CuttingStage {
             body.move_to(slab);
         }
         self.wake_under_blade(solver, fresh);
+    }
+
+    /// Keeps the points awake that the samples a face holds follow (the lips the flats
+    /// press): a lip held on points asleep would push the blade and move nothing. Only
+    /// those: most lips touch nothing (a wound opens under its residual tension), and what
+    /// a lip moves wakes the rest as it moves.
+    fn wake_held(&mut self, solver: &Solver) {
+        let Some(body) = solver.blade() else {
+            return;
+        };
+        let material = self.material_points as u32;
+        for k in body.held_points() {
+            if k < material {
+                self.wake(k);
+            }
+        }
     }
 
     /// Takes the crack front's samples away (the blade left, or presses again).
