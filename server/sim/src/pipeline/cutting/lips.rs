@@ -1,15 +1,17 @@
 //! The lips against the blade's flats while it cuts (cutting-physics.md §2): material of
 //! each side of Σ, sampled on Σ where the blade's footprint lies and pushed out by its own
-//! flat alone, with friction (`solver::blade`, `push_lip`, `lip_forces`). Columns are laid on Σ as the crack grows past
-//! the edge (and over the whole footprint when the blade starts cutting); those the spine
-//! has left behind are dropped. The flats' ground edge wedges the lips apart as the blade
-//! passes; a blade leaned or pushed sideways presses one lip, and the lip pushes back — a
-//! lateral force read from the tissue, with its friction along the flats.
+//! flat alone, with friction (`solver::blade`: `push_lip`, `lip_forces`). Columns are laid
+//! on Σ as the crack grows past the edge (and over the whole footprint when the blade
+//! starts cutting); those the spine has left behind are dropped. The flats' ground edge
+//! wedges the lips apart as the blade passes; a blade leaned or pushed sideways presses one
+//! lip, and the lip pushes back — a lateral force read from the tissue, with its friction
+//! along the flats.
 //!
 //! Columns are born from the crack's growth, not rebuilt around the blade: a sample keeps
 //! its contact (and its friction anchor) for as long as the blade passes over it, so the
 //! force does not step when samples are renewed (a grid rebuilt every two pitches did:
-//! docs/CUTTING-DECISIONS.md, "The blade in the tick").
+//! docs/CUTTING-DECISIONS.md, "The blade in the tick"). The contact is compliant, not
+//! rigid: docs/CUTTING-DECISIONS.md, "The lips against the flats".
 
 use super::*;
 use crate::model::embedding::Blockers;
@@ -29,10 +31,21 @@ const COLUMNS_PER_TICK: usize = 3;
 const DROP_PITCHES: f64 = 2.0;
 
 /// Where the lips' columns are.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone)]
 pub(super) struct Lips {
     /// The top (rest) of the newest column; `None` before the first.
     last_column: Option<Vec3>,
+    /// The Σ triangles near the column being laid (room made once).
+    candidates: Vec<u32>,
+}
+
+impl Lips {
+    pub(super) fn new() -> Self {
+        Self {
+            last_column: None,
+            candidates: Vec::with_capacity(MAX_PROBE_CANDIDATES),
+        }
+    }
 }
 
 impl CuttingStage {
@@ -62,7 +75,7 @@ impl CuttingStage {
 
     /// While cutting, the lips against the flats: those left behind dropped, new columns
     /// laid where the crack has grown, the blade moved to `b` when `move_blade` (nothing
-    /// else moved it this tick). Returns whether any were laid.
+    /// else moved it this tick).
     pub(super) fn follow_lips(
         &mut self,
         b: &Blade,
@@ -70,7 +83,7 @@ impl CuttingStage {
         move_blade: bool,
         solver: &mut Solver,
         grid: &RestGrid,
-    ) -> bool {
+    ) {
         let slab = slab_of(b, &self.tool);
         let pitch = self.lip_pitch(depth_m);
         let was_empty = solver.blade().is_none_or(|body| body.is_empty());
@@ -88,7 +101,7 @@ impl CuttingStage {
                     && l.z.abs() < slab.thickness + far
             });
         }
-        let laid = self.lay_columns(b, &slab, depth_m, pitch, solver, grid);
+        self.lay_columns(b, &slab, depth_m, pitch, solver, grid);
         if let Some(body) = solver.blade_mut() {
             body.set_heading(self.direction);
             match (move_blade, was_empty) {
@@ -97,7 +110,6 @@ impl CuttingStage {
                 (true, false) => body.move_to(slab),
             }
         }
-        laid
     }
 
     /// Takes the lips away (the blade left its cut, or presses again).
@@ -120,18 +132,17 @@ impl CuttingStage {
         pitch: f64,
         solver: &mut Solver,
         grid: &RestGrid,
-    ) -> bool {
+    ) {
         let (Some([tip, entry]), Some(ahead)) = (self.last_edge, touch::front_ahead(b)) else {
-            return false;
+            return;
         };
         let newest = entry - ahead * (0.5 * pitch);
-        let mut laid = false;
         match self.lips.last_column {
             None => {
                 let columns = (slab.width / pitch).ceil() as usize + 1;
                 for k in 0..columns {
                     let top = newest - ahead * (k as f64 * pitch);
-                    laid |= self.lay_column(top, tip - entry, depth_m, pitch, slab, solver, grid);
+                    self.lay_column(top, tip - entry, depth_m, pitch, slab, solver, grid);
                 }
                 self.lips.last_column = Some(newest);
             }
@@ -143,7 +154,7 @@ impl CuttingStage {
                         break;
                     }
                     let top = newest - ahead * (grown - pitch);
-                    laid |= self.lay_column(top, tip - entry, depth_m, pitch, slab, solver, grid);
+                    self.lay_column(top, tip - entry, depth_m, pitch, slab, solver, grid);
                     self.lips.last_column = Some(top);
                 }
                 // A crack grown past the blade's width in one go goes on from the blade.
@@ -156,12 +167,11 @@ impl CuttingStage {
                 }
             }
         }
-        laid
     }
 
     /// Lays one column of lip samples from `top` (rest) down `down` as far as `depth_m`:
     /// at each row, the nearest place on Σ within its tolerance, and a sample a little
-    /// inside each lip there. Returns whether any were laid.
+    /// inside each lip there.
     #[allow(clippy::too_many_arguments)]
     fn lay_column(
         &mut self,
@@ -172,9 +182,9 @@ impl CuttingStage {
         slab: &Slab,
         solver: &mut Solver,
         grid: &RestGrid,
-    ) -> bool {
+    ) {
         let Some(down_unit) = down.try_normalize(1e-12) else {
-            return false;
+            return;
         };
         let depth = depth_m.min(down.norm());
         let rows = ((depth / pitch).round() as usize).clamp(1, MOST_ROWS);
@@ -187,14 +197,22 @@ impl CuttingStage {
         };
         let tolerance = self.sigma_tolerance();
         let stiffness = self.lip_stiffness(pitch, solver);
+        // One pass over Σ for the column (a session's Σ has thousands of triangles).
+        let bottom = top + down_unit * depth;
+        let region = Aabb::around([&top, &bottom, &bottom]).expanded(tolerance);
+        let candidates = &mut self.lips.candidates;
+        let every =
+            !sigma::near_region(&self.sigma.boxes, &region, candidates, MAX_PROBE_CANDIDATES);
+        let near: &[u32] = if every { &[] } else { candidates };
         let touch = &mut self.touch;
         let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
-            return false;
+            return;
         };
         let from = body.len();
         for r in 0..rows {
             let x = top + down_unit * (depth * (r as f64 + 0.5) / rows as f64);
-            let Some((on, normal)) = nearest_on_sigma(&x, &self.sigma, tolerance) else {
+            let Some((on, normal)) = nearest_on_sigma(&x, &self.sigma, near, every, tolerance)
+            else {
                 continue;
             };
             // Σ swept by a blade pushed across its flats is not a flat's lip.
@@ -216,14 +234,23 @@ impl CuttingStage {
             }
         }
         body.finish(positions, 0.0, from);
-        body.len() > from
     }
 }
 
-/// The nearest place on Σ to `x` (rest) within `tolerance`, and that triangle's unit normal.
-fn nearest_on_sigma(x: &Vec3, sigma: &SweptSurface, tolerance: f64) -> Option<(Vec3, Vec3)> {
+/// The nearest place on Σ to `x` (rest) within `tolerance`, and that triangle's unit
+/// normal: among the triangles `near` lists, or all of them when `every`.
+fn nearest_on_sigma(
+    x: &Vec3,
+    sigma: &SweptSurface,
+    near: &[u32],
+    every: bool,
+    tolerance: f64,
+) -> Option<(Vec3, Vec3)> {
     let mut best: Option<(f64, Vec3, Vec3)> = None;
-    for (tri, bounds) in sigma.triangles.iter().zip(&sigma.boxes) {
+    let listed = near.iter().map(|&t| t as usize);
+    let all = 0..if every { sigma.triangles.len() } else { 0 };
+    for t in listed.chain(all) {
+        let (tri, bounds) = (&sigma.triangles[t], &sigma.boxes[t]);
         if !bounds.expanded(tolerance).contains(x) {
             continue;
         }

@@ -227,7 +227,7 @@ impl CuttingStage {
             pairs_removed_total: 0,
             material_points,
             front: CrackFront::default(),
-            lips: Lips::default(),
+            lips: Lips::new(),
         }
     }
 

@@ -749,18 +749,10 @@ impl BladeBody {
                 // Friction: back toward where it stuck, at most μ × the normal impulse;
                 // past that it slides, and sticks again where it got to.
                 let on_face = l - normal_local * gap;
-                let mut slip = self.anchor[s] - on_face;
-                slip -= normal_local * slip.dot(&normal_local);
-                let stick = at.world(&slip) / weight;
                 let most = BLADE_FRICTION * self.normal_impulse[s];
-                let size = stick.norm();
-                let tangent = if size > most {
-                    let kept = most / size.max(1e-300);
-                    self.anchor[s] = on_face + slip * kept;
-                    stick * kept
-                } else {
-                    stick
-                };
+                let tangent = self.friction(s, on_face, normal_local, most, |slip| {
+                    at.world(&slip) / weight
+                });
                 let push = normal * dl + tangent;
                 self.impulse[s] += push;
                 for (k, w) in self.samples.row(s) {
@@ -796,7 +788,8 @@ impl BladeBody {
     /// (what it put there last sub-step cleared first): a lip sample inside its flat is
     /// pushed out by `lip_stiffness` × how deep it is, and held along the flat toward where
     /// it stuck by a spring as stiff, at most μ × the push (past that it slides and sticks
-    /// again where it got to). The blade gets the opposite ([`Self::project`] books it).
+    /// again where it got to). The blade gets the opposite ([`Self::project`] or
+    /// [`Self::add_step_force`] books it).
     ///
     /// A force, not a constraint: a lip sample follows a lattice's worth of tissue (grams
     /// on the liver), and held rigidly every contact it made or broke was that mass
@@ -845,18 +838,8 @@ impl BladeBody {
             let stiffness = self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y));
             let push = -gap * stiffness;
             let on_face = l - normal * gap;
-            let mut slip = self.anchor[s] - on_face;
-            slip -= normal * slip.dot(&normal);
-            let pull = slip * stiffness;
             let most = BLADE_FRICTION * push;
-            let size = pull.norm();
-            let tangent = if size > most {
-                let kept = most / size.max(1e-300);
-                self.anchor[s] = on_face + slip * kept;
-                pull * kept
-            } else {
-                pull
-            };
+            let tangent = self.friction(s, on_face, normal, most, |slip| slip * stiffness);
             let f = at.world(&(normal * push + tangent));
             self.lip_force += f;
             for (k, w) in self.samples.row(s) {
@@ -868,6 +851,30 @@ impl BladeBody {
         }
         for &k in &self.written {
             self.seen[k as usize] = false;
+        }
+    }
+
+    /// Sample `s`'s friction on its face, where it is at `on_face` (blade frame; `normal`
+    /// the face's): `pull` of the slip back to where it stuck, at most `most` — past that
+    /// it slides, and sticks again where the pull leaves it.
+    fn friction(
+        &mut self,
+        s: usize,
+        on_face: Vec3,
+        normal: Vec3,
+        most: f64,
+        pull: impl Fn(Vec3) -> Vec3,
+    ) -> Vec3 {
+        let mut slip = self.anchor[s] - on_face;
+        slip -= normal * slip.dot(&normal);
+        let full = pull(slip);
+        let size = full.norm();
+        if size > most {
+            let kept = most / size.max(1e-300);
+            self.anchor[s] = on_face + slip * kept;
+            full * kept
+        } else {
+            full
         }
     }
 
@@ -1004,9 +1011,9 @@ impl BladeBody {
     }
 
     /// The force the tissue got from the blade over a whole step (N): a projective step's
-    /// contact forces, counted as the tick's one sub-step.
+    /// contact forces (and the lips' push), counted as the tick's one sub-step.
     pub(super) fn add_step_force(&mut self, on_tissue: Vec3) {
-        self.force_sum += on_tissue;
+        self.force_sum += on_tissue + std::mem::take(&mut self.lip_force);
         self.substeps += 1;
     }
 
