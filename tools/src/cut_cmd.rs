@@ -279,9 +279,10 @@ fn text_report(name: &str, script: &CutScript, m: &CutMetrics) -> String {
         let mm = |v: Option<f64>| v.map_or("-".to_string(), |g| format!("{g:.2} mm"));
         let _ = writeln!(
             s,
-            "  the lips stand apart {} where the blade enters, {} where it entered a second before (medians; 0 where no wound is drawn yet)",
+            "  the lips stand apart {} where the blade enters, {} and {} where it entered one and two seconds before (medians; 0 where no wound is drawn yet)",
             mm(o.at_blade),
-            mm(o.after_1s)
+            mm(o.after_1s),
+            mm(o.after_2s)
         );
     }
     let _ = writeln!(

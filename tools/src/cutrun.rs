@@ -74,8 +74,11 @@ pub struct TickRow {
     /// positions, at the nearest wall column within a spacing; 0 where no wound is drawn
     /// there yet).
     pub gap_at_blade_mm: Option<f64>,
-    /// The same where the blade's entry was a second earlier.
+    /// The same where the blade's entry was a second earlier ...
     pub gap_after_1s_mm: Option<f64>,
+    /// ... and two seconds earlier: at the default 5 mm/s, 10 mm behind the edge, past the
+    /// blade's 8 mm width (a second behind, its flats still hold the lips apart).
+    pub gap_after_2s_mm: Option<f64>,
 }
 
 /// Ticks in a second at 1 kHz: how far back `gap_after_1s_mm` looks.
@@ -258,10 +261,12 @@ fn run_cut_here(
         // What the eye sees at that place: no wound drawn within a spacing is intact skin.
         let gap_mm = |at: Vec3| lip_gap_m(&sim, at, spacing).unwrap_or(0.0) * 1e3;
         let gap_at_blade_mm = entry_rest.map(gap_mm);
-        let gap_after_1s_mm = k
-            .checked_sub(TICKS_PER_S)
-            .and_then(|then| entries[then])
-            .map(gap_mm);
+        let gap_after = |seconds: usize| {
+            k.checked_sub(seconds * TICKS_PER_S)
+                .and_then(|then| entries[then])
+                .map(gap_mm)
+        };
+        let (gap_after_1s_mm, gap_after_2s_mm) = (gap_after(1), gap_after(2));
         entries.push(entry_rest);
         rows.push(TickRow {
             t_s: report.time_s,
@@ -293,6 +298,7 @@ fn run_cut_here(
             surface_growth_mm: jump.map(|j| j.grown_m * 1e3),
             gap_at_blade_mm,
             gap_after_1s_mm,
+            gap_after_2s_mm,
         });
         if snapshot_every > 0 && k % snapshot_every == 0 {
             keep(k, &sim, &mut snapshots);
@@ -554,8 +560,10 @@ fn sawtooth(steady: &[&TickRow]) -> Option<Sawtooth> {
 pub struct Opening {
     /// Where the blade enters, median over the cutting ticks.
     pub at_blade: Option<f64>,
-    /// A second after the blade's entry passed, median.
+    /// A second after the blade's entry passed, median ...
     pub after_1s: Option<f64>,
+    /// ... and two seconds after.
+    pub after_2s: Option<f64>,
 }
 
 /// The opening over `rows`, `None` when no tick measured it.
@@ -563,7 +571,12 @@ fn opening_of(rows: &[TickRow]) -> Option<Opening> {
     let median = |v: Vec<f64>| Quantiles::of(&v).map(|q| q.p50);
     let at_blade = median(rows.iter().filter_map(|r| r.gap_at_blade_mm).collect());
     let after_1s = median(rows.iter().filter_map(|r| r.gap_after_1s_mm).collect());
-    (at_blade.is_some() || after_1s.is_some()).then_some(Opening { at_blade, after_1s })
+    let after_2s = median(rows.iter().filter_map(|r| r.gap_after_2s_mm).collect());
+    (at_blade.is_some() || after_1s.is_some()).then_some(Opening {
+        at_blade,
+        after_1s,
+        after_2s,
+    })
 }
 
 /// The lip lag over `steady`, `None` when no tick measured it.
@@ -751,6 +764,7 @@ mod tests {
             surface_growth_mm: None,
             gap_at_blade_mm: None,
             gap_after_1s_mm: None,
+            gap_after_2s_mm: None,
             stage_ms: [0.0; Stage::ALL.len()],
             active_points: 0,
             diverged: false,

@@ -708,9 +708,11 @@ fn cut_writes_forces_mesh_render_and_metrics() {
 /// A mesh file is cut as a cutting station would cut it (its bare scene has cutting off):
 /// the liver written out as an OBJ in millimetres, the short cut.
 /// cutting-physics.md §4's opening check on the liver without gravity (the default
-/// stroke): with no residual tension the wound closes behind the blade (gap ≤ 0.2 mm a
-/// second after it passed); with `prestrain` the cut releases the layer's tension and the
-/// wound gapes by the field (measured 0.09 and 2.4 mm), calmly.
+/// stroke), two seconds after the blade's edge passed (10 mm behind it, past its 8 mm
+/// width): with no residual tension the wound stays narrower than the blade is thick
+/// (0.30 mm; 0.09 mm before the flats pushed the lips — what keeps that much open is
+/// docs/CUTTING-DECISIONS.md's, "The lips against the flats"); with `prestrain` the cut
+/// releases the layer's tension and the wound gapes by the field (3.3 mm), calmly.
 #[test]
 fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
     let dir = tempfile::tempdir().unwrap();
@@ -734,7 +736,7 @@ fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
         ]);
         assert_eq!(m["rollback_ticks"], 0, "{m}");
         assert!(m["min_angle_deg"].as_f64().unwrap() >= 15.0, "{m}");
-        m["opening_mm"]["after_1s"].as_f64().unwrap()
+        m["opening_mm"]["after_2s"].as_f64().unwrap()
     };
     let (shut, open) = (gap(0.0), gap(0.1));
     // The report names the layer and its tension: σ = E ε/(1 − ν) = 909 Pa.
@@ -747,8 +749,8 @@ fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
         "{r}"
     );
     assert!(m["prestrain_layer_points"].as_u64().unwrap() > 100, "{r}");
-    assert!(shut <= 0.2, "{shut} mm");
-    assert!(open > 1.0 && open > 10.0 * shut, "{open} mm against {shut}");
+    assert!(shut < 0.4, "{shut} mm");
+    assert!(open > 1.0 && open > 8.0 * shut, "{open} mm against {shut}");
 }
 
 #[test]

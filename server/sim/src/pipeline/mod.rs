@@ -657,11 +657,14 @@ impl Simulation {
         match (cut, blade) {
             (Some(t), Some(b)) => {
                 // Free, the force's direction is zero and so is the model's stiffness.
+                let by_energy = self.spec.force.fracture_by_energy;
+                // Faces backing out of a press are not the blade (the force model's
+                // fracture term stands for the crack they open).
                 let tissue = self
                     .solver
                     .blade()
+                    .filter(|body| by_energy || !body.releasing_press())
                     .map_or(Vec3::zeros(), |body| body.force_on_blade());
-                let by_energy = self.spec.force.fracture_by_energy;
                 let force = self
                     .tissue_force
                     .combine(&t.force, tissue, b.tip, by_energy);

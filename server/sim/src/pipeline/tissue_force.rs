@@ -1,6 +1,6 @@
 //! The force on the tool read from the tissue (cutting-physics.md §2, §6): the blade's
-//! contact reaction (`solver::blade`) while it presses; while cutting, the fracture term of
-//! the force model (the flats against the lips are not on yet). Also what the haptic loop's
+//! contact reaction (`solver::blade`) while it presses; while cutting, the lips' push on
+//! the flats and the fracture term of the force model. Also what the haptic loop's
 //! local model needs from it: the tissue's 3 × 3 stiffness seen at the blade, measured as
 //! the blade moves, and the energy the press stored.
 
@@ -37,7 +37,7 @@ pub struct TissueForce {
 impl TissueForce {
     /// The tool's force for `cut` (the force model's tick) with the tissue's reaction
     /// `tissue` on the blade whose tip is at `tip`: the reaction while pressing, the
-    /// fracture term while cutting.
+    /// reaction and the fracture term while cutting.
     pub fn combine(
         &mut self,
         cut: &CutForce,
@@ -64,11 +64,16 @@ impl TissueForce {
                 f.stored_energy_j = self.stored_j;
             }
             CutPhase::Cutting => {
-                // The blade's faces hold nothing while cutting (what they held is being let
-                // go by faces backing out, not by the blade): the fracture term alone.
+                // The lips' push on the flats (the tissue's; nothing while a press is being
+                // let go: faces backing out are not the blade) and the fracture term. The
+                // local model's stiffness stays the fracture term's: the lips' would be read
+                // off a blade that moves along its cut, where the force changes with the
+                // crack, not with the place.
                 self.taken = 0;
                 self.last = None;
                 self.stored_j = 0.0;
+                f.force_n = cut.force_n + tissue;
+                f.magnitude_n = f.force_n.norm();
             }
         }
         f

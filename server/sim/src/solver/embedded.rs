@@ -97,6 +97,37 @@ impl EmbeddedRows {
         }
     }
 
+    /// Keeps the samples `keep[s]` says, in order, in place (no allocation); `seen` as for
+    /// [`Self::push`].
+    pub fn retain(&mut self, keep: &[bool], seen: &mut [bool]) {
+        let (mut kept, mut entries) = (0, 0);
+        let mut from = self.start[0] as usize;
+        self.reached.clear();
+        for (s, &k) in keep.iter().enumerate().take(self.len()) {
+            let to = self.start[s + 1] as usize;
+            if k {
+                for i in from..to {
+                    let point = self.points[i];
+                    self.points[entries] = point;
+                    self.weights[entries] = self.weights[i];
+                    entries += 1;
+                    if !std::mem::replace(&mut seen[point as usize], true) {
+                        self.reached.push(point);
+                    }
+                }
+                self.offset[kept] = self.offset[s];
+                kept += 1;
+                self.start[kept] = entries as u32;
+            }
+            from = to;
+        }
+        self.start.truncate(kept + 1);
+        self.points.truncate(entries);
+        self.weights.truncate(entries);
+        self.offset.truncate(kept);
+        self.finish(seen);
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.offset.len()
@@ -166,5 +197,30 @@ mod tests {
         let mut out = [Vec3::zeros(); 2];
         rows.spread(0, Vec3::new(0.0, 2.0, 0.0), &mut out);
         assert_eq!(out, [Vec3::new(0.0, 0.5, 0.0), Vec3::new(0.0, 1.5, 0.0)]);
+    }
+
+    /// Retaining keeps the kept samples' rows and places exactly, and what they reach.
+    #[test]
+    fn retain_keeps_rows_and_reach() {
+        let rest = [Vec3::zeros(), Vec3::x(), Vec3::y(), Vec3::z()];
+        let rows = [
+            vec![(0u32, 0.5), (1u32, 0.5)],
+            vec![(2u32, 1.0)],
+            vec![(3u32, 0.25), (1u32, 0.75)],
+        ];
+        let places = [
+            Vec3::new(0.5, 0.0, 0.0),
+            Vec3::y(),
+            Vec3::new(0.7, 0.0, 0.3),
+        ];
+        let mut all = EmbeddedRows::new(rows.iter().map(|r| &r[..]).zip(places), &rest);
+        let p: Vec<Vec3> = rest.iter().map(|x| x * 2.0).collect();
+        let third = all.position(2, &p);
+        let mut seen = vec![false; 4];
+        all.retain(&[true, false, true], &mut seen);
+        assert_eq!(all.len(), 2);
+        assert_eq!(all.reached(), &[0, 1, 3]);
+        assert_eq!(all.position(1, &p), third);
+        assert!(seen.iter().all(|&s| !s));
     }
 }

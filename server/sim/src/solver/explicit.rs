@@ -236,6 +236,10 @@ impl Solver {
                 // Their work is counted with the applied loads' below.
                 held.forces(&self.p, &mut self.held_force, true, held::Vertices::Awake);
             }
+            if let Some(blade) = &mut self.blade {
+                // Their work is counted with the applied loads' below, too.
+                blade.lip_forces(&self.p, &mut self.lip_force, h);
+            }
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));
             }
@@ -256,7 +260,10 @@ impl Solver {
             kinetic = 0.0;
             for idx in 0..self.active_list.len() {
                 let i = self.active_list[idx] as usize;
-                let applied = self.external[i] + gravity * self.base_mass[i] + self.held_force[i];
+                let applied = self.external[i]
+                    + gravity * self.base_mass[i]
+                    + self.held_force[i]
+                    + self.lip_force[i];
                 let mass = self.mass[i];
                 let moved = if self.fixed[i] == [false; 3] {
                     // A free point (nearly all of them): its three dofs at once.

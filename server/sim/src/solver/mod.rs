@@ -237,6 +237,8 @@ pub struct Solver {
     contact_force: Vec<Vec3>,
     /// The blade as a kinematic body in the explicit tick, for scenes that cut.
     blade: Option<blade::BladeBody>,
+    /// The blade's lips' forces on the points, this sub-step (zero where none reach).
+    lip_force: Vec<Vec3>,
     /// What the crack takes from the tissue when its front jumps.
     crack_sink: crack_sink::CrackSink,
     /// Residual tension in the surface layer (`[material] prestrain`); empty for none.
@@ -449,6 +451,7 @@ impl Solver {
             contact: None,
             contact_force: zeros.clone(),
             blade: None,
+            lip_force: zeros.clone(),
             crack_sink: crack_sink::CrackSink::with_room(n),
             prestress: Prestress::default(),
             force: zeros.clone(),

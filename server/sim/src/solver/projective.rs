@@ -128,12 +128,16 @@ impl Projective {
             // Taken at the step's start: explicit in the implicit step.
             held.forces(&s.p, &mut s.held_force, true, super::held::Vertices::All);
         }
+        if let Some(blade) = &mut s.blade {
+            // The lips' push on the flats, at the step's start too.
+            blade.lip_forces(&s.p, &mut s.lip_force, dt);
+        }
         // The inertial prediction y (with the applied loads) goes into the right-hand side; the
         // iterations start from p + dt·v instead. With a truncated number of iterations the
         // tick map's steady state is then the true equilibrium: started from y, a resting
         // body would settle where the unfinished iterations balance the load, not at rest.
         for i in 0..n {
-            let applied = s.applied_load(i);
+            let applied = s.applied_load(i) + s.lip_force[i];
             for a in 0..3 {
                 if s.fixed[i][a] {
                     s.scratch[0][i][a] = s.target[i][a];
@@ -174,7 +178,7 @@ impl Projective {
         // Work of the applied loads over the step (moving constraints are not tracked here).
         let mut work = 0.0;
         for i in 0..n {
-            work += s.applied_load(i).dot(&(s.p[i] - self.start[i]));
+            work += (s.applied_load(i) + s.lip_force[i]).dot(&(s.p[i] - self.start[i]));
         }
         let mut finite = true;
         for i in 0..n {

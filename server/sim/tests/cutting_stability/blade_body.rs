@@ -222,3 +222,47 @@ fn the_local_model_is_the_tissue_stiffness() {
     // Only a sideways move teaches the sideways stiffness.
     assert!(-k_side[(1, 1)] > 5.0 * (-k1[(1, 1)]).max(1.0), "{k_side:?}");
 }
+
+/// Cuts the liver at `factor` × E, 8 mm deep along +x (edge first), steps `step_mm`
+/// across the flats (+y) over 5 mm of travel, then goes straight on; returns the mean
+/// force across the flats (N, along +y) over 1–4 mm of travel after the step.
+fn lateral_after_step(factor: f64, step_mm: f64) -> f64 {
+    let scene = linear_liver_at(factor);
+    let mut sim = Simulation::new(&scene);
+    let top = top_mm(&scene, -30.0, 0.0);
+    let z = top - 8.0;
+    let s = script(&[
+        (0.0, [-30.0, 0.0, top + 1.0]),
+        (1.8, [-30.0, 0.0, z]),
+        (3.8, [-10.0, 0.0, z]),
+        (4.3, [-5.0, step_mm, z]),
+        (4.8, [0.0, step_mm, z]),
+    ]);
+    let (from, to) = ((4.4 / TICK_S) as usize, (4.7 / TICK_S) as usize);
+    let mut sum = 0.0;
+    for k in 0..=to {
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        let r = sim.tick(TICK_S, &mut NoClock);
+        assert!(!r.solver.diverged && r.solver.rollbacks == 0, "tick {k}");
+        if k >= from {
+            assert_eq!(r.cut.as_ref().unwrap().force.phase, CutPhase::Cutting);
+            sum += r.tool_force_n.y;
+        }
+    }
+    sum / (to + 1 - from) as f64
+}
+
+/// While cutting, a blade stepped 1 mm across its flats presses the lip on that side,
+/// which pushes it back: a force across the flats, against the step, from the tissue (the
+/// fracture term acts along the motion only), in proportion to its stiffness.
+#[test]
+fn a_cutting_blade_stepped_sideways_is_pushed_back_by_the_lip() {
+    let lateral: Vec<f64> = [1.0, 4.0]
+        .iter()
+        .map(|&k| lateral_after_step(k, 1.0) - lateral_after_step(k, 0.0))
+        .collect();
+    println!("across the flats after a 1 mm step, 1 and 4 × E: {lateral:?} N");
+    assert!(lateral[0] < -1e-3, "{lateral:?}");
+    let ratio = lateral[1] / lateral[0];
+    assert!((3.0..=5.0).contains(&ratio), "{lateral:?}: × {ratio}");
+}

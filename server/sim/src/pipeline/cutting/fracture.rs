@@ -177,13 +177,16 @@ impl CuttingStage {
         let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
             return;
         };
-        body.clear();
+        let from = {
+            body.retain(|body, s| body.is_lip(s));
+            body.len()
+        };
         for x in at.iter().flatten() {
             if touch.row_at(x, rest, grid, &kernel, blockers, op) && body.fits(touch.row.len()) {
                 body.push_front(&touch.row, *x, rest, CAPTURE_PITCHES * pitch);
             }
         }
-        body.finish(positions, 0.0, 0);
+        body.finish(positions, 0.0, from);
         self.front.built = true;
         self.front.stale = false;
     }

@@ -14,9 +14,9 @@
 //!    Everything else costs nothing per tick.
 //! 5. The blade is a body the tissue cannot enter (`touch`, `solver::blade`): surface
 //!    samples around it are kept out of its slab in every sub-step, with friction. Before
-//!    rupture its tip's end dents the capsule; once cutting, its flats and spine push the
-//!    lips aside, and what meets the tip or the edge is the crack's. The force on the tool
-//!    is the tissue's reaction, plus the fracture term while cutting.
+//!    rupture its tip's end dents the capsule; once cutting, its flats push the lips aside
+//!    (`lips`), and what meets the tip or the edge is the crack's. The force on the tool is
+//!    the tissue's reaction, plus the fracture term while cutting.
 
 use std::ops::Range;
 
@@ -27,16 +27,19 @@ use crate::math::{Aabb, Vec3};
 use crate::model::{Kernel, Neighbourhoods, RestGrid};
 use crate::scene::{ForceSpec, ToolSpec};
 use crate::solver::Solver;
+use crate::solver::blade::Slab;
 
 use super::steady_motion::SteadyMotion;
 use super::surface::{CurrentSurface, SurfaceContact};
 
 mod fracture;
+mod lips;
 mod region;
 mod sigma;
 mod touch;
 
 use fracture::CrackFront;
+use lips::Lips;
 use sigma::TransparentPair;
 use touch::TouchScratch;
 pub(crate) use touch::{MAX_BLADE_ENTRIES, MAX_BLADE_SAMPLES, slab_of};
@@ -164,6 +167,8 @@ pub struct CuttingStage {
     material_points: usize,
     /// The crack front and its samples (`fracture`).
     front: CrackFront,
+    /// The lips' columns (`lips`).
+    lips: Lips,
 }
 
 /// What the blade's edge is read from.
@@ -222,6 +227,7 @@ impl CuttingStage {
             pairs_removed_total: 0,
             material_points,
             front: CrackFront::default(),
+            lips: Lips::new(),
         }
     }
 

@@ -328,17 +328,12 @@ impl CuttingStage {
         // a session); past the scratch's capacity, all of them.
         let pad = self.sigma_tolerance() + self.sigma_plane_tolerance();
         let region = Aabb::around([&a, &b, &probe]).expanded(pad);
-        self.probe_candidates.clear();
-        let mut overflow = false;
-        for (t, b) in self.sigma.boxes.iter().enumerate() {
-            if b.overlaps(&region) {
-                if self.probe_candidates.len() == MAX_PROBE_CANDIDATES {
-                    overflow = true;
-                    break;
-                }
-                self.probe_candidates.push(t as u32);
-            }
-        }
+        let overflow = !near_region(
+            &self.sigma.boxes,
+            &region,
+            &mut self.probe_candidates,
+            MAX_PROBE_CANDIDATES,
+        );
         let cut = |x: &Vec3, along: &Vec3| {
             let on = |tri: &[Vec3; 3]| self.on_triangle_along(x, tri, along);
             if overflow {
@@ -402,4 +397,19 @@ impl CuttingStage {
     pub(super) fn sigma_plane_tolerance(&self) -> f64 {
         self.tool.blade_thickness_m + 0.05 * self.spacing_m
     }
+}
+
+/// The triangles whose `boxes` overlap `region`, into `out` (cleared first), at most
+/// `most` of them (room made once); `false` when more overlap (then take every triangle).
+pub(super) fn near_region(boxes: &[Aabb], region: &Aabb, out: &mut Vec<u32>, most: usize) -> bool {
+    out.clear();
+    for (t, b) in boxes.iter().enumerate() {
+        if b.overlaps(region) {
+            if out.len() == most {
+                return false;
+            }
+            out.push(t as u32);
+        }
+    }
+    true
 }

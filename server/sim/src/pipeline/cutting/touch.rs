@@ -26,7 +26,7 @@ const CELLS_PER_TICK: usize = 16;
 /// Columns along the blade from its edge to its spine, at least.
 const COLUMNS_ACROSS_WIDTH: f64 = 8.0;
 /// Most samples, and row terms over all of them (room made once: no allocation after).
-pub(crate) const MAX_BLADE_SAMPLES: usize = 160;
+pub(crate) const MAX_BLADE_SAMPLES: usize = 224;
 pub(crate) const MAX_BLADE_ENTRIES: usize = MAX_BLADE_SAMPLES * 768;
 /// Scratch for one sample's row before its terms are merged.
 pub(super) const MAX_ROW_TERMS: usize = 1 << 15;
@@ -72,6 +72,8 @@ pub(super) struct TouchScratch {
     /// how far it had pressed.
     touched_at: Option<Vec3>,
     letting_go: Option<(Slab, f64)>,
+    /// The samples are a press's (built while loading), to be let go once it ends.
+    pressed: bool,
 }
 
 impl TouchScratch {
@@ -86,6 +88,7 @@ impl TouchScratch {
             pending: None,
             touched_at: None,
             letting_go: None,
+            pressed: false,
         }
     }
 
@@ -142,25 +145,34 @@ impl CuttingStage {
         grid: &RestGrid,
     ) {
         // Pressing, every face holds the tissue. Once the capsule fails the press is let go
-        // over RELEASE_S, and then the edge holds the crack front's samples (`fracture`);
-        // the flats against the lips are not on yet (docs/CUTTING-DECISIONS.md, "The blade
-        // in the tick").
+        // over RELEASE_S; then the edge holds the crack front's samples (`fracture`, by
+        // energy) and each flat its lip (`lips`).
         let (Some(b), true) = (blade, force.phase == CutPhase::Loading) else {
             self.touch.built_at = None;
             self.touch.pending = None;
             if !self.front.built && self.let_go(dt, solver) {
                 return;
             }
-            if !self.force.fracture_by_energy() {
-                return;
-            }
+            let by_energy = self.force.fracture_by_energy();
             match (blade, force.phase) {
-                (Some(b), CutPhase::Cutting) => self.follow_front(b, depth_m, solver, grid),
-                _ => self.drop_front(solver),
+                (Some(b), CutPhase::Cutting) => {
+                    if by_energy {
+                        self.follow_front(b, depth_m, solver, grid);
+                    }
+                    self.follow_lips(b, depth_m, !by_energy, solver, grid);
+                    if !by_energy {
+                        self.wake_held(solver);
+                    }
+                }
+                _ => {
+                    self.drop_front(solver);
+                    self.drop_lips(solver);
+                }
             }
             return;
         };
         self.drop_front(solver);
+        self.drop_lips(solver);
         self.touch.letting_go = None;
         let slab = slab_of(b, &self.tool);
         let rebuild = self.touch.built_at.is_none_or(|at| {
@@ -194,7 +206,7 @@ impl CuttingStage {
         let Some(body) = solver.blade_mut() else {
             return false;
         };
-        if body.is_empty() {
+        if body.is_empty() || !self.touch.pressed {
             self.touch.letting_go = None;
             return false;
         }
@@ -216,6 +228,7 @@ impl CuttingStage {
             true
         } else {
             self.touch.letting_go = None;
+            self.touch.pressed = false;
             false
         }
     }
@@ -239,13 +252,29 @@ impl CuttingStage {
         self.wake_under_blade(solver, fresh);
     }
 
+    /// Keeps the points awake that the samples a face holds follow (the lips the flats
+    /// press): a lip held on points asleep would push the blade and move nothing. Only
+    /// those: most lips touch nothing (a wound opens under its residual tension), and what
+    /// a lip moves wakes the rest as it moves.
+    fn wake_held(&mut self, solver: &Solver) {
+        let Some(body) = solver.blade() else {
+            return;
+        };
+        let material = self.material_points as u32;
+        for k in body.held_points() {
+            if k < material {
+                self.wake(k);
+            }
+        }
+    }
+
     /// Takes the crack front's samples away (the blade left, or presses again).
     fn drop_front(&mut self, solver: &mut Solver) {
         self.front.work_j = 0.0;
         if std::mem::take(&mut self.front.built)
             && let Some(body) = solver.blade_mut()
         {
-            body.clear();
+            body.retain(|body, s| body.is_lip(s));
         }
     }
 
@@ -284,6 +313,7 @@ impl CuttingStage {
         };
         body.carry_held_into(next, rest, row);
         std::mem::swap(body, next);
+        self.touch.pressed = true;
         body.place(*slab);
         self.touch.pending = Some((*slab, 0, body.len()));
     }

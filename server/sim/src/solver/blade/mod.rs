@@ -33,6 +33,16 @@ const FRONT_CATCH_UP_M_PER_S: f64 = 0.05;
 /// The bevel at the edge's tip end for crack-front samples, in capture bands (a capture
 /// band is a sample pitch): half a pitch.
 const TIP_BEVEL_CAPTURES: f64 = 0.5;
+/// A flat holds its lip fully while its outward normal is at most this far along the
+/// blade's heading (cosine) ...
+const LIP_HELD_LEAD: f64 = 0.3;
+/// ... and not at all from this far on: a flat that leads the motion (the blade pushed
+/// across its flats) is cutting there, the swept edge's crack, not pushing a lip ahead.
+const LIP_LET_GO_LEAD: f64 = 0.7;
+/// How far back from the edge the flats' grind reaches the blade's full thickness (m): a
+/// scalpel's edge is ground over about a millimetre, so the lips are wedged apart over
+/// that much of its travel, not pushed the blade's half thickness at once.
+const EDGE_GRIND_M: f64 = 0.001;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -204,6 +214,22 @@ pub struct BladeBody {
     /// While the blade is lifted out along its edge, how fast it lets go of the crack front
     /// (m/s; zero otherwise): see [`Self::let_go_front`].
     letting_go_front: f64,
+    /// Per sample: 0, or for a lip sample (`push_lip`) the side of Σ it is on, +1 on the
+    /// +side flat's, −1 on the other's.
+    side: Vec<f64>,
+    /// How far inside its lip a lip sample sits (m): its flat holds it that much out.
+    lip_depth: f64,
+    /// Each lip sample's contact stiffness (N/m), and the side of the patch of lip it
+    /// stands for (m): see [`Self::lip_forces`].
+    lip_stiffness: f64,
+    lip_pitch: f64,
+    /// The lips' force on the tissue this sub-step (N), and the points it was put on.
+    lip_force: Vec3,
+    written: Vec<u32>,
+    /// The blade's heading (unit, or zero when it is not moving): see [`LIP_LET_GO_LEAD`].
+    heading: Vec3,
+    /// Scratch for [`Self::retain`].
+    keep: Vec<bool>,
 }
 
 impl BladeBody {
@@ -236,6 +262,14 @@ impl BladeBody {
             slack_at_tick: Vec::with_capacity(samples),
             substep_move: 0.0,
             letting_go_front: 0.0,
+            side: Vec::with_capacity(samples),
+            lip_depth: 0.0,
+            lip_stiffness: 0.0,
+            lip_pitch: 0.0,
+            lip_force: Vec3::zeros(),
+            heading: Vec3::zeros(),
+            written: Vec::with_capacity(points),
+            keep: Vec::with_capacity(samples),
         }
     }
 
@@ -299,7 +333,73 @@ impl BladeBody {
         self.capture.clear();
         self.slack.clear();
         self.slack_at_tick.clear();
+        self.side.clear();
         self.on_blade = Vec3::zeros();
+    }
+
+    /// Keeps only the samples `keep(s)` says, in order (no allocation): lips left behind
+    /// the spine dropped, or the crack front rebuilt with the lips kept.
+    pub fn retain(&mut self, keep: impl Fn(&Self, usize) -> bool) {
+        let mut flags = std::mem::take(&mut self.keep);
+        flags.clear();
+        flags.extend((0..self.len()).map(|s| keep(self, s)));
+        if flags.iter().all(|&k| k) {
+            self.keep = flags;
+            return;
+        }
+        self.samples.retain(&flags, &mut self.seen);
+        fn squeeze<T: Copy>(v: &mut Vec<T>, flags: &[bool]) {
+            let mut kept = 0;
+            for s in 0..v.len() {
+                if flags[s] {
+                    v[kept] = v[s];
+                    kept += 1;
+                }
+            }
+            v.truncate(kept);
+        }
+        squeeze(&mut self.face, &flags);
+        squeeze(&mut self.face_at_tick, &flags);
+        squeeze(&mut self.anchor, &flags);
+        squeeze(&mut self.anchor_at_tick, &flags);
+        squeeze(&mut self.cut, &flags);
+        squeeze(&mut self.cut_at_tick, &flags);
+        squeeze(&mut self.start_local, &flags);
+        squeeze(&mut self.start_world, &flags);
+        squeeze(&mut self.near, &flags);
+        squeeze(&mut self.normal_impulse, &flags);
+        squeeze(&mut self.impulse, &flags);
+        squeeze(&mut self.capture, &flags);
+        squeeze(&mut self.slack, &flags);
+        squeeze(&mut self.slack_at_tick, &flags);
+        squeeze(&mut self.side, &flags);
+        self.keep = flags;
+    }
+
+    /// The way the blade is heading (unit, or zero), for the lips: see
+    /// [`LIP_LET_GO_LEAD`].
+    pub fn set_heading(&mut self, heading: Vec3) {
+        self.heading = heading;
+    }
+
+    /// Whether sample `s` is a lip sample.
+    pub fn is_lip(&self, s: usize) -> bool {
+        self.side[s] != 0.0
+    }
+
+    /// How many lip samples there are.
+    pub fn lips(&self) -> usize {
+        self.side.iter().filter(|&&d| d != 0.0).count()
+    }
+
+    /// Whether the faces are letting go of what a press held (`release`).
+    pub fn releasing_press(&self) -> bool {
+        self.hold < 1.0
+    }
+
+    /// Sample `s` in the frame of the blade at `slab`, with the points at `p`.
+    pub fn local_in(&self, slab: &Slab, s: usize, p: &[Vec3]) -> Vec3 {
+        slab.local(&self.samples.position(s, p))
     }
 
     /// Whether a sample following `entries` points still fits.
@@ -325,6 +425,32 @@ impl BladeBody {
         self.capture.push(0.0);
         self.slack.push(0.0);
         self.slack_at_tick.push(0.0);
+        self.side.push(0.0);
+    }
+
+    /// Adds a lip sample: material of one side of Σ (`side` +1 or −1, the flat that holds
+    /// it), `depth` (m) inside its lip at rest `rest`, following `row` (its side's points
+    /// only), pressed with `stiffness` (N/m, [`Self::lip_forces`]) over a patch `pitch`
+    /// (m) on a side. Only its own flat holds it, from the edge's grind to the spine
+    /// (`finish` after the last).
+    #[allow(clippy::too_many_arguments)]
+    pub fn push_lip(
+        &mut self,
+        row: &[(u32, f64)],
+        rest: Vec3,
+        rest_points: &[Vec3],
+        side: f64,
+        depth: f64,
+        stiffness: f64,
+        pitch: f64,
+    ) {
+        self.push(row, rest, rest_points);
+        self.lip_pitch = pitch;
+        if let Some(d) = self.side.last_mut() {
+            *d = side.signum();
+        }
+        self.lip_depth = depth;
+        self.lip_stiffness = stiffness;
     }
 
     /// Adds a crack-front sample: material just ahead of the crack front (rest `rest`,
@@ -347,6 +473,15 @@ impl BladeBody {
     /// Whether sample `s`, at local `l`, is inside what holds it: the steel, or for a
     /// crack-front sample the edge's capture band.
     fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
+        if self.side[s] != 0.0 {
+            // (Half a patch beyond the tip and the spine: see `lip_forces`.)
+            let half = 0.5 * self.lip_pitch;
+            return l.x > -half
+                && l.x < at.length
+                && l.y > 0.0
+                && l.y < at.width + half
+                && self.lip_gap(at, s, l).0 < 0.0;
+        }
         match self.capture[s] {
             capture if capture > 0.0 => at.inside_across(l, capture) && l.y > self.bevel(s, l),
             _ => at.inside(l),
@@ -365,10 +500,33 @@ impl BladeBody {
     /// Sample `s`'s gap at local `l` to `face` of the slab `at` and the face's normal, as
     /// [`Slab::gap`] with the edge's bevel for crack-front samples.
     fn gap_to(&self, at: &Slab, s: usize, l: &Vec3, face: Face) -> (f64, Vec3) {
+        if self.side[s] != 0.0 {
+            return self.lip_gap(at, s, l);
+        }
         let (gap, normal) = at.gap(l, face);
         match face {
             Face::Edge => (gap + self.bevel(s, l), normal),
             _ => (gap, normal),
+        }
+    }
+
+    /// Lip sample `s`'s gap at local `l` to its flat (m, negative inside) and the flat's
+    /// outward normal in the blade's frame: from the edge the flat is ground at the angle
+    /// that reaches the half thickness [`EDGE_GRIND_M`] back, then flat; the sample sits
+    /// [`Self::lip_depth`] inside its lip.
+    fn lip_gap(&self, at: &Slab, s: usize, l: &Vec3) -> (f64, Vec3) {
+        let side = self.side[s];
+        let half = 0.5 * at.thickness;
+        let slope = half / EDGE_GRIND_M;
+        if l.y * slope < half {
+            let norm = (1.0 + slope * slope).sqrt();
+            let gap = (side * l.z - l.y * slope) / norm - self.lip_depth;
+            (gap, Vec3::new(0.0, -slope, side) / norm)
+        } else {
+            (
+                side * l.z - half - self.lip_depth,
+                Vec3::new(0.0, 0.0, side),
+            )
         }
     }
 
@@ -396,6 +554,7 @@ impl BladeBody {
             into.face[t] = Some(face);
             into.anchor[t] = self.anchor[s];
             into.capture[t] = self.capture[s];
+            into.side[t] = self.side[s];
         }
         into.len()
     }
@@ -412,7 +571,7 @@ impl BladeBody {
         self.samples.finish(&mut self.seen);
         let at = self.to;
         for s in from..self.len() {
-            if self.face[s].is_some() || self.capture[s] > 0.0 {
+            if self.face[s].is_some() || self.capture[s] > 0.0 || self.side[s] != 0.0 {
                 continue;
             }
             let l = at.local(&self.samples.position(s, p));
@@ -548,7 +707,7 @@ impl BladeBody {
         let at = self.at;
         for pass in 0..PASSES {
             for s in 0..self.len() {
-                if !self.near[s] {
+                if !self.near[s] || self.side[s] != 0.0 {
                     continue;
                 }
                 let l = at.local(&self.samples.position(s, p));
@@ -590,18 +749,10 @@ impl BladeBody {
                 // Friction: back toward where it stuck, at most μ × the normal impulse;
                 // past that it slides, and sticks again where it got to.
                 let on_face = l - normal_local * gap;
-                let mut slip = self.anchor[s] - on_face;
-                slip -= normal_local * slip.dot(&normal_local);
-                let stick = at.world(&slip) / weight;
                 let most = BLADE_FRICTION * self.normal_impulse[s];
-                let size = stick.norm();
-                let tangent = if size > most {
-                    let kept = most / size.max(1e-300);
-                    self.anchor[s] = on_face + slip * kept;
-                    stick * kept
-                } else {
-                    stick
-                };
+                let tangent = self.friction(s, on_face, normal_local, most, |slip| {
+                    at.world(&slip) / weight
+                });
                 let push = normal * dl + tangent;
                 self.impulse[s] += push;
                 for (k, w) in self.samples.row(s) {
@@ -619,7 +770,8 @@ impl BladeBody {
         // The work of the sub-step's force on the tissue over the samples' moves, and the
         // force itself for the tick's mean.
         let mut work = 0.0;
-        let mut force = Vec3::zeros();
+        // The lips' push is a force in the step (its work is the applied loads').
+        let mut force = std::mem::take(&mut self.lip_force);
         for s in 0..self.len() {
             if self.impulse[s] != Vec3::zeros() {
                 let f = self.impulse[s] / (h * h);
@@ -630,6 +782,100 @@ impl BladeBody {
         self.force_sum += force;
         self.substeps += 1;
         (kinetic, work)
+    }
+
+    /// The lips' push on the tissue at the points `p` for a sub-step of `h`, into `out`
+    /// (what it put there last sub-step cleared first): a lip sample inside its flat is
+    /// pushed out by `lip_stiffness` × how deep it is, and held along the flat toward where
+    /// it stuck by a spring as stiff, at most μ × the push (past that it slides and sticks
+    /// again where it got to). The blade gets the opposite ([`Self::project`] or
+    /// [`Self::add_step_force`] books it).
+    ///
+    /// A force, not a constraint: a lip sample follows a lattice's worth of tissue (grams
+    /// on the liver), and held rigidly every contact it made or broke was that mass
+    /// stopped within a sub-step — 0.1 N of chatter a tick on the liver. The lip gives way
+    /// at the blade over a patch far below the lattice's spacing, which the field cannot
+    /// draw; the stiffness is that patch's (`lips`), in series with the field.
+    pub(super) fn lip_forces(&mut self, p: &[Vec3], out: &mut [Vec3], h: f64) {
+        for &k in &self.written {
+            out[k as usize] = Vec3::zeros();
+        }
+        self.written.clear();
+        self.lip_force = Vec3::zeros();
+        let at = self.at;
+        for s in 0..self.len() {
+            if self.side[s] == 0.0 || self.cut[s] {
+                continue;
+            }
+            let l = at.local(&self.samples.position(s, p));
+            if !self.contains(&at, s, &l) {
+                self.face[s] = None;
+                continue;
+            }
+            let newly = self.face[s].is_none();
+            let Some(face) = self.take_face(s, &l) else {
+                continue;
+            };
+            let (mut gap, normal) = self.gap_to(&at, s, &l, face);
+            if newly && -gap > 2.0 * self.substep_move + DEEP_MEET_M {
+                // Laid where the steel already was: taken up at a hand's pace.
+                self.slack[s] = -gap;
+            }
+            if self.slack[s] > 0.0 {
+                let left = (self.slack[s] - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
+                self.slack[s] = left.min((-gap).max(0.0));
+                gap += self.slack[s];
+            }
+            if gap >= 0.0 {
+                continue;
+            }
+            // The share of the sample's patch the steel covers: a patch crossing the spine,
+            // or the tip passing it, lets go over its width, not at once.
+            let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
+            let lead = at.side().dot(&self.heading) * self.side[s];
+            let held =
+                ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
+            let stiffness = self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y));
+            let push = -gap * stiffness;
+            let on_face = l - normal * gap;
+            let most = BLADE_FRICTION * push;
+            let tangent = self.friction(s, on_face, normal, most, |slip| slip * stiffness);
+            let f = at.world(&(normal * push + tangent));
+            self.lip_force += f;
+            for (k, w) in self.samples.row(s) {
+                if !std::mem::replace(&mut self.seen[k], true) {
+                    self.written.push(k as u32);
+                }
+                out[k] += f * w;
+            }
+        }
+        for &k in &self.written {
+            self.seen[k as usize] = false;
+        }
+    }
+
+    /// Sample `s`'s friction on its face, where it is at `on_face` (blade frame; `normal`
+    /// the face's): `pull` of the slip back to where it stuck, at most `most` — past that
+    /// it slides, and sticks again where the pull leaves it.
+    fn friction(
+        &mut self,
+        s: usize,
+        on_face: Vec3,
+        normal: Vec3,
+        most: f64,
+        pull: impl Fn(Vec3) -> Vec3,
+    ) -> Vec3 {
+        let mut slip = self.anchor[s] - on_face;
+        slip -= normal * slip.dot(&normal);
+        let full = pull(slip);
+        let size = full.norm();
+        if size > most {
+            let kept = most / size.max(1e-300);
+            self.anchor[s] = on_face + slip * kept;
+            full * kept
+        } else {
+            full
+        }
     }
 
     /// For the projective step's global solve: sample `s`'s one-sided constraint at the
@@ -643,7 +889,7 @@ impl BladeBody {
         p: &[Vec3],
         free: impl Fn(usize) -> bool,
     ) -> Option<(Vec3, f64)> {
-        if self.cut[s] {
+        if self.cut[s] || self.side[s] != 0.0 {
             return None;
         }
         let at = self.at;
@@ -661,7 +907,7 @@ impl BladeBody {
         let (mut gap, normal_local) = self.gap_to(&at, s, &l, face);
         // A crack-front sample met behind the edge keeps its slack as in `project`; the
         // step takes it up (`take_up_slack`), and it is never looser than the sample is.
-        if newly && self.capture[s] > 0.0 {
+        if newly && (self.capture[s] > 0.0 || self.side[s] != 0.0) {
             self.slack[s] = (-gap).max(0.0);
         }
         // (Let out while lifted out: `take_up_slack` bounds it by the lift's time.)
@@ -701,7 +947,7 @@ impl BladeBody {
     /// Sample `s`'s place (blade frame) projected onto `face`, and the face's normal.
     fn on_face(&self, s: usize, face: Face, p: &[Vec3]) -> (Vec3, Vec3) {
         let l = self.at.local(&self.samples.position(s, p));
-        let (gap, normal_local) = self.at.gap(&l, face);
+        let (gap, normal_local) = self.gap_to(&self.at, s, &l, face);
         (l - normal_local * gap, normal_local)
     }
 
@@ -710,6 +956,16 @@ impl BladeBody {
     /// takes hold of anything new: the sample is the crack's from then on.
     fn take_face(&mut self, s: usize, l: &Vec3) -> Option<Face> {
         if let Some(f) = self.face[s] {
+            return Some(f);
+        }
+        if self.side[s] != 0.0 {
+            // A lip is its own flat's, whatever the faces are doing with a press.
+            let f = match self.side[s] > 0.0 {
+                true => Face::FlatPlus,
+                false => Face::FlatMinus,
+            };
+            self.face[s] = Some(f);
+            self.anchor[s] = *l;
             return Some(f);
         }
         if self.hold < 1.0 {
@@ -755,9 +1011,9 @@ impl BladeBody {
     }
 
     /// The force the tissue got from the blade over a whole step (N): a projective step's
-    /// contact forces, counted as the tick's one sub-step.
+    /// contact forces (and the lips' push), counted as the tick's one sub-step.
     pub(super) fn add_step_force(&mut self, on_tissue: Vec3) {
-        self.force_sum += on_tissue;
+        self.force_sum += on_tissue + std::mem::take(&mut self.lip_force);
         self.substeps += 1;
     }
 

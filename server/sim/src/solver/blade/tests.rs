@@ -54,16 +54,68 @@ fn the_blade_gets_what_the_tissue_gets_reversed_in_stiff_mode() {
     });
 }
 
-fn momentum_balance(config: crate::solver::SolverConfig) {
-    use crate::model::SurfaceEmbedding;
-    use crate::scene::Material;
-    use crate::validate::box_body;
-    let undamped = Material {
+/// A free-floating 20 mm block of undamped liver (no supports, no gravity, no damping).
+fn free_block(config: crate::solver::SolverConfig) -> crate::validate::BoxBody {
+    let undamped = crate::scene::Material {
         damping_per_s: 0.0,
-        ..Material::LIVER
+        ..crate::scene::Material::LIVER
     };
     let size = Vec3::new(0.02, 0.02, 0.02);
-    let mut body = box_body(size, 5, &undamped, 2.0, config);
+    crate::validate::box_body(size, 5, &undamped, 2.0, config)
+}
+
+/// The first-order row of the field at rest place `x` in `body`, into `row`.
+fn row_at(body: &crate::validate::BoxBody, x: &Vec3, row: &mut Vec<(u32, f64)>) {
+    use crate::model::SurfaceEmbedding;
+    let model = &body.model;
+    let zero = SurfaceEmbedding::sample_row(x, &model.points.rest, &model.grid, &model.kernel);
+    body.solver
+        .operator()
+        .linear_row(&zero, x, body.solver.rest(), row);
+}
+
+/// Moves the blade from `start` by `step` a tick for `ticks` ticks of 1 ms; each tick the
+/// block's momentum gain must be the blade's impulse reversed to 1e-9 of it. Returns how
+/// many ticks the blade pushed.
+fn moved_with_momentum_balanced(
+    body: &mut crate::validate::BoxBody,
+    start: Slab,
+    step: Vec3,
+    ticks: u32,
+) -> usize {
+    let dt = 1e-3;
+    let momentum = |s: &crate::solver::Solver| -> Vec3 {
+        s.masses()
+            .iter()
+            .zip(s.velocities())
+            .map(|(m, v)| v * *m)
+            .sum()
+    };
+    let mut pushed = 0;
+    for k in 1..=ticks {
+        let slab = Slab {
+            tip: start.tip + step * f64::from(k),
+            ..start
+        };
+        body.solver.blade_mut().unwrap().move_to(slab);
+        let before = momentum(&body.solver);
+        let report = body.solver.step(dt);
+        assert!(!report.diverged && report.rollbacks == 0, "{report:?}");
+        let gained = momentum(&body.solver) - before;
+        let impulse = body.solver.blade().unwrap().force_on_blade() * dt;
+        if impulse.norm() > 0.0 {
+            pushed += 1;
+            assert!(
+                (gained + impulse).norm() <= 1e-9 * impulse.norm(),
+                "tick {k}: gained {gained}, blade impulse {impulse}"
+            );
+        }
+    }
+    pushed
+}
+
+fn momentum_balance(config: crate::solver::SolverConfig) {
+    let mut body = free_block(config);
     let start = Slab {
         tip: Vec3::new(0.0045, 0.0, 0.01),
         ..upright()
@@ -74,49 +126,68 @@ fn momentum_balance(config: crate::solver::SolverConfig) {
     for i in -6..=4 {
         for j in -2..=2 {
             let x = Vec3::new(i as f64 * 1e-3, j as f64 * 1e-3, 0.01);
-            let model = &body.model;
-            let zero =
-                SurfaceEmbedding::sample_row(&x, &model.points.rest, &model.grid, &model.kernel);
-            body.solver
-                .operator()
-                .linear_row(&zero, &x, body.solver.rest(), &mut row);
+            row_at(&body, &x, &mut row);
             blade.push(&row, x, body.solver.rest());
         }
     }
     blade.finish(body.solver.positions(), 0.0, 0);
     body.solver.set_blade(Some(blade));
-    let dt = 1e-3;
-    let momentum = |s: &crate::solver::Solver| -> Vec3 {
-        s.masses()
-            .iter()
-            .zip(s.velocities())
-            .map(|(m, v)| v * *m)
-            .sum()
-    };
-    let mut pressed = 0;
-    for k in 1..=30 {
-        let slab = Slab {
-            tip: start.tip - Vec3::z() * (1e-4 * f64::from(k)),
-            ..start
-        };
-        body.solver.blade_mut().unwrap().move_to(slab);
-        let before = momentum(&body.solver);
-        let report = body.solver.step(dt);
-        assert!(!report.diverged && report.rollbacks == 0, "{report:?}");
-        let gained = momentum(&body.solver) - before;
-        let blade = body.solver.blade().unwrap();
-        let impulse = blade.force_on_blade() * dt;
-        if impulse.norm() > 0.0 {
-            pressed += 1;
-            assert!(
-                (gained + impulse).norm() <= 1e-9 * impulse.norm(),
-                "tick {k}: gained {gained}, blade impulse {impulse}"
-            );
-        }
-    }
+    let pressed = moved_with_momentum_balanced(&mut body, start, -Vec3::z() * 1e-4, 30);
     assert!(pressed > 20, "{pressed} ticks pressed");
     let blade = body.solver.blade().unwrap();
     assert!(blade.force_on_blade().z > 0.0 && blade.touching() > 0);
+}
+
+/// The lips pushed by a flat: the blade, in a free-floating block (no supports, no
+/// gravity, no damping), is pushed 1 mm sideways across its flats, into the lip samples on
+/// one side of its plane. The lips push back against the push (a lateral force, bounded by
+/// every lip pressed the whole way in), and the momentum the block gains each tick is the
+/// impulse the blade reports, reversed (to 1e-9 of it).
+#[test]
+fn the_lips_push_back_on_a_flat_pushed_into_them() {
+    lips_push_back(Default::default());
+}
+
+/// The same in stiff mode: the lips' push is an applied load of the projective step.
+#[test]
+fn the_lips_push_back_on_a_flat_pushed_into_them_in_stiff_mode() {
+    lips_push_back(crate::solver::SolverConfig {
+        mode: crate::solver::SolverMode::Projective,
+        ..Default::default()
+    });
+}
+
+fn lips_push_back(config: crate::solver::SolverConfig) {
+    let mut body = free_block(config);
+    let start = Slab {
+        tip: Vec3::new(0.0045, 0.0, 0.0),
+        ..upright()
+    };
+    let n = body.solver.rest().len();
+    let mut blade = BladeBody::with_room(n, 128, 128 * 512, start);
+    let mut row = Vec::new();
+    let (depth, pitch, stiffness) = (1e-5, 0.002, 40.0);
+    for x in [0.003, 0.001, -0.001, -0.003] {
+        for z in [0.002, 0.005, 0.008] {
+            for y in [depth, -depth] {
+                let at = Vec3::new(x, y, z);
+                row_at(&body, &at, &mut row);
+                // The flats' normal is −y: a sample at +y is on the −side flat's lip.
+                let side = -y.signum();
+                blade.push_lip(&row, at, body.solver.rest(), side, depth, stiffness, pitch);
+            }
+        }
+    }
+    blade.finish(body.solver.positions(), 0.0, 0);
+    assert_eq!(blade.lips(), 24);
+    body.solver.set_blade(Some(blade));
+    let pushed = moved_with_momentum_balanced(&mut body, start, Vec3::y() * 1e-4, 10);
+    assert!(pushed >= 9, "{pushed} ticks pushed");
+    let f = body.solver.blade().unwrap().force_on_blade();
+    // Back against the push, and no more than every held lip pressed the whole way in.
+    let most = 12.0 * stiffness * (1e-3 + 0.5 * start.thickness);
+    assert!(f.y < 0.0 && -f.y <= most, "{f}");
+    assert!(f.y.abs() > 5.0 * f.x.abs().max(f.z.abs()), "{f}");
 }
 
 /// A sample that came in while the blade lets go is the crack's for the rest of the
