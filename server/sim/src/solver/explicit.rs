@@ -238,7 +238,7 @@ impl Solver {
             }
             if let Some(blade) = &mut self.blade {
                 // Their work is counted with the applied loads' below, too.
-                blade.lip_forces(&self.p, &mut self.lip_force, h);
+                blade.lip_forces(&self.p, &self.mass, &mut self.lip_force, h);
             }
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));

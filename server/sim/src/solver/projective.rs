@@ -130,7 +130,7 @@ impl Projective {
         }
         if let Some(blade) = &mut s.blade {
             // The lips' push on the flats, at the step's start too.
-            blade.lip_forces(&s.p, &mut s.lip_force, dt);
+            blade.lip_forces(&s.p, &s.mass, &mut s.lip_force, dt);
         }
         // The inertial prediction y (with the applied loads) goes into the right-hand side; the
         // iterations start from p + dt·v instead. With a truncated number of iterations the

@@ -43,6 +43,11 @@ const LIP_LET_GO_LEAD: f64 = 0.7;
 /// scalpel's edge is ground over about a millimetre, so the lips are wedged apart over
 /// that much of its travel, not pushed the blade's half thickness at once.
 const EDGE_GRIND_M: f64 = 0.001;
+/// A lip sample's spring at most this share of m/h² over its points' effective mass m
+/// (1/Σ w²/m): the step's stability bound for an explicit contact spring, as explicit
+/// codes' mass-based penalty (LS-DYNA's SOFT=1 takes 0.5·m/Δt²). With the field's own
+/// ω·h ≤ 1 it keeps the sum at ω·h ≤ 1.23, below symplectic Euler's 2.
+const LIP_STABLE_SHARE: f64 = 0.5;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
 /// to its spine (`width`), `thickness` between its flats.
@@ -795,8 +800,11 @@ impl BladeBody {
     /// on the liver), and held rigidly every contact it made or broke was that mass
     /// stopped within a sub-step — 0.1 N of chatter a tick on the liver. The lip gives way
     /// at the blade over a patch far below the lattice's spacing, which the field cannot
-    /// draw; the stiffness is that patch's (`lips`), in series with the field.
-    pub(super) fn lip_forces(&mut self, p: &[Vec3], out: &mut [Vec3], h: f64) {
+    /// draw; the stiffness is that patch's (`lips`), in series with the field. On a light
+    /// point (a sliver's corner: a quarter of a milligram on the tumour scan, where a gram
+    /// is usual) it is at most what a step of `h` resolves ([`LIP_STABLE_SHARE`] of m/h²,
+    /// m the sample's points' effective `mass`): stiffer, a single sub-step flung it.
+    pub(super) fn lip_forces(&mut self, p: &[Vec3], mass: &[f64], out: &mut [Vec3], h: f64) {
         for &k in &self.written {
             out[k as usize] = Vec3::zeros();
         }
@@ -835,7 +843,10 @@ impl BladeBody {
             let lead = at.side().dot(&self.heading) * self.side[s];
             let held =
                 ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
-            let stiffness = self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y));
+            let inv_mass: f64 = self.samples.row(s).map(|(k, w)| w * w / mass[k]).sum();
+            let stable = LIP_STABLE_SHARE / (h * h * inv_mass.max(1e-300));
+            let stiffness =
+                (self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y))).min(stable);
             let push = -gap * stiffness;
             let on_face = l - normal * gap;
             let most = BLADE_FRICTION * push;

@@ -190,6 +190,34 @@ fn lips_push_back(config: crate::solver::SolverConfig) {
     assert!(f.y.abs() > 5.0 * f.x.abs().max(f.z.abs()), "{f}");
 }
 
+/// A lip sample on a sliver's light point (a quarter of a milligram, as on the tumour
+/// scan, where points weigh a gram) is pushed no harder than a sub-step resolves: it
+/// moves at most half its depth in the flat in one; on a gram the full stiffness pushes.
+#[test]
+fn a_lip_on_a_light_point_is_pushed_no_harder_than_its_step_resolves() {
+    let (h, stiffness, inside) = (1.25e-4, 14.0, 1e-5);
+    for mass in [1e-3, 2.4e-7] {
+        let rest = Vec3::new(-0.003, 1e-5, 0.005);
+        let mut blade = BladeBody::with_room(1, 4, 4, upright());
+        // At +y: the −side flat's lip, that flat at y = +0.2 mm.
+        blade.push_lip(&[(0, 1.0)], rest, &[rest], -1.0, 1e-5, stiffness, 0.002);
+        let p = [Vec3::new(-0.003, 0.0002 - inside, 0.005)];
+        blade.finish(&p, 0.0, 0);
+        let mut out = [Vec3::zeros()];
+        blade.lip_forces(&p, &[mass], &mut out, h);
+        // The lip's face is `lip_depth` beyond its sample: pressed that much deeper.
+        let deep = inside + 1e-5;
+        let expected = (stiffness * deep).min(LIP_STABLE_SHARE * mass / (h * h) * deep);
+        assert!(
+            (out[0].y - expected).abs() <= 1e-9 * expected,
+            "{mass}: {}",
+            out[0]
+        );
+        assert!(out[0].x.abs() + out[0].z.abs() < 1e-12, "{}", out[0]);
+        assert!(out[0].y * h * h / mass <= LIP_STABLE_SHARE * deep * (1.0 + 1e-9));
+    }
+}
+
 /// A sample that came in while the blade lets go is the crack's for the rest of the
 /// attempt, but a retried tick starts from what the tick started with.
 #[test]
