@@ -5,13 +5,16 @@
 
 mod common;
 
+use std::collections::HashMap;
 use std::process::Command;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use common::station::{self, json, scalpel};
 use common::{browser, lesson_session};
 
 /// The tests of this file run simulations; on two cores, one at a time.
-static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
@@ -50,18 +53,46 @@ fn reasons(report: &serde_json::Value) -> String {
         .join("; ")
 }
 
+/// `try_lesson` on every pair of `lessons` and `trainees`, two processes at a time (the
+/// machine's two cores; each run is one simulation thread and none is timed), keyed by
+/// (lesson, trainee).
+fn try_all(
+    lessons: &[&'static str],
+    trainees: &[&'static str],
+) -> HashMap<(&'static str, &'static str), serde_json::Value> {
+    let jobs: Vec<_> = lessons
+        .iter()
+        .flat_map(|l| trainees.iter().map(move |t| (*l, *t)))
+        .collect();
+    let next = AtomicUsize::new(0);
+    let done = Mutex::new(HashMap::new());
+    std::thread::scope(|scope| {
+        for _ in 0..2 {
+            scope.spawn(|| {
+                while let Some(&(lesson, who)) = jobs.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let report = try_lesson(lesson, who);
+                    done.lock().unwrap().insert((lesson, who), report);
+                }
+            });
+        }
+    });
+    done.into_inner().unwrap()
+}
+
 #[test]
 fn scripted_trainees_score_in_order_on_every_built_in_lesson() {
     let _one = one_at_a_time();
     // The shoulder's hesitant trainee is the regression test of a node slaved to a point
     // the cut set loose (its solver diverged at the lift; docs/CUTTING-DECISIONS.md).
-    for lesson in ["liver-straight", "shoulder-curved", "cerebroma-margin"] {
-        let careful = try_lesson(lesson, "careful");
-        let careless = try_lesson(lesson, "careless");
+    let lessons = ["liver-straight", "shoulder-curved", "cerebroma-margin"];
+    let reports = try_all(&lessons, &["careful", "careless", "hesitant"]);
+    for lesson in lessons {
+        let careful = &reports[&(lesson, "careful")];
+        let careless = &reports[&(lesson, "careless")];
         assert!(
             careful["passed"].as_bool().unwrap(),
             "{lesson}: the careful trainee fails: {}",
-            reasons(&careful)
+            reasons(careful)
         );
         assert!(
             !careless["passed"].as_bool().unwrap(),
@@ -69,7 +100,7 @@ fn scripted_trainees_score_in_order_on_every_built_in_lesson() {
         );
         // The careless trainee fails for what it did: too deep, into the structure, not
         // finished.
-        let why = reasons(&careless);
+        let why = reasons(careless);
         for cause in ["depth off by", "cut into", "completed"] {
             assert!(
                 why.contains(cause),
@@ -86,7 +117,7 @@ fn scripted_trainees_score_in_order_on_every_built_in_lesson() {
             good >= 90.0 && bad < 60.0,
             "{lesson}: careful {good}, careless {bad}"
         );
-        let h = try_lesson(lesson, "hesitant");
+        let h = &reports[&(lesson, "hesitant")];
         let score = h["score"].as_f64().unwrap();
         assert!(
             bad < score && score < good,
