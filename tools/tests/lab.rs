@@ -19,12 +19,59 @@ fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// A lab's folder: Ann Example's careless then careful session on the liver, a session
-/// with no lesson, a file that is not a journal, and a session still running (a journal
-/// with no closing line, just written).
+/// A lab's journals in a scratch folder of its own (`name`): Ann's careless then careful
+/// attempt at the straight liver cut, Bo's free session at a second station, a broken
+/// journal and one still running. The sessions are real stations with a real mock device;
+/// they are recorded once per build of the two binaries (a minute) and copied from there,
+/// so CI's PostgreSQL and Chromium steps archive what the plain run recorded.
 fn lab(name: &str) -> PathBuf {
-    let dir = station::scratch(name);
-    let journals = dir.join("journals");
+    let cache = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("lab-{:016x}", build_stamp()));
+    if !cache.exists() {
+        let part = cache.with_extension(format!("part-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&part);
+        record_lab(&part.join("journals"));
+        // Another process may have finished first: theirs is the same build's.
+        if std::fs::rename(&part, &cache).is_err() {
+            let _ = std::fs::remove_dir_all(&part);
+        }
+    }
+    let journals = station::scratch(name).join("journals");
+    let _ = std::fs::remove_dir_all(&journals);
+    copy_tree(&cache.join("journals"), &journals);
+    journals
+}
+
+/// What identifies this build of `scalpel` and `scalpel-server` (their sizes and times).
+fn build_stamp() -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for bin in [
+        PathBuf::from(env!("CARGO_BIN_EXE_scalpel")),
+        station::server_binary(),
+    ] {
+        let meta = std::fs::metadata(&bin).unwrap();
+        (meta.len(), meta.modified().unwrap()).hash(&mut h);
+    }
+    h.finish()
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_tree(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+/// Records the lab's journals into `journals` (see [`lab`]); the scripts and the stations'
+/// configurations go beside it.
+fn record_lab(journals: &Path) {
+    let dir = journals.parent().unwrap().to_path_buf();
     std::fs::create_dir_all(journals.join("station-2")).unwrap();
     for (k, who) in ["careless", "careful"].iter().enumerate() {
         let script = lesson_session::script(&dir, "liver-straight", who);
@@ -37,7 +84,6 @@ fn lab(name: &str) -> PathBuf {
             },
             &journals.join(format!("ann-{k}.journal")),
         );
-        // Sessions a second apart at least: the curve's order is the journals' start.
         std::thread::sleep(std::time::Duration::from_millis(1100));
     }
     lesson_session::run(
@@ -54,7 +100,6 @@ fn lab(name: &str) -> PathBuf {
     let open = &whole[..whole.trim_end().rfind('\n').unwrap() + 1];
     assert!(whole[open.len()..].starts_with("end "));
     std::fs::write(journals.join("running.journal"), open).unwrap();
-    journals
 }
 
 /// `scalpel ARGS --json`, its JSON.
