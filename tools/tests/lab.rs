@@ -22,8 +22,9 @@ fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
 /// A lab's journals in a scratch folder of its own (`name`): Ann's careless then careful
 /// attempt at the straight liver cut, Bo's free session at a second station, a broken
 /// journal and one still running. The sessions are real stations with a real mock device;
-/// they are recorded once per build of the two binaries (a minute) and copied from there,
-/// so CI's PostgreSQL and Chromium steps archive what the plain run recorded.
+/// they are recorded once per build of the two binaries and this test (a minute) and
+/// copied from there, so CI's PostgreSQL and Chromium steps archive what the plain run
+/// recorded.
 fn lab(name: &str) -> PathBuf {
     let cache = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("lab-{:016x}", build_stamp()));
     if !cache.exists() {
@@ -31,8 +32,9 @@ fn lab(name: &str) -> PathBuf {
         let _ = std::fs::remove_dir_all(&part);
         record_lab(&part.join("journals"));
         // Another process may have finished first: theirs is the same build's.
-        if std::fs::rename(&part, &cache).is_err() {
+        if let Err(e) = std::fs::rename(&part, &cache) {
             let _ = std::fs::remove_dir_all(&part);
+            assert!(cache.join("journals").exists(), "caching the lab: {e}");
         }
     }
     let journals = station::scratch(name).join("journals");
@@ -41,13 +43,15 @@ fn lab(name: &str) -> PathBuf {
     journals
 }
 
-/// What identifies this build of `scalpel` and `scalpel-server` (their sizes and times).
+/// What identifies this build of `scalpel`, `scalpel-server` and this test (what records
+/// the lab): their sizes and times.
 fn build_stamp() -> u64 {
     use std::hash::{Hash, Hasher};
     let mut h = std::collections::hash_map::DefaultHasher::new();
     for bin in [
         PathBuf::from(env!("CARGO_BIN_EXE_scalpel")),
         station::server_binary(),
+        std::env::current_exe().unwrap(),
     ] {
         let meta = std::fs::metadata(&bin).unwrap();
         (meta.len(), meta.modified().unwrap()).hash(&mut h);
