@@ -16,19 +16,6 @@ fn deploy_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy")
 }
 
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
-}
-
 /// `scalpel-server CONFIG --check --no-timing --json` run in `dir` (as the lab's unit runs
 /// it before each start): exit success and the report.
 fn check(dir: &Path, config: &Path) -> (bool, serde_json::Value) {
@@ -66,7 +53,7 @@ fn status_of<'a>(report: &'a serde_json::Value, name: &str) -> (&'a str, &'a str
 #[test]
 fn the_lab_stations_pass_the_host_check_with_their_own_names_ports_and_cpus() {
     let etc = scratch("deploy-lab");
-    copy_dir(&deploy_dir().join("lab"), &etc);
+    common::copy_tree(&deploy_dir().join("lab"), &etc);
     station::make_lab_ca(&etc.join("lab-certs"));
 
     let mut stations = Vec::new();

@@ -39,7 +39,7 @@ fn lab(name: &str) -> PathBuf {
     }
     let journals = station::scratch(name).join("journals");
     let _ = std::fs::remove_dir_all(&journals);
-    copy_tree(&cache.join("journals"), &journals);
+    common::copy_tree(&cache.join("journals"), &journals);
     journals
 }
 
@@ -57,19 +57,6 @@ fn build_stamp() -> u64 {
         (meta.len(), meta.modified().unwrap()).hash(&mut h);
     }
     h.finish()
-}
-
-fn copy_tree(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_tree(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
 }
 
 /// Records the lab's journals into `journals` (see [`lab`]); the scripts and the stations'
