@@ -710,9 +710,11 @@ fn cut_writes_forces_mesh_render_and_metrics() {
 /// cutting-physics.md §4's opening check on the liver without gravity (the default
 /// stroke), two seconds after the blade's edge passed (10 mm behind it, past its 8 mm
 /// width): with no residual tension the wound stays narrower than the blade is thick
-/// (0.30 mm; 0.09 mm before the flats pushed the lips — what keeps that much open is
-/// docs/CUTTING-DECISIONS.md's, "The lips against the flats"); with `prestrain` the cut
-/// releases the layer's tension and the wound gapes by the field (3.3 mm), calmly.
+/// (0.30 mm: the lips the flats pushed apart still coming back, onto the incision's
+/// drawn hairline of at most 0.2 mm, which they reach some seconds later with or without
+/// the flats' push — docs/CUTTING-DECISIONS.md, "The lips against the flats"); with
+/// `prestrain` the cut releases the layer's tension and the wound gapes by the field
+/// (3.28 mm), calmly.
 #[test]
 fn residual_tension_opens_the_wound_the_field_otherwise_closes() {
     let dir = tempfile::tempdir().unwrap();

@@ -45,8 +45,9 @@ const LIP_LET_GO_LEAD: f64 = 0.7;
 const EDGE_GRIND_M: f64 = 0.001;
 /// A lip sample's spring at most this share of m/h² over its points' effective mass m
 /// (1/Σ w²/m): the step's stability bound for an explicit contact spring, as explicit
-/// codes' mass-based penalty (LS-DYNA's SOFT=1 takes 0.5·m/Δt²). With the field's own
-/// ω·h ≤ 1 it keeps the sum at ω·h ≤ 1.23, below symplectic Euler's 2.
+/// codes' mass-based penalty (LS-DYNA's SOFT=1 takes 0.5·m/Δt²). One sample with the
+/// field's own ω·h ≤ 1 stays at ω·h ≤ 1.23, below symplectic Euler's 2; a point in the
+/// rows of several sums theirs (the bound over them is the decisions log's next step).
 const LIP_STABLE_SHARE: f64 = 0.5;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
