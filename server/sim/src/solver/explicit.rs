@@ -1,6 +1,7 @@
 //! Explicit symplectic Euler with automatic sub-stepping and the divergence guard
 //! (physics.md §2.1, §2.5).
 
+use super::blade::Field;
 use super::events::{DivergenceReason, SolverEvent, StepReport};
 use super::{ForceBuffer, MAX_SUBSTEPS, Solver, held};
 use crate::math::Vec3;
@@ -238,7 +239,7 @@ impl Solver {
             }
             if let Some(blade) = &mut self.blade {
                 // Their work is counted with the applied loads' below, too.
-                blade.lip_forces(&self.p, &self.mass, &mut self.lip_force, h);
+                blade.lip_forces(&self.p, &self.mass, &mut self.lip_force, h, Field::Explicit);
             }
             if !st.finite {
                 return Err((DivergenceReason::NonFinite, s));

@@ -19,6 +19,7 @@
 use nalgebra::UnitQuaternion;
 
 use super::Solver;
+use super::blade::Field;
 use super::events::{SolverEvent, StepReport};
 use super::projective_contact::FaceContacts;
 use crate::math::{Mat3, Vec3};
@@ -130,7 +131,7 @@ impl Projective {
         }
         if let Some(blade) = &mut s.blade {
             // The lips' push on the flats, at the step's start too.
-            blade.lip_forces(&s.p, &s.mass, &mut s.lip_force, dt);
+            blade.lip_forces(&s.p, &s.mass, &mut s.lip_force, dt, Field::Implicit);
         }
         // The inertial prediction y (with the applied loads) goes into the right-hand side; the
         // iterations start from p + dt·v instead. With a truncated number of iterations the

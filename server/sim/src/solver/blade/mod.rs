@@ -43,11 +43,11 @@ const LIP_LET_GO_LEAD: f64 = 0.7;
 /// scalpel's edge is ground over about a millimetre, so the lips are wedged apart over
 /// that much of its travel, not pushed the blade's half thickness at once.
 const EDGE_GRIND_M: f64 = 0.001;
-/// A lip sample's spring at most this share of m/h² over its points' effective mass m
-/// (1/Σ w²/m): the step's stability bound for an explicit contact spring, as explicit
-/// codes' mass-based penalty (LS-DYNA's SOFT=1 takes 0.5·m/Δt²). One sample with the
-/// field's own ω·h ≤ 1 stays at ω·h ≤ 1.23, below symplectic Euler's 2; a point in the
-/// rows of several sums theirs (the bound over them is the decisions log's next step).
+/// The lips' springs together give the points at most ω² = this share of 1/h² (a bound
+/// over every point, however many lip samples share it: `lips`): the step's stability
+/// bound for an explicit contact spring, as explicit codes' mass-based penalty (LS-DYNA's
+/// SOFT=1 takes 0.5·m/Δt²). With the field's own ω·h ≤ 1 that stays at ω·h ≤ 1.23, below
+/// symplectic Euler's 2.
 const LIP_STABLE_SHARE: f64 = 0.5;
 
 /// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
@@ -232,6 +232,10 @@ pub struct BladeBody {
     /// The lips' force on the tissue this sub-step (N), and the points it was put on.
     lip_force: Vec3,
     written: Vec<u32>,
+    /// Scratch for [`Self::lip_forces`]: the lip samples pressed this sub-step, and per
+    /// point the sum its stability bound is taken over (zero between calls).
+    pressed: Vec<lips::Pressed>,
+    reach: Vec<f64>,
     /// The blade's heading (unit, or zero when it is not moving): see [`LIP_LET_GO_LEAD`].
     heading: Vec3,
     /// Scratch for [`Self::retain`].
@@ -275,6 +279,8 @@ impl BladeBody {
             lip_force: Vec3::zeros(),
             heading: Vec3::zeros(),
             written: Vec::with_capacity(points),
+            pressed: Vec::with_capacity(samples),
+            reach: vec![0.0; points],
             keep: Vec::with_capacity(samples),
         }
     }
@@ -790,82 +796,6 @@ impl BladeBody {
         (kinetic, work)
     }
 
-    /// The lips' push on the tissue at the points `p` for a sub-step of `h`, into `out`
-    /// (what it put there last sub-step cleared first): a lip sample inside its flat is
-    /// pushed out by `lip_stiffness` × how deep it is, and held along the flat toward where
-    /// it stuck by a spring as stiff, at most μ × the push (past that it slides and sticks
-    /// again where it got to). The blade gets the opposite ([`Self::project`] or
-    /// [`Self::add_step_force`] books it).
-    ///
-    /// A force, not a constraint: a lip sample follows a lattice's worth of tissue (grams
-    /// on the liver), and held rigidly every contact it made or broke was that mass
-    /// stopped within a sub-step — 0.1 N of chatter a tick on the liver. The lip gives way
-    /// at the blade over a patch far below the lattice's spacing, which the field cannot
-    /// draw; the stiffness is that patch's (`lips`), in series with the field. On a light
-    /// point (a sliver's corner: a quarter of a milligram on the tumour scan, where a gram
-    /// is usual) it is at most what a step of `h` resolves ([`LIP_STABLE_SHARE`] of m/h²,
-    /// m the sample's points' effective `mass`): stiffer, a single sub-step flung it.
-    pub(super) fn lip_forces(&mut self, p: &[Vec3], mass: &[f64], out: &mut [Vec3], h: f64) {
-        for &k in &self.written {
-            out[k as usize] = Vec3::zeros();
-        }
-        self.written.clear();
-        self.lip_force = Vec3::zeros();
-        let at = self.at;
-        for s in 0..self.len() {
-            if self.side[s] == 0.0 || self.cut[s] {
-                continue;
-            }
-            let l = at.local(&self.samples.position(s, p));
-            if !self.contains(&at, s, &l) {
-                self.face[s] = None;
-                continue;
-            }
-            let newly = self.face[s].is_none();
-            let Some(face) = self.take_face(s, &l) else {
-                continue;
-            };
-            let (mut gap, normal) = self.gap_to(&at, s, &l, face);
-            if newly && -gap > 2.0 * self.substep_move + DEEP_MEET_M {
-                // Laid where the steel already was: taken up at a hand's pace.
-                self.slack[s] = -gap;
-            }
-            if self.slack[s] > 0.0 {
-                let left = (self.slack[s] - FRONT_CATCH_UP_M_PER_S * h).max(0.0);
-                self.slack[s] = left.min((-gap).max(0.0));
-                gap += self.slack[s];
-            }
-            if gap >= 0.0 {
-                continue;
-            }
-            // The share of the sample's patch the steel covers: a patch crossing the spine,
-            // or the tip passing it, lets go over its width, not at once.
-            let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
-            let lead = at.side().dot(&self.heading) * self.side[s];
-            let held =
-                ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
-            let inv_mass: f64 = self.samples.row(s).map(|(k, w)| w * w / mass[k]).sum();
-            let stable = LIP_STABLE_SHARE / (h * h * inv_mass.max(1e-300));
-            let stiffness =
-                (self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y))).min(stable);
-            let push = -gap * stiffness;
-            let on_face = l - normal * gap;
-            let most = BLADE_FRICTION * push;
-            let tangent = self.friction(s, on_face, normal, most, |slip| slip * stiffness);
-            let f = at.world(&(normal * push + tangent));
-            self.lip_force += f;
-            for (k, w) in self.samples.row(s) {
-                if !std::mem::replace(&mut self.seen[k], true) {
-                    self.written.push(k as u32);
-                }
-                out[k] += f * w;
-            }
-        }
-        for &k in &self.written {
-            self.seen[k as usize] = false;
-        }
-    }
-
     /// Sample `s`'s friction on its face, where it is at `on_face` (blade frame; `normal`
     /// the face's): `pull` of the slip back to where it stuck, at most `most` — past that
     /// it slides, and sticks again where the pull leaves it.
@@ -1047,5 +977,7 @@ impl BladeBody {
     }
 }
 
+mod lips;
+pub(in crate::solver) use lips::Field;
 #[cfg(test)]
 mod tests;

@@ -204,7 +204,7 @@ fn a_lip_on_a_light_point_is_pushed_no_harder_than_its_step_resolves() {
         let p = [Vec3::new(-0.003, 0.0002 - inside, 0.005)];
         blade.finish(&p, 0.0, 0);
         let mut out = [Vec3::zeros()];
-        blade.lip_forces(&p, &[mass], &mut out, h);
+        blade.lip_forces(&p, &[mass], &mut out, h, Field::Explicit);
         // The lip's face is `lip_depth` beyond its sample: pressed that much deeper.
         let deep = inside + 1e-5;
         let expected = (stiffness * deep).min(LIP_STABLE_SHARE * mass / (h * h) * deep);
@@ -216,6 +216,98 @@ fn a_lip_on_a_light_point_is_pushed_no_harder_than_its_step_resolves() {
         assert!(out[0].x.abs() + out[0].z.abs() < 1e-12, "{}", out[0]);
         assert!(out[0].y * h * h / mass <= LIP_STABLE_SHARE * deep * (1.0 + 1e-9));
     }
+}
+
+/// The lip push on the points at `p` of lip samples (rows `rows`, each at its rest
+/// `rests[s]`, the points at rest at `rest_points`), in a fresh blade: the −side flat's
+/// lip at +y, as above.
+fn lip_push(
+    rows: &[Vec<(u32, f64)>],
+    rests: &[Vec3],
+    rest_points: &[Vec3],
+    p: &[Vec3],
+    mass: &[f64],
+    h: f64,
+) -> Vec<Vec3> {
+    let mut blade = BladeBody::with_room(p.len(), rows.len(), 64, upright());
+    for (row, rest) in rows.iter().zip(rests) {
+        blade.push_lip(row, *rest, rest_points, -1.0, 1e-5, 14.0, 0.002);
+    }
+    blade.finish(p, 0.0, 0);
+    let mut out = vec![Vec3::zeros(); p.len()];
+    blade.lip_forces(p, mass, &mut out, h, Field::Explicit);
+    out
+}
+
+/// Several lip samples on one light point share its bound: together they push it no
+/// harder than one may (each alone could take it all, and ω·h grew as √(N/2)).
+#[test]
+fn lip_samples_sharing_a_light_point_share_its_bound() {
+    let (h, mass, shift) = (1.25e-4, 2.4e-7, 0.00019);
+    let rest_points = [Vec3::new(-0.003, 0.0, 0.005)];
+    let rows: Vec<_> = (0..6).map(|_| vec![(0u32, 1.0)]).collect();
+    let rests: Vec<_> = (0..6)
+        .map(|i| Vec3::new(-0.003 + 1e-4 * i as f64, 1e-5, 0.005))
+        .collect();
+    let p = [rest_points[0] + Vec3::y() * shift];
+    let out = lip_push(&rows, &rests, &rest_points, &p, &[mass], h);
+    // Each is 0.2 mm − (1e-5 + shift) inside its flat, its lip's face 1e-5 deeper.
+    let deep = 0.0002 - 1e-5 - shift + 1e-5;
+    let whole = LIP_STABLE_SHARE * mass / (h * h) * deep;
+    assert!(
+        (out[0].y - whole).abs() <= 1e-9 * whole,
+        "{} vs {whole}",
+        out[0]
+    );
+}
+
+/// Lip samples over light and heavy points with mixed rows: the stiffness the lips give
+/// the points (by finite differences across the flats) keeps ω² = λ_max(M⁻¹K) within
+/// LIP_STABLE_SHARE/h², and the bound does not take the push away.
+#[test]
+fn the_lips_springs_together_stay_within_the_step() {
+    let (h, shift, dx) = (1.25e-4, 0.00019, 1e-9);
+    let mass = [2.4e-7, 1e-3, 5e-4, 3e-6];
+    let rest_points: Vec<_> = (0..4)
+        .map(|k| Vec3::new(-0.003 + 4e-4 * k as f64, 0.0, 0.005))
+        .collect();
+    let rows: Vec<Vec<(u32, f64)>> = vec![
+        vec![(0, 0.7), (1, 0.3)],
+        vec![(0, 0.5), (2, 0.6), (3, -0.1)],
+        vec![(0, 0.2), (1, 0.4), (2, 0.4)],
+        vec![(3, 0.9), (1, 0.1)],
+        vec![(0, 0.05), (2, 0.95)],
+    ];
+    let rests: Vec<_> = (0..rows.len())
+        .map(|i| Vec3::new(-0.0025 + 3e-4 * i as f64, 1e-5, 0.005 + 1e-4 * i as f64))
+        .collect();
+    let p: Vec<_> = rest_points.iter().map(|r| r + Vec3::y() * shift).collect();
+    let base = lip_push(&rows, &rests, &rest_points, &p, &mass, h);
+    assert!(base.iter().all(|f| f.y >= 0.0) && base.iter().any(|f| f.y > 0.0));
+    // K's y-y block, column by column; scaled by M^{-1/2} on both sides.
+    let n = mass.len();
+    let mut k = nalgebra::DMatrix::<f64>::zeros(n, n);
+    for j in 0..n {
+        let mut q = p.clone();
+        q[j].y += dx;
+        let moved = lip_push(&rows, &rests, &rest_points, &q, &mass, h);
+        for i in 0..n {
+            k[(i, j)] = -(moved[i].y - base[i].y) / dx / (mass[i] * mass[j]).sqrt();
+        }
+    }
+    let k = (&k + k.transpose()) * 0.5;
+    let omega_sq = k.symmetric_eigenvalues().max();
+    assert!(
+        omega_sq * h * h <= LIP_STABLE_SHARE * (1.0 + 1e-4),
+        "ω²h² = {}",
+        omega_sq * h * h
+    );
+    // The light points bind it: it is not a bound far below what it must be.
+    assert!(
+        omega_sq * h * h > 0.1 * LIP_STABLE_SHARE,
+        "{}",
+        omega_sq * h * h
+    );
 }
 
 /// A sample that came in while the blade lets go is the crack's for the rest of the
