@@ -140,12 +140,17 @@ impl BladeBody {
     /// Bounds the pressed samples' springs so that together they give the points at most
     /// ω² = [`LIP_STABLE_SHARE`]/h² (`mass` per point), however many samples share a point.
     ///
-    /// Sample s's spring k_s on its row w_s adds k_s·w_s·w_sᵀ (times at most the identity
-    /// across the three axes, the push and the friction) to K; in M^{-½}KM^{-½} that is
+    /// Sample s's spring k_s on its row w_s adds k_s·w_s·w_sᵀ (times the identity across
+    /// the three axes while it sticks: the push and the friction; sliding, the friction's
+    /// pull along the slip couples the normal in, a block of norm √(1+μ²), and the hold
+    /// and cover ramps add a little: both within the margin, not in the bound) to K; in
+    /// M^{-½}KM^{-½} that is
     /// k_s·a_s·a_sᵀ with a_sk = w_sk/√m_k. Gershgorin: every eigenvalue is at most the
     /// largest row sum, point k's Σ_s k_s·|a_sk|·‖a_s‖₁. With R_k = Σ_s |a_sk|·‖a_s‖₁ over
     /// the pressed samples, k_s ≤ share/(h²·max over its row of R_k) keeps every row sum,
     /// and so ω², within share/h². (One sample on one point: k ≤ share·m/h² exactly.)
+    /// Marks the points it reaches in `seen` and `written`; [`Self::lip_forces`] clears
+    /// `seen` after its own pass over the same points.
     fn bound_lip_springs(&mut self, mass: &[f64], h: f64) {
         let spread = |w: f64, k: usize| w.abs() / mass[k].max(1e-300).sqrt();
         for c in &self.pressed {

@@ -218,22 +218,27 @@ fn a_lip_on_a_light_point_is_pushed_no_harder_than_its_step_resolves() {
     }
 }
 
-/// The lip push on the points at `p` of lip samples (rows `rows`, each at its rest
-/// `rests[s]`, the points at rest at `rest_points`), in a fresh blade: the −side flat's
-/// lip at +y, as above.
-fn lip_push(
+/// A blade holding lip samples (rows `rows`, each at its rest `rests[s]`, the points at
+/// rest at `rest_points`, each sample's spring `stiffness`), the points at `p`: the −side
+/// flat's lip at +y, as above.
+fn lip_blade(
     rows: &[Vec<(u32, f64)>],
     rests: &[Vec3],
     rest_points: &[Vec3],
     p: &[Vec3],
-    mass: &[f64],
-    h: f64,
-) -> Vec<Vec3> {
+    stiffness: f64,
+) -> BladeBody {
     let mut blade = BladeBody::with_room(p.len(), rows.len(), 64, upright());
     for (row, rest) in rows.iter().zip(rests) {
-        blade.push_lip(row, *rest, rest_points, -1.0, 1e-5, 14.0, 0.002);
+        blade.push_lip(row, *rest, rest_points, -1.0, 1e-5, stiffness, 0.002);
     }
     blade.finish(p, 0.0, 0);
+    blade
+}
+
+/// The lips' push on the points at `p` for a sub-step of `h`, from a copy of `blade`.
+fn lip_push(blade: &BladeBody, p: &[Vec3], mass: &[f64], h: f64) -> Vec<Vec3> {
+    let mut blade = blade.clone();
     let mut out = vec![Vec3::zeros(); p.len()];
     blade.lip_forces(p, mass, &mut out, h, Field::Explicit);
     out
@@ -250,9 +255,11 @@ fn lip_samples_sharing_a_light_point_share_its_bound() {
         .map(|i| Vec3::new(-0.003 + 1e-4 * i as f64, 1e-5, 0.005))
         .collect();
     let p = [rest_points[0] + Vec3::y() * shift];
-    let out = lip_push(&rows, &rests, &rest_points, &p, &[mass], h);
-    // Each is 0.2 mm − (1e-5 + shift) inside its flat, its lip's face 1e-5 deeper.
-    let deep = 0.0002 - 1e-5 - shift + 1e-5;
+    let blade = lip_blade(&rows, &rests, &rest_points, &p, 14.0);
+    let out = lip_push(&blade, &p, &[mass], h);
+    // Each sample sits on the flat (y = 1e-5 + shift = 0.2 mm), its lip's face the lip
+    // depth (1e-5) inside it.
+    let deep = 1e-5;
     let whole = LIP_STABLE_SHARE * mass / (h * h) * deep;
     assert!(
         (out[0].y - whole).abs() <= 1e-9 * whole,
@@ -261,9 +268,11 @@ fn lip_samples_sharing_a_light_point_share_its_bound() {
     );
 }
 
-/// Lip samples over light and heavy points with mixed rows: the stiffness the lips give
-/// the points (by finite differences across the flats) keeps ω² = λ_max(M⁻¹K) within
-/// LIP_STABLE_SHARE/h², and the bound does not take the push away.
+/// Lip samples over light and heavy points with mixed rows, each spring stiff enough that
+/// a bound of its own row's mass binds it (so that only a bound over the samples together
+/// keeps the sum): the stiffness the lips give the points — by finite differences along
+/// all three axes, the flats' push and the friction's stick — keeps ω² = λ_max(M⁻¹K)
+/// within LIP_STABLE_SHARE/h², and the bound does not take the push away.
 #[test]
 fn the_lips_springs_together_stay_within_the_step() {
     let (h, shift, dx) = (1.25e-4, 0.00019, 1e-9);
@@ -282,17 +291,26 @@ fn the_lips_springs_together_stay_within_the_step() {
         .map(|i| Vec3::new(-0.0025 + 3e-4 * i as f64, 1e-5, 0.005 + 1e-4 * i as f64))
         .collect();
     let p: Vec<_> = rest_points.iter().map(|r| r + Vec3::y() * shift).collect();
-    let base = lip_push(&rows, &rests, &rest_points, &p, &mass, h);
+    let mut blade = lip_blade(&rows, &rests, &rest_points, &p, 1e4);
+    // The samples take their flats and stick where they are: friction holds from here.
+    let mut out = vec![Vec3::zeros(); p.len()];
+    blade.lip_forces(&p, &mass, &mut out, h, Field::Explicit);
+    let base = lip_push(&blade, &p, &mass, h);
     assert!(base.iter().all(|f| f.y >= 0.0) && base.iter().any(|f| f.y > 0.0));
-    // K's y-y block, column by column; scaled by M^{-1/2} on both sides.
+    // K column by column, scaled by M^{-1/2} on both sides.
     let n = mass.len();
-    let mut k = nalgebra::DMatrix::<f64>::zeros(n, n);
+    let mut k = nalgebra::DMatrix::<f64>::zeros(3 * n, 3 * n);
     for j in 0..n {
-        let mut q = p.clone();
-        q[j].y += dx;
-        let moved = lip_push(&rows, &rests, &rest_points, &q, &mass, h);
-        for i in 0..n {
-            k[(i, j)] = -(moved[i].y - base[i].y) / dx / (mass[i] * mass[j]).sqrt();
+        for a in 0..3 {
+            let mut q = p.clone();
+            q[j][a] += dx;
+            let moved = lip_push(&blade, &q, &mass, h);
+            for i in 0..n {
+                for b in 0..3 {
+                    k[(3 * i + b, 3 * j + a)] =
+                        -(moved[i][b] - base[i][b]) / dx / (mass[i] * mass[j]).sqrt();
+                }
+            }
         }
     }
     let k = (&k + k.transpose()) * 0.5;
