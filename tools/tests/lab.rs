@@ -36,11 +36,27 @@ fn lab(name: &str) -> PathBuf {
             let _ = std::fs::remove_dir_all(&part);
             assert!(cache.join("journals").exists(), "caching the lab: {e}");
         }
+        forget_older_labs(&cache);
     }
     let journals = station::scratch(name).join("journals");
     let _ = std::fs::remove_dir_all(&journals);
     common::copy_tree(&cache.join("journals"), &journals);
     journals
+}
+
+/// Removes the labs earlier builds recorded beside `cache` (6 MB each; one a build would
+/// pile up locally). Another build's recording in progress (`.part-*`) is left alone.
+fn forget_older_labs(cache: &Path) {
+    let Ok(entries) = std::fs::read_dir(cache.parent().unwrap()) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with("lab-") && !name.contains(".part-") && entry.path() != cache {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 /// What identifies this build of `scalpel`, `scalpel-server` and this test (what records
@@ -75,6 +91,7 @@ fn record_lab(journals: &Path) {
             },
             &journals.join(format!("ann-{k}.journal")),
         );
+        // Sessions a second apart at least: the curve's order is the journals' start.
         std::thread::sleep(std::time::Duration::from_millis(1100));
     }
     lesson_session::run(

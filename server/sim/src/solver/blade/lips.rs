@@ -2,7 +2,7 @@
 //! lip of its own side of the incision (`pipeline/cutting/lips.rs` lays the samples), and
 //! the bound that keeps its springs within what the step resolves.
 
-use super::{BLADE_FRICTION, BladeBody, DEEP_MEET_M, FRONT_CATCH_UP_M_PER_S};
+use super::{BLADE_FRICTION, BladeBody, DEEP_MEET_M, FRONT_CATCH_UP_M_PER_S, Meeting};
 use super::{LIP_HELD_LEAD, LIP_LET_GO_LEAD, LIP_STABLE_SHARE};
 use crate::math::Vec3;
 
@@ -96,16 +96,16 @@ impl BladeBody {
             if self.side[s] == 0.0 || self.cut[s] {
                 continue;
             }
-            let l = at.local(&self.samples.position(s, p));
-            if !self.contains(&at, s, &l) {
-                self.face[s] = None;
-                continue;
-            }
-            let newly = self.face[s].is_none();
-            let Some(face) = self.take_face(s, &l) else {
+            let Some(Meeting {
+                l,
+                newly,
+                mut gap,
+                normal,
+                ..
+            }) = self.meet(s, p, true)
+            else {
                 continue;
             };
-            let (mut gap, normal) = self.gap_to(&at, s, &l, face);
             if newly && -gap > 2.0 * self.substep_move + DEEP_MEET_M {
                 // Laid where the steel already was: taken up at a hand's pace.
                 self.slack[s] = -gap;

@@ -170,6 +170,17 @@ impl Face {
 /// crack-front sample, not launched.
 const DEEP_MEET_M: f64 = 2e-5;
 
+/// A sample met by the blade ([`BladeBody::meet`]): where it is (world, and blade frame),
+/// whether it took its face just now, its gap to that face and the face's outward normal
+/// (blade frame).
+struct Meeting {
+    x: Vec3,
+    l: Vec3,
+    newly: bool,
+    gap: f64,
+    normal: Vec3,
+}
+
 /// The surface samples around the blade, what holds each, and what the blade gave them.
 #[derive(Debug, Clone)]
 pub struct BladeBody {
@@ -509,6 +520,32 @@ impl BladeBody {
         (TIP_BEVEL_CAPTURES * self.capture[s] - l.x).max(0.0)
     }
 
+    /// Sample `s` with the points at `p`, against the blade where it is in the step: the
+    /// face holding it (taken now if it had none), or `None` if it is outside what holds it
+    /// (its face let go when `let_go`) or no face takes it. The caller's slack and push
+    /// start from this.
+    fn meet(&mut self, s: usize, p: &[Vec3], let_go: bool) -> Option<Meeting> {
+        let at = self.at;
+        let x = self.samples.position(s, p);
+        let l = at.local(&x);
+        if !self.contains(&at, s, &l) {
+            if let_go {
+                self.face[s] = None;
+            }
+            return None;
+        }
+        let newly = self.face[s].is_none();
+        let face = self.take_face(s, &l)?;
+        let (gap, normal) = self.gap_to(&at, s, &l, face);
+        Some(Meeting {
+            x,
+            l,
+            newly,
+            gap,
+            normal,
+        })
+    }
+
     /// Sample `s`'s gap at local `l` to `face` of the slab `at` and the face's normal, as
     /// [`Slab::gap`] with the edge's bevel for crack-front samples.
     fn gap_to(&self, at: &Slab, s: usize, l: &Vec3, face: Face) -> (f64, Vec3) {
@@ -722,18 +759,16 @@ impl BladeBody {
                 if !self.near[s] || self.side[s] != 0.0 {
                     continue;
                 }
-                let l = at.local(&self.samples.position(s, p));
-                if !self.contains(&at, s, &l) {
-                    if pass == 0 {
-                        self.face[s] = None;
-                    }
-                    continue;
-                }
-                let newly = self.face[s].is_none();
-                let Some(face) = self.take_face(s, &l) else {
+                let Some(Meeting {
+                    l,
+                    newly,
+                    mut gap,
+                    normal: normal_local,
+                    ..
+                }) = self.meet(s, p, pass == 0)
+                else {
                     continue;
                 };
-                let (mut gap, normal_local) = self.gap_to(&at, s, &l, face);
                 if newly && (self.capture[s] > 0.0 || -gap > 2.0 * self.substep_move + DEEP_MEET_M)
                 {
                     // A crack-front sample first met already inside (built where the edge
@@ -834,19 +869,16 @@ impl BladeBody {
         if self.cut[s] || self.side[s] != 0.0 {
             return None;
         }
-        let at = self.at;
-        let x = self.samples.position(s, p);
-        let l = at.local(&x);
-        if !self.contains(&at, s, &l) {
-            self.face[s] = None;
-            return None;
-        }
-        let newly = self.face[s].is_none();
-        let face = self.take_face(s, &l)?;
+        let Meeting {
+            x,
+            newly,
+            mut gap,
+            normal: normal_local,
+            ..
+        } = self.meet(s, p, true)?;
         if !self.mostly_free(s, free) {
             return None;
         }
-        let (mut gap, normal_local) = self.gap_to(&at, s, &l, face);
         // A crack-front sample met behind the edge keeps its slack as in `project`; the
         // step takes it up (`take_up_slack`), and it is never looser than the sample is.
         if newly && (self.capture[s] > 0.0 || self.side[s] != 0.0) {
@@ -857,7 +889,7 @@ impl BladeBody {
             self.slack[s] = self.slack[s].min((-gap).max(0.0));
         }
         gap += self.slack[s];
-        let n = at.world(&normal_local);
+        let n = self.at.world(&normal_local);
         Some((n, n.dot(&x) - gap))
     }
 
