@@ -271,6 +271,11 @@ impl CuttingForceModel {
         self.stiffness
     }
 
+    /// How far a blunt press indents the tissue before it ruptures (m).
+    pub fn rupture_displacement_m(&self) -> f64 {
+        self.spec.rupture_displacement_m
+    }
+
     /// The crack advances by energy at its front (`ForceSpec::fracture_by_energy`).
     pub fn fracture_by_energy(&self) -> bool {
         self.spec.fracture_by_energy

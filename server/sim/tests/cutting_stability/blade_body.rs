@@ -268,3 +268,104 @@ fn a_cutting_blade_stepped_sideways_is_pushed_back_by_the_lip() {
     let ratio = lateral[1] / lateral[0];
     assert!((3.0..=5.0).contains(&ratio), "{lateral:?}: × {ratio}");
 }
+
+/// The blade cut 20 mm forward along +x (its back toward −x) in `scene`, then backed 35 mm
+/// the way it came — 15 mm past where its wound starts, spine first — and lifted out.
+fn cut_then_back(scene: &BuiltScene) -> CutScript {
+    let top = top_mm(scene, -30.0, 0.0);
+    let z = top - 10.0;
+    script(&[
+        (0.0, [-30.0, 0.0, top + 5.0]),
+        (3.0, [-30.0, 0.0, z]),
+        (7.0, [-10.0, 0.0, z]),
+        (14.0, [-45.0, 0.0, z]),
+        (17.0, [-45.0, 0.0, top + 5.0]),
+    ])
+}
+
+/// While the blade backs past its wound's start (7 to 14 s): per tick, what the tissue put
+/// on the blade along its motion's opposite (+x, N), Σ's size, and whether it tore.
+fn backing_past_the_start(scene: &BuiltScene) -> Vec<(f64, usize, bool)> {
+    let s = cut_then_back(scene);
+    let mut sim = Simulation::new(scene);
+    let mut rows = Vec::new();
+    for k in 0..14_000 {
+        sim.handle_tool_pose(Some(s.pose_at(k as f64 * TICK_S)));
+        let r = sim.tick(TICK_S, &mut NoClock);
+        assert!(!r.solver.diverged && r.solver.rollbacks == 0, "tick {k}");
+        if k >= 7_000 {
+            let cut = r.cut.as_ref().unwrap();
+            let body = sim
+                .solver()
+                .blade()
+                .map_or(Vec3::zeros(), |b| b.force_on_blade());
+            let sigma = sim.cutting().unwrap().sigma.triangles.len();
+            rows.push((body.x, sigma, cut.fractured));
+        }
+    }
+    rows
+}
+
+/// A blade backed out of its wound past where it starts meets the tissue there with its
+/// blunt spine: the tissue pushes it back (in proportion to its stiffness) and is not cut
+/// — Σ does not grow — until the spine has indented it as far as a blunt press ruptures
+/// it; then it tears (a fracture tick: Σ grows over the footprint) and the spine meets the
+/// tissue beyond. Before, the edge swept Σ backward as if the spine cut, at the formula's
+/// cutting force.
+#[test]
+fn a_blade_backed_past_its_wound_meets_the_tissue_with_its_spine() {
+    let soft = backing_past_the_start(&linear_liver_at(1.0));
+    let stiff = backing_past_the_start(&linear_liver_at(4.0));
+    let sigma_before = soft[0].1;
+    let first_tear = |rows: &[(f64, usize, bool)]| {
+        rows.iter()
+            .position(|r| r.2)
+            .expect("the spine tears the tissue")
+    };
+    let (tear_soft, tear_stiff) = (first_tear(&soft), first_tear(&stiff));
+    // The tissue tears at the same travel whatever its stiffness (its contact and its
+    // field both scale with E), within a millimetre (200 ticks at 5 mm/s).
+    assert!(
+        tear_soft.abs_diff(tear_stiff) < 200,
+        "{tear_soft} / {tear_stiff}"
+    );
+    // Until then Σ is what the forward stroke cut, and the spine pushes: the most it
+    // pushed, four times as much at four times E.
+    for rows in [&soft, &stiff] {
+        let tear = first_tear(rows);
+        assert!(rows[..tear].iter().all(|r| r.1 == sigma_before));
+        assert!(rows[tear].1 > sigma_before, "a tear grows Σ");
+    }
+    let most = |rows: &[(f64, usize, bool)], until: usize| {
+        rows[..until]
+            .iter()
+            .map(|r| r.0)
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let until = tear_soft.min(tear_stiff);
+    let (push_soft, push_stiff) = (most(&soft, until), most(&stiff, until));
+    println!(
+        "spine's push before the first tear (ticks {} / {}): {push_soft:.4} / {push_stiff:.4} N (1, 4 x E)",
+        7_000 + tear_soft,
+        7_000 + tear_stiff
+    );
+    assert!(push_soft > 0.005, "{push_soft}");
+    // (Short of 4: the organ's sag under its own weight goes as 1/E, as for the lip's
+    // push, `a_cutting_blade_stepped_sideways_is_pushed_back_by_the_lip`.)
+    let ratio = push_stiff / push_soft;
+    assert!((3.0..=5.0).contains(&ratio), "x {ratio}");
+    // Σ grows only where the tissue tears, and the spine meets the tissue beyond.
+    for rows in [&soft, &stiff] {
+        for pair in rows.windows(2) {
+            assert!(pair[1].1 == pair[0].1 || pair[1].2, "Σ grew without a tear");
+        }
+        let tears = rows.iter().filter(|r| r.2).count();
+        assert!(tears >= 2, "{tears} tears");
+    }
+    // The whole stroke, its lift included, is calm.
+    calm_run(
+        &linear_liver_at(1.0),
+        &cut_then_back(&linear_liver_at(1.0)),
+        0,
+    );
+}

@@ -22,11 +22,11 @@ use crate::model::embedding::Blockers;
 
 /// The crack-front samples sit this many sample pitches ahead of Σ's end (rest): on the
 /// uncut side, so their rows see the tissue ahead.
-const AHEAD_PITCHES: f64 = 0.5;
+pub(super) const AHEAD_PITCHES: f64 = 0.5;
 /// Most crack-front samples along the edge.
 const MOST_FRONT_SAMPLES: usize = 16;
 /// The edge catches a front sample within this many pitches across its flats.
-const CAPTURE_PITCHES: f64 = 1.0;
+pub(super) const CAPTURE_PITCHES: f64 = 1.0;
 /// A blade whose edge has got this many support radii past the crack front (rest) without
 /// breaking it — nothing ahead held it: a sliver, a front the field did not reach — takes the
 /// crack to its edge.
@@ -130,6 +130,19 @@ impl CuttingStage {
         MOST_LAG_SUPPORTS * self.kernel.support_m
     }
 
+    /// Whether the tissue `reach` beyond `x` (rest) along `along` (unit) is cut already:
+    /// a Σ triangle there that runs along `along`.
+    pub(super) fn cut_beyond(&self, x: &Vec3, along: &Vec3, reach: f64) -> bool {
+        let probe = x + along * reach;
+        self.sigma
+            .triangles
+            .iter()
+            .zip(&self.sigma.boxes)
+            .any(|(tri, b)| {
+                b.expanded(reach).contains(&probe) && self.on_triangle_along(&probe, tri, along)
+            })
+    }
+
     /// Builds the crack-front samples along Σ's end `front` (rest: tip, top), `ahead` of it:
     /// every pitch from the tip up to the surface, where the tissue ahead is not cut
     /// already, each held by the blade's edge alone. Replaces what the blade held.
@@ -154,17 +167,7 @@ impl CuttingStage {
         let mut at = [None; MOST_FRONT_SAMPLES];
         for (k, slot) in at.iter_mut().enumerate().take(count) {
             let on_front = front[0] + up * (depth * (k as f64 + 0.5) / count as f64);
-            let probe = on_front + ahead * reach;
-            let cut_ahead = self
-                .sigma
-                .triangles
-                .iter()
-                .zip(&self.sigma.boxes)
-                .any(|(tri, b)| {
-                    b.expanded(reach).contains(&probe)
-                        && self.on_triangle_along(&probe, tri, &ahead)
-                });
-            if !cut_ahead {
+            if !self.cut_beyond(&on_front, &ahead, reach) {
                 *slot = Some(on_front + ahead * (AHEAD_PITCHES * pitch));
             }
         }
@@ -178,7 +181,7 @@ impl CuttingStage {
             return;
         };
         let from = {
-            body.retain(|body, s| body.is_lip(s));
+            body.retain(|body, s| body.is_lip(s) || body.is_spine(s));
             body.len()
         };
         for x in at.iter().flatten() {

@@ -51,7 +51,7 @@ impl Lips {
 impl CuttingStage {
     /// The lips' pitch (m) for a blade `depth_m` in the tissue: at least the blade's sample
     /// pitch, and few enough that [`MOST_ROWS`] rows and the width's columns cover it.
-    fn lip_pitch(&self, depth_m: f64) -> f64 {
+    pub(super) fn lip_pitch(&self, depth_m: f64) -> f64 {
         self.pitch()
             .max(self.tool.blade_width_m / COLUMNS_PER_WIDTH)
             .max(depth_m / MOST_ROWS as f64)
@@ -63,7 +63,7 @@ impl CuttingStage {
     /// (2aE/(1−ν²), a = side/√π: B14's law), in series with the field. Each sample stands
     /// for its pitch² share of that patch's area (the whole patch when the pitch is the
     /// coarser).
-    fn lip_stiffness(&self, pitch: f64, solver: &Solver) -> f64 {
+    pub(super) fn lip_stiffness(&self, pitch: f64, solver: &Solver) -> f64 {
         let params = solver.params();
         let e = params.youngs_modulus_pa * self.force.stiffness_factor();
         let (lambda, mu) = (params.lame.lambda, params.lame.mu);

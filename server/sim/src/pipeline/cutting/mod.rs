@@ -36,11 +36,13 @@ mod fracture;
 mod lips;
 mod region;
 mod sigma;
+mod spine;
 mod touch;
 
 use fracture::CrackFront;
 use lips::Lips;
 use sigma::TransparentPair;
+use spine::SpineHold;
 use touch::TouchScratch;
 pub(crate) use touch::{MAX_BLADE_ENTRIES, MAX_BLADE_SAMPLES, slab_of};
 
@@ -108,7 +110,7 @@ pub struct CutTick {
     /// edge's entry to the blade's back), when Σ grew by it this tick.
     pub slit_rest: Option<Vec3>,
     /// The crack front jumped this tick (a fracture event: the energy the blade stored in
-    /// the tissue ahead paid for the new crack).
+    /// the tissue ahead paid for the new crack), or the spine tore the tissue it crushed.
     pub fractured: bool,
 }
 
@@ -169,6 +171,8 @@ pub struct CuttingStage {
     front: CrackFront,
     /// The lips' columns (`lips`).
     lips: Lips,
+    /// The spine against the tissue past it (`spine`).
+    spine: SpineHold,
 }
 
 /// What the blade's edge is read from.
@@ -228,6 +232,7 @@ impl CuttingStage {
             material_points,
             front: CrackFront::default(),
             lips: Lips::new(),
+            spine: SpineHold::default(),
         }
     }
 
@@ -296,7 +301,11 @@ impl CuttingStage {
         };
         let retracing = phase_before == CutPhase::Cutting && crack == 0.0;
         let lifting = blade.is_some_and(|b| self.direction.dot(&b.edge) > 0.7);
-        let withdrawing = retracing || lifting;
+        // Moved back toward its spine the blade cannot cut: its spine pushes the tissue
+        // past it (`spine`) until that tears.
+        let backing = phase_before == CutPhase::Cutting && blade.is_some_and(|b| self.backing(b));
+        let torn = backing && self.spine_tears(solver);
+        let withdrawing = retracing || lifting || (backing && !torn);
         // The force acts against the averaged motion; shortened while it turns round, so
         // that on a reversal the resistance passes through zero over about half a
         // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
@@ -323,7 +332,15 @@ impl CuttingStage {
         } else {
             self.fracture_due(force.phase, blade, depth_m * crack, solver)
         };
-        let sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
+        let tear = edge_rest
+            .zip(blade)
+            .filter(|_| torn)
+            .and_then(|(edge, b)| self.tear_rest(&edge, b));
+        let mut sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
+        if let Some(quad) = tear {
+            sweep.slit_rest = Some(self.tear_through(quad));
+            sweep.new_sigma.end = self.sigma.triangles.len();
+        }
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
         // Lifted out along its edge, the blade lets the crack front go over a time, not a
         // sample pitch at a time.
@@ -336,6 +353,10 @@ impl CuttingStage {
             body.let_go_front(pace);
         }
         self.touch_tissue(dt, &force, blade, depth_m, surface, solver, grid);
+        match blade.filter(|_| force.phase == CutPhase::Cutting) {
+            Some(b) => self.follow_spine(b, edge_rest, depth_m, backing, torn, solver, grid),
+            None => self.drop_spine(solver),
+        }
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
         CutTick {
             force,
@@ -347,7 +368,7 @@ impl CuttingStage {
             points_changed: self.changed.len(),
             withdrawing,
             slit_rest: sweep.slit_rest,
-            fractured: sweep.fractured,
+            fractured: sweep.fractured || torn,
         }
     }
 

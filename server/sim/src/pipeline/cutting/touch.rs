@@ -274,7 +274,7 @@ impl CuttingStage {
         if std::mem::take(&mut self.front.built)
             && let Some(body) = solver.blade_mut()
         {
-            body.retain(|body, s| body.is_lip(s));
+            body.retain(|body, s| body.is_lip(s) || body.is_spine(s));
         }
     }
 

@@ -92,8 +92,9 @@ impl BladeBody {
     fn press_lips(&mut self, p: &[Vec3], h: f64) {
         let at = self.at;
         self.pressed.clear();
+        self.spine_indentation = 0.0;
         for s in 0..self.len() {
-            if self.side[s] == 0.0 || self.cut[s] {
+            if (self.side[s] == 0.0 && !self.spine[s]) || self.cut[s] {
                 continue;
             }
             let Some(Meeting {
@@ -120,11 +121,17 @@ impl BladeBody {
             }
             // The share of the sample's patch the steel covers: a patch crossing the spine,
             // or the tip passing it, lets go over its width, not at once.
-            let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
-            let lead = at.side().dot(&self.heading) * self.side[s];
-            let held =
-                ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
-            let stiffness = self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y));
+            let stiffness = if self.spine[s] {
+                self.spine_indentation = self.spine_indentation.max(-gap);
+                let covered = |inside: f64| (inside / self.spine_pitch + 0.5).clamp(0.0, 1.0);
+                self.spine_stiffness * covered(l.x)
+            } else {
+                let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
+                let lead = at.side().dot(&self.heading) * self.side[s];
+                let held =
+                    ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
+                self.lip_stiffness * held * covered(l.x).min(covered(at.width - l.y))
+            };
             if stiffness > 0.0 {
                 self.pressed.push(Pressed {
                     sample: s,

@@ -216,9 +216,11 @@ pub struct BladeBody {
     on_blade: Vec3,
     /// 1 while the faces hold, down to 0 while the tissue they held is let go (`release`).
     hold: f64,
-    /// Per sample: 0 for a surface sample; for a crack-front sample (`push_front`), how far
-    /// across the flats (m) the edge catches it.
+    /// Per sample: 0 for a surface sample; for a crack-front or spine sample (`push_front`,
+    /// `push_spine`), how far across the flats (m) the edge or the spine catches it.
     capture: Vec<f64>,
+    /// Per sample: held by the spine alone (`push_spine`).
+    spine: Vec<bool>,
     /// Per sample, how deep in the steel its face lets it be (m): a crack-front sample, or
     /// a surface sample met deeper than the steel moved ([`DEEP_MEET_M`]), was built where
     /// the blade had already got to and is pushed out at [`FRONT_CATCH_UP_M_PER_S`], not in
@@ -240,6 +242,11 @@ pub struct BladeBody {
     /// stands for (m): see [`Self::lip_forces`].
     lip_stiffness: f64,
     lip_pitch: f64,
+    /// The same for the spine samples (`push_spine`).
+    spine_stiffness: f64,
+    spine_pitch: f64,
+    /// How deep the spine pressed its deepest sample in the last sub-step (m).
+    spine_indentation: f64,
     /// The lips' force on the tissue this sub-step (N), and the points it was put on.
     lip_force: Vec3,
     written: Vec<u32>,
@@ -279,6 +286,7 @@ impl BladeBody {
             on_blade: Vec3::zeros(),
             hold: 1.0,
             capture: Vec::with_capacity(samples),
+            spine: Vec::with_capacity(samples),
             slack: Vec::with_capacity(samples),
             slack_at_tick: Vec::with_capacity(samples),
             substep_move: 0.0,
@@ -287,6 +295,9 @@ impl BladeBody {
             lip_depth: 0.0,
             lip_stiffness: 0.0,
             lip_pitch: 0.0,
+            spine_stiffness: 0.0,
+            spine_pitch: 0.0,
+            spine_indentation: 0.0,
             lip_force: Vec3::zeros(),
             heading: Vec3::zeros(),
             written: Vec::with_capacity(points),
@@ -322,7 +333,7 @@ impl BladeBody {
 
     /// Whether sample `s` is a crack-front sample the lifted blade is letting go.
     fn letting_go(&self, s: usize) -> bool {
-        self.letting_go_front > 0.0 && self.capture[s] > 0.0
+        self.letting_go_front > 0.0 && self.capture[s] > 0.0 && !self.spine[s]
     }
 
     /// The change of sample `s`'s slack over a step of `h` (m): let out while the lifted
@@ -354,6 +365,7 @@ impl BladeBody {
         self.cut_at_tick.clear();
         self.normal_impulse.clear();
         self.capture.clear();
+        self.spine.clear();
         self.slack.clear();
         self.slack_at_tick.clear();
         self.side.clear();
@@ -393,6 +405,7 @@ impl BladeBody {
         squeeze(&mut self.normal_impulse, &flags);
         squeeze(&mut self.impulse, &flags);
         squeeze(&mut self.capture, &flags);
+        squeeze(&mut self.spine, &flags);
         squeeze(&mut self.slack, &flags);
         squeeze(&mut self.slack_at_tick, &flags);
         squeeze(&mut self.side, &flags);
@@ -408,6 +421,11 @@ impl BladeBody {
     /// Whether sample `s` is a lip sample.
     pub fn is_lip(&self, s: usize) -> bool {
         self.side[s] != 0.0
+    }
+
+    /// Whether sample `s` is a spine sample.
+    pub fn is_spine(&self, s: usize) -> bool {
+        self.spine[s]
     }
 
     /// How many lip samples there are.
@@ -446,6 +464,7 @@ impl BladeBody {
         self.normal_impulse.push(0.0);
         self.impulse.push(Vec3::zeros());
         self.capture.push(0.0);
+        self.spine.push(false);
         self.slack.push(0.0);
         self.slack_at_tick.push(0.0);
         self.side.push(0.0);
@@ -493,8 +512,30 @@ impl BladeBody {
         }
     }
 
+    /// Adds a spine sample: uncut material just beyond the spine (rest `rest`, `row` its
+    /// embedding), which only the spine holds, within `capture` (m) across the flats, with
+    /// a compliant contact of `stiffness` (N/m) over a patch `pitch` (m) on a side as the
+    /// lips' ([`Self::lip_forces`]): a blade moved back meets the tissue past its wound's
+    /// start with its blunt back, which pushes it and cannot cut it.
+    pub fn push_spine(
+        &mut self,
+        row: &[(u32, f64)],
+        rest: Vec3,
+        rest_points: &[Vec3],
+        capture: f64,
+        stiffness: f64,
+        pitch: f64,
+    ) {
+        self.push_front(row, rest, rest_points, capture);
+        if let Some(b) = self.spine.last_mut() {
+            *b = true;
+        }
+        self.spine_stiffness = stiffness;
+        self.spine_pitch = pitch;
+    }
+
     /// Whether sample `s`, at local `l`, is inside what holds it: the steel, or for a
-    /// crack-front sample the edge's capture band.
+    /// crack-front (spine) sample the edge's (spine's) capture band.
     fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
         if self.side[s] != 0.0 {
             // (Half a patch beyond the tip and the spine: see `lip_forces`.)
@@ -506,6 +547,7 @@ impl BladeBody {
                 && self.lip_gap(at, s, l).0 < 0.0;
         }
         match self.capture[s] {
+            capture if capture > 0.0 && self.spine[s] => at.inside_across(l, capture),
             capture if capture > 0.0 => at.inside_across(l, capture) && l.y > self.bevel(s, l),
             _ => at.inside(l),
         }
@@ -603,6 +645,7 @@ impl BladeBody {
             into.face[t] = Some(face);
             into.anchor[t] = self.anchor[s];
             into.capture[t] = self.capture[s];
+            into.spine[t] = self.spine[s];
             into.side[t] = self.side[s];
         }
         into.len()
@@ -673,8 +716,22 @@ impl BladeBody {
     /// The points the crack-front samples follow (a point may come more than once).
     pub fn front_points(&self) -> impl Iterator<Item = u32> + '_ {
         (0..self.len())
-            .filter(|&s| self.capture[s] > 0.0)
+            .filter(|&s| self.capture[s] > 0.0 && !self.spine[s])
             .flat_map(move |s| self.samples.points_of(s).iter().copied())
+    }
+
+    /// The points the spine samples follow, only those its spine holds if `held` (a point
+    /// may come more than once).
+    pub fn spine_points(&self, held: bool) -> impl Iterator<Item = u32> + '_ {
+        (0..self.len())
+            .filter(move |&s| self.spine[s] && (!held || self.face[s].is_some()))
+            .flat_map(move |s| self.samples.points_of(s).iter().copied())
+    }
+
+    /// How deep the spine pressed the tissue it holds in the last sub-step (m): the
+    /// indentation of its compliant contact, below what the lattice draws.
+    pub fn spine_indentation(&self) -> f64 {
+        self.spine_indentation
     }
 
     /// Samples the blade holds now.
@@ -756,7 +813,7 @@ impl BladeBody {
         let at = self.at;
         for pass in 0..PASSES {
             for s in 0..self.len() {
-                if !self.near[s] || self.side[s] != 0.0 {
+                if !self.near[s] || self.side[s] != 0.0 || self.spine[s] {
                     continue;
                 }
                 let Some(Meeting {
@@ -866,7 +923,7 @@ impl BladeBody {
         p: &[Vec3],
         free: impl Fn(usize) -> bool,
     ) -> Option<(Vec3, f64)> {
-        if self.cut[s] || self.side[s] != 0.0 {
+        if self.cut[s] || self.side[s] != 0.0 || self.spine[s] {
             return None;
         }
         let Meeting {
@@ -946,10 +1003,12 @@ impl BladeBody {
             self.cut[s] = true;
             return None;
         }
-        // A crack-front sample is the edge's, unless it comes in from beyond the tip's end
-        // (tissue below a withdrawing blade springs back into its track): the tip's end
-        // puts that out, where the edge would take it up across the whole blade.
+        // A crack-front (spine) sample is the edge's (spine's), unless it comes in from
+        // beyond the tip's end (tissue below a withdrawing blade springs back into its
+        // track): the tip's end puts that out, where the edge would take it up across the
+        // whole blade.
         let f = match self.capture[s] > 0.0 {
+            true if self.start_local[s].x > 0.0 && self.spine[s] => Face::Spine,
             true if self.start_local[s].x > 0.0 => Face::Edge,
             true => Face::Tip,
             false => self.at.entry_face(l, &self.start_local[s]),

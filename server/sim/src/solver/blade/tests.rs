@@ -190,6 +190,47 @@ fn lips_push_back(config: crate::solver::SolverConfig) {
     assert!(f.y.abs() > 5.0 * f.x.abs().max(f.z.abs()), "{f}");
 }
 
+/// A blade backed into uncut tissue (a free block, as above) meets it with its spine: the
+/// spine samples past it are pushed by their compliant contact, the blade gets the force
+/// back against its motion, and the block's momentum gain each tick is the blade's impulse
+/// reversed (to 1e-9 of it), in both modes.
+#[test]
+fn the_spine_pushes_what_lies_past_it_and_is_pushed_back() {
+    for mode in [
+        crate::solver::SolverMode::default(),
+        crate::solver::SolverMode::Projective,
+    ] {
+        let mut body = free_block(crate::solver::SolverConfig {
+            mode,
+            ..Default::default()
+        });
+        let start = Slab {
+            tip: Vec3::new(0.0045, 0.0, 0.0),
+            ..upright()
+        };
+        let n = body.solver.rest().len();
+        let mut blade = BladeBody::with_room(n, 16, 16 * 512, start);
+        let mut row = Vec::new();
+        let (capture, stiffness, pitch) = (0.001, 40.0, 0.002);
+        // 0.1 mm past the spine (at x = 4.5 − 8 mm), three up the spine.
+        for z in [0.002, 0.005, 0.008] {
+            let at = Vec3::new(start.tip.x - start.width - 1e-4, 0.0, z);
+            row_at(&body, &at, &mut row);
+            blade.push_spine(&row, at, body.solver.rest(), capture, stiffness, pitch);
+        }
+        blade.finish(body.solver.positions(), 0.0, 0);
+        body.solver.set_blade(Some(blade));
+        let pushed = moved_with_momentum_balanced(&mut body, start, -Vec3::x() * 1e-4, 10);
+        assert!(pushed >= 8, "{mode:?}: {pushed} ticks pushed");
+        let blade = body.solver.blade().unwrap();
+        let f = blade.force_on_blade();
+        // Back against the motion, no more than every sample pressed the whole way in.
+        assert!(f.x > 0.0 && f.x <= 3.0 * stiffness * 1e-3, "{mode:?}: {f}");
+        assert!(f.x > 5.0 * f.y.abs().max(f.z.abs()), "{mode:?}: {f}");
+        assert!(blade.spine_indentation() > 0.0 && blade.spine_indentation() < 1e-3);
+    }
+}
+
 /// A lip sample on a sliver's light point (a quarter of a milligram, as on the tumour
 /// scan, where points weigh a gram) is pushed no harder than a sub-step resolves: it
 /// moves at most half its depth in the flat in one; on a gram the full stiffness pushes.
