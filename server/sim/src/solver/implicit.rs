@@ -77,6 +77,8 @@ impl Solver {
         if !report.diverged {
             // The blade's faces push the tissue out after the step (as in stiff mode when
             // its faces are not in the solve): the contact is not in the linear system.
+            // So do the lips and the spine, as forces over the tick (`push_lips`).
+            self.push_lips(dt);
             self.project_blade(dt, false);
         }
         self.end_one_step_tick(dt);

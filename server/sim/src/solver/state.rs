@@ -161,6 +161,38 @@ impl Solver {
         })
     }
 
+    /// The lips' and the spine's push (`BladeBody::lip_forces`) over a step of `h` taken
+    /// after it, as an explicit sub-step of their own: each awake point's free dofs moved
+    /// by f·h²/m with its velocity by f·h/m, so the tissue gets exactly the impulse the
+    /// blade books (put through the implicit step's CG solve it got it only to the solve's
+    /// tolerance, 3e-5). Bounded as in the explicit mode (`Field::Explicit`, here for the
+    /// whole tick: the lips' springs are far below the bound on grams of tissue).
+    pub(super) fn push_lips(&mut self, h: f64) {
+        let Some(blade) = &mut self.blade else {
+            return;
+        };
+        blade.lip_forces(
+            &self.p,
+            &self.mass,
+            &mut self.lip_force,
+            h,
+            blade::Field::Explicit,
+        );
+        for &i in &self.active_list {
+            let i = i as usize;
+            if i >= self.material_points {
+                continue;
+            }
+            let dv = self.lip_force[i] * (h / self.mass[i]);
+            for a in 0..3 {
+                if !self.fixed[i][a] {
+                    self.v[i][a] += dv[a];
+                    self.p[i][a] += dv[a] * h;
+                }
+            }
+        }
+    }
+
     /// The blade with the operator and rest positions its samples' rows are built from,
     /// and the points' positions.
     #[allow(clippy::type_complexity)]

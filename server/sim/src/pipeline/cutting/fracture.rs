@@ -17,14 +17,15 @@
 //! the tissue itself (`[material] stiffening`) is what lets the front load to J_c·w within
 //! millimetres of push on soft tissue.
 
+use super::sigma::near_region;
 use super::*;
-use crate::model::embedding::Blockers;
+use crate::solver::blade::BladeBody;
 
 /// The crack-front samples sit this many sample pitches ahead of Σ's end (rest): on the
 /// uncut side, so their rows see the tissue ahead.
 pub(super) const AHEAD_PITCHES: f64 = 0.5;
-/// Most crack-front samples along the edge.
-const MOST_FRONT_SAMPLES: usize = 16;
+/// Most samples along a line of the blade (its edge's crack front, its spine).
+pub(super) const MOST_LINE_SAMPLES: usize = 16;
 /// The edge catches a front sample within this many pitches across its flats.
 pub(super) const CAPTURE_PITCHES: f64 = 1.0;
 /// A blade whose edge has got this many support radii past the crack front (rest) without
@@ -130,17 +131,61 @@ impl CuttingStage {
         MOST_LAG_SUPPORTS * self.kernel.support_m
     }
 
-    /// Whether the tissue `reach` beyond `x` (rest) along `along` (unit) is cut already:
-    /// a Σ triangle there that runs along `along`.
-    pub(super) fn cut_beyond(&self, x: &Vec3, along: &Vec3, reach: f64) -> bool {
-        let probe = x + along * reach;
-        self.sigma
-            .triangles
-            .iter()
-            .zip(&self.sigma.boxes)
-            .any(|(tri, b)| {
-                b.expanded(reach).contains(&probe) && self.on_triangle_along(&probe, tri, along)
-            })
+    /// Places along a line of the blade, `line` (rest: from the tip up), into the tissue
+    /// `toward` (unit) it faces: one every `pitch` over `depth_m` of it (at most
+    /// [`MOST_LINE_SAMPLES`]), `offset` past the line, where the tissue at each of
+    /// `probes` past the line is not cut already (a Σ triangle there that runs along
+    /// `toward`): a second pass above its floor, the blade backing along its own wound.
+    pub(super) fn along_line(
+        &mut self,
+        line: &[Vec3; 2],
+        depth_m: f64,
+        pitch: f64,
+        toward: Vec3,
+        probes: &[f64],
+        offset: f64,
+    ) -> [Option<Vec3>; MOST_LINE_SAMPLES] {
+        let mut at = [None; MOST_LINE_SAMPLES];
+        let along = line[1] - line[0];
+        let Some(up) = along.try_normalize(1e-12) else {
+            return at;
+        };
+        let depth = depth_m.min(along.norm());
+        let count = ((depth / pitch).round() as usize).clamp(1, MOST_LINE_SAMPLES);
+        // The Σ triangles near the line and its probes, once; past the scratch's
+        // capacity, all of them.
+        let far = probes.iter().copied().fold(0.0, f64::max);
+        let ends = [
+            line[0],
+            line[1],
+            line[0] + toward * far,
+            line[1] + toward * far,
+        ];
+        let region = Aabb::around(&ends).expanded(far);
+        let every = !near_region(
+            &self.sigma.boxes,
+            &region,
+            &mut self.probe_candidates,
+            MAX_PROBE_CANDIDATES,
+        );
+        let cut = |x: &Vec3, reach: f64| {
+            let probe = x + toward * reach;
+            let on = |t: usize| {
+                self.sigma.boxes[t].expanded(reach).contains(&probe)
+                    && self.on_triangle_along(&probe, &self.sigma.triangles[t], &toward)
+            };
+            match every {
+                true => (0..self.sigma.triangles.len()).any(on),
+                false => self.probe_candidates.iter().any(|&t| on(t as usize)),
+            }
+        };
+        for (k, slot) in at.iter_mut().enumerate().take(count) {
+            let x = line[0] + up * (depth * (k as f64 + 0.5) / count as f64);
+            if probes.iter().all(|&reach| !cut(&x, reach)) {
+                *slot = Some(x + toward * offset);
+            }
+        }
+        at
     }
 
     /// Builds the crack-front samples along Σ's end `front` (rest: tip, top), `ahead` of it:
@@ -154,42 +199,23 @@ impl CuttingStage {
         solver: &mut Solver,
         grid: &RestGrid,
     ) {
-        let pitch = self.pitch();
-        let along = front[1] - front[0];
-        let Some(up) = along.try_normalize(1e-12) else {
+        if (front[1] - front[0]).try_normalize(1e-12).is_none() {
             return;
-        };
-        let depth = depth_m.min(along.norm());
-        let count = ((depth / pitch).round() as usize).clamp(1, MOST_FRONT_SAMPLES);
+        }
+        let pitch = self.pitch();
         let reach = 2.0 * self.sigma_plane_tolerance();
         // Where the tissue ahead is cut already (a second pass above its floor), there is
         // nothing to break.
-        let mut at = [None; MOST_FRONT_SAMPLES];
-        for (k, slot) in at.iter_mut().enumerate().take(count) {
-            let on_front = front[0] + up * (depth * (k as f64 + 0.5) / count as f64);
-            if !self.cut_beyond(&on_front, &ahead, reach) {
-                *slot = Some(on_front + ahead * (AHEAD_PITCHES * pitch));
-            }
-        }
-        let kernel = self.kernel;
-        let blockers = Blockers {
-            triangles: &self.sigma.triangles,
-            boxes: &self.sigma.boxes,
-        };
-        let touch = &mut self.touch;
-        let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
+        let offset = AHEAD_PITCHES * pitch;
+        let at = self.along_line(front, depth_m, pitch, ahead, &[reach], offset);
+        let capture = CAPTURE_PITCHES * pitch;
+        let others = |body: &BladeBody, s| body.is_lip(s) || body.is_spine(s);
+        let laid = self.lay_samples(&at, others, solver, grid, |body, row, x, rest, _| {
+            body.push_front(row, x, rest, capture);
+        });
+        if !laid {
             return;
-        };
-        let from = {
-            body.retain(|body, s| body.is_lip(s) || body.is_spine(s));
-            body.len()
-        };
-        for x in at.iter().flatten() {
-            if touch.row_at(x, rest, grid, &kernel, blockers, op) && body.fits(touch.row.len()) {
-                body.push_front(&touch.row, *x, rest, CAPTURE_PITCHES * pitch);
-            }
         }
-        body.finish(positions, 0.0, from);
         self.front.built = true;
         self.front.stale = false;
     }

@@ -304,8 +304,7 @@ impl CuttingStage {
         // Moved back toward its spine the blade cannot cut: its spine pushes the tissue
         // past it (`spine`) until that tears.
         let backing = phase_before == CutPhase::Cutting && blade.is_some_and(|b| self.backing(b));
-        let torn = backing && self.spine_tears(solver);
-        let withdrawing = retracing || lifting || (backing && !torn);
+        let withdrawing = retracing || lifting || backing;
         // The force acts against the averaged motion; shortened while it turns round, so
         // that on a reversal the resistance passes through zero over about half a
         // millimetre instead of flipping by twice its size in one tick (a 90° corner keeps
@@ -332,13 +331,14 @@ impl CuttingStage {
         } else {
             self.fracture_due(force.phase, blade, depth_m * crack, solver)
         };
+        let mut sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
+        // Where the spine has indented the tissue past it as far as it ruptures, it tears.
         let tear = edge_rest
             .zip(blade)
-            .filter(|_| torn)
+            .filter(|_| backing && self.spine_tears(solver))
             .and_then(|(edge, b)| self.tear_rest(&edge, b));
-        let mut sweep = self.grow_sigma(&force, edge_rest, blade, retracing, withdrawing, jump);
         if let Some(quad) = tear {
-            sweep.slit_rest = Some(self.tear_through(quad));
+            self.tear_through(quad);
             sweep.new_sigma.end = self.sigma.triangles.len();
         }
         let pairs_removed = self.cut_pairs(sweep.new_sigma.clone(), solver, neighbours, grid);
@@ -354,7 +354,10 @@ impl CuttingStage {
         }
         self.touch_tissue(dt, &force, blade, depth_m, surface, solver, grid);
         match blade.filter(|_| force.phase == CutPhase::Cutting) {
-            Some(b) => self.follow_spine(b, edge_rest, depth_m, backing, torn, solver, grid),
+            Some(b) => {
+                let torn = tear.is_some();
+                self.follow_spine(b, edge_rest, depth_m, backing, torn, solver, grid);
+            }
             None => self.drop_spine(solver),
         }
         self.update_region(edge_rest, sweep.plunge_normal, solver, grid);
@@ -368,7 +371,7 @@ impl CuttingStage {
             points_changed: self.changed.len(),
             withdrawing,
             slit_rest: sweep.slit_rest,
-            fractured: sweep.fractured || torn,
+            fractured: sweep.fractured || tear.is_some(),
         }
     }
 

@@ -123,6 +123,38 @@ impl CuttingStage {
         self.touch.spare = Some(spare);
     }
 
+    /// Lays samples at the places `at` (rest) after `keep` has chosen which of the blade's
+    /// samples stay: each place's row made (`row_at`, not seeing across Σ) and, while it
+    /// fits, handed to `lay(body, row, place, rest, positions)` to push; the batch
+    /// finished. `false` when the body has no blade.
+    pub(super) fn lay_samples(
+        &mut self,
+        at: &[Option<Vec3>],
+        keep: impl Fn(&BladeBody, usize) -> bool,
+        solver: &mut Solver,
+        grid: &RestGrid,
+        mut lay: impl FnMut(&mut BladeBody, &[(u32, f64)], Vec3, &[Vec3], &[Vec3]),
+    ) -> bool {
+        let kernel = self.kernel;
+        let blockers = Blockers {
+            triangles: &self.sigma.triangles,
+            boxes: &self.sigma.boxes,
+        };
+        let touch = &mut self.touch;
+        let Some((body, op, rest, positions)) = solver.blade_with_rows() else {
+            return false;
+        };
+        body.retain(keep);
+        let from = body.len();
+        for x in at.iter().flatten() {
+            if touch.row_at(x, rest, grid, &kernel, blockers, op) && body.fits(touch.row.len()) {
+                lay(body, &touch.row, *x, rest, positions);
+            }
+        }
+        body.finish(positions, 0.0, from);
+        true
+    }
+
     /// The blade's pitch of samples (m).
     pub(super) fn pitch(&self) -> f64 {
         (PITCH_PER_SPACING * self.spacing_m)

@@ -1,6 +1,7 @@
 //! The lips against the flats: a compliant contact with friction between each flat and the
 //! lip of its own side of the incision (`pipeline/cutting/lips.rs` lays the samples), and
-//! the bound that keeps its springs within what the step resolves.
+//! the bound that keeps its springs within what the step resolves. The spine's samples
+//! (`pipeline/cutting/spine.rs`) are pushed by the spine with the same contact.
 
 use super::{BLADE_FRICTION, BladeBody, DEEP_MEET_M, FRONT_CATCH_UP_M_PER_S, Meeting};
 use super::{LIP_HELD_LEAD, LIP_LET_GO_LEAD, LIP_STABLE_SHARE};
@@ -17,7 +18,8 @@ pub(in crate::solver) enum Field {
     Implicit,
 }
 
-/// A lip sample pressed into its flat this sub-step, before its spring is bounded.
+/// A lip (spine) sample pressed into its flat (the spine) this sub-step, before its spring
+/// is bounded.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Pressed {
     sample: usize,
@@ -35,7 +37,8 @@ impl BladeBody {
     /// (what it put there last sub-step cleared first): a lip sample inside its flat is
     /// pushed out by `lip_stiffness` × how deep it is, and held along the flat toward where
     /// it stuck by a spring as stiff, at most μ × the push (past that it slides and sticks
-    /// again where it got to). The blade gets the opposite ([`Self::project`] or
+    /// again where it got to). A spine sample inside the spine likewise, with
+    /// `spine_stiffness`. The blade gets the opposite ([`Self::project`] or
     /// [`Self::add_step_force`] books it).
     ///
     /// A force, not a constraint: a lip sample follows a lattice's worth of tissue (grams
@@ -60,6 +63,7 @@ impl BladeBody {
         }
         self.written.clear();
         self.lip_force = Vec3::zeros();
+        self.spine_force = Vec3::zeros();
         self.press_lips(p, h);
         if field == Field::Explicit {
             self.bound_lip_springs(mass, h);
@@ -73,6 +77,9 @@ impl BladeBody {
             });
             let f = self.at.world(&(c.normal * push + tangent));
             self.lip_force += f;
+            if self.spine[c.sample] {
+                self.spine_force += f;
+            }
             for (k, w) in self.samples.row(c.sample) {
                 if !std::mem::replace(&mut self.seen[k], true) {
                     self.written.push(k as u32);
@@ -87,8 +94,9 @@ impl BladeBody {
         }
     }
 
-    /// Finds the lip samples inside their flats at the points `p` (a sub-step of `h`
-    /// taking up the slack of those laid inside the steel) into `self.pressed`.
+    /// Finds the lip samples inside their flats, and the spine samples inside the spine, at
+    /// the points `p` (a sub-step of `h` taking up the slack of those laid inside the
+    /// steel) into `self.pressed`; the spine's deepest into `spine_indentation`.
     fn press_lips(&mut self, p: &[Vec3], h: f64) {
         let at = self.at;
         self.pressed.clear();

@@ -50,121 +50,6 @@ const EDGE_GRIND_M: f64 = 0.001;
 /// symplectic Euler's 2.
 const LIP_STABLE_SHARE: f64 = 0.5;
 
-/// The blade's volume: a slab from its tip along its edge (`length`), from its edge back
-/// to its spine (`width`), `thickness` between its flats.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Slab {
-    /// The tip (m).
-    pub tip: Vec3,
-    /// Unit direction along the edge, tip to the far end.
-    pub edge: Vec3,
-    /// Unit direction from the edge to the spine, across the flats.
-    pub back: Vec3,
-    /// Along the edge (m).
-    pub length: f64,
-    /// Edge to spine (m).
-    pub width: f64,
-    /// Between the flats (m).
-    pub thickness: f64,
-}
-
-impl Slab {
-    /// Normal of the flats (edge × back).
-    pub fn side(&self) -> Vec3 {
-        self.edge.cross(&self.back)
-    }
-
-    /// `x` in the blade's frame: (along the edge, toward the spine, across the flats).
-    pub fn local(&self, x: &Vec3) -> Vec3 {
-        let r = x - self.tip;
-        Vec3::new(r.dot(&self.edge), r.dot(&self.back), r.dot(&self.side()))
-    }
-
-    /// A direction given in the blade's frame, in the world's.
-    fn world(&self, l: &Vec3) -> Vec3 {
-        self.edge * l.x + self.back * l.y + self.side() * l.z
-    }
-
-    /// Whether a point at local `l` is inside the steel.
-    fn inside(&self, l: &Vec3) -> bool {
-        self.inside_across(l, 0.5 * self.thickness)
-    }
-
-    /// Whether a point at local `l` is within the blade's length and width, and within
-    /// `half` of its mid-plane across the flats.
-    fn inside_across(&self, l: &Vec3, half: f64) -> bool {
-        l.x > 0.0 && l.x < self.length && l.y > 0.0 && l.y < self.width && l.z.abs() < half
-    }
-
-    /// The slab a fraction `frac` of the way from `a` to `b` (positions and axes blended,
-    /// the axes made orthonormal again; sizes from `b`).
-    pub fn between(a: &Slab, b: &Slab, frac: f64) -> Slab {
-        let edge = (a.edge + (b.edge - a.edge) * frac)
-            .try_normalize(1e-12)
-            .unwrap_or(b.edge);
-        let back = a.back + (b.back - a.back) * frac;
-        let back = (back - edge * back.dot(&edge))
-            .try_normalize(1e-12)
-            .unwrap_or(b.back);
-        Slab {
-            tip: a.tip + (b.tip - a.tip) * frac,
-            edge,
-            back,
-            ..*b
-        }
-    }
-
-    /// The gap of a point at local `l` to `face` (m, negative inside) and the face's
-    /// outward normal in the blade's frame.
-    fn gap(&self, l: &Vec3, face: Face) -> (f64, Vec3) {
-        let half = 0.5 * self.thickness;
-        match face {
-            Face::Tip => (-l.x, -Vec3::x()),
-            Face::Edge => (-l.y, -Vec3::y()),
-            Face::Spine => (l.y - self.width, Vec3::y()),
-            Face::FlatPlus => (l.z - half, Vec3::z()),
-            Face::FlatMinus => (-l.z - half, -Vec3::z()),
-        }
-    }
-
-    /// The face a point now at local `l` came in through: of those it was outside of at
-    /// local `before`, the one it is least deep behind (any face if it was inside already).
-    fn entry_face(&self, l: &Vec3, before: &Vec3) -> Face {
-        let outside = |f: Face| self.gap(before, f).0 >= 0.0;
-        let any = Face::ALL.iter().any(|&f| outside(f));
-        Face::ALL
-            .into_iter()
-            .filter(|&f| !any || outside(f))
-            .max_by(|&a, &b| self.gap(l, a).0.total_cmp(&self.gap(l, b).0))
-            .unwrap_or(Face::Tip)
-    }
-}
-
-/// A face of the blade that holds a sample.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Face {
-    /// The tip's end, facing away from the edge's far end.
-    Tip,
-    /// The cutting edge, facing away from the spine.
-    Edge,
-    /// The spine.
-    Spine,
-    /// The flat on the +side (edge × back).
-    FlatPlus,
-    /// The other flat.
-    FlatMinus,
-}
-
-impl Face {
-    const ALL: [Face; 5] = [
-        Face::Tip,
-        Face::Edge,
-        Face::Spine,
-        Face::FlatPlus,
-        Face::FlatMinus,
-    ];
-}
-
 /// A surface sample met deeper in the steel than twice the steel's move in the sub-step and
 /// this was built inside it (re-sampled where the blade had got to): caught up like a
 /// crack-front sample, not launched.
@@ -245,8 +130,13 @@ pub struct BladeBody {
     /// The same for the spine samples (`push_spine`).
     spine_stiffness: f64,
     spine_pitch: f64,
-    /// How deep the spine pressed its deepest sample in the last sub-step (m).
+    /// How deep the spine pressed its deepest sample in the last sub-step (m), and the
+    /// sum over the tick's sub-steps of the spine's own force on the tissue.
     spine_indentation: f64,
+    spine_force: Vec3,
+    spine_force_sum: Vec3,
+    /// The spine's own mean force on the blade over the last tick (N).
+    on_spine: Vec3,
     /// The lips' force on the tissue this sub-step (N), and the points it was put on.
     lip_force: Vec3,
     written: Vec<u32>,
@@ -298,6 +188,9 @@ impl BladeBody {
             spine_stiffness: 0.0,
             spine_pitch: 0.0,
             spine_indentation: 0.0,
+            spine_force: Vec3::zeros(),
+            spine_force_sum: Vec3::zeros(),
+            on_spine: Vec3::zeros(),
             lip_force: Vec3::zeros(),
             heading: Vec3::zeros(),
             written: Vec::with_capacity(points),
@@ -345,73 +238,6 @@ impl BladeBody {
         }
     }
 
-    /// Takes every sample away (the blade left the tissue).
-    pub fn clear(&mut self) {
-        self.hold = 1.0;
-        self.samples.clear();
-        for v in [
-            &mut self.start_local,
-            &mut self.start_world,
-            &mut self.impulse,
-        ] {
-            v.clear();
-        }
-        self.near.clear();
-        self.face.clear();
-        self.face_at_tick.clear();
-        self.anchor.clear();
-        self.anchor_at_tick.clear();
-        self.cut.clear();
-        self.cut_at_tick.clear();
-        self.normal_impulse.clear();
-        self.capture.clear();
-        self.spine.clear();
-        self.slack.clear();
-        self.slack_at_tick.clear();
-        self.side.clear();
-        self.on_blade = Vec3::zeros();
-    }
-
-    /// Keeps only the samples `keep(s)` says, in order (no allocation): lips left behind
-    /// the spine dropped, or the crack front rebuilt with the lips kept.
-    pub fn retain(&mut self, keep: impl Fn(&Self, usize) -> bool) {
-        let mut flags = std::mem::take(&mut self.keep);
-        flags.clear();
-        flags.extend((0..self.len()).map(|s| keep(self, s)));
-        if flags.iter().all(|&k| k) {
-            self.keep = flags;
-            return;
-        }
-        self.samples.retain(&flags, &mut self.seen);
-        fn squeeze<T: Copy>(v: &mut Vec<T>, flags: &[bool]) {
-            let mut kept = 0;
-            for s in 0..v.len() {
-                if flags[s] {
-                    v[kept] = v[s];
-                    kept += 1;
-                }
-            }
-            v.truncate(kept);
-        }
-        squeeze(&mut self.face, &flags);
-        squeeze(&mut self.face_at_tick, &flags);
-        squeeze(&mut self.anchor, &flags);
-        squeeze(&mut self.anchor_at_tick, &flags);
-        squeeze(&mut self.cut, &flags);
-        squeeze(&mut self.cut_at_tick, &flags);
-        squeeze(&mut self.start_local, &flags);
-        squeeze(&mut self.start_world, &flags);
-        squeeze(&mut self.near, &flags);
-        squeeze(&mut self.normal_impulse, &flags);
-        squeeze(&mut self.impulse, &flags);
-        squeeze(&mut self.capture, &flags);
-        squeeze(&mut self.spine, &flags);
-        squeeze(&mut self.slack, &flags);
-        squeeze(&mut self.slack_at_tick, &flags);
-        squeeze(&mut self.side, &flags);
-        self.keep = flags;
-    }
-
     /// The way the blade is heading (unit, or zero), for the lips: see
     /// [`LIP_LET_GO_LEAD`].
     pub fn set_heading(&mut self, heading: Vec3) {
@@ -443,97 +269,6 @@ impl BladeBody {
         slab.local(&self.samples.position(s, p))
     }
 
-    /// Whether a sample following `entries` points still fits.
-    pub fn fits(&self, entries: usize) -> bool {
-        self.samples.fits(entries) && self.face.len() < self.face.capacity()
-    }
-
-    /// Adds a sample at rest position `rest` following `row` over points at `rest_points`
-    /// (`finish` after the last).
-    pub fn push(&mut self, row: &[(u32, f64)], rest: Vec3, rest_points: &[Vec3]) {
-        self.samples.push(row, rest, rest_points, &mut self.seen);
-        self.face.push(None);
-        self.face_at_tick.push(None);
-        self.anchor.push(Vec3::zeros());
-        self.anchor_at_tick.push(Vec3::zeros());
-        self.cut.push(false);
-        self.cut_at_tick.push(false);
-        self.start_local.push(Vec3::zeros());
-        self.start_world.push(Vec3::zeros());
-        self.near.push(false);
-        self.normal_impulse.push(0.0);
-        self.impulse.push(Vec3::zeros());
-        self.capture.push(0.0);
-        self.spine.push(false);
-        self.slack.push(0.0);
-        self.slack_at_tick.push(0.0);
-        self.side.push(0.0);
-    }
-
-    /// Adds a lip sample: material of one side of Σ (`side` +1 or −1, the flat that holds
-    /// it), `depth` (m) inside its lip at rest `rest`, following `row` (its side's points
-    /// only), pressed with `stiffness` (N/m, [`Self::lip_forces`]) over a patch `pitch`
-    /// (m) on a side. Only its own flat holds it, from the edge's grind to the spine
-    /// (`finish` after the last).
-    #[allow(clippy::too_many_arguments)]
-    pub fn push_lip(
-        &mut self,
-        row: &[(u32, f64)],
-        rest: Vec3,
-        rest_points: &[Vec3],
-        side: f64,
-        depth: f64,
-        stiffness: f64,
-        pitch: f64,
-    ) {
-        self.push(row, rest, rest_points);
-        self.lip_pitch = pitch;
-        if let Some(d) = self.side.last_mut() {
-            *d = side.signum();
-        }
-        self.lip_depth = depth;
-        self.lip_stiffness = stiffness;
-    }
-
-    /// Adds a crack-front sample: material just ahead of the crack front (rest `rest`,
-    /// `row` its embedding), which only the edge holds, wherever it is across the flats
-    /// within `capture` (m): the wedge of a real blade pushes what lies ahead of its edge,
-    /// and a sample a hair off the 0.4 mm steel must not slip past it.
-    pub fn push_front(
-        &mut self,
-        row: &[(u32, f64)],
-        rest: Vec3,
-        rest_points: &[Vec3],
-        capture: f64,
-    ) {
-        self.push(row, rest, rest_points);
-        if let Some(c) = self.capture.last_mut() {
-            *c = capture;
-        }
-    }
-
-    /// Adds a spine sample: uncut material just beyond the spine (rest `rest`, `row` its
-    /// embedding), which only the spine holds, within `capture` (m) across the flats, with
-    /// a compliant contact of `stiffness` (N/m) over a patch `pitch` (m) on a side as the
-    /// lips' ([`Self::lip_forces`]): a blade moved back meets the tissue past its wound's
-    /// start with its blunt back, which pushes it and cannot cut it.
-    pub fn push_spine(
-        &mut self,
-        row: &[(u32, f64)],
-        rest: Vec3,
-        rest_points: &[Vec3],
-        capture: f64,
-        stiffness: f64,
-        pitch: f64,
-    ) {
-        self.push_front(row, rest, rest_points, capture);
-        if let Some(b) = self.spine.last_mut() {
-            *b = true;
-        }
-        self.spine_stiffness = stiffness;
-        self.spine_pitch = pitch;
-    }
-
     /// Whether sample `s`, at local `l`, is inside what holds it: the steel, or for a
     /// crack-front (spine) sample the edge's (spine's) capture band.
     fn contains(&self, at: &Slab, s: usize, l: &Vec3) -> bool {
@@ -547,7 +282,14 @@ impl BladeBody {
                 && self.lip_gap(at, s, l).0 < 0.0;
         }
         match self.capture[s] {
-            capture if capture > 0.0 && self.spine[s] => at.inside_across(l, capture),
+            // (Half a patch beyond the tip, as a lip's: see `lip_forces`.)
+            capture if capture > 0.0 && self.spine[s] => {
+                l.x > -0.5 * self.spine_pitch
+                    && l.x < at.length
+                    && l.y > 0.0
+                    && l.y < at.width
+                    && l.z.abs() < capture
+            }
             capture if capture > 0.0 => at.inside_across(l, capture) && l.y > self.bevel(s, l),
             _ => at.inside(l),
         }
@@ -621,56 +363,6 @@ impl BladeBody {
         }
     }
 
-    /// Copies into `into` (cleared first, placed at this blade's slab) every sample a face
-    /// holds now, with its face and where it stuck, so that a rebuild around a moving blade
-    /// does not drop the tissue it is pushing; `row` is scratch. Returns how many.
-    pub fn carry_held_into(
-        &self,
-        into: &mut BladeBody,
-        rest_points: &[Vec3],
-        row: &mut Vec<(u32, f64)>,
-    ) -> usize {
-        into.clear();
-        into.place(self.to);
-        for s in 0..self.len() {
-            let Some(face) = self.face[s] else { continue };
-            row.clear();
-            row.extend(self.samples.row(s).map(|(k, w)| (k as u32, w)));
-            if !into.fits(row.len()) {
-                break;
-            }
-            let rest = self.samples.position(s, rest_points);
-            into.push(row, rest, rest_points);
-            let t = into.len() - 1;
-            into.face[t] = Some(face);
-            into.anchor[t] = self.anchor[s];
-            into.capture[t] = self.capture[s];
-            into.spine[t] = self.spine[s];
-            into.side[t] = self.side[s];
-        }
-        into.len()
-    }
-
-    /// Sample s's rest position.
-    pub fn rest_position(&self, s: usize, rest_points: &[Vec3]) -> Vec3 {
-        self.samples.position(s, rest_points)
-    }
-
-    /// Ends a batch of a build (the samples from `from` on) with the points at `p`: a
-    /// sample already deeper than `tolerance` inside the blade is not the blade's to push out (the blade is in a cut there, or
-    /// appeared in the tissue): the crack's, as if cut.
-    pub fn finish(&mut self, p: &[Vec3], tolerance: f64, from: usize) {
-        self.samples.finish(&mut self.seen);
-        let at = self.to;
-        for s in from..self.len() {
-            if self.face[s].is_some() || self.capture[s] > 0.0 || self.side[s] != 0.0 {
-                continue;
-            }
-            let l = at.local(&self.samples.position(s, p));
-            self.cut[s] = at.inside(&l) && Face::ALL.iter().all(|&f| at.gap(&l, f).0 < -tolerance);
-        }
-    }
-
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.face.len()
@@ -734,6 +426,12 @@ impl BladeBody {
         self.spine_indentation
     }
 
+    /// The mean force the tissue put on the spine over the last tick (N): its share of
+    /// [`Self::force_on_blade`].
+    pub fn force_on_spine(&self) -> Vec3 {
+        self.on_spine
+    }
+
     /// Samples the blade holds now.
     pub fn touching(&self) -> usize {
         self.face.iter().filter(|f| f.is_some()).count()
@@ -759,6 +457,7 @@ impl BladeBody {
         self.cut.copy_from_slice(&self.cut_at_tick);
         self.slack.copy_from_slice(&self.slack_at_tick);
         self.force_sum = Vec3::zeros();
+        self.spine_force_sum = Vec3::zeros();
         self.substeps = 0;
     }
 
@@ -876,6 +575,7 @@ impl BladeBody {
         let mut work = 0.0;
         // The lips' push is a force in the step (its work is the applied loads').
         let mut force = std::mem::take(&mut self.lip_force);
+        self.spine_force_sum += std::mem::take(&mut self.spine_force);
         for s in 0..self.len() {
             if self.impulse[s] != Vec3::zeros() {
                 let f = self.impulse[s] / (h * h);
@@ -912,76 +612,6 @@ impl BladeBody {
         }
     }
 
-    /// For the projective step's global solve: sample `s`'s one-sided constraint at the
-    /// points `p`, against the blade where the tick ends — its face's outward normal (world)
-    /// and the offset with gap = n · x − offset at the sample's place x — if the blade holds
-    /// it (inside the steel, taking a face as [`Self::project`] does; none while letting
-    /// go); `None` if outside, not the blade's, or mostly on points `free` says cannot move.
-    pub(super) fn constraint(
-        &mut self,
-        s: usize,
-        p: &[Vec3],
-        free: impl Fn(usize) -> bool,
-    ) -> Option<(Vec3, f64)> {
-        if self.cut[s] || self.side[s] != 0.0 || self.spine[s] {
-            return None;
-        }
-        let Meeting {
-            x,
-            newly,
-            mut gap,
-            normal: normal_local,
-            ..
-        } = self.meet(s, p, true)?;
-        if !self.mostly_free(s, free) {
-            return None;
-        }
-        // A crack-front sample met behind the edge keeps its slack as in `project`; the
-        // step takes it up (`take_up_slack`), and it is never looser than the sample is.
-        if newly && (self.capture[s] > 0.0 || self.side[s] != 0.0) {
-            self.slack[s] = (-gap).max(0.0);
-        }
-        // (Let out while lifted out: `take_up_slack` bounds it by the lift's time.)
-        if !self.letting_go(s) {
-            self.slack[s] = self.slack[s].min((-gap).max(0.0));
-        }
-        gap += self.slack[s];
-        let n = self.at.world(&normal_local);
-        Some((n, n.dot(&x) - gap))
-    }
-
-    /// A step of `h` with the contacts in its solve (projective) takes up the crack-front
-    /// samples' slack at [`FRONT_CATCH_UP_M_PER_S`], as `project` does each sub-step.
-    pub(super) fn take_up_slack(&mut self, h: f64) {
-        for s in 0..self.slack.len() {
-            self.slack[s] = (self.slack[s] + self.slack_step(s, h)).max(0.0);
-        }
-    }
-
-    /// For stiff mode's friction: the world displacement along its face that takes held
-    /// sample `s` (at the points `p`) back to where it stuck.
-    pub(super) fn back_to_anchor(&self, s: usize, p: &[Vec3]) -> Option<Vec3> {
-        let face = self.face[s]?;
-        let (on_face, normal_local) = self.on_face(s, face, p);
-        let mut slip = self.anchor[s] - on_face;
-        slip -= normal_local * slip.dot(&normal_local);
-        Some(self.at.world(&slip))
-    }
-
-    /// Held sample `s` slid: it sticks again where it is on its face (at the points `p`).
-    pub(super) fn stick_here(&mut self, s: usize, p: &[Vec3]) {
-        if let Some(face) = self.face[s] {
-            self.anchor[s] = self.on_face(s, face, p).0;
-        }
-    }
-
-    /// Sample `s`'s place (blade frame) projected onto `face`, and the face's normal.
-    fn on_face(&self, s: usize, face: Face, p: &[Vec3]) -> (Vec3, Vec3) {
-        let l = self.at.local(&self.samples.position(s, p));
-        let (gap, normal_local) = self.gap_to(&self.at, s, &l, face);
-        (l - normal_local * gap, normal_local)
-    }
-
     /// The face holding sample `s`, now at local `l` inside the steel: the one that held
     /// it, else the one it came in through (it sticks there). While letting go no face
     /// takes hold of anything new: the sample is the crack's from then on.
@@ -999,16 +629,20 @@ impl BladeBody {
             self.anchor[s] = *l;
             return Some(f);
         }
+        if self.spine[s] {
+            // A spine sample is the spine's (its patch let go as the tip passes it).
+            self.face[s] = Some(Face::Spine);
+            self.anchor[s] = *l;
+            return Some(Face::Spine);
+        }
         if self.hold < 1.0 {
             self.cut[s] = true;
             return None;
         }
-        // A crack-front (spine) sample is the edge's (spine's), unless it comes in from
-        // beyond the tip's end (tissue below a withdrawing blade springs back into its
-        // track): the tip's end puts that out, where the edge would take it up across the
-        // whole blade.
+        // A crack-front sample is the edge's, unless it comes in from beyond the tip's end
+        // (tissue below a withdrawing blade springs back into its track): the tip's end
+        // puts that out, where the edge would take it up across the whole blade.
         let f = match self.capture[s] > 0.0 {
-            true if self.start_local[s].x > 0.0 && self.spine[s] => Face::Spine,
             true if self.start_local[s].x > 0.0 => Face::Edge,
             true => Face::Tip,
             false => self.at.entry_face(l, &self.start_local[s]),
@@ -1043,20 +677,14 @@ impl BladeBody {
         self.samples.position(s, p)
     }
 
-    /// The force the tissue got from the blade over a whole step (N): a projective step's
-    /// contact forces (and the lips' push), counted as the tick's one sub-step.
-    pub(super) fn add_step_force(&mut self, on_tissue: Vec3) {
-        self.force_sum += on_tissue + std::mem::take(&mut self.lip_force);
-        self.substeps += 1;
-    }
-
     /// The tick is done: its mean force on the blade.
     pub(super) fn end_tick(&mut self) {
-        self.on_blade = if self.substeps > 0 {
-            -self.force_sum / f64::from(self.substeps)
-        } else {
-            Vec3::zeros()
+        let mean = |sum: Vec3| match self.substeps {
+            0 => Vec3::zeros(),
+            n => -sum / f64::from(n),
         };
+        self.on_blade = mean(self.force_sum);
+        self.on_spine = mean(self.spine_force_sum);
     }
 
     /// The work the blade did on the tissue over the last tick (J): its mean force on the
@@ -1069,6 +697,10 @@ impl BladeBody {
 }
 
 mod lips;
+mod projective;
+mod samples;
+mod slab;
 pub(in crate::solver) use lips::Field;
+pub use slab::{Face, Slab};
 #[cfg(test)]
 mod tests;
