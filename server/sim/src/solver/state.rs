@@ -162,11 +162,12 @@ impl Solver {
     }
 
     /// The lips' and the spine's push (`BladeBody::lip_forces`) over a step of `h` taken
-    /// after it, as an explicit sub-step of their own: each awake point's free dofs moved
-    /// by f·h²/m with its velocity by f·h/m, so the tissue gets exactly the impulse the
-    /// blade books (put through the implicit step's CG solve it got it only to the solve's
-    /// tolerance, 3e-5). Bounded as in the explicit mode (`Field::Explicit`, here for the
-    /// whole tick: the lips' springs are far below the bound on grams of tissue).
+    /// after it, as an explicit sub-step of their own: each awake body point's free dofs
+    /// moved by f·h²/m with its velocity by f·h/m, so the tissue gets the impulse the
+    /// blade books where the rows are on awake, free points, as in the explicit mode (put
+    /// through the implicit step's CG solve it got it only to the solve's tolerance,
+    /// 3e-5). Bounded as in the explicit mode (`Field::Explicit`) with the tick as the
+    /// step.
     pub(super) fn push_lips(&mut self, h: f64) {
         let Some(blade) = &mut self.blade else {
             return;

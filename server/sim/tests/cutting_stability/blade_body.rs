@@ -295,6 +295,11 @@ fn backing_past_the_start(scene: &BuiltScene) -> Vec<(f64, usize, bool)> {
         assert!(!r.solver.diverged && r.solver.rollbacks == 0, "tick {k}");
         if k >= 7_000 {
             let cut = r.cut.as_ref().unwrap();
+            // A tear is the spine's, the blade withdrawing: no sweep along the chord.
+            assert!(
+                !cut.fractured || cut.withdrawing,
+                "tick {k}: a tear while cutting"
+            );
             let spine = sim
                 .solver()
                 .blade()

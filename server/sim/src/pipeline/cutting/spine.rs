@@ -88,7 +88,8 @@ impl CuttingStage {
             return;
         }
         let slab = slab_of(b, &self.tool);
-        let far = DROP_PITCHES * self.pitch();
+        // (In lip pitches, as the lips' and the spine's patches are.)
+        let far = DROP_PITCHES * self.lip_pitch(depth_m);
         if let Some((body, _, _, p)) = solver.blade_with_rows() {
             body.retain(|body, s| {
                 if !body.is_spine(s) {
@@ -97,6 +98,7 @@ impl CuttingStage {
                 let l = body.local_in(&slab, s, p);
                 !torn
                     && l.y < slab.width + far
+                    && l.y > -far
                     && l.x > -far
                     && l.x < slab.length + far
                     && l.z.abs() < 0.5 * slab.thickness + far
@@ -110,7 +112,7 @@ impl CuttingStage {
             self.spine.probed_at = None;
         } else if let (true, Some(edge), Some(ahead)) = (moved, edge_rest, touch::front_ahead(b)) {
             self.spine.probed_at = Some(b.tip);
-            self.lay_spine(&slab, &edge, depth_m, -ahead, solver, grid);
+            self.lay_spine(&edge, depth_m, -ahead, solver, grid);
         }
         let material = self.material_points as u32;
         let Some(body) = solver.blade() else {
@@ -123,15 +125,14 @@ impl CuttingStage {
         }
     }
 
-    /// Lays spine samples along the spine of the blade at `slab` whose edge is at `edge`
-    /// (rest: tip, top), `back` (unit) past it: one every lip pitch from the tip up, where
-    /// the tissue past the spine is not cut and no spine sample is on that row already
-    /// (within half a pitch along the edge: one row's samples stacked across the spine
-    /// would each push its whole patch), each held by the spine alone with the lips'
-    /// compliant contact (their pitch and patch).
+    /// Lays spine samples along the spine of the blade whose edge is at `edge` (rest: tip,
+    /// top), `back` (unit) past it: one every lip pitch from the tip up, where the tissue
+    /// past the spine is not cut and no spine sample is on that row already (within half a
+    /// pitch along the edge, at rest: one row's samples stacked across the spine would each
+    /// push its whole patch), each held by the spine alone with the lips' compliant contact
+    /// (their pitch and patch).
     fn lay_spine(
         &mut self,
-        slab: &Slab,
         edge: &[Vec3; 2],
         depth_m: f64,
         back: Vec3,
@@ -150,17 +151,27 @@ impl CuttingStage {
         // own cut) the spine meets nothing.
         let offset = AHEAD_PITCHES * self.pitch();
         let reach = 2.0 * self.sigma_plane_tolerance();
-        let at = self.along_line(&spine, depth, pitch, back, &[offset, reach], offset);
+        let mut at = self.along_line(&spine, depth, pitch, back, &[offset, reach], offset);
+        // A row with a spine sample already (its height along the edge, at rest) keeps it.
+        if let Some(body) = solver.blade() {
+            let height = |x: &Vec3| (x - spine[0]).dot(&up);
+            let laid = |x: &Vec3| {
+                (0..body.len()).any(|s| {
+                    body.is_spine(s)
+                        && (height(&body.rest_position(s, solver.rest())) - height(x)).abs()
+                            < 0.5 * pitch
+                })
+            };
+            for slot in &mut at {
+                if slot.as_ref().is_some_and(laid) {
+                    *slot = None;
+                }
+            }
+        }
         let capture = CAPTURE_PITCHES * self.pitch();
         let all = |_: &BladeBody, _| true;
-        self.lay_samples(&at, all, solver, grid, |body, row, x, rest, p| {
-            let height = (x - spine[0]).dot(&up);
-            let laid = (0..body.len()).any(|s| {
-                body.is_spine(s) && (body.local_in(slab, s, p).x - height).abs() < 0.5 * pitch
-            });
-            if !laid {
-                body.push_spine(row, x, rest, capture, stiffness, pitch);
-            }
+        self.lay_samples(&at, all, solver, grid, |body, row, x, rest, _| {
+            body.push_spine(row, x, rest, capture, stiffness, pitch);
         });
     }
 

@@ -130,9 +130,12 @@ impl BladeBody {
             // The share of the sample's patch the steel covers: a patch crossing the spine,
             // or the tip passing it, lets go over its width, not at once.
             let stiffness = if self.spine[s] {
-                self.spine_indentation = self.spine_indentation.max(-gap);
                 let covered = |inside: f64| (inside / self.spine_pitch + 0.5).clamp(0.0, 1.0);
-                self.spine_stiffness * covered(l.x)
+                // As deep as its push says: a patch the tip is letting go is pressed by
+                // what of it the steel still covers.
+                let cover = covered(l.x);
+                self.spine_indentation = self.spine_indentation.max(-gap * cover);
+                self.spine_stiffness * cover
             } else {
                 let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
                 let lead = at.side().dot(&self.heading) * self.side[s];

@@ -130,8 +130,9 @@ pub struct BladeBody {
     /// The same for the spine samples (`push_spine`).
     spine_stiffness: f64,
     spine_pitch: f64,
-    /// How deep the spine pressed its deepest sample in the last sub-step (m), and the
-    /// sum over the tick's sub-steps of the spine's own force on the tissue.
+    /// How deep the spine pressed its deepest sample in the last sub-step (m, its push over
+    /// its full stiffness), and the sum over the tick's sub-steps of the spine's own force
+    /// on the tissue.
     spine_indentation: f64,
     spine_force: Vec3,
     spine_force_sum: Vec3,

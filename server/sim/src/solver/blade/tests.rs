@@ -247,8 +247,8 @@ fn the_spine_pushes_what_lies_past_it_and_is_pushed_back() {
     }
 }
 
-/// A spine sample the tip passes (the blade lifted out) is let go over half its patch, as
-/// a lip is, not at once: pressed as deep, it pushes fully well above the tip, three
+/// A spine sample the tip passes (the blade lifted out) is let go over its patch, as a lip
+/// is, not at once: pressed as deep, it pushes fully well above the tip, three
 /// quarters as hard a quarter patch above it, a quarter as hard a quarter patch below it,
 /// and not at all half a patch below.
 #[test]
