@@ -129,15 +129,18 @@ impl BladeBody {
             }
             // The share of the sample's patch the steel covers: a patch crossing the spine,
             // or the tip passing it, lets go over its width, not at once.
+            let patch = match self.spine[s] {
+                true => self.spine_pitch,
+                false => self.lip_pitch,
+            };
+            let covered = |inside: f64| (inside / patch + 0.5).clamp(0.0, 1.0);
             let stiffness = if self.spine[s] {
-                let covered = |inside: f64| (inside / self.spine_pitch + 0.5).clamp(0.0, 1.0);
                 // As deep as its push says: a patch the tip is letting go is pressed by
                 // what of it the steel still covers.
                 let cover = covered(l.x);
                 self.spine_indentation = self.spine_indentation.max(-gap * cover);
                 self.spine_stiffness * cover
             } else {
-                let covered = |inside: f64| (inside / self.lip_pitch + 0.5).clamp(0.0, 1.0);
                 let lead = at.side().dot(&self.heading) * self.side[s];
                 let held =
                     ((LIP_LET_GO_LEAD - lead) / (LIP_LET_GO_LEAD - LIP_HELD_LEAD)).clamp(0.0, 1.0);
